@@ -1,0 +1,1 @@
+//! Offline analysis behind `railmon analyze`.

@@ -1,0 +1,1 @@
+//! CSV formats of recorded sensor data.
