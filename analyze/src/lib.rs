@@ -1,1 +1,7 @@
-//! Offline analysis behind `railmon analyze`.
+//! Offline analysis behind `railmon analyze <domain>`: run an estimator over a simulated
+//! scenario or a recorded CSV, score it against ground truth where there is one, and write
+//! CSV reports and PNG plots into an output directory.
+//!
+//! `report` holds what every domain shares (output directory, progress bar, plots).
+
+pub mod report;

@@ -1,1 +1,360 @@
-//! CSV formats of recorded sensor data.
+//! CSV formats of recorded sensor data, and the generic reader they share.
+//!
+//! Recorded data comes from outside (a drive logger, a dynamometer, `sensors-replay --record`),
+//! so every value is checked on the way in. A bad value is an error that names the file, the
+//! line (1-based, counting the header as line 1), the column and the value, e.g.
+//! `drives.csv:1203: field "i_alpha_a" = "NaN": not a finite number`; nothing is skipped
+//! silently.
+//!
+//! The format modules (`drive`, `bogie`, `vehicle`) describe their columns and use
+//! [`CsvTable`] to read them.
+
+use std::fmt;
+use std::fs::File;
+use std::io::{BufWriter, Read};
+use std::path::Path;
+
+/// What went wrong, and where, when reading or writing a record file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub struct RecordError {
+    /// File name as given by the caller (or a label such as `<stdin>`).
+    pub file: String,
+    /// 1-based line number; `None` when the error is not about one line (e.g. cannot open).
+    pub line: Option<u64>,
+    /// Column name, when the error is about one field.
+    pub field: Option<String>,
+    /// The offending text, when there is one.
+    pub value: Option<String>,
+    /// What is wrong, in words.
+    pub reason: String,
+}
+
+impl fmt::Display for RecordError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file)?;
+        if let Some(line) = self.line {
+            write!(f, ":{line}")?;
+        }
+        write!(f, ":")?;
+        if let Some(field) = &self.field {
+            write!(f, " field \"{field}\"")?;
+            if let Some(value) = &self.value {
+                write!(f, " = \"{value}\"")?;
+            }
+            write!(f, ":")?;
+        }
+        write!(f, " {}", self.reason)
+    }
+}
+
+impl RecordError {
+    /// An error about the file as a whole.
+    pub fn file(file: &str, reason: impl Into<String>) -> Self {
+        RecordError {
+            file: file.to_owned(),
+            line: None,
+            field: None,
+            value: None,
+            reason: reason.into(),
+        }
+    }
+}
+
+/// A column of a [`CsvTable`], resolved once from the header so rows are read by index.
+#[derive(Debug, Clone)]
+pub struct Column {
+    index: usize,
+    name: String,
+}
+
+impl Column {
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+}
+
+/// A CSV file with a header row, read row by row with checked field access.
+///
+/// Empty lines are skipped (the `csv` crate does so); a UTF-8 byte-order mark before the
+/// header is removed; a row with a different number of fields than the header (a truncated
+/// last line, a stray comma) is an error naming its line.
+pub struct CsvTable<R: Read> {
+    file: String,
+    header: Vec<String>,
+    reader: csv::Reader<R>,
+    record: csv::StringRecord,
+}
+
+impl CsvTable<File> {
+    /// Opens `path` and reads its header.
+    pub fn open(path: &Path) -> Result<Self, RecordError> {
+        let label = path.display().to_string();
+        let file =
+            File::open(path).map_err(|e| RecordError::file(&label, format!("cannot open: {e}")))?;
+        Self::from_reader(&label, file)
+    }
+}
+
+impl<R: Read> CsvTable<R> {
+    /// Reads the header of `reader`; `label` names the source in errors.
+    pub fn from_reader(label: &str, reader: R) -> Result<Self, RecordError> {
+        let mut reader = csv::ReaderBuilder::new()
+            .has_headers(true)
+            .flexible(false)
+            .trim(csv::Trim::All)
+            .from_reader(reader);
+        let header = reader
+            .headers()
+            .map_err(|e| csv_error(label, e))?
+            .iter()
+            .enumerate()
+            .map(|(i, h)| {
+                let h = if i == 0 {
+                    h.trim_start_matches('\u{feff}')
+                } else {
+                    h
+                };
+                h.to_owned()
+            })
+            .collect::<Vec<_>>();
+        if header.iter().all(|h| h.is_empty()) {
+            return Err(RecordError::file(label, "empty file: no header line"));
+        }
+        Ok(CsvTable {
+            file: label.to_owned(),
+            header,
+            reader,
+            record: csv::StringRecord::new(),
+        })
+    }
+
+    /// The file label used in errors.
+    pub fn file(&self) -> &str {
+        &self.file
+    }
+
+    /// Column names as found in the header.
+    pub fn header(&self) -> &[String] {
+        &self.header
+    }
+
+    /// Whether the header has a column `name`.
+    pub fn has_column(&self, name: &str) -> bool {
+        self.header.iter().any(|h| h == name)
+    }
+
+    /// Resolves a required column; the error lists the columns the file does have.
+    pub fn column(&self, name: &str) -> Result<Column, RecordError> {
+        self.optional_column(name).ok_or_else(|| RecordError {
+            file: self.file.clone(),
+            line: Some(1),
+            field: Some(name.to_owned()),
+            value: None,
+            reason: format!(
+                "missing column (the header has: {})",
+                self.header.join(", ")
+            ),
+        })
+    }
+
+    /// Resolves a column that may be absent.
+    pub fn optional_column(&self, name: &str) -> Option<Column> {
+        self.header
+            .iter()
+            .position(|h| h == name)
+            .map(|index| Column {
+                index,
+                name: name.to_owned(),
+            })
+    }
+
+    /// Reads the next data row; `Ok(None)` at the end of the file.
+    pub fn next_row(&mut self) -> Result<Option<Row<'_>>, RecordError> {
+        match self.reader.read_record(&mut self.record) {
+            Ok(false) => Ok(None),
+            Ok(true) => {
+                let line = self.record.position().map_or(0, |p| p.line());
+                Ok(Some(Row {
+                    file: &self.file,
+                    line,
+                    record: &self.record,
+                }))
+            }
+            Err(e) => Err(csv_error(&self.file, e)),
+        }
+    }
+}
+
+/// One data row of a [`CsvTable`], with typed, checked access to its fields.
+pub struct Row<'a> {
+    file: &'a str,
+    line: u64,
+    record: &'a csv::StringRecord,
+}
+
+impl Row<'_> {
+    /// 1-based line number of this row in its file.
+    pub fn line(&self) -> u64 {
+        self.line
+    }
+
+    /// An error about `column` on this row.
+    pub fn error(&self, column: &Column, reason: impl Into<String>) -> RecordError {
+        RecordError {
+            file: self.file.to_owned(),
+            line: Some(self.line),
+            field: Some(column.name.clone()),
+            value: Some(self.text(column).to_owned()),
+            reason: reason.into(),
+        }
+    }
+
+    /// The raw text of a field.
+    pub fn text(&self, column: &Column) -> &str {
+        self.record.get(column.index).unwrap_or("")
+    }
+
+    /// A finite floating-point field. NaN, infinities and empty fields are errors.
+    pub fn f64(&self, column: &Column) -> Result<f64, RecordError> {
+        let text = self.text(column);
+        if text.is_empty() {
+            return Err(self.error(column, "empty field"));
+        }
+        match text.parse::<f64>() {
+            Ok(v) if v.is_finite() => Ok(v),
+            Ok(_) => Err(self.error(column, "not a finite number")),
+            Err(_) => Err(self.error(column, "not a number")),
+        }
+    }
+
+    /// A finite floating-point field within `[min, max]` (inclusive); `unit` is named in the
+    /// error so a value in the wrong unit is recognisable as such.
+    pub fn f64_in(
+        &self,
+        column: &Column,
+        min: f64,
+        max: f64,
+        unit: &str,
+    ) -> Result<f64, RecordError> {
+        let v = self.f64(column)?;
+        if v < min || v > max {
+            return Err(self.error(column, format!("out of range [{min}, {max}] {unit}")));
+        }
+        Ok(v)
+    }
+
+    /// A non-negative integer field.
+    pub fn u64(&self, column: &Column) -> Result<u64, RecordError> {
+        self.text(column)
+            .parse::<u64>()
+            .map_err(|_| self.error(column, "not a non-negative integer"))
+    }
+
+    /// A boolean field written as `0`/`1` or `false`/`true`.
+    pub fn bool(&self, column: &Column) -> Result<bool, RecordError> {
+        match self.text(column) {
+            "1" | "true" => Ok(true),
+            "0" | "false" => Ok(false),
+            _ => Err(self.error(column, "not a boolean (0/1/true/false)")),
+        }
+    }
+}
+
+fn csv_error(file: &str, e: csv::Error) -> RecordError {
+    let line = e.position().map(|p| p.line());
+    let reason = match e.kind() {
+        csv::ErrorKind::UnequalLengths {
+            expected_len, len, ..
+        } => {
+            format!("truncated or malformed line: {len} fields where the header has {expected_len}")
+        }
+        csv::ErrorKind::Utf8 { .. } => "not valid UTF-8".to_owned(),
+        csv::ErrorKind::Io(io) => format!("read error: {io}"),
+        _ => e.to_string(),
+    };
+    RecordError {
+        file: file.to_owned(),
+        line,
+        field: None,
+        value: None,
+        reason,
+    }
+}
+
+/// Creates (truncating) a CSV file for writing, with errors naming the path.
+pub fn create_csv(path: &Path) -> Result<csv::Writer<BufWriter<File>>, RecordError> {
+    let file = File::create(path).map_err(|e| {
+        RecordError::file(&path.display().to_string(), format!("cannot create: {e}"))
+    })?;
+    Ok(csv::Writer::from_writer(BufWriter::new(file)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table(text: &str) -> CsvTable<&[u8]> {
+        CsvTable::from_reader("t.csv", text.as_bytes()).unwrap()
+    }
+
+    fn read_all(text: &str) -> Result<Vec<(f64, f64)>, RecordError> {
+        let mut t = table(text);
+        let a = t.column("a")?;
+        let b = t.column("b")?;
+        let mut out = Vec::new();
+        while let Some(row) = t.next_row()? {
+            out.push((row.f64(&a)?, row.f64(&b)?));
+        }
+        Ok(out)
+    }
+
+    #[test]
+    fn reads_values_skips_empty_lines_and_strips_bom() {
+        let rows = read_all("\u{feff}a,b\n-0.0,2\n\n3, 4\n").unwrap();
+        assert_eq!(rows, vec![(-0.0, 2.0), (3.0, 4.0)]);
+    }
+
+    #[test]
+    fn nan_names_file_line_field_and_value() {
+        let err = read_all("a,b\n1,2\n3,NaN\n").unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "t.csv:3: field \"b\" = \"NaN\": not a finite number"
+        );
+    }
+
+    #[test]
+    fn truncated_last_line_is_an_error_with_its_line() {
+        let err = read_all("a,b\n1,2\n3").unwrap_err();
+        assert_eq!(err.line, Some(3));
+        assert!(err.reason.contains("truncated"), "{err}");
+    }
+
+    #[test]
+    fn missing_column_lists_the_header() {
+        let err = read_all("a,c\n1,2\n").unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "t.csv:1: field \"b\": missing column (the header has: a, c)"
+        );
+    }
+
+    #[test]
+    fn range_and_integer_checks() {
+        let mut t = table("x,n\n500,-1\n");
+        let x = t.column("x").unwrap();
+        let n = t.column("n").unwrap();
+        let row = t.next_row().unwrap().unwrap();
+        let err = row.f64_in(&x, 0.0, 100.0, "m/s").unwrap_err();
+        assert!(
+            err.to_string().contains("out of range [0, 100] m/s"),
+            "{err}"
+        );
+        assert!(row.u64(&n).is_err());
+    }
+
+    #[test]
+    fn empty_input_is_an_error() {
+        assert!(CsvTable::from_reader("e.csv", "".as_bytes()).is_err());
+    }
+}

@@ -1,0 +1,218 @@
+//! What every offline report shares: the output directory, a progress bar, and PNG plots.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use plotters::prelude::*;
+
+/// An error writing a report: which file, and why.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {reason}")]
+pub struct ReportError {
+    pub path: PathBuf,
+    pub reason: String,
+}
+
+impl ReportError {
+    pub fn new(path: &Path, reason: impl ToString) -> Self {
+        ReportError {
+            path: path.to_owned(),
+            reason: reason.to_string(),
+        }
+    }
+}
+
+/// Creates `dir` (and parents) if needed.
+pub fn create_out_dir(dir: &Path) -> Result<(), ReportError> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| ReportError::new(dir, format!("cannot create directory: {e}")))
+}
+
+/// A progress bar over `len` steps, labelled `what`. It draws to stderr only when stderr is a
+/// terminal, and only after the first second, so short runs and logs stay clean.
+pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::hidden());
+    bar.set_style(
+        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} steps, {per_sec}, eta {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar.set_message(what.to_owned());
+    if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        let shown = bar.clone();
+        // Show the bar only for runs longer than a second.
+        std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_secs(1));
+            if !shown.is_finished() {
+                shown.set_draw_target(ProgressDrawTarget::stderr());
+            }
+        });
+    }
+    bar
+}
+
+/// One line of a [`line_plot`]: `(x, y)` points and a legend label.
+pub struct Series<'a> {
+    pub label: &'a str,
+    pub points: Vec<(f64, f64)>,
+}
+
+/// Axis labels and title of a plot.
+pub struct Axes<'a> {
+    pub title: &'a str,
+    pub x_label: &'a str,
+    pub y_label: &'a str,
+}
+
+const PLOT_SIZE: (u32, u32) = (1200, 500);
+
+fn palette(i: usize) -> RGBColor {
+    const COLORS: [RGBColor; 8] = [
+        RGBColor(31, 119, 180),
+        RGBColor(255, 127, 14),
+        RGBColor(44, 160, 44),
+        RGBColor(214, 39, 40),
+        RGBColor(148, 103, 189),
+        RGBColor(140, 86, 75),
+        RGBColor(227, 119, 194),
+        RGBColor(127, 127, 127),
+    ];
+    COLORS[i % COLORS.len()]
+}
+
+/// Range of finite values with a 5% margin (a flat series still gets a visible band).
+fn padded_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
+    if !lo.is_finite() {
+        return 0.0..1.0;
+    }
+    let pad = ((hi - lo) * 0.05).max(1e-9 * lo.abs().max(1.0));
+    (lo - pad)..(hi + pad)
+}
+
+/// Writes a PNG with one line per series.
+pub fn line_plot(path: &Path, axes: &Axes, series: &[Series]) -> Result<(), ReportError> {
+    let err = |e: &dyn std::fmt::Display| ReportError::new(path, e);
+    let root = BitMapBackend::new(path, PLOT_SIZE).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let x_range = padded_range(series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
+    let y_range = padded_range(series.iter().flat_map(|s| s.points.iter().map(|p| p.1)));
+    let mut chart = ChartBuilder::on(&root)
+        .caption(axes.title, ("sans-serif", 22))
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x_range, y_range)
+        .map_err(|e| err(&e))?;
+    chart
+        .configure_mesh()
+        .x_desc(axes.x_label)
+        .y_desc(axes.y_label)
+        .draw()
+        .map_err(|e| err(&e))?;
+    for (i, s) in series.iter().enumerate() {
+        let color = palette(i);
+        chart
+            .draw_series(LineSeries::new(
+                s.points.iter().copied(),
+                color.stroke_width(1),
+            ))
+            .map_err(|e| err(&e))?
+            .label(s.label)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color));
+    }
+    if series.len() > 1 {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| err(&e))?;
+    }
+    root.present().map_err(|e| err(&e))
+}
+
+/// Writes a PNG histogram of `values` with `bins` equal-width bins.
+pub fn histogram(path: &Path, axes: &Axes, values: &[f64], bins: usize) -> Result<(), ReportError> {
+    let err = |e: &dyn std::fmt::Display| ReportError::new(path, e);
+    let bins = bins.max(1);
+    let range = padded_range(values.iter().copied());
+    let width = (range.end - range.start) / bins as f64;
+    let mut counts = vec![0u64; bins];
+    for v in values.iter().filter(|v| v.is_finite()) {
+        let k = (((v - range.start) / width) as usize).min(bins - 1);
+        counts[k] += 1;
+    }
+    let max_count = counts.iter().copied().max().unwrap_or(0).max(1);
+    let root = BitMapBackend::new(path, PLOT_SIZE).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(axes.title, ("sans-serif", 22))
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(range.clone(), 0u64..max_count + max_count / 20 + 1)
+        .map_err(|e| err(&e))?;
+    chart
+        .configure_mesh()
+        .x_desc(axes.x_label)
+        .y_desc(axes.y_label)
+        .draw()
+        .map_err(|e| err(&e))?;
+    chart
+        .draw_series(counts.iter().enumerate().map(|(k, &c)| {
+            let x0 = range.start + k as f64 * width;
+            Rectangle::new([(x0, 0), (x0 + width, c)], palette(0).filled())
+        }))
+        .map_err(|e| err(&e))?;
+    root.present().map_err(|e| err(&e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plots_are_written_as_png() {
+        let dir = std::env::temp_dir().join(format!("railmon-report-test-{}", std::process::id()));
+        create_out_dir(&dir).unwrap();
+        let axes = Axes {
+            title: "t",
+            x_label: "x",
+            y_label: "y",
+        };
+        let line = dir.join("line.png");
+        let series = [
+            Series {
+                label: "a",
+                points: (0..100)
+                    .map(|i| (i as f64, (i as f64 * 0.1).sin()))
+                    .collect(),
+            },
+            Series {
+                label: "b",
+                points: vec![(0.0, 1.0), (99.0, 1.0)],
+            },
+        ];
+        line_plot(&line, &axes, &series).unwrap();
+        let hist = dir.join("hist.png");
+        histogram(&hist, &axes, &[1.0, 2.0, 2.5, f64::NAN, 3.0], 10).unwrap();
+        for p in [line, hist] {
+            let bytes = std::fs::read(&p).unwrap();
+            assert_eq!(&bytes[1..4], b"PNG", "{}", p.display());
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn padded_range_ignores_non_finite_and_widens_flat_series() {
+        let r = padded_range([1.0, f64::NAN, 1.0].into_iter());
+        assert!(r.start < 1.0 && r.end > 1.0);
+        assert_eq!(padded_range(std::iter::empty()), 0.0..1.0);
+    }
+}
