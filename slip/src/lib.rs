@@ -1,1 +1,32 @@
-//! Wheel slip (adhesion loss) of traction drives: PMSM model and simulator, per-drive EKF, VB / VMP / k-means / median adhesion estimators. No I/O.
+//! Wheel slip (adhesion loss) of traction drives, after Dedecius, "Centralized estimation of
+//! adhesion loss in wheel-rail system using variational Bayes and variational message
+//! passing" (UTIA report 2329, 2013) with the errata of `docs/seed-notes.md`. No I/O.
+//!
+//! Data flow: [`DriveSample`]s (voltages, currents) of N drives -> [`EkfBank`] (one 5-state
+//! sensorless EKF per drive, eq. 11-17) -> N load-torque estimates -> an
+//! [`AdhesionEstimator`] (VB, VMP, k-means, median, or our temporal method) -> global torque
+//! `M_z^(G)` and per-drive slip probabilities. [`SlipMonitor`] ties the two together;
+//! [`DriveSimulator`] produces data with ground truth from an [`AdhesionScenario`].
+
+pub mod adhesion;
+pub mod ekf;
+pub mod error;
+pub mod model;
+pub mod monitor;
+pub mod pipeline;
+pub mod sample;
+pub mod scenario;
+pub mod score;
+pub mod simulator;
+pub mod special;
+
+pub use adhesion::{AdhesionConfig, AdhesionEstimator, AdhesionMethod, AdhesionOutput};
+pub use ekf::{EkfBank, EkfConfig};
+pub use error::SlipError;
+pub use model::{DriveModel, MotorParams};
+pub use monitor::{DriveEstimate, SlipEstimate, SlipMonitor, SlipMonitorConfig};
+pub use pipeline::MultiMethodPipeline;
+pub use sample::{is_slipping, DriveSample, DriveTruth, SLIP_RULE_FRACTION};
+pub use scenario::{AdhesionScenario, SlipEvent};
+pub use score::{DetectionCounter, DetectionScore};
+pub use simulator::DriveSimulator;

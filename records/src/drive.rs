@@ -1,0 +1,523 @@
+//! Traction-drive recordings (issue 2): what the drive simulator writes and
+//! `railmon analyze adhesion --input` reads.
+//!
+//! Long layout, one row per time step and drive, drives numbered from 1 (as in the paper):
+//!
+//! ```text
+//! step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a[,true_speed_rad_s,true_angle_rad,true_torque_nm,true_slipping]
+//! 0,1,12.5,-40.1,3.2,7.9,200.0,-0.9,10.0,0
+//! 0,2,...
+//! ```
+//!
+//! - `step`: sample index (0, 1, 2, ... at the monitor's sampling period); every step lists
+//!   drives `1..=N` in order, and steps increase by one.
+//! - `u_alpha_v, u_beta_v`: stator voltage applied over the step starting now (alpha-beta
+//!   frame); `i_alpha_a, i_beta_a`: stator currents measured now.
+//! - Optional truth (simulated data): electrical speed and angle, load torque, and the slip
+//!   flag (`0/1`): all four or none.
+//!
+//! N is taken from the first step unless the caller knows it; a drive number outside
+//! `1..=N`, a missing drive, a repeated or skipped step, a NaN, an infinity, an empty field, a
+//! missing column or a truncated last line is an error naming file, line, field and value.
+
+use std::fs::File;
+use std::io::{BufWriter, Read, Write};
+use std::path::Path;
+
+use crate::{create_csv, Column, CsvTable, RecordError, Row};
+
+/// Columns every drive recording has, in order.
+pub const DRIVE_COLUMNS: [&str; 6] = [
+    "step",
+    "drive",
+    "u_alpha_v",
+    "u_beta_v",
+    "i_alpha_a",
+    "i_beta_a",
+];
+/// Truth columns of simulated recordings, in order.
+pub const DRIVE_TRUTH_COLUMNS: [&str; 4] = [
+    "true_speed_rad_s",
+    "true_angle_rad",
+    "true_torque_nm",
+    "true_slipping",
+];
+
+/// What one drive gives at one step.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DriveMeasurement {
+    pub u_alpha_v: f64,
+    pub u_beta_v: f64,
+    pub i_alpha_a: f64,
+    pub i_beta_a: f64,
+}
+
+/// Ground truth of one drive at one step.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DriveTruthRecord {
+    pub speed_rad_s: f64,
+    pub angle_rad: f64,
+    pub torque_nm: f64,
+    pub slipping: bool,
+}
+
+/// All drives at one step.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DriveFrame {
+    pub step: u64,
+    pub drives: Vec<DriveMeasurement>,
+    /// Present when the file has the truth columns.
+    pub truth: Option<Vec<DriveTruthRecord>>,
+}
+
+struct Columns {
+    step: Column,
+    drive: Column,
+    u_alpha: Column,
+    u_beta: Column,
+    i_alpha: Column,
+    i_beta: Column,
+    truth: Option<[Column; 4]>,
+}
+
+/// One parsed row.
+struct ParsedRow {
+    line: u64,
+    step: u64,
+    drive: u64,
+    measurement: DriveMeasurement,
+    truth: Option<DriveTruthRecord>,
+}
+
+/// Streams frames out of a drive recording.
+pub struct DriveCsvReader<R: Read> {
+    table: CsvTable<R>,
+    columns: Columns,
+    n_drives: Option<usize>,
+    /// First row of the next frame, read while finishing the previous one.
+    pending: Option<ParsedRow>,
+    next_step: Option<u64>,
+}
+
+impl DriveCsvReader<File> {
+    /// Opens `path`; `n_drives` when the caller knows how many drives there must be.
+    pub fn open(path: &Path, n_drives: Option<usize>) -> Result<Self, RecordError> {
+        Self::new(CsvTable::open(path)?, n_drives)
+    }
+}
+
+impl<R: Read> DriveCsvReader<R> {
+    /// From any reader; `label` names it in errors.
+    pub fn from_reader(
+        label: &str,
+        reader: R,
+        n_drives: Option<usize>,
+    ) -> Result<Self, RecordError> {
+        Self::new(CsvTable::from_reader(label, reader)?, n_drives)
+    }
+
+    fn new(table: CsvTable<R>, n_drives: Option<usize>) -> Result<Self, RecordError> {
+        let has_truth = DRIVE_TRUTH_COLUMNS.iter().any(|c| table.has_column(c));
+        let truth = if has_truth {
+            // Any truth column asks for all four: a missing one is named.
+            Some([
+                table.column(DRIVE_TRUTH_COLUMNS[0])?,
+                table.column(DRIVE_TRUTH_COLUMNS[1])?,
+                table.column(DRIVE_TRUTH_COLUMNS[2])?,
+                table.column(DRIVE_TRUTH_COLUMNS[3])?,
+            ])
+        } else {
+            None
+        };
+        let columns = Columns {
+            step: table.column("step")?,
+            drive: table.column("drive")?,
+            u_alpha: table.column("u_alpha_v")?,
+            u_beta: table.column("u_beta_v")?,
+            i_alpha: table.column("i_alpha_a")?,
+            i_beta: table.column("i_beta_a")?,
+            truth,
+        };
+        if n_drives == Some(0) {
+            return Err(RecordError::file(
+                table.file(),
+                "the number of drives must be at least 1",
+            ));
+        }
+        Ok(DriveCsvReader {
+            table,
+            columns,
+            n_drives,
+            pending: None,
+            next_step: None,
+        })
+    }
+
+    /// Whether the file has the truth columns.
+    pub fn has_truth(&self) -> bool {
+        self.columns.truth.is_some()
+    }
+
+    /// Number of drives: known after the first frame unless given.
+    pub fn n_drives(&self) -> Option<usize> {
+        self.n_drives
+    }
+
+    fn parse(&mut self) -> Result<Option<ParsedRow>, RecordError> {
+        let c = &self.columns;
+        let Some(row) = self.table.next_row()? else {
+            return Ok(None);
+        };
+        let truth = match &c.truth {
+            Some([speed, angle, torque, slipping]) => Some(DriveTruthRecord {
+                speed_rad_s: row.f64(speed)?,
+                angle_rad: row.f64(angle)?,
+                torque_nm: row.f64(torque)?,
+                slipping: row.bool(slipping)?,
+            }),
+            None => None,
+        };
+        Ok(Some(ParsedRow {
+            line: row.line(),
+            step: row.u64(&c.step)?,
+            drive: checked_drive(&row, &c.drive, self.n_drives)?,
+            measurement: DriveMeasurement {
+                u_alpha_v: row.f64(&c.u_alpha)?,
+                u_beta_v: row.f64(&c.u_beta)?,
+                i_alpha_a: row.f64(&c.i_alpha)?,
+                i_beta_a: row.f64(&c.i_beta)?,
+            },
+            truth,
+        }))
+    }
+
+    fn row_error(
+        &self,
+        line: u64,
+        column: &Column,
+        value: impl ToString,
+        reason: String,
+    ) -> RecordError {
+        RecordError {
+            file: self.table.file().to_owned(),
+            line: Some(line),
+            field: Some(column.name().to_owned()),
+            value: Some(value.to_string()),
+            reason,
+        }
+    }
+
+    /// The next frame, `Ok(None)` at the end of the file.
+    pub fn next_frame(&mut self) -> Result<Option<DriveFrame>, RecordError> {
+        let first = match self.pending.take() {
+            Some(r) => r,
+            None => match self.parse()? {
+                Some(r) => r,
+                None => return Ok(None),
+            },
+        };
+        if let Some(expected) = self.next_step {
+            if first.step != expected {
+                let reason = format!("expected step {expected}: steps must increase by one");
+                return Err(self.row_error(first.line, &self.columns.step, first.step, reason));
+            }
+        }
+        if first.drive != 1 {
+            let reason = format!("step {} must start with drive 1", first.step);
+            return Err(self.row_error(first.line, &self.columns.drive, first.drive, reason));
+        }
+        let step = first.step;
+        let mut drives = vec![first.measurement];
+        let mut truth = first.truth.map(|t| vec![t]);
+        while let Some(row) = self.parse()? {
+            if row.step != step {
+                self.pending = Some(row);
+                break;
+            }
+            let expected = drives.len() as u64 + 1;
+            if row.drive != expected {
+                let reason = format!("expected drive {expected} of step {step}: drives must be listed 1..=N in order");
+                return Err(self.row_error(row.line, &self.columns.drive, row.drive, reason));
+            }
+            drives.push(row.measurement);
+            if let (Some(t), Some(r)) = (truth.as_mut(), row.truth) {
+                t.push(r);
+            }
+        }
+        match self.n_drives {
+            Some(n) if drives.len() != n => {
+                // The first row of the next step (or the end) is where a drive is missing.
+                let line = self.pending.as_ref().map_or(0, |r| r.line);
+                let reason = format!("step {step} has {} drives, expected {n}", drives.len());
+                let value = self.pending.as_ref().map_or(0, |r| r.drive);
+                let mut e = self.row_error(line, &self.columns.drive, value, reason);
+                if self.pending.is_none() {
+                    e.line = None;
+                    e.value = None;
+                }
+                return Err(e);
+            }
+            Some(_) => {}
+            None => self.n_drives = Some(drives.len()),
+        }
+        self.next_step = Some(step + 1);
+        Ok(Some(DriveFrame {
+            step,
+            drives,
+            truth,
+        }))
+    }
+}
+
+fn checked_drive(
+    row: &Row<'_>,
+    column: &Column,
+    n_drives: Option<usize>,
+) -> Result<u64, RecordError> {
+    let drive = row.u64(column)?;
+    let max = n_drives.map_or(u64::MAX, |n| n as u64);
+    if drive == 0 || drive > max {
+        let range = n_drives.map_or("1..".to_owned(), |n| format!("1..={n}"));
+        return Err(row.error(column, format!("drive number out of range {range}")));
+    }
+    Ok(drive)
+}
+
+/// Writes a drive recording frame by frame.
+pub struct DriveCsvWriter<W: Write> {
+    label: String,
+    writer: csv::Writer<W>,
+    with_truth: bool,
+}
+
+impl DriveCsvWriter<BufWriter<File>> {
+    /// Creates `path`; `with_truth` adds the truth columns.
+    pub fn create(path: &Path, with_truth: bool) -> Result<Self, RecordError> {
+        let writer = create_csv(path)?;
+        Self::new(&path.display().to_string(), writer, with_truth)
+    }
+}
+
+impl<W: Write> DriveCsvWriter<W> {
+    /// Over any writer; `label` names it in errors.
+    pub fn from_writer(label: &str, writer: W, with_truth: bool) -> Result<Self, RecordError> {
+        Self::new(label, csv::Writer::from_writer(writer), with_truth)
+    }
+
+    fn new(label: &str, mut writer: csv::Writer<W>, with_truth: bool) -> Result<Self, RecordError> {
+        let mut header: Vec<&str> = DRIVE_COLUMNS.to_vec();
+        if with_truth {
+            header.extend(DRIVE_TRUTH_COLUMNS);
+        }
+        writer
+            .write_record(&header)
+            .map_err(|e| RecordError::file(label, format!("write error: {e}")))?;
+        Ok(DriveCsvWriter {
+            label: label.to_owned(),
+            writer,
+            with_truth,
+        })
+    }
+
+    /// Writes all drives of one step (`truth` is required when the writer has truth columns).
+    pub fn write_frame(
+        &mut self,
+        step: u64,
+        drives: &[DriveMeasurement],
+        truth: Option<&[DriveTruthRecord]>,
+    ) -> Result<(), RecordError> {
+        if self.with_truth && truth.is_none_or(|t| t.len() != drives.len()) {
+            return Err(RecordError::file(
+                &self.label,
+                format!("step {step}: truth missing for the truth columns"),
+            ));
+        }
+        for (k, d) in drives.iter().enumerate() {
+            let mut fields = vec![
+                step.to_string(),
+                (k + 1).to_string(),
+                d.u_alpha_v.to_string(),
+                d.u_beta_v.to_string(),
+                d.i_alpha_a.to_string(),
+                d.i_beta_a.to_string(),
+            ];
+            if let (true, Some(t)) = (self.with_truth, truth) {
+                let t = t[k];
+                fields.extend([
+                    t.speed_rad_s.to_string(),
+                    t.angle_rad.to_string(),
+                    t.torque_nm.to_string(),
+                    u8::from(t.slipping).to_string(),
+                ]);
+            }
+            self.writer
+                .write_record(&fields)
+                .map_err(|e| RecordError::file(&self.label, format!("write error: {e}")))?;
+        }
+        Ok(())
+    }
+
+    /// Flushes the file.
+    pub fn finish(mut self) -> Result<(), RecordError> {
+        self.writer
+            .flush()
+            .map_err(|e| RecordError::file(&self.label, format!("write error: {e}")))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = "step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a\n\
+                        0,1,1,2,3,4\n0,2,5,6,7,8\n1,1,1.5,2,3,4\n1,2,5,6,7,8.5\n";
+
+    fn read_all(text: &str, n: Option<usize>) -> Result<Vec<DriveFrame>, RecordError> {
+        let mut r = DriveCsvReader::from_reader("d.csv", text.as_bytes(), n)?;
+        let mut frames = Vec::new();
+        while let Some(f) = r.next_frame()? {
+            frames.push(f);
+        }
+        Ok(frames)
+    }
+
+    #[test]
+    fn reads_frames_and_infers_the_drive_count() {
+        let frames = read_all(GOOD, None).unwrap();
+        assert_eq!(frames.len(), 2);
+        assert_eq!(frames[1].step, 1);
+        assert_eq!(
+            frames[1].drives[1],
+            DriveMeasurement {
+                u_alpha_v: 5.0,
+                u_beta_v: 6.0,
+                i_alpha_a: 7.0,
+                i_beta_a: 8.5
+            }
+        );
+        assert!(frames[0].truth.is_none());
+    }
+
+    #[test]
+    fn round_trip_with_truth_is_exact() {
+        let drives = [
+            DriveMeasurement {
+                u_alpha_v: 0.1 + 0.2,
+                u_beta_v: -1e-17,
+                i_alpha_a: 1.0 / 3.0,
+                i_beta_a: 12345.678,
+            },
+            DriveMeasurement {
+                u_alpha_v: 2.0,
+                u_beta_v: 3.0,
+                i_alpha_a: 4.0,
+                i_beta_a: 5.0,
+            },
+        ];
+        let truth = [
+            DriveTruthRecord {
+                speed_rad_s: 200.1,
+                angle_rad: -3.1,
+                torque_nm: 10.0,
+                slipping: true,
+            },
+            DriveTruthRecord {
+                speed_rad_s: 199.9,
+                angle_rad: 0.5,
+                torque_nm: 9.5,
+                slipping: false,
+            },
+        ];
+        let mut buf = Vec::new();
+        let mut w = DriveCsvWriter::from_writer("mem", &mut buf, true).unwrap();
+        w.write_frame(0, &drives, Some(&truth)).unwrap();
+        w.write_frame(1, &drives, Some(&truth)).unwrap();
+        w.finish().unwrap();
+        let text = String::from_utf8(buf).unwrap();
+        let frames = read_all(&text, Some(2)).unwrap();
+        assert_eq!(frames.len(), 2);
+        assert_eq!(frames[1].drives, drives.to_vec());
+        assert_eq!(frames[1].truth.as_deref(), Some(&truth[..]));
+    }
+
+    #[test]
+    fn nan_names_file_line_and_field() {
+        let text = GOOD.replace("1,2,5,6,7,8.5", "1,2,5,6,NaN,8.5");
+        let e = read_all(&text, None).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "d.csv:5: field \"i_alpha_a\" = \"NaN\": not a finite number"
+        );
+    }
+
+    #[test]
+    fn missing_column_is_named() {
+        let text = GOOD.replace(",i_beta_a", ",i_b");
+        let e = read_all(&text, None).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("d.csv:1: field \"i_beta_a\": missing column"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn truncated_last_line_is_an_error() {
+        let text = format!("{GOOD}2,1,1,2");
+        let e = read_all(&text, None).unwrap_err();
+        assert_eq!(e.line, Some(6));
+        assert!(e.to_string().contains("truncated"), "{e}");
+    }
+
+    #[test]
+    fn drive_out_of_range_is_an_error() {
+        let text = GOOD.replace("1,2,5,6,7,8.5", "1,3,5,6,7,8.5");
+        let e = read_all(&text, Some(2)).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "d.csv:5: field \"drive\" = \"3\": drive number out of range 1..=2"
+        );
+        // Inferred count: the second step may not have a third drive either.
+        let e = read_all(&format!("{GOOD}1,3,1,1,1,1\n"), None).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("d.csv:6: field \"drive\" = \"3\": drive number out of range 1..=2"),
+            "{e}"
+        );
+        let e = read_all(&GOOD.replace("0,2,5", "0,0,5"), None).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("field \"drive\" = \"0\": drive number out of range"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn missing_drive_and_skipped_step_are_errors() {
+        let text = "step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a\n0,1,1,2,3,4\n0,2,1,2,3,4\n1,1,1,2,3,4\n2,1,1,2,3,4\n";
+        let e = read_all(text, None).unwrap_err();
+        assert_eq!(e.line, Some(5), "{e}");
+        assert!(
+            e.to_string().contains("step 1 has 1 drives, expected 2"),
+            "{e}"
+        );
+        let text = "step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a\n0,1,1,2,3,4\n2,1,1,2,3,4\n";
+        let e = read_all(text, None).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "d.csv:3: field \"step\" = \"2\": expected step 1: steps must increase by one"
+        );
+    }
+
+    #[test]
+    fn partial_truth_columns_are_an_error() {
+        let text =
+            "step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a,true_torque_nm\n0,1,1,2,3,4,5\n";
+        let e = read_all(text, None).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("field \"true_speed_rad_s\": missing column"),
+            "{e}"
+        );
+    }
+}

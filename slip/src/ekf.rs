@@ -1,0 +1,403 @@
+//! Sensorless EKF of one PMSM drive (paper section 3.1-3.2), and the bank of N independent
+//! filters of section 3.3.
+//!
+//! Eq. (16)-(17) stack the drives into one block-diagonal filter. Because every matrix is
+//! block diagonal, the stacked filter is exactly N independent 5-state filters; we run them as
+//! such (O(N) work and memory, never a dense 5N x 5N matrix).
+
+use nalgebra::{Matrix2, SMatrix, Vector2};
+use serde::{Deserialize, Serialize};
+
+use railmon_filter::kalman::{symmetrize, update_joseph};
+
+use crate::error::{check_finite, check_positive, SlipError};
+use crate::model::{idx, wrap_angle, DriveMatrix, DriveModel, DriveState};
+use crate::sample::{validate_frame, DriveSample};
+
+/// Noise and initialisation of the per-drive EKF.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EkfConfig {
+    /// Diagonal of the process-noise covariance `Q` for
+    /// `[i_alpha, i_beta, omega, theta, T_L]` (section 3.2.1).
+    pub process_noise_diag: [f64; 5],
+    /// Variance of each current measurement, `R = r I` (section 3.2.1), in A^2.
+    pub measurement_noise_a2: f64,
+    /// Diagonal of the initial covariance `P_0` ("low integers", section 3.2.1).
+    pub initial_covariance_diag: [f64; 5],
+    /// Initial electrical speed guess; a drive controller knows its speed reference.
+    pub initial_speed_rad_s: f64,
+    /// Initial electrical angle guess.
+    pub initial_angle_rad: f64,
+    /// Initial load-torque guess.
+    pub initial_torque_nm: f64,
+    /// Replace the speed and angle guesses by the back-EMF seen between the first two frames
+    /// (see [`back_emf_speed_angle`]); the direction of rotation is the sign of
+    /// `initial_speed_rad_s` (forward when 0). Without it a filter started far from the true
+    /// speed may lock on the mirrored solution `(-omega, theta + pi)`.
+    pub start_from_back_emf: bool,
+}
+
+impl Default for EkfConfig {
+    fn default() -> Self {
+        EkfConfig {
+            process_noise_diag: [0.05, 0.05, 0.001, 0.0001, 0.1],
+            measurement_noise_a2: 0.01,
+            initial_covariance_diag: [1.0, 1.0, 1.0, 1.0, 1.0],
+            initial_speed_rad_s: 0.0,
+            initial_angle_rad: 0.0,
+            initial_torque_nm: 0.0,
+            start_from_back_emf: true,
+        }
+    }
+}
+
+impl EkfConfig {
+    pub fn validate(&self, prefix: &str) -> Result<(), SlipError> {
+        for (k, v) in self.process_noise_diag.iter().enumerate() {
+            check_positive(&format!("{prefix}.process_noise_diag[{k}]"), *v)?;
+        }
+        check_positive(
+            &format!("{prefix}.measurement_noise_a2"),
+            self.measurement_noise_a2,
+        )?;
+        for (k, v) in self.initial_covariance_diag.iter().enumerate() {
+            check_positive(&format!("{prefix}.initial_covariance_diag[{k}]"), *v)?;
+        }
+        check_finite(
+            &format!("{prefix}.initial_speed_rad_s"),
+            self.initial_speed_rad_s,
+        )?;
+        check_finite(
+            &format!("{prefix}.initial_angle_rad"),
+            self.initial_angle_rad,
+        )?;
+        check_finite(
+            &format!("{prefix}.initial_torque_nm"),
+            self.initial_torque_nm,
+        )?;
+        Ok(())
+    }
+
+    fn q(&self) -> DriveMatrix {
+        DriveMatrix::from_diagonal(&self.process_noise_diag.into())
+    }
+}
+
+/// Mean and covariance of one drive's state, plus the voltage it applies over the coming step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveFilter {
+    pub x: DriveState,
+    pub p: DriveMatrix,
+    /// Voltage applied since the last measurement (input of the next prediction); `None`
+    /// before the first frame.
+    pub u_prev: Option<Vector2<f64>>,
+    /// Log-likelihood of the last measurement under `N(C x-, C P- C' + R)` (eq. 10 with the
+    /// erratum: the predictive covariance is `C P- C' + R`, not `R`).
+    pub log_likelihood: f64,
+    /// Frames processed.
+    pub frames: u64,
+}
+
+impl DriveFilter {
+    fn initial(config: &EkfConfig) -> Self {
+        DriveFilter {
+            x: DriveState::new(
+                0.0,
+                0.0,
+                config.initial_speed_rad_s,
+                wrap_angle(config.initial_angle_rad),
+                config.initial_torque_nm,
+            ),
+            p: DriveMatrix::from_diagonal(&config.initial_covariance_diag.into()),
+            u_prev: None,
+            log_likelihood: 0.0,
+            frames: 0,
+        }
+    }
+
+    pub fn torque_nm(&self) -> f64 {
+        self.x[idx::TORQUE]
+    }
+    pub fn torque_var_nm2(&self) -> f64 {
+        self.p[(idx::TORQUE, idx::TORQUE)]
+    }
+    pub fn speed_rad_s(&self) -> f64 {
+        self.x[idx::OMEGA]
+    }
+    pub fn angle_rad(&self) -> f64 {
+        self.x[idx::THETA]
+    }
+}
+
+/// Measurement matrix `C` of eq. (15): the two currents.
+fn measurement_matrix() -> SMatrix<f64, 2, 5> {
+    let mut c = SMatrix::<f64, 2, 5>::zeros();
+    c[(0, idx::I_ALPHA)] = 1.0;
+    c[(1, idx::I_BETA)] = 1.0;
+    c
+}
+
+/// One EKF step (eq. 3-9) of one drive; returns the new filter, leaving `f` untouched.
+pub fn ekf_step(
+    model: &DriveModel,
+    q: &DriveMatrix,
+    r: &Matrix2<f64>,
+    f: &DriveFilter,
+    sample: &DriveSample,
+) -> Result<DriveFilter, railmon_filter::FilterError> {
+    // Prediction (3)-(4), with the Jacobian at the previous posterior (8).
+    let (x_pred, p_pred) = match f.u_prev {
+        Some(u) => {
+            let a = model.jacobian(&f.x);
+            let mut p = a * f.p * a.transpose() + q;
+            symmetrize(&mut p);
+            (model.transition(&f.x, &u), p)
+        }
+        None => (f.x, f.p),
+    };
+    // Update (5)-(7) in Joseph form; h(x) = C x is linear (14).
+    let c = measurement_matrix();
+    let innovation = Vector2::new(
+        sample.i_alpha_a - x_pred[idx::I_ALPHA],
+        sample.i_beta_a - x_pred[idx::I_BETA],
+    );
+    let upd = update_joseph(&x_pred, &p_pred, &innovation, &c, r)?;
+    let mut x = upd.x;
+    x[idx::THETA] = wrap_angle(x[idx::THETA]);
+    Ok(DriveFilter {
+        x,
+        p: upd.p,
+        u_prev: Some(Vector2::new(sample.u_alpha_v, sample.u_beta_v)),
+        log_likelihood: upd.log_likelihood,
+        frames: f.frames + 1,
+    })
+}
+
+/// Electrical speed and angle at step t from the currents at t and t+1 and the voltage over
+/// the step: rows 1-2 of eq. (11) give `theta_b omega [sin theta, -cos theta] = i(t+1) -
+/// theta_a i(t) - (dt / L_s) u(t)`. The back-EMF does not tell the direction of rotation:
+/// `(omega, theta)` and `(-omega, theta + pi)` give the same currents, so `forward` picks it.
+pub fn back_emf_speed_angle(
+    model: &DriveModel,
+    i_now: &Vector2<f64>,
+    u_now: &Vector2<f64>,
+    i_next: &Vector2<f64>,
+    forward: bool,
+) -> (f64, f64) {
+    let d = (i_next - i_now * model.theta_a - u_now * model.theta_c) / model.theta_b;
+    let speed = d.norm();
+    if forward {
+        (speed, d[0].atan2(-d[1]))
+    } else {
+        (-speed, (-d[0]).atan2(d[1]))
+    }
+}
+
+/// The filter after its first frame, with speed and angle replaced by the back-EMF estimate
+/// from that frame and `next` (the covariance keeps its initial values).
+fn start_from_back_emf(
+    model: &DriveModel,
+    f: &DriveFilter,
+    next: &DriveSample,
+    forward: bool,
+) -> DriveFilter {
+    let Some(u) = f.u_prev else { return *f };
+    let i_now = Vector2::new(f.x[idx::I_ALPHA], f.x[idx::I_BETA]);
+    let i_next = Vector2::new(next.i_alpha_a, next.i_beta_a);
+    let (speed, angle) = back_emf_speed_angle(model, &i_now, &u, &i_next, forward);
+    let mut started = *f;
+    started.x[idx::OMEGA] = speed;
+    started.x[idx::THETA] = wrap_angle(angle);
+    started
+}
+
+/// N independent drive EKFs (the block-diagonal filter of eq. 16-17).
+#[derive(Debug)]
+pub struct EkfBank {
+    model: DriveModel,
+    q: DriveMatrix,
+    r: Matrix2<f64>,
+    filters: Vec<DriveFilter>,
+    scratch: Vec<DriveFilter>,
+    /// `Some(forward)` when the second frame restarts speed and angle from the back-EMF.
+    back_emf_start: Option<bool>,
+}
+
+impl Clone for EkfBank {
+    fn clone(&self) -> Self {
+        EkfBank {
+            model: self.model,
+            q: self.q,
+            r: self.r,
+            filters: self.filters.clone(),
+            scratch: self.scratch.clone(),
+            back_emf_start: self.back_emf_start,
+        }
+    }
+
+    /// Copies without allocating when the sizes match (the monitor's per-frame backup).
+    fn clone_from(&mut self, source: &Self) {
+        self.model = source.model;
+        self.q = source.q;
+        self.r = source.r;
+        self.filters.clone_from(&source.filters);
+        self.scratch.clone_from(&source.scratch);
+        self.back_emf_start = source.back_emf_start;
+    }
+}
+
+impl EkfBank {
+    pub fn new(model: DriveModel, config: &EkfConfig, n_drives: usize) -> Result<Self, SlipError> {
+        config.validate("ekf")?;
+        if n_drives == 0 {
+            return Err(SlipError::invalid("n_drives", 0, "must be >= 1"));
+        }
+        let filters = vec![DriveFilter::initial(config); n_drives];
+        Ok(EkfBank {
+            model,
+            q: config.q(),
+            r: Matrix2::identity() * config.measurement_noise_a2,
+            scratch: filters.clone(),
+            filters,
+            back_emf_start: config
+                .start_from_back_emf
+                .then_some(config.initial_speed_rad_s >= 0.0),
+        })
+    }
+
+    pub fn n_drives(&self) -> usize {
+        self.filters.len()
+    }
+
+    pub fn filters(&self) -> &[DriveFilter] {
+        &self.filters
+    }
+
+    pub fn model(&self) -> &DriveModel {
+        &self.model
+    }
+
+    /// One step of every drive. The frame is validated first and all filters are computed
+    /// before any is committed: on error the bank is unchanged.
+    pub fn step(&mut self, samples: &[DriveSample]) -> Result<(), SlipError> {
+        validate_frame(samples, self.filters.len())?;
+        for (k, ((f, s), out)) in self
+            .filters
+            .iter()
+            .zip(samples)
+            .zip(self.scratch.iter_mut())
+            .enumerate()
+        {
+            let start;
+            let f = match self.back_emf_start {
+                Some(forward) if f.frames == 1 => {
+                    start = start_from_back_emf(&self.model, f, s, forward);
+                    &start
+                }
+                _ => f,
+            };
+            *out = ekf_step(&self.model, &self.q, &self.r, f, s).map_err(|source| {
+                SlipError::Filter {
+                    drive: k + 1,
+                    source,
+                }
+            })?;
+        }
+        std::mem::swap(&mut self.filters, &mut self.scratch);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::MotorParams;
+
+    #[test]
+    fn each_invalid_ekf_parameter_is_rejected() {
+        let bad = |m: fn(&mut EkfConfig), field: &str| {
+            let mut c = EkfConfig::default();
+            m(&mut c);
+            let e = c.validate("ekf").unwrap_err().to_string();
+            assert!(e.contains(field), "{e}");
+        };
+        bad(
+            |c| c.process_noise_diag[2] = 0.0,
+            "ekf.process_noise_diag[2]",
+        );
+        bad(
+            |c| c.measurement_noise_a2 = -0.01,
+            "ekf.measurement_noise_a2",
+        );
+        bad(
+            |c| c.initial_covariance_diag[4] = f64::NAN,
+            "ekf.initial_covariance_diag[4]",
+        );
+        bad(
+            |c| c.initial_speed_rad_s = f64::INFINITY,
+            "ekf.initial_speed_rad_s",
+        );
+        bad(|c| c.initial_angle_rad = f64::NAN, "ekf.initial_angle_rad");
+        bad(
+            |c| c.initial_torque_nm = f64::NEG_INFINITY,
+            "ekf.initial_torque_nm",
+        );
+        let model = DriveModel::new(MotorParams::default(), 125e-6).unwrap();
+        assert!(EkfBank::new(model, &EkfConfig::default(), 0).is_err());
+    }
+
+    #[test]
+    fn back_emf_gives_speed_and_angle_and_both_directions() {
+        let model = DriveModel::new(MotorParams::default(), 125e-6).unwrap();
+        let u = Vector2::new(30.0, -12.0);
+        for (speed, angle) in [(200.0, 0.7), (-150.0, -2.5), (80.0, 3.0)] {
+            let x = DriveState::new(3.0, -4.0, speed, angle, 10.0);
+            let next = model.transition(&x, &u);
+            let i_now = Vector2::new(x[0], x[1]);
+            let i_next = Vector2::new(next[0], next[1]);
+            let forward = speed > 0.0;
+            let (w, th) = back_emf_speed_angle(&model, &i_now, &u, &i_next, forward);
+            assert!((w - speed).abs() < 1e-9, "{w} vs {speed}");
+            assert!(wrap_angle(th - angle).abs() < 1e-9, "{th} vs {angle}");
+            // The other direction is the mirrored solution.
+            let (w2, th2) = back_emf_speed_angle(&model, &i_now, &u, &i_next, !forward);
+            assert!((w2 + speed).abs() < 1e-9);
+            assert!((wrap_angle(th2 - angle).abs() - std::f64::consts::PI).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn first_step_is_a_pure_update_and_covariance_stays_spd() {
+        let model = DriveModel::new(MotorParams::default(), 125e-6).unwrap();
+        let config = EkfConfig::default();
+        let config = EkfConfig {
+            start_from_back_emf: false,
+            ..config
+        };
+        let mut bank = EkfBank::new(model, &config, 2).unwrap();
+        let s = DriveSample {
+            u_alpha_v: 10.0,
+            u_beta_v: -5.0,
+            i_alpha_a: 2.0,
+            i_beta_a: -1.0,
+        };
+        bank.step(&[s, s]).unwrap();
+        // Scalar update of i_alpha from prior N(0, 1) with R = 0.01: gain 1 / 1.01.
+        let f = bank.filters()[0];
+        assert!((f.x[idx::I_ALPHA] - 2.0 / 1.01).abs() < 1e-12);
+        assert!((f.p[(0, 0)] - 0.01 / 1.01).abs() < 1e-12);
+        assert_eq!(f.u_prev, Some(Vector2::new(10.0, -5.0)));
+        for _ in 0..100 {
+            bank.step(&[s, s]).unwrap();
+            for f in bank.filters() {
+                assert!(railmon_filter::kalman::is_symmetric_positive_definite(
+                    &f.p, 1e-12
+                ));
+                assert!(
+                    f.angle_rad() > -std::f64::consts::PI && f.angle_rad() <= std::f64::consts::PI
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,200 @@
+//! `SlipMonitor`: the EKF bank plus one adhesion estimator, stepped frame by frame. This is
+//! what the service runs.
+
+use serde::{Deserialize, Serialize};
+
+use crate::adhesion::{AdhesionConfig, AdhesionEstimator, AdhesionMethod};
+use crate::ekf::{EkfBank, EkfConfig};
+use crate::error::{check_positive, SlipError};
+use crate::model::{DriveModel, MotorParams};
+use crate::sample::{validate_frame, DriveSample};
+
+/// Everything the monitor needs: motor parameters, sampling period, EKF noise, the method and
+/// the settings of every method. `Default` is the paper's setting with the temporal method.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SlipMonitorConfig {
+    /// Sampling period of the drive data (the paper: 125 us).
+    pub dt_s: f64,
+    pub motor: MotorParams,
+    pub ekf: EkfConfig,
+    pub method: AdhesionMethod,
+    pub adhesion: AdhesionConfig,
+}
+
+impl Default for SlipMonitorConfig {
+    fn default() -> Self {
+        SlipMonitorConfig {
+            dt_s: 125e-6,
+            motor: MotorParams::default(),
+            ekf: EkfConfig::default(),
+            method: AdhesionMethod::Temporal,
+            adhesion: AdhesionConfig::default(),
+        }
+    }
+}
+
+impl SlipMonitorConfig {
+    pub fn validate(&self) -> Result<(), SlipError> {
+        check_positive("dt_s", self.dt_s)?;
+        self.motor.validate("motor")?;
+        self.ekf.validate("ekf")?;
+        self.adhesion.validate()
+    }
+
+    /// Parses a TOML table with these fields (any may be left out: defaults) and validates it.
+    pub fn from_toml_str(text: &str) -> Result<Self, SlipError> {
+        let config: SlipMonitorConfig =
+            toml::from_str(text).map_err(|e| SlipError::Toml(e.to_string()))?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// The drive model these settings describe.
+    pub fn model(&self) -> Result<DriveModel, SlipError> {
+        DriveModel::new(self.motor, self.dt_s)
+    }
+}
+
+/// One drive's estimate at one step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveEstimate {
+    /// EKF electrical speed.
+    pub speed_rad_s: f64,
+    /// EKF electrical angle, in (-pi, pi].
+    pub angle_rad: f64,
+    /// EKF load torque `M_z,i`.
+    pub torque_nm: f64,
+    /// Probability that the drive has lost adhesion, in [0, 1].
+    pub slip_probability: f64,
+}
+
+/// The monitor's output for one step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SlipEstimate {
+    /// `M_z^(G)`.
+    pub global_torque_nm: f64,
+    pub method: AdhesionMethod,
+    pub drives: Vec<DriveEstimate>,
+}
+
+/// One EKF per drive plus the configured adhesion estimator.
+#[derive(Debug, Clone)]
+pub struct SlipMonitor {
+    bank: EkfBank,
+    backup: EkfBank,
+    estimator: AdhesionEstimator,
+    torque: Vec<f64>,
+    estimate: SlipEstimate,
+}
+
+impl SlipMonitor {
+    pub fn new(config: &SlipMonitorConfig, n_drives: usize) -> Result<Self, SlipError> {
+        config.validate()?;
+        let bank = EkfBank::new(config.model()?, &config.ekf, n_drives)?;
+        let estimator = AdhesionEstimator::new(config.method, &config.adhesion, n_drives)?;
+        let drive = DriveEstimate {
+            speed_rad_s: 0.0,
+            angle_rad: 0.0,
+            torque_nm: 0.0,
+            slip_probability: 0.0,
+        };
+        Ok(SlipMonitor {
+            backup: bank.clone(),
+            bank,
+            estimator,
+            torque: vec![0.0; n_drives],
+            estimate: SlipEstimate {
+                global_torque_nm: 0.0,
+                method: config.method,
+                drives: vec![drive; n_drives],
+            },
+        })
+    }
+
+    pub fn n_drives(&self) -> usize {
+        self.bank.n_drives()
+    }
+
+    /// The last estimate (zeros before the first frame).
+    pub fn last(&self) -> &SlipEstimate {
+        &self.estimate
+    }
+
+    /// The EKF bank (states and covariances of every drive).
+    pub fn bank(&self) -> &EkfBank {
+        &self.bank
+    }
+
+    /// Validates the whole frame first (length == n_drives, all finite): on error nothing
+    /// changes. An EKF failure of any drive also leaves every filter as it was.
+    pub fn step(&mut self, samples: &[DriveSample]) -> Result<&SlipEstimate, SlipError> {
+        validate_frame(samples, self.n_drives())?;
+        // The bank commits only when every drive's update succeeds; keep a copy (reusing its
+        // allocation) to roll back if the estimator then fails, so that nothing changes.
+        self.backup.clone_from(&self.bank);
+        self.bank.step(samples)?;
+        for (k, f) in self.bank.filters().iter().enumerate() {
+            self.torque[k] = f.torque_nm();
+        }
+        let out = match self.estimator.estimate(&self.torque) {
+            Ok(out) => out,
+            Err(e) => {
+                std::mem::swap(&mut self.bank, &mut self.backup);
+                return Err(e);
+            }
+        };
+        self.estimate.global_torque_nm = out.global_torque_nm;
+        for ((d, f), p) in self
+            .estimate
+            .drives
+            .iter_mut()
+            .zip(self.bank.filters())
+            .zip(&out.slip_probability)
+        {
+            *d = DriveEstimate {
+                speed_rad_s: f.speed_rad_s(),
+                angle_rad: f.angle_rad(),
+                torque_nm: f.torque_nm(),
+                slip_probability: *p,
+            };
+        }
+        Ok(&self.estimate)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn monitor_config_from_toml_and_invalid_fields() {
+        let c =
+            SlipMonitorConfig::from_toml_str("method = \"vmp\"\n[adhesion.vmp]\niterations = 7\n")
+                .unwrap();
+        assert_eq!(c.method, AdhesionMethod::Vmp);
+        assert_eq!(c.adhesion.vmp.iterations, 7);
+        assert_eq!(c.ekf, EkfConfig::default());
+        let e = SlipMonitorConfig::from_toml_str("dt_s = 0.0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("dt_s"), "{e}");
+        let e = SlipMonitorConfig::from_toml_str("method = \"magic\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("method"), "{e}");
+        let e = SlipMonitorConfig::from_toml_str("[motor]\nr_s_ohm = -1.0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("motor.r_s_ohm"), "{e}");
+        assert!(SlipMonitor::new(&SlipMonitorConfig::default(), 0).is_err());
+    }
+
+    #[test]
+    fn method_names_round_trip() {
+        for m in AdhesionMethod::ALL {
+            assert_eq!(m.to_string().parse::<AdhesionMethod>().unwrap(), m);
+        }
+        assert_eq!(AdhesionMethod::KMeans.to_string(), "kmeans");
+    }
+}

@@ -1,0 +1,70 @@
+//! What a drive gives the monitor each time step, and the simulator's ground truth.
+
+use crate::error::SlipError;
+
+/// One drive, one time step: the applied (reconstructed) stator voltages over the step that
+/// starts now and the stator currents measured now, both in the alpha-beta frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DriveSample {
+    pub u_alpha_v: f64,
+    pub u_beta_v: f64,
+    pub i_alpha_a: f64,
+    pub i_beta_a: f64,
+}
+
+impl DriveSample {
+    /// The first non-finite field, if any, as `(name, value)`.
+    pub fn first_non_finite(&self) -> Option<(&'static str, f64)> {
+        [
+            ("u_alpha_v", self.u_alpha_v),
+            ("u_beta_v", self.u_beta_v),
+            ("i_alpha_a", self.i_alpha_a),
+            ("i_beta_a", self.i_beta_a),
+        ]
+        .into_iter()
+        .find(|(_, v)| !v.is_finite())
+    }
+}
+
+/// Ground truth of one drive at one step (simulator only). `speed_rad_s` and `angle_rad` are
+/// electrical; `torque_nm` is the true load torque.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DriveTruth {
+    pub speed_rad_s: f64,
+    pub angle_rad: f64,
+    pub torque_nm: f64,
+    /// True when the load departs from the drive's healthy load profile by more than
+    /// [`SLIP_RULE_FRACTION`] of it: the definition every detection figure is scored against.
+    pub slipping: bool,
+}
+
+/// The slip rule: a drive is slipping when `|T_L - T_healthy| > SLIP_RULE_FRACTION * |T_healthy|`.
+/// Adhesion loss shows as the wheel no longer carrying its share of the load; 10 % is well
+/// above the spread of healthy drives and well below the paper's events (drops to 0, a
+/// one-third dip).
+pub const SLIP_RULE_FRACTION: f64 = 0.1;
+
+/// Applies the slip rule to one drive.
+pub fn is_slipping(true_torque_nm: f64, healthy_torque_nm: f64) -> bool {
+    (true_torque_nm - healthy_torque_nm).abs() > SLIP_RULE_FRACTION * healthy_torque_nm.abs()
+}
+
+/// Checks a frame before anything is changed: the right length and every value finite.
+pub fn validate_frame(samples: &[DriveSample], n_drives: usize) -> Result<(), SlipError> {
+    if samples.len() != n_drives {
+        return Err(SlipError::WrongDriveCount {
+            expected: n_drives,
+            got: samples.len(),
+        });
+    }
+    for (i, s) in samples.iter().enumerate() {
+        if let Some((field, value)) = s.first_non_finite() {
+            return Err(SlipError::NonFiniteSample {
+                drive: i + 1,
+                field,
+                value,
+            });
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,141 @@
+//! End-to-end checks on simulated drives with known truth.
+
+use railmon_slip::{
+    AdhesionMethod, AdhesionScenario, DetectionCounter, DriveSample, DriveSimulator, EkfBank,
+    MultiMethodPipeline, SlipError, SlipMonitor,
+};
+
+const SEED: &str = include_str!("../../config/scenarios/adhesion-seed.toml");
+
+/// Runs every method over a scenario and scores each drive of each method.
+fn score_all(
+    scenario: &AdhesionScenario,
+) -> Vec<(AdhesionMethod, Vec<railmon_slip::DetectionScore>)> {
+    let mut sim = DriveSimulator::new(scenario).unwrap();
+    let mut pipe =
+        MultiMethodPipeline::new(&scenario.monitor_config(), scenario.n_drives()).unwrap();
+    let n = scenario.n_drives();
+    let mut counters = vec![vec![DetectionCounter::default(); n]; AdhesionMethod::ALL.len()];
+    let mut step = 0;
+    while let Some((samples, truth)) = sim.step() {
+        pipe.step(samples).unwrap();
+        for (m, (_, out)) in pipe.outputs().enumerate() {
+            for k in 0..n {
+                counters[m][k].push(step, out.slip_probability[k] > 0.5, truth[k].slipping);
+            }
+        }
+        step += 1;
+    }
+    AdhesionMethod::ALL
+        .iter()
+        .zip(counters)
+        .map(|(&m, c)| (m, c.iter().map(DetectionCounter::score).collect()))
+        .collect()
+}
+
+#[test]
+fn temporal_method_meets_the_issue_targets_on_the_seed_scenario() {
+    let scenario = AdhesionScenario::from_toml_str(SEED).unwrap();
+    let scores = score_all(&scenario);
+    let temporal = &scores
+        .iter()
+        .find(|(m, _)| *m == AdhesionMethod::Temporal)
+        .unwrap()
+        .1;
+    let d1 = &temporal[0];
+    assert!(d1.f1.unwrap() >= 0.98, "drive 1: {d1:?}");
+    assert!(d1.median_delay_steps.unwrap() <= 40.0, "drive 1: {d1:?}");
+    assert_eq!(d1.missed_events, 0, "{d1:?}");
+    for (k, d) in temporal.iter().enumerate().skip(1) {
+        assert_eq!(d.false_pos, 0, "drive {}: {d:?}", k + 1);
+    }
+    // The paper's methods, scored the same way, do worse on drive 1 or on drives 2-3.
+    for (m, s) in &scores {
+        if *m == AdhesionMethod::Temporal {
+            continue;
+        }
+        let worse_f1 = s[0].f1.unwrap_or(0.0) < d1.f1.unwrap();
+        let false_alarms = s[1..].iter().any(|d| d.false_pos > 0);
+        assert!(worse_f1 || false_alarms, "{m}: {s:?}");
+    }
+}
+
+#[test]
+fn ekf_tracks_speed_and_torque_on_noise_free_data() {
+    // The seed scenario without sensor noise and without slip events: the plant is exactly
+    // the EKF's model (one Euler step per sample), so the EKF must converge to the truth.
+    let text = SEED.replace("current_std_a = 0.01", "current_std_a = 0.0");
+    let mut scenario = AdhesionScenario::from_toml_str(&text).unwrap();
+    scenario.events.clear();
+    scenario.n_steps = 12_000;
+    let config = scenario.monitor_config();
+    let mut sim = DriveSimulator::new(&scenario).unwrap();
+    let mut bank = EkfBank::new(config.model().unwrap(), &config.ekf, scenario.n_drives()).unwrap();
+    let mut step = 0;
+    let mut worst = (0.0f64, 0.0f64, 0.0f64);
+    while let Some((samples, truth)) = sim.step() {
+        bank.step(samples).unwrap();
+        // Steady parts of the profile, after the lock-on and away from the 8000 switch.
+        let steady = (2000..7500).contains(&step) || (9000..12_000).contains(&step);
+        if steady {
+            for (f, tr) in bank.filters().iter().zip(truth) {
+                worst.0 = worst.0.max((f.speed_rad_s() - tr.speed_rad_s).abs());
+                worst.1 = worst.1.max((f.torque_nm() - tr.torque_nm).abs());
+                let dth = railmon_slip::model::wrap_angle(f.angle_rad() - tr.angle_rad);
+                worst.2 = worst.2.max(dth.abs());
+            }
+        }
+        for f in bank.filters() {
+            assert!(
+                railmon_filter::kalman::is_symmetric_positive_definite(&f.p, 1e-9),
+                "step {step}"
+            );
+        }
+        step += 1;
+    }
+    assert!(worst.0 < 1e-3, "speed error {} rad/s", worst.0);
+    assert!(worst.1 < 1e-3, "torque error {} N m", worst.1);
+    assert!(worst.2 < 1e-4, "angle error {} rad", worst.2);
+}
+
+#[test]
+fn bad_frame_leaves_the_monitor_unchanged() {
+    let scenario = AdhesionScenario::from_toml_str(SEED).unwrap();
+    let mut sim = DriveSimulator::new(&scenario).unwrap();
+    let mut monitor = SlipMonitor::new(&scenario.monitor_config(), 3).unwrap();
+    for _ in 0..500 {
+        let (samples, _) = sim.step().unwrap();
+        monitor.step(samples).unwrap();
+    }
+    let (samples, _) = sim.step().unwrap();
+    let good: Vec<DriveSample> = samples.to_vec();
+    let mut reference = monitor.clone();
+    let expected = reference.step(&good).unwrap().clone();
+
+    let mut nan = good.clone();
+    nan[1].i_beta_a = f64::NAN;
+    let err = monitor.step(&nan).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            SlipError::NonFiniteSample {
+                drive: 2,
+                field: "i_beta_a",
+                ..
+            }
+        ),
+        "{err}"
+    );
+    assert!(matches!(
+        monitor.step(&good[..2]),
+        Err(SlipError::WrongDriveCount {
+            expected: 3,
+            got: 2
+        })
+    ));
+    let mut inf = good.clone();
+    inf[0].u_alpha_v = f64::INFINITY;
+    assert!(monitor.step(&inf).is_err());
+    // After the rejected frames the monitor continues exactly as one that never saw them.
+    assert_eq!(monitor.step(&good).unwrap(), &expected);
+}
