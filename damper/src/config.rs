@@ -1,0 +1,395 @@
+//! Configuration of the damper monitor (RBPF + EKF), as validated values. Defaults are the
+//! paper's where it gives them (N = 1000, delta = 0.99, T = 1 ms).
+
+use serde::Deserialize;
+
+use crate::params::{non_negative, positive, BogieParams, Dampers};
+use crate::simulator::SensorNoise;
+use crate::DamperError;
+
+/// How each particle's Kalman filter propagates (section 4.3 and the speed/accuracy study in
+/// `docs/damper.md`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Propagation {
+    /// Per particle and step: `Phi, Gamma` by the matrix exponential of its own `A(theta)`,
+    /// full covariance predict and Joseph update. The reference; ~100x too slow for 1 kHz.
+    Exact,
+    /// Per particle: `Phi(theta) x` by a Taylor series of the sparse `A(theta)` (exact to
+    /// `taylor_order`), and the steady-state gain and innovation covariance of its `theta`,
+    /// interpolated bilinearly on a log-parameter grid of Riccati solutions.
+    #[default]
+    SteadyState,
+}
+
+/// When the Liu-West kernel moves the particles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum KernelSchedule {
+    /// Every step, as in the paper (section 4.3: draw `theta_k(i)` from eq. 24 each step).
+    EveryStep,
+    /// Only right after a resampling (resample-move): between resamplings the parameters are
+    /// fixed and each particle's Kalman filter is that of one static `theta`.
+    #[default]
+    AtResampling,
+}
+
+/// Grid of steady-state Riccati solutions over `(ln C_sy, ln C_say)`.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GainGridConfig {
+    /// Nodes per axis.
+    pub points_per_axis: usize,
+    /// Grid range as ratios of the nominal coefficients (both axes); particles outside use
+    /// the edge gain (their own `Phi` stays exact).
+    pub min_ratio: f64,
+    pub max_ratio: f64,
+}
+
+impl Default for GainGridConfig {
+    fn default() -> Self {
+        GainGridConfig {
+            points_per_axis: 33,
+            min_ratio: 0.1,
+            max_ratio: 3.0,
+        }
+    }
+}
+
+/// The Rao-Blackwellised particle filter (section 4).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RbpfConfig {
+    /// `N`.
+    pub particles: usize,
+    /// Liu-West discount factor `delta` (eq. 24): `a = (3 delta - 1) / (2 delta)`,
+    /// `h^2 = 1 - a^2`.
+    pub delta: f64,
+    /// Resample when the effective sample size falls below this fraction of `N`.
+    pub resample_ess_fraction: f64,
+    /// Prior: `ln C ~ N(ln(prior_ratio * nominal), prior_ln_std^2)` for each damper
+    /// (`prior_ln_std = 0`: the parameters are known).
+    pub prior_ratio: f64,
+    pub prior_ln_std: f64,
+    /// Extra random walk of `ln C` (1/sqrt(s)) added to the Liu-West move, so that the filter
+    /// can follow a damper that fails after the posterior has narrowed. `0` is the paper's
+    /// static-parameter filter.
+    pub ln_diffusion_per_sqrt_s: f64,
+    /// Probability, per particle and coefficient, of being redrawn (log-uniform over the gain
+    /// grid's range) at each kernel move, so that a damper that fails suddenly (a step far
+    /// outside the narrowed posterior) is found again. `0` is the paper's filter.
+    pub regeneration_fraction: f64,
+    pub propagation: Propagation,
+    pub kernel: KernelSchedule,
+    /// Order of the Taylor series for `Phi(theta) x` (steady-state propagation).
+    pub taylor_order: usize,
+    pub gain_grid: GainGridConfig,
+    /// Seed of the filter's own random numbers (kernel moves, resampling).
+    pub seed: u64,
+}
+
+impl Default for RbpfConfig {
+    fn default() -> Self {
+        RbpfConfig {
+            particles: 1000,
+            delta: 0.99,
+            resample_ess_fraction: 0.5,
+            prior_ratio: 1.0,
+            prior_ln_std: 0.5,
+            ln_diffusion_per_sqrt_s: 0.002,
+            regeneration_fraction: 0.01,
+            propagation: Propagation::SteadyState,
+            kernel: KernelSchedule::AtResampling,
+            taylor_order: 10,
+            gain_grid: GainGridConfig::default(),
+            seed: 0,
+        }
+    }
+}
+
+impl RbpfConfig {
+    pub fn validate(&self) -> Result<(), DamperError> {
+        if self.particles < 2 {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.particles",
+                value: self.particles as f64,
+                reason: "must be at least 2",
+            });
+        }
+        if !(self.delta > 1.0 / 3.0 && self.delta < 1.0) {
+            // a = (3 delta - 1) / (2 delta) must lie in (0, 1).
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.delta",
+                value: self.delta,
+                reason: "must be in (1/3, 1)",
+            });
+        }
+        if !(self.resample_ess_fraction > 0.0 && self.resample_ess_fraction <= 1.0) {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.resample_ess_fraction",
+                value: self.resample_ess_fraction,
+                reason: "must be in (0, 1]",
+            });
+        }
+        positive("rbpf.prior_ratio", self.prior_ratio)?;
+        non_negative("rbpf.prior_ln_std", self.prior_ln_std)?;
+        if !(0.0..0.5).contains(&self.regeneration_fraction) {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.regeneration_fraction",
+                value: self.regeneration_fraction,
+                reason: "must be in [0, 0.5)",
+            });
+        }
+        non_negative("rbpf.ln_diffusion_per_sqrt_s", self.ln_diffusion_per_sqrt_s)?;
+        if !(1..=30).contains(&self.taylor_order) {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.taylor_order",
+                value: self.taylor_order as f64,
+                reason: "must be in 1..=30",
+            });
+        }
+        let g = &self.gain_grid;
+        if g.points_per_axis < 2 {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.gain_grid.points_per_axis",
+                value: g.points_per_axis as f64,
+                reason: "must be at least 2",
+            });
+        }
+        positive("rbpf.gain_grid.min_ratio", g.min_ratio)?;
+        positive("rbpf.gain_grid.max_ratio", g.max_ratio)?;
+        if g.max_ratio <= g.min_ratio {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.gain_grid.max_ratio",
+                value: g.max_ratio,
+                reason: "must exceed min_ratio",
+            });
+        }
+        Ok(())
+    }
+
+    /// Liu-West shrinkage `a` and kernel variance factor `h^2` (eq. 24).
+    pub fn liu_west(&self) -> (f64, f64) {
+        let a = (3.0 * self.delta - 1.0) / (2.0 * self.delta);
+        (a, 1.0 - a * a)
+    }
+}
+
+/// The augmented-state EKF of section 3 (baseline).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EkfConfig {
+    pub enabled: bool,
+    /// Initial parameter estimate as a ratio of nominal, and its standard deviation (ratio).
+    pub initial_ratio: f64,
+    pub initial_ratio_std: f64,
+    /// Random walk of the parameters (`Q_n`, eq. 17), standard deviation per sqrt(s) in
+    /// ratio units.
+    pub ratio_random_walk_per_sqrt_s: f64,
+}
+
+impl Default for EkfConfig {
+    fn default() -> Self {
+        EkfConfig {
+            enabled: true,
+            initial_ratio: 1.0,
+            initial_ratio_std: 0.5,
+            ratio_random_walk_per_sqrt_s: 0.01,
+        }
+    }
+}
+
+impl EkfConfig {
+    pub fn validate(&self) -> Result<(), DamperError> {
+        positive("ekf.initial_ratio", self.initial_ratio)?;
+        positive("ekf.initial_ratio_std", self.initial_ratio_std)?;
+        non_negative(
+            "ekf.ratio_random_walk_per_sqrt_s",
+            self.ratio_random_walk_per_sqrt_s,
+        )
+    }
+}
+
+/// Everything one bogie's monitor needs.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DamperMonitorConfig {
+    /// The vehicle's design parameters (appendix).
+    pub vehicle: BogieParams,
+    /// The healthy dampers; health ratio = estimate / nominal.
+    pub nominal: Dampers,
+    /// Sample period `T` (s).
+    pub dt_s: f64,
+    /// The filters' white track-velocity model: `Q_w = sigma^2 I` per step ((m/s)).
+    pub track_velocity_std_m_s: f64,
+    /// The filters' sensor noise `Q_v`.
+    pub sensors: SensorNoise,
+    /// Standard deviation added to every state each step in the filters' model (units of
+    /// each state: m, rad, m/s, rad/s). The track input reaches the fast modes (the series
+    /// node at -145/s, the creep modes at -326/s) so weakly that their variance falls below
+    /// roundoff and a covariance loses definiteness within 0.3 s; the unmodelled forces of a
+    /// real vehicle (wind, traction, creep non-linearity) are the physical floor. 1e-8 per
+    /// step moves a position by 0.3 um per second: nothing the sensors could see.
+    pub process_noise_floor_std_per_step: f64,
+    /// Rate at which the filter model lets the unobservable track position relax (1/s), see
+    /// `model` docs; changes nothing observable, keeps covariances bounded.
+    pub drift_leak_per_s: f64,
+    pub rbpf: RbpfConfig,
+    pub ekf: EkfConfig,
+}
+
+impl Default for DamperMonitorConfig {
+    fn default() -> Self {
+        DamperMonitorConfig {
+            vehicle: BogieParams::default(),
+            nominal: Dampers::NOMINAL,
+            dt_s: 1e-3,
+            track_velocity_std_m_s: 0.05,
+            sensors: SensorNoise::default(),
+            process_noise_floor_std_per_step: 1e-8,
+            drift_leak_per_s: 0.1,
+            rbpf: RbpfConfig::default(),
+            ekf: EkfConfig::default(),
+        }
+    }
+}
+
+impl DamperMonitorConfig {
+    /// Parses a TOML table with the fields of this struct (all optional) and validates it.
+    pub fn from_toml_str(text: &str) -> Result<Self, DamperError> {
+        let c: DamperMonitorConfig =
+            toml::from_str(text).map_err(|e| DamperError::Config(e.to_string()))?;
+        c.validate()?;
+        Ok(c)
+    }
+
+    pub fn validate(&self) -> Result<(), DamperError> {
+        self.vehicle.validate()?;
+        self.nominal.validate()?;
+        positive("dt_s", self.dt_s)?;
+        positive("track_velocity_std_m_s", self.track_velocity_std_m_s)?;
+        self.sensors.validate()?;
+        positive("drift_leak_per_s", self.drift_leak_per_s)?;
+        non_negative(
+            "process_noise_floor_std_per_step",
+            self.process_noise_floor_std_per_step,
+        )?;
+        self.rbpf.validate()?;
+        self.ekf.validate()
+    }
+
+    /// `Q_w` and `Q_v` of the filter model.
+    pub fn noise(&self) -> crate::kalman::NoiseCovariances {
+        crate::kalman::NoiseCovariances {
+            q_w: nalgebra::Matrix2::identity() * self.track_velocity_std_m_s.powi(2),
+            q_v: self.sensors.covariance(),
+            q_floor: self.process_noise_floor_std_per_step.powi(2),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rejects(cfg: DamperMonitorConfig, name: &str) {
+        match cfg.validate() {
+            Err(DamperError::InvalidParameter { field, .. }) => assert_eq!(field, name),
+            other => panic!("{name}: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn default_is_valid_and_liu_west_matches_the_paper() {
+        let c = DamperMonitorConfig::default();
+        c.validate().unwrap();
+        let (a, h2) = c.rbpf.liu_west();
+        // delta = 0.99: a = 1.97 / 1.98.
+        assert!((a - 1.97 / 1.98).abs() < 1e-15);
+        assert!((h2 - (1.0 - a * a)).abs() < 1e-15);
+    }
+
+    /// One test per invalid monitor parameter, each error naming its field.
+    #[test]
+    fn each_invalid_monitor_parameter_is_rejected_by_name() {
+        let d = DamperMonitorConfig::default;
+        let with_rbpf = |f: fn(&mut RbpfConfig)| {
+            let mut c = d();
+            f(&mut c.rbpf);
+            c
+        };
+        rejects(DamperMonitorConfig { dt_s: 0.0, ..d() }, "dt_s");
+        rejects(
+            DamperMonitorConfig {
+                track_velocity_std_m_s: f64::NAN,
+                ..d()
+            },
+            "track_velocity_std_m_s",
+        );
+        rejects(
+            DamperMonitorConfig {
+                drift_leak_per_s: 0.0,
+                ..d()
+            },
+            "drift_leak_per_s",
+        );
+        rejects(
+            DamperMonitorConfig {
+                process_noise_floor_std_per_step: -1.0,
+                ..d()
+            },
+            "process_noise_floor_std_per_step",
+        );
+        let mut c = d();
+        c.sensors.accel_std_m_s2 = -1.0;
+        rejects(c, "accel_std_m_s2");
+        let mut c = d();
+        c.sensors.gyro_std_rad_s = 0.0;
+        rejects(c, "gyro_std_rad_s");
+        let mut c = d();
+        c.nominal.csay_ns_per_m = 0.0;
+        rejects(c, "csay_ns_per_m");
+        rejects(with_rbpf(|r| r.particles = 1), "rbpf.particles");
+        rejects(with_rbpf(|r| r.delta = 1.0), "rbpf.delta");
+        rejects(with_rbpf(|r| r.delta = 0.2), "rbpf.delta");
+        rejects(
+            with_rbpf(|r| r.resample_ess_fraction = 0.0),
+            "rbpf.resample_ess_fraction",
+        );
+        rejects(with_rbpf(|r| r.prior_ratio = -1.0), "rbpf.prior_ratio");
+        rejects(with_rbpf(|r| r.prior_ln_std = -0.1), "rbpf.prior_ln_std");
+        rejects(
+            with_rbpf(|r| r.regeneration_fraction = 0.5),
+            "rbpf.regeneration_fraction",
+        );
+        rejects(
+            with_rbpf(|r| r.ln_diffusion_per_sqrt_s = -0.1),
+            "rbpf.ln_diffusion_per_sqrt_s",
+        );
+        rejects(with_rbpf(|r| r.taylor_order = 0), "rbpf.taylor_order");
+        rejects(
+            with_rbpf(|r| r.gain_grid.points_per_axis = 1),
+            "rbpf.gain_grid.points_per_axis",
+        );
+        rejects(
+            with_rbpf(|r| r.gain_grid.min_ratio = 0.0),
+            "rbpf.gain_grid.min_ratio",
+        );
+        rejects(
+            with_rbpf(|r| r.gain_grid.max_ratio = 0.05),
+            "rbpf.gain_grid.max_ratio",
+        );
+        let mut c = d();
+        c.ekf.initial_ratio = 0.0;
+        rejects(c, "ekf.initial_ratio");
+        let mut c = d();
+        c.ekf.initial_ratio_std = f64::INFINITY;
+        rejects(c, "ekf.initial_ratio_std");
+        let mut c = d();
+        c.ekf.ratio_random_walk_per_sqrt_s = -1.0;
+        rejects(c, "ekf.ratio_random_walk_per_sqrt_s");
+        let mut c = d();
+        c.vehicle.conicity = 0.0;
+        rejects(c, "conicity");
+    }
+}

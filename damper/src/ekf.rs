@@ -1,0 +1,132 @@
+//! The baseline of section 3: an EKF on the state augmented with the two damper
+//! coefficients (19 states), the coefficients modelled as random walks, discretised as the
+//! paper does (`Phi ~ I + A T`, `Gamma ~ G T`, Jacobian eq. 18).
+//!
+//! The parameters are carried as ratios to nominal (`C = ratio * C_nominal`). An EKF is
+//! invariant to a constant linear rescaling of its state, so this is the paper's filter; it
+//! only keeps the covariance from spanning 1e-9 (states) to 1e10 ((N s/m)^2) in one matrix.
+
+use nalgebra::SMatrix;
+
+use crate::config::DamperMonitorConfig;
+use crate::model::{BogieModel, Matrix17, Matrix5, Matrix5x17, Vector5, N_OUTPUTS, N_STATES};
+use crate::params::Dampers;
+use crate::rbpf::initial_covariance;
+use crate::DamperError;
+use railmon_filter::kalman::update_joseph;
+
+const N_AUG: usize = N_STATES + 2;
+type Matrix19 = SMatrix<f64, N_AUG, N_AUG>;
+type Vector19 = SMatrix<f64, N_AUG, 1>;
+
+/// What the EKF says after a step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EkfEstimate {
+    pub dampers: Dampers,
+    /// Marginal standard deviations of `C_sy`, `C_say` (N s/m).
+    pub std_ns_per_m: [f64; 2],
+}
+
+#[derive(Debug, Clone)]
+pub struct AugmentedEkf {
+    model: BogieModel,
+    nominal: Dampers,
+    dt_s: f64,
+    h: SMatrix<f64, N_OUTPUTS, N_AUG>,
+    q: Matrix19,
+    q_v: Matrix5,
+    xi: Vector19,
+    p: Matrix19,
+}
+
+impl AugmentedEkf {
+    pub fn new(config: &DamperMonitorConfig) -> Result<Self, DamperError> {
+        config.validate()?;
+        let model = BogieModel::new(&config.vehicle, config.drift_leak_per_s)?;
+        let h17: Matrix5x17 = model.h_matrix();
+        let mut h = SMatrix::<f64, N_OUTPUTS, N_AUG>::zeros();
+        h.fixed_view_mut::<N_OUTPUTS, N_STATES>(0, 0)
+            .copy_from(&h17);
+        let dt = config.dt_s;
+        // Gamma ~ G T (section 3), Q_n: random walk of the ratios.
+        let gamma = model.g_matrix() * dt;
+        let noise = config.noise();
+        let mut q = Matrix19::zeros();
+        q.fixed_view_mut::<N_STATES, N_STATES>(0, 0)
+            .copy_from(&noise.process(&gamma));
+        let rw = config.ekf.ratio_random_walk_per_sqrt_s.powi(2) * dt;
+        q[(N_STATES, N_STATES)] = rw;
+        q[(N_STATES + 1, N_STATES + 1)] = rw;
+        let mut xi = Vector19::zeros();
+        xi[N_STATES] = config.ekf.initial_ratio;
+        xi[N_STATES + 1] = config.ekf.initial_ratio;
+        let mut p = Matrix19::zeros();
+        p.fixed_view_mut::<N_STATES, N_STATES>(0, 0)
+            .copy_from(&initial_covariance());
+        let v0 = config.ekf.initial_ratio_std.powi(2);
+        p[(N_STATES, N_STATES)] = v0;
+        p[(N_STATES + 1, N_STATES + 1)] = v0;
+        Ok(AugmentedEkf {
+            model,
+            nominal: config.nominal,
+            dt_s: dt,
+            h,
+            q,
+            q_v: noise.q_v,
+            xi,
+            p,
+        })
+    }
+
+    fn dampers(&self, xi: &Vector19) -> Dampers {
+        Dampers {
+            csy_ns_per_m: xi[N_STATES] * self.nominal.csy_ns_per_m,
+            csay_ns_per_m: xi[N_STATES + 1] * self.nominal.csay_ns_per_m,
+        }
+    }
+
+    /// Time propagation (eq. 16-18) then measurement update (eq. 12-15, Joseph form). On
+    /// error (the estimate has left the region where the model is defined, e.g. `C_sy` through
+    /// zero) the filter is unchanged and says so; the paper shows this filter diverging.
+    pub fn step(&mut self, y: &Vector5) -> Result<EkfEstimate, DamperError> {
+        let d = self.dampers(&self.xi);
+        let x = self.xi.fixed_rows::<N_STATES>(0).into_owned();
+        let a = self.model.a_matrix(&d);
+        let phi = Matrix17::identity() + a * self.dt_s;
+        let mut f = Matrix19::identity();
+        f.fixed_view_mut::<N_STATES, N_STATES>(0, 0).copy_from(&phi);
+        let mut dax = self.model.a_x_parameter_jacobian(&d, &x);
+        dax.column_mut(0).scale_mut(self.nominal.csy_ns_per_m);
+        dax.column_mut(1).scale_mut(self.nominal.csay_ns_per_m);
+        f.fixed_view_mut::<N_STATES, 2>(0, N_STATES)
+            .copy_from(&(dax * self.dt_s));
+        let mut xi_pred = self.xi;
+        xi_pred.fixed_rows_mut::<N_STATES>(0).copy_from(&(phi * x));
+        let p_pred = f * self.p * f.transpose() + self.q;
+        let innovation = y - self.h * xi_pred;
+        let u = update_joseph(&xi_pred, &p_pred, &innovation, &self.h, &self.q_v)?;
+        if u.p.iter().any(|v| !v.is_finite()) {
+            return Err(DamperError::NonFinite {
+                what: "EKF covariance",
+            });
+        }
+        self.xi = u.x;
+        self.p = u.p;
+        Ok(self.estimate())
+    }
+
+    pub fn estimate(&self) -> EkfEstimate {
+        EkfEstimate {
+            dampers: self.dampers(&self.xi),
+            std_ns_per_m: [
+                self.p[(N_STATES, N_STATES)].max(0.0).sqrt() * self.nominal.csy_ns_per_m,
+                self.p[(N_STATES + 1, N_STATES + 1)].max(0.0).sqrt() * self.nominal.csay_ns_per_m,
+            ],
+        }
+    }
+
+    /// The full augmented covariance (for invariant checks).
+    pub fn covariance(&self) -> &Matrix19 {
+        &self.p
+    }
+}

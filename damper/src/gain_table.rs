@@ -1,0 +1,126 @@
+//! Steady-state Kalman gains on a grid of `(ln C_sy, ln C_say)`, interpolated bilinearly.
+//!
+//! Once a particle's Kalman filter has run for a few seconds with (nearly) fixed parameters,
+//! its covariance is the Riccati solution of its `theta` (`kalman::steady_state`); the
+//! parameters move only by the small Liu-West kernel steps, so the gain, `S^-1` and `ln det S`
+//! are smooth functions of `theta` that can be tabulated once. The fast filter then carries
+//! only the 17-vector state per particle.
+
+use std::sync::Arc;
+
+use crate::config::GainGridConfig;
+use crate::expm::discretize;
+use crate::kalman::{steady_state, NoiseCovariances};
+use crate::model::{BogieModel, N_OUTPUTS, N_STATES};
+use crate::params::Dampers;
+use crate::DamperError;
+
+/// Values stored per node: gain (17 x 5, row-major), `S^-1` (5 x 5, row-major), `ln det S`.
+pub const GAIN_LEN: usize = N_STATES * N_OUTPUTS;
+pub const S_INV_OFFSET: usize = GAIN_LEN;
+pub const LN_DET_OFFSET: usize = GAIN_LEN + N_OUTPUTS * N_OUTPUTS;
+pub const NODE_LEN: usize = LN_DET_OFFSET + 1;
+
+/// The tabulated steady states.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GainTable {
+    ln_min: [f64; 2],
+    ln_step: [f64; 2],
+    n: usize,
+    /// Node `(i, j)` (i along `C_sy`, j along `C_say`) at `(i * n + j) * NODE_LEN`.
+    data: Vec<f64>,
+}
+
+/// Where a parameter falls in the table: the lower-left node and the bilinear weights.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Cell {
+    pub node: usize,
+    pub frac: [f64; 2],
+}
+
+impl GainTable {
+    /// Solves the Riccati equation at every node: `points_per_axis^2` solutions.
+    pub fn build(
+        model: &BogieModel,
+        noise: &NoiseCovariances,
+        nominal: &Dampers,
+        grid: &GainGridConfig,
+        dt_s: f64,
+    ) -> Result<Arc<Self>, DamperError> {
+        let n = grid.points_per_axis;
+        let nom = nominal.ln();
+        let ln_min = [nom[0] + grid.min_ratio.ln(), nom[1] + grid.min_ratio.ln()];
+        let span = (grid.max_ratio / grid.min_ratio).ln();
+        let ln_step = [span / (n - 1) as f64; 2];
+        let h = model.h_matrix();
+        let g = model.g_matrix();
+        let mut data = vec![0.0; n * n * NODE_LEN];
+        for i in 0..n {
+            for j in 0..n {
+                let d = Dampers::from_ln([
+                    ln_min[0] + i as f64 * ln_step[0],
+                    ln_min[1] + j as f64 * ln_step[1],
+                ]);
+                let disc = discretize(&model.a_matrix(&d), &g, dt_s)?;
+                let ss = steady_state(&disc, &h, noise)?;
+                let node = &mut data[(i * n + j) * NODE_LEN..(i * n + j + 1) * NODE_LEN];
+                for r in 0..N_STATES {
+                    for c in 0..N_OUTPUTS {
+                        node[r * N_OUTPUTS + c] = ss.gain[(r, c)];
+                    }
+                }
+                for r in 0..N_OUTPUTS {
+                    for c in 0..N_OUTPUTS {
+                        node[S_INV_OFFSET + r * N_OUTPUTS + c] = ss.s_inv[(r, c)];
+                    }
+                }
+                node[LN_DET_OFFSET] = ss.ln_det_s;
+            }
+        }
+        Ok(Arc::new(GainTable {
+            ln_min,
+            ln_step,
+            n,
+            data,
+        }))
+    }
+
+    /// The cell of `ln theta`, clamped to the table (outside it the edge value holds).
+    #[inline]
+    pub fn cell(&self, ln_theta: [f64; 2]) -> Cell {
+        let mut idx = [0usize; 2];
+        let mut frac = [0.0; 2];
+        for k in 0..2 {
+            let u =
+                ((ln_theta[k] - self.ln_min[k]) / self.ln_step[k]).clamp(0.0, (self.n - 1) as f64);
+            let i = (u.floor() as usize).min(self.n - 2);
+            idx[k] = i;
+            frac[k] = u - i as f64;
+        }
+        Cell {
+            node: idx[0] * self.n + idx[1],
+            frac,
+        }
+    }
+
+    /// Bilinear blend of the four nodes around `cell` into `out` (length `NODE_LEN`).
+    #[inline]
+    pub fn interpolate(&self, cell: &Cell, out: &mut [f64; NODE_LEN]) {
+        let [f0, f1] = cell.frac;
+        let w = [
+            (1.0 - f0) * (1.0 - f1),
+            (1.0 - f0) * f1,
+            f0 * (1.0 - f1),
+            f0 * f1,
+        ];
+        let base = cell.node * NODE_LEN;
+        let row = self.n * NODE_LEN;
+        let c00 = &self.data[base..base + NODE_LEN];
+        let c01 = &self.data[base + NODE_LEN..base + 2 * NODE_LEN];
+        let c10 = &self.data[base + row..base + row + NODE_LEN];
+        let c11 = &self.data[base + row + NODE_LEN..base + row + 2 * NODE_LEN];
+        for k in 0..NODE_LEN {
+            out[k] = w[0] * c00[k] + w[1] * c01[k] + w[2] * c10[k] + w[3] * c11[k];
+        }
+    }
+}

@@ -1,0 +1,128 @@
+//! One bogie's damper monitor: the RBPF (the estimate) and the EKF baseline side by side, fed
+//! one validated sample at a time. This is what the service runs per bogie.
+
+use std::sync::Arc;
+
+use crate::config::{DamperMonitorConfig, Propagation};
+use crate::ekf::{AugmentedEkf, EkfEstimate};
+use crate::gain_table::GainTable;
+use crate::rbpf::{DamperPosterior, Rbpf};
+use crate::simulator::BogieSample;
+use crate::DamperError;
+
+/// The monitor's output after a step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DamperEstimate {
+    /// Time since the monitor started (steps x dt).
+    pub time_s: f64,
+    /// RBPF posterior of `C_sy` and `C_say`.
+    pub csy: DamperPosterior,
+    pub csay: DamperPosterior,
+    pub effective_sample_size: f64,
+    /// The EKF baseline; `None` when disabled or after it diverged.
+    pub ekf: Option<EkfEstimate>,
+}
+
+#[derive(Debug, Clone)]
+pub struct DamperMonitor {
+    rbpf: Rbpf,
+    ekf: Option<AugmentedEkf>,
+    ekf_diverged_at_s: Option<f64>,
+    dt_s: f64,
+    steps: u64,
+    estimate: DamperEstimate,
+}
+
+impl DamperMonitor {
+    /// `seed` seeds the RBPF (one monitor per bogie: give each its own).
+    pub fn new(config: &DamperMonitorConfig, seed: u64) -> Result<Self, DamperError> {
+        config.validate()?;
+        let table = match config.rbpf.propagation {
+            Propagation::SteadyState => Some(Rbpf::gain_table(config)?),
+            Propagation::Exact => None,
+        };
+        Self::with_gain_table(config, seed, table)
+    }
+
+    /// As [`DamperMonitor::new`] with a gain table shared by the bogies of one vehicle type
+    /// (`Rbpf::gain_table(config)`).
+    pub fn with_gain_table(
+        config: &DamperMonitorConfig,
+        seed: u64,
+        table: Option<Arc<GainTable>>,
+    ) -> Result<Self, DamperError> {
+        let mut config = *config;
+        config.rbpf.seed = seed;
+        let rbpf = Rbpf::with_gain_table(&config, table)?;
+        let ekf = if config.ekf.enabled {
+            Some(AugmentedEkf::new(&config)?)
+        } else {
+            None
+        };
+        let r = rbpf.estimate();
+        Ok(DamperMonitor {
+            estimate: DamperEstimate {
+                time_s: 0.0,
+                csy: r.csy,
+                csay: r.csay,
+                effective_sample_size: r.effective_sample_size,
+                ekf: ekf.as_ref().map(|e| e.estimate()),
+            },
+            rbpf,
+            ekf,
+            ekf_diverged_at_s: None,
+            dt_s: config.dt_s,
+            steps: 0,
+        })
+    }
+
+    /// Validates the sample (every field finite: else an error naming the field, and nothing
+    /// changes), then steps both filters.
+    pub fn step(&mut self, sample: &BogieSample) -> Result<&DamperEstimate, DamperError> {
+        let y = sample.validate()?;
+        self.rbpf.step(&y)?;
+        self.steps += 1;
+        let time_s = self.steps as f64 * self.dt_s;
+        let ekf = match self.ekf.as_mut().map(|e| e.step(&y)) {
+            Some(Ok(e)) => Some(e),
+            Some(Err(_)) => {
+                // The baseline diverged (the paper's figures 4-5 show it doing so): stop it,
+                // remember when, keep the RBPF running.
+                self.ekf = None;
+                self.ekf_diverged_at_s = Some(time_s);
+                None
+            }
+            None => None,
+        };
+        let r = self.rbpf.estimate();
+        self.estimate = DamperEstimate {
+            time_s,
+            csy: r.csy,
+            csay: r.csay,
+            effective_sample_size: r.effective_sample_size,
+            ekf,
+        };
+        Ok(&self.estimate)
+    }
+
+    pub fn estimate(&self) -> &DamperEstimate {
+        &self.estimate
+    }
+
+    pub fn rbpf(&self) -> &Rbpf {
+        &self.rbpf
+    }
+
+    pub fn ekf(&self) -> Option<&AugmentedEkf> {
+        self.ekf.as_ref()
+    }
+
+    /// When the EKF baseline stopped (non-finite estimate), if it did.
+    pub fn ekf_diverged_at_s(&self) -> Option<f64> {
+        self.ekf_diverged_at_s
+    }
+
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+}
