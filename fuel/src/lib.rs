@@ -1,1 +1,33 @@
 //! Fuel consumption: recursive Bayesian mixture with data-dependent switching, vehicle simulator. No I/O.
+//!
+//! Following Suzdaleva's habilitation lecture (`../shared/seeds/002_*`) with the corrections of
+//! `../shared/docs/seed-notes.md`:
+//! - [`Mixture`]: Algorithm 3.4 on prepared vectors: normal regression components with
+//!   Gauss-inverse-Wishart statistics (eq. 10, 11, 13 with the least-squares split), categorical
+//!   components with Dirichlet counts (eq. 12, 15 normalised over categories), the
+//!   data-dependent switching model (eq. 16, 17), the pointer weights in log space;
+//! - [`FuelMonitor`]: the mixture on [`VehicleSample`]s with a validated [`FuelMonitorConfig`]:
+//!   any subset of channels, discretised speed and fuel, initialisation from the first samples,
+//!   forgetting; outputs the 0-step estimate, the honest 1-step forecast, a multi-step forecast,
+//!   a virtual fuel sensor, regime probabilities and cumulative fuel ([`FuelEstimate`]).
+
+pub mod config;
+pub mod counts;
+pub mod error;
+pub mod mixture;
+pub mod monitor;
+pub mod regression;
+pub mod sample;
+pub mod simulator;
+
+pub use config::{CategoricalConfig, FuelMonitorConfig, InitialPartition};
+pub use counts::CountTable;
+pub use error::FuelError;
+pub use mixture::{Mixture, MixtureInput, MixtureSpec};
+pub use monitor::{FuelEstimate, FuelMonitor, MixtureEstimate};
+pub use regression::RegressionStats;
+pub use sample::{bin_index, Channel, VehicleSample};
+pub use simulator::{
+    DriveCycle, DriverStyle, Segment, VehicleParameters, VehicleScenario, VehicleSimulator,
+    VehicleTruth,
+};

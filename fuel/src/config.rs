@@ -1,0 +1,335 @@
+//! Configuration of the fuel monitor: which channels, how they are discretised, the mixture's
+//! sizes, memories, priors and forgetting. Every field is validated by
+//! [`FuelMonitorConfig::validate`], which names the field and the value it rejects.
+
+use serde::{Deserialize, Serialize};
+
+use crate::sample::Channel;
+use crate::FuelError;
+
+/// The categorical channel `z` (the gear, section 4.1) and how raw gears are grouped into
+/// categories. The paper groups `{-1, 0} -> 1, {1, 2, 3} -> 2, 4 -> 3, 5 -> 4, 6 -> 5` so that the
+/// categories are about equally frequent.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CategoricalConfig {
+    /// `gear_groups[l]` lists the raw gears of category `l`. A gear in no group is an error
+    /// ([`FuelError::UnknownCategory`]); a category never observed keeps its Dirichlet prior.
+    pub gear_groups: Vec<Vec<i32>>,
+}
+
+impl Default for CategoricalConfig {
+    fn default() -> Self {
+        CategoricalConfig {
+            gear_groups: vec![vec![-1, 0], vec![1, 2, 3], vec![4], vec![5], vec![6]],
+        }
+    }
+}
+
+impl CategoricalConfig {
+    /// Category index of a raw gear.
+    pub fn category(&self, gear: i32) -> Option<usize> {
+        self.gear_groups.iter().position(|g| g.contains(&gear))
+    }
+}
+
+/// How the initial samples are split among the components before EM.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InitialPartition {
+    /// By rank of the fuel flow: component 0 the lowest `1/m_c` of the samples, and so on.
+    FuelRank,
+    /// Consecutive time blocks of equal length: for initial data recorded as one stretch per
+    /// known regime (the paper's prior data `Delta_0`), component `i` starts from stretch `i`.
+    TimeBlocks,
+}
+
+/// Settings of [`crate::FuelMonitor`]. `Default` is the setting used on the Camry files (fuel
+/// and speed only, no gear; chosen on those files, see `docs/fuel.md`): regression memory 2 (so
+/// that `psi` carries the last acceleration), the switching conditioned on the fuel level and
+/// the sign of the last acceleration, slow forgetting (0.998, memory ~500 s) so the components
+/// follow a warming engine, weak priors. [`FuelMonitorConfig::paper`] is the paper's setting:
+/// five channels + gear, memory 1, switching on the fuel level only, no forgetting.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FuelMonitorConfig {
+    /// Continuous channels `y_t`; must contain `fuel`. Internally fuel comes first.
+    pub channels: Vec<Channel>,
+    /// Channels whose past values enter the regressor `psi_t` (absent: all of `channels`, the
+    /// paper's `psi_t = [y_{t-1}, z_{t-1}, 1]`). With a subset, the other channels are static
+    /// within a component (a mean per component): their level then tells the components apart,
+    /// which is what recognising a regime needs, while fuel keeps its dynamics.
+    pub lagged_channels: Option<Vec<Channel>>,
+    /// The categorical channel `z_t` (gear), if the source has one.
+    pub categorical: Option<CategoricalConfig>,
+    /// Number of components `m_c` (driving regimes).
+    pub components: usize,
+    /// Memory `m_y` of the regression: `psi_t = [y_{t-1}, .., y_{t-m_y}, z_{t-1}, 1]`.
+    pub regression_memory: usize,
+    /// Bin edges (m/s) discretising the speed into `s_t` (section 4.2: 4 values). Used in the
+    /// categorical component's condition `[z_{t-1}, s_{t-1}]`.
+    pub speed_bins_m_s: Vec<f64>,
+    /// Bin edges (cm^3/s) discretising the fuel into `f_t` (section 4.2: 3 values), the data
+    /// the switching model `c_t | c_{t-1}, f_{t-1}` depends on.
+    pub fuel_bins_cm3_s: Vec<f64>,
+    /// Bin edges (m/s^2) discretising the acceleration `a_{t-1} = v_{t-1} - v_{t-2}` (per
+    /// sample period) for the switching model: `phi_{t-1} = [f_{t-1}, .., a_{t-1}]`. Empty: the
+    /// paper's `phi_{t-1} = f_{t-1}` only. Whether the driver is speeding up, cruising or
+    /// slowing down is what decides the regime next second (fuel cut-off follows braking), so
+    /// this is the most informative discrete datum the switching can condition on.
+    pub acceleration_bins_m_s2: Vec<f64>,
+    /// Memory `m_alpha` of the switching model: `phi_{t-1} = [f_{t-1}, .., f_{t-m_alpha}]`
+    /// (the paper's future work 3: longer switching memory).
+    pub switching_memory: usize,
+    /// Samples used to initialise the statistics before the on-line part (150 in the paper).
+    pub init_samples: usize,
+    /// How the initial samples are first split among the components.
+    pub init_partition: InitialPartition,
+    /// EM iterations on the initial samples (0: the initial partition by fuel level as is).
+    pub init_iterations: usize,
+    /// Weight of each initial sample in the statistics, in (0, 1000] (below 1 the on-line data
+    /// take over sooner; above 1 the initial data count as more than one sample each).
+    pub init_weight: f64,
+    /// Exponential forgetting factor lambda in (0, 1]; 1 = none. Applied as `lambda^w` to a
+    /// component updated with weight `w`, towards the prior (stabilised forgetting).
+    pub forgetting: f64,
+    /// Prior information matrix `V_0 = prior_information * I` (standardised units).
+    pub prior_information: f64,
+    /// Prior count `kappa_0`.
+    pub prior_kappa: f64,
+    /// Prior Dirichlet count of every cell of the categorical tables.
+    pub dirichlet_prior: f64,
+    /// Prior switching count for staying in the same component (`c_t = c_{t-1}`).
+    pub switching_prior_stay: f64,
+    /// Prior switching count for every change of component.
+    pub switching_prior_move: f64,
+    /// Floor on the eigenvalues of each component's noise covariance (standardised units).
+    pub min_noise_variance: f64,
+    /// Use the GiW predictive covariance `r (1 + psi' V_psi^-1 psi)` for the proximities instead
+    /// of the paper's plug-in `r`.
+    pub parameter_uncertainty: bool,
+    /// Horizon of the multi-step fuel forecast, in samples.
+    pub forecast_horizon_steps: usize,
+    /// Nominal sampling period (s), used to integrate the first sample's fuel.
+    pub sample_period_s: f64,
+}
+
+impl Default for FuelMonitorConfig {
+    fn default() -> Self {
+        FuelMonitorConfig {
+            channels: vec![Channel::Fuel, Channel::Speed],
+            lagged_channels: None,
+            categorical: None,
+            components: 3,
+            regression_memory: 2,
+            speed_bins_m_s: vec![0.5, 8.0, 20.0],
+            fuel_bins_cm3_s: vec![0.05, 0.8],
+            acceleration_bins_m_s2: vec![-0.3, 0.3],
+            switching_memory: 1,
+            init_samples: 150,
+            init_partition: InitialPartition::FuelRank,
+            init_iterations: 10,
+            init_weight: 1.0,
+            forgetting: 0.998,
+            prior_information: 1e-4,
+            prior_kappa: 1.0,
+            dirichlet_prior: 1.0,
+            switching_prior_stay: 1.0,
+            switching_prior_move: 1.0,
+            min_noise_variance: 1e-6,
+            parameter_uncertainty: true,
+            forecast_horizon_steps: 10,
+            sample_period_s: 1.0,
+        }
+    }
+}
+
+impl FuelMonitorConfig {
+    /// The paper's setting (section 4): five continuous channels, the gear as the categorical
+    /// channel, 3 components, 150 initial samples.
+    pub fn paper() -> Self {
+        FuelMonitorConfig {
+            channels: Channel::ALL.to_vec(),
+            categorical: Some(CategoricalConfig::default()),
+            regression_memory: 1,
+            acceleration_bins_m_s2: Vec::new(),
+            forgetting: 1.0,
+            ..Default::default()
+        }
+    }
+
+    /// The same setting with one component: the single recursive regression baseline.
+    pub fn single_regression(&self) -> Self {
+        FuelMonitorConfig {
+            components: 1,
+            ..self.clone()
+        }
+    }
+
+    /// Number of values of the discretised fuel `f`.
+    pub fn fuel_levels(&self) -> usize {
+        self.fuel_bins_cm3_s.len() + 1
+    }
+
+    /// Number of values of the discretised acceleration in the switching condition.
+    pub fn acceleration_levels(&self) -> usize {
+        self.acceleration_bins_m_s2.len() + 1
+    }
+
+    /// Number of configurations of the switching condition `phi_{t-1}`.
+    pub fn switching_rows(&self) -> usize {
+        self.fuel_levels().pow(self.switching_memory as u32) * self.acceleration_levels()
+    }
+
+    /// Number of values of the discretised speed `s`.
+    pub fn speed_levels(&self) -> usize {
+        self.speed_bins_m_s.len() + 1
+    }
+
+    /// Checks every field; the error names the first bad one.
+    pub fn validate(&self) -> Result<(), FuelError> {
+        if !self.channels.contains(&Channel::Fuel) {
+            return Err(FuelError::invalid(
+                "channels",
+                format!("{:?}", self.channels),
+                "must contain `fuel`",
+            ));
+        }
+        for (i, c) in self.channels.iter().enumerate() {
+            if self.channels[..i].contains(c) {
+                return Err(FuelError::invalid("channels", c, "listed twice"));
+            }
+        }
+        if let Some(lagged) = &self.lagged_channels {
+            if let Some(c) = lagged
+                .iter()
+                .enumerate()
+                .find(|(i, c)| !self.channels.contains(c) || lagged[..*i].contains(c))
+            {
+                return Err(FuelError::invalid(
+                    "lagged_channels",
+                    c.1,
+                    "not in `channels`, or listed twice",
+                ));
+            }
+        }
+        if let Some(cat) = &self.categorical {
+            if cat.gear_groups.len() < 2 || cat.gear_groups.iter().any(|g| g.is_empty()) {
+                return Err(FuelError::invalid(
+                    "categorical.gear_groups",
+                    format!("{:?}", cat.gear_groups),
+                    "needs at least two non-empty groups",
+                ));
+            }
+            for (i, g) in cat.gear_groups.iter().enumerate() {
+                for gear in g {
+                    if cat.gear_groups[..i].iter().any(|h| h.contains(gear))
+                        || g.iter().filter(|x| *x == gear).count() > 1
+                    {
+                        return Err(FuelError::invalid(
+                            "categorical.gear_groups",
+                            gear,
+                            "gear listed twice",
+                        ));
+                    }
+                }
+            }
+        }
+        if !(1..=64).contains(&self.components) {
+            return Err(FuelError::invalid(
+                "components",
+                self.components,
+                "must be in 1..=64",
+            ));
+        }
+        if self.regression_memory > 10 {
+            return Err(FuelError::invalid(
+                "regression_memory",
+                self.regression_memory,
+                "must be in 0..=10 (0: static components)",
+            ));
+        }
+        check_edges("speed_bins_m_s", &self.speed_bins_m_s)?;
+        check_edges("fuel_bins_cm3_s", &self.fuel_bins_cm3_s)?;
+        check_edges("acceleration_bins_m_s2", &self.acceleration_bins_m_s2)?;
+        if self.switching_memory == 0
+            || (self.fuel_levels() as f64).powi(self.switching_memory as i32)
+                * self.acceleration_levels() as f64
+                > 4096.0
+        {
+            return Err(FuelError::invalid(
+                "switching_memory",
+                self.switching_memory,
+                "must be >= 1 with at most 4096 configurations of [f_{t-1}, .., a_{t-1}]",
+            ));
+        }
+        let min_init = self.regression_memory.max(self.switching_memory) + 3;
+        if self.init_samples < min_init || self.init_samples > 1_000_000 {
+            return Err(FuelError::invalid(
+                "init_samples",
+                self.init_samples,
+                "must cover the memories plus two samples, and be at most 10^6",
+            ));
+        }
+        if self.init_iterations > 1000 {
+            return Err(FuelError::invalid(
+                "init_iterations",
+                self.init_iterations,
+                "must be at most 1000",
+            ));
+        }
+        if !(self.init_weight > 0.0 && self.init_weight <= 1000.0) {
+            return Err(FuelError::invalid(
+                "init_weight",
+                self.init_weight,
+                "must be in (0, 1000]",
+            ));
+        }
+        check_open_unit("forgetting", self.forgetting)?;
+        check_positive("prior_information", self.prior_information)?;
+        check_positive("prior_kappa", self.prior_kappa)?;
+        check_positive("dirichlet_prior", self.dirichlet_prior)?;
+        check_positive("switching_prior_stay", self.switching_prior_stay)?;
+        check_positive("switching_prior_move", self.switching_prior_move)?;
+        check_positive("min_noise_variance", self.min_noise_variance)?;
+        if !(1..=3600).contains(&self.forecast_horizon_steps) {
+            return Err(FuelError::invalid(
+                "forecast_horizon_steps",
+                self.forecast_horizon_steps,
+                "must be in 1..=3600",
+            ));
+        }
+        check_positive("sample_period_s", self.sample_period_s)?;
+        Ok(())
+    }
+}
+
+fn check_positive(field: &'static str, v: f64) -> Result<(), FuelError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(FuelError::invalid(field, v, "must be finite and > 0"))
+    }
+}
+
+fn check_open_unit(field: &'static str, v: f64) -> Result<(), FuelError> {
+    if v > 0.0 && v <= 1.0 {
+        Ok(())
+    } else {
+        Err(FuelError::invalid(field, v, "must be in (0, 1]"))
+    }
+}
+
+fn check_edges(field: &'static str, edges: &[f64]) -> Result<(), FuelError> {
+    if edges.iter().any(|e| !e.is_finite()) || edges.windows(2).any(|w| w[0] >= w[1]) {
+        return Err(FuelError::invalid(
+            field,
+            format!("{edges:?}"),
+            "must be finite and strictly increasing",
+        ));
+    }
+    if edges.len() > 63 {
+        return Err(FuelError::invalid(field, edges.len(), "at most 63 edges"));
+    }
+    Ok(())
+}

@@ -1,0 +1,360 @@
+//! Algorithm 3.4: recursive quasi-Bayes estimation of a mixture of normal regression components
+//! and categorical components with a data-dependent switching model, one pass, `O(m_c^2)` per
+//! step. This module works on prepared vectors (`y_t`, `psi_t`, the categorical cell and the
+//! switching configuration); [`crate::FuelMonitor`] builds them from vehicle samples.
+
+use nalgebra::{DMatrix, DVector};
+use railmon_filter::logspace::{log_sum_exp, normalize_log_weights};
+
+use crate::counts::CountTable;
+use crate::regression::RegressionStats;
+use crate::FuelError;
+
+/// Sizes and settings of a [`Mixture`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct MixtureSpec {
+    /// `m_c`.
+    pub components: usize,
+    /// Dimension of `y_t`.
+    pub k_y: usize,
+    /// Dimension of `psi_t`.
+    pub k_psi: usize,
+    /// Categories `m_z` of `z_t` (0: no categorical component).
+    pub categories: usize,
+    /// Configurations `m_psi` of the categorical condition `psi^z_{t-1}`.
+    pub categorical_rows: usize,
+    /// Configurations `m_phi` of the switching condition `phi_{t-1}`.
+    pub switching_rows: usize,
+    /// Forgetting factor in (0, 1].
+    pub forgetting: f64,
+    /// Proximities with the GiW predictive covariance `r (1 + zeta)` instead of `r`.
+    pub parameter_uncertainty: bool,
+    /// Prior statistics of every component.
+    pub prior_information: f64,
+    pub prior_kappa: f64,
+    pub min_noise_variance: f64,
+    pub dirichlet_prior: f64,
+    pub switching_prior_stay: f64,
+    pub switching_prior_move: f64,
+}
+
+/// One step's data for the mixture.
+#[derive(Clone, Debug)]
+pub struct MixtureInput<'a> {
+    /// `y_t`.
+    pub y: &'a DVector<f64>,
+    /// `psi_t` (data up to `t-1`).
+    pub psi: &'a DVector<f64>,
+    /// `(q, l)`: the configuration of `psi^z_{t-1}` and the category `z_t = l`.
+    pub category: Option<(usize, usize)>,
+    /// The configuration `k` of `phi_{t-1}`.
+    pub switching_row: usize,
+}
+
+/// The estimator state: component statistics, categorical counts, switching counts, pointer.
+#[derive(Clone, Debug)]
+pub struct Mixture {
+    spec: MixtureSpec,
+    v0: DMatrix<f64>,
+    components: Vec<RegressionStats>,
+    /// Per component: rows `q`, columns `l` (empty when there is no categorical channel).
+    categorical: Vec<CountTable>,
+    /// Rows `k * m_c + j` (`phi_{t-1} = k`, `c_{t-1} = j`), columns `i` (`c_t = i`).
+    switching: CountTable,
+    /// `ln w_{i;t}`, normalised.
+    log_w: Vec<f64>,
+    /// The last normalised joint `W_{i,j;t}` (eq. 9), row-major `i * m_c + j`.
+    joint: Vec<f64>,
+}
+
+impl Mixture {
+    /// A mixture at its prior: every component `V_0 = prior_information I`, uniform pointer.
+    pub fn new(spec: MixtureSpec) -> Result<Self, FuelError> {
+        if spec.components == 0 || spec.k_y == 0 || spec.k_psi == 0 || spec.switching_rows == 0 {
+            return Err(FuelError::Numerical("mixture of zero size"));
+        }
+        let d = spec.k_y + spec.k_psi;
+        let v0 = DMatrix::identity(d, d) * spec.prior_information;
+        let comp = RegressionStats::new(
+            spec.k_y,
+            v0.clone(),
+            spec.prior_kappa,
+            spec.min_noise_variance,
+        )?;
+        let m = spec.components;
+        let categorical = if spec.categories > 0 {
+            vec![
+                CountTable::new(spec.categorical_rows, spec.categories, |_, _| spec
+                    .dirichlet_prior);
+                m
+            ]
+        } else {
+            Vec::new()
+        };
+        let (stay, moves) = (spec.switching_prior_stay, spec.switching_prior_move);
+        let switching = CountTable::new(spec.switching_rows * m, m, |row, i| {
+            if row % m == i {
+                stay
+            } else {
+                moves
+            }
+        });
+        Ok(Mixture {
+            components: vec![comp; m],
+            categorical,
+            switching,
+            log_w: vec![-(m as f64).ln(); m],
+            joint: vec![1.0 / (m * m) as f64; m * m],
+            v0,
+            spec,
+        })
+    }
+
+    pub fn spec(&self) -> &MixtureSpec {
+        &self.spec
+    }
+
+    pub fn components(&self) -> &[RegressionStats] {
+        &self.components
+    }
+
+    pub fn categorical(&self) -> &[CountTable] {
+        &self.categorical
+    }
+
+    pub fn switching(&self) -> &CountTable {
+        &self.switching
+    }
+
+    /// `ln w_{i;t}` (normalised).
+    pub fn log_weights(&self) -> &[f64] {
+        &self.log_w
+    }
+
+    /// `w_{i;t}`, summing to 1.
+    pub fn weights(&self) -> Vec<f64> {
+        self.log_w.iter().map(|l| l.exp()).collect()
+    }
+
+    /// The joint posterior `W_{i,j;t} = f(c_t = i, c_{t-1} = j | data)` of the last step.
+    pub fn joint(&self) -> &[f64] {
+        &self.joint
+    }
+
+    /// The component with the largest weight: the point estimate of the pointer `c_t`.
+    pub fn active(&self) -> usize {
+        argmax(&self.log_w)
+    }
+
+    /// `ln alpha_{i|j,k}`, eq. (17).
+    pub fn log_alpha(&self, k: usize, j: usize, i: usize) -> f64 {
+        self.switching
+            .log_probability(k * self.spec.components + j, i)
+    }
+
+    /// The predicted pointer `f(c_{t+1} = i | data up to t) = sum_j alpha_{i|j,k} w_{j;t}` for
+    /// `phi_t = k`, written into `out` as log-probabilities (from log weights `log_w`).
+    pub fn predict_pointer_from(&self, log_w: &[f64], k: usize, out: &mut [f64]) {
+        let m = self.spec.components;
+        let mut terms = vec![0.0; m];
+        for (i, o) in out.iter_mut().enumerate() {
+            for (j, t) in terms.iter_mut().enumerate() {
+                *t = self.log_alpha(k, j, i) + log_w[j];
+            }
+            *o = log_sum_exp(&terms);
+        }
+    }
+
+    /// Log-probability of category `l` under condition `q` for component `i` (0 without a
+    /// categorical channel).
+    pub fn log_category(&self, i: usize, category: Option<(usize, usize)>) -> f64 {
+        match (category, self.categorical.get(i)) {
+            (Some((q, l)), Some(t)) => t.log_probability(q, l),
+            _ => 0.0,
+        }
+    }
+
+    fn check_input(&self, input: &MixtureInput) -> Result<(), FuelError> {
+        let bad = input.y.len() != self.spec.k_y
+            || input.psi.len() != self.spec.k_psi
+            || input.switching_row >= self.spec.switching_rows
+            || input
+                .y
+                .iter()
+                .chain(input.psi.iter())
+                .any(|v| !v.is_finite())
+            || match input.category {
+                Some((q, l)) => {
+                    self.categorical.is_empty()
+                        || q >= self.spec.categorical_rows
+                        || l >= self.spec.categories
+                }
+                None => !self.categorical.is_empty(),
+            };
+        if bad {
+            Err(FuelError::Numerical(
+                "mixture input of the wrong shape or not finite",
+            ))
+        } else {
+            Ok(())
+        }
+    }
+
+    /// One on-line step of Algorithm 3.4 (steps 2-8). On error the state is unchanged.
+    pub fn step(&mut self, input: &MixtureInput) -> Result<(), FuelError> {
+        self.check_input(input)?;
+        let m = self.spec.components;
+        let k = input.switching_row;
+        let d = concat(input.y, input.psi);
+        // Steps 2-4: proximities of y_t, probabilities of z_t, alpha_k and w_{t-1}, in logs.
+        let mut log_joint = vec![0.0; m * m];
+        for i in 0..m {
+            let evidence = self.components[i].log_proximity(
+                input.y,
+                input.psi,
+                self.spec.parameter_uncertainty,
+            ) + self.log_category(i, input.category);
+            for j in 0..m {
+                log_joint[i * m + j] = evidence + self.log_alpha(k, j, i) + self.log_w[j];
+            }
+        }
+        // Step 5: normalise W_{i,j;t}. Step 6: w_{i;t} = sum_j W_{i,j;t} (eq. 9).
+        normalize_log_weights(&mut log_joint)?;
+        let mut log_w: Vec<f64> = log_joint.chunks(m).map(log_sum_exp).collect();
+        normalize_log_weights(&mut log_w)?;
+        // Step 7: statistics, eq. (10)-(12) and (16); step 8 (eq. 13, 15, 17) inside.
+        let lambda = self.spec.forgetting;
+        let mut updated = self.components.clone();
+        for (i, comp) in updated.iter_mut().enumerate() {
+            let w = log_w[i].exp();
+            let forget = (lambda < 1.0).then(|| (lambda.powf(w), &self.v0, self.spec.prior_kappa));
+            comp.update(&d, w, forget)?;
+        }
+        self.components = updated;
+        if let Some((q, l)) = input.category {
+            for (i, table) in self.categorical.iter_mut().enumerate() {
+                let w = log_w[i].exp();
+                if lambda < 1.0 {
+                    table.forget_row(q, lambda.powf(w));
+                }
+                table.add(q, l, w);
+            }
+        }
+        let joint: Vec<f64> = log_joint.iter().map(|l| l.exp()).collect();
+        for j in 0..m {
+            let row = k * m + j;
+            if lambda < 1.0 {
+                let mass: f64 = (0..m).map(|i| joint[i * m + j]).sum();
+                self.switching.forget_row(row, lambda.powf(mass));
+            }
+            for i in 0..m {
+                self.switching.add(row, i, joint[i * m + j]);
+            }
+        }
+        self.joint = joint;
+        self.log_w = log_w;
+        Ok(())
+    }
+
+    /// Initial statistics from a batch of prior data (Algorithm 3.4, initial part; section 4.3):
+    /// starting from the hard partition `labels`, `iterations` rounds of EM for a static mixture
+    /// of the regression components, then the statistics are the prior plus `weight` times the
+    /// responsibility-weighted data. Switching counts come from consecutive responsibilities
+    /// (`W_{i,j} ~ r_{t,i} r_{t-1,j}`), the pointer from the last sample's responsibilities.
+    pub fn from_batch(
+        spec: MixtureSpec,
+        data: &[MixtureInput],
+        labels: &[usize],
+        iterations: usize,
+        weight: f64,
+    ) -> Result<Self, FuelError> {
+        let m = spec.components;
+        if data.is_empty() || labels.len() != data.len() || labels.iter().any(|&l| l >= m) {
+            return Err(FuelError::Numerical("initial data and labels do not match"));
+        }
+        let mut mix = Mixture::new(spec)?;
+        for input in data {
+            mix.check_input(input)?;
+        }
+        let ds: Vec<DVector<f64>> = data.iter().map(|x| concat(x.y, x.psi)).collect();
+        let mut resp: Vec<Vec<f64>> = labels
+            .iter()
+            .map(|&l| (0..m).map(|i| if i == l { 1.0 } else { 0.0 }).collect())
+            .collect();
+        let prior = mix.components[0].clone();
+        let fit = |resp: &[Vec<f64>], w: f64| -> Result<Vec<RegressionStats>, FuelError> {
+            (0..m)
+                .map(|i| {
+                    let mut c = prior.clone();
+                    for (d, r) in ds.iter().zip(resp) {
+                        c.accumulate(d, w * r[i]);
+                    }
+                    c.recompute()?;
+                    Ok(c)
+                })
+                .collect()
+        };
+        for _ in 0..iterations {
+            let comps = fit(&resp, 1.0)?;
+            let log_pi: Vec<f64> = (0..m)
+                .map(|i| (resp.iter().map(|r| r[i]).sum::<f64>() + 1.0).ln())
+                .collect();
+            for (input, r) in data.iter().zip(resp.iter_mut()) {
+                let mut l: Vec<f64> = (0..m)
+                    .map(|i| {
+                        log_pi[i]
+                            + comps[i].log_proximity(
+                                input.y,
+                                input.psi,
+                                mix.spec.parameter_uncertainty,
+                            )
+                    })
+                    .collect();
+                normalize_log_weights(&mut l)?;
+                for (ri, li) in r.iter_mut().zip(&l) {
+                    *ri = li.exp();
+                }
+            }
+        }
+        mix.components = fit(&resp, weight)?;
+        for (t, input) in data.iter().enumerate() {
+            if let Some((q, l)) = input.category {
+                for (i, table) in mix.categorical.iter_mut().enumerate() {
+                    table.add(q, l, weight * resp[t][i]);
+                }
+            }
+            if t > 0 {
+                let k = input.switching_row;
+                for j in 0..m {
+                    for i in 0..m {
+                        mix.switching
+                            .add(k * m + j, i, weight * resp[t][i] * resp[t - 1][j]);
+                    }
+                }
+            }
+        }
+        let last = resp.last().expect("data is not empty");
+        mix.log_w = last.iter().map(|r| r.max(1e-300).ln()).collect();
+        normalize_log_weights(&mut mix.log_w)?;
+        Ok(mix)
+    }
+}
+
+/// `[y; psi]`.
+pub(crate) fn concat(y: &DVector<f64>, psi: &DVector<f64>) -> DVector<f64> {
+    DVector::from_iterator(y.len() + psi.len(), y.iter().chain(psi.iter()).copied())
+}
+
+/// Index of the largest value (first on ties).
+pub(crate) fn argmax(v: &[f64]) -> usize {
+    v.iter()
+        .enumerate()
+        .fold((0, f64::NEG_INFINITY), |(bi, bv), (i, &x)| {
+            if x > bv {
+                (i, x)
+            } else {
+                (bi, bv)
+            }
+        })
+        .0
+}

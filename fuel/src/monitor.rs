@@ -1,0 +1,488 @@
+//! [`FuelMonitor`]: the recursive mixture run on vehicle samples, with the outputs a live
+//! service or an offline report needs at every step.
+//!
+//! The monitor validates each sample before anything changes, standardises the continuous
+//! channels with the mean and spread of the initial samples (so that one prior and one variance
+//! floor fit fuel in cm^3/s and engine speed in rpm alike; the proximities only shift by a
+//! constant common to all components, so the pointer is unaffected), builds the regressors
+//! `psi_t = [y_{t-1}, .., y_{t-m_y}, z_{t-1}, 1]`, the categorical condition `[z_{t-1}, s_{t-1}]`
+//! and the switching condition `[f_{t-1}, ..]`, and runs [`Mixture`].
+
+use std::collections::VecDeque;
+
+use nalgebra::DVector;
+use railmon_filter::logspace::normalize_log_weights;
+use serde::Serialize;
+
+use crate::config::{FuelMonitorConfig, InitialPartition};
+use crate::mixture::{argmax, Mixture, MixtureInput, MixtureSpec};
+use crate::sample::{bin_index, Channel, VehicleSample};
+use crate::FuelError;
+
+/// The estimator's outputs once it is initialised.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct MixtureEstimate {
+    /// The paper's 0-step estimate (section 4.4): `theta' psi_t` of the active component, the
+    /// pointer picked with `y_t` itself. Not a forecast.
+    pub zero_step_cm3_s: f64,
+    /// Honest 1-step forecast of this sample's fuel, made at `t-1` from data up to `t-1`, the
+    /// pointer predicted with the switching model.
+    pub one_step_forecast_cm3_s: f64,
+    /// Virtual fuel sensor: fuel now from the other channels now (and data up to `t-1`), each
+    /// component's Gaussian conditioned on the observed channels, weighted by the predicted
+    /// pointer times the likelihood of those channels. Equals the 1-step forecast when fuel is
+    /// the only continuous channel (and there is no gear).
+    pub virtual_sensor_cm3_s: f64,
+    /// Fuel forecasts for `t+1 .. t+H` (H = `forecast_horizon_steps`): pointer propagated with
+    /// the switching model, regressors filled with the forecast means, gear and speed level
+    /// held at their last values.
+    pub forecast_cm3_s: Vec<f64>,
+    /// `w_{i;t}`: probability of each component (driving regime).
+    pub regime_probabilities: Vec<f64>,
+    /// `argmax_i w_{i;t}`: the point estimate of the pointer.
+    pub active_regime: usize,
+    /// Fuel integrated from the virtual sensor since initialisation, cm^3.
+    pub cumulative_virtual_fuel_cm3: f64,
+}
+
+/// Everything the monitor reports after a sample.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct FuelEstimate {
+    pub time_s: f64,
+    /// Measured fuel now.
+    pub fuel_cm3_s: f64,
+    /// Measured fuel integrated over time, cm^3.
+    pub cumulative_fuel_cm3: f64,
+    /// Samples accepted so far.
+    pub samples: u64,
+    /// `None` while the first `init_samples` are being collected (and on the sample that
+    /// completes them: its forecast did not exist).
+    pub mixture: Option<MixtureEstimate>,
+}
+
+/// A sample reduced to what the mixture uses, checked.
+#[derive(Clone, Debug)]
+struct Prepared {
+    time_s: f64,
+    /// Continuous channels in the monitor's order (fuel first), raw units.
+    y: Vec<f64>,
+    category: Option<usize>,
+    speed_level: usize,
+    fuel_level: usize,
+    /// Discretised `v_t - v_{t-1}` (0 when acceleration bins are off or on the first sample).
+    acceleration_level: usize,
+    speed_m_s: Option<f64>,
+}
+
+/// Mean and spread of each channel from the initial samples.
+#[derive(Clone, Debug)]
+struct Standardiser {
+    mean: Vec<f64>,
+    scale: Vec<f64>,
+}
+
+impl Standardiser {
+    fn from_samples(channels: &[Channel], samples: &[Prepared]) -> Self {
+        let n = samples.len() as f64;
+        let mut mean = vec![0.0; channels.len()];
+        let mut scale = vec![0.0; channels.len()];
+        for (c, ch) in channels.iter().enumerate() {
+            let m = samples.iter().map(|s| s.y[c]).sum::<f64>() / n;
+            let var = samples.iter().map(|s| (s.y[c] - m).powi(2)).sum::<f64>() / n;
+            mean[c] = m;
+            scale[c] = var.sqrt().max(ch.min_scale());
+        }
+        Standardiser { mean, scale }
+    }
+
+    fn apply(&self, y: &[f64]) -> DVector<f64> {
+        DVector::from_iterator(
+            y.len(),
+            y.iter()
+                .enumerate()
+                .map(|(c, v)| (v - self.mean[c]) / self.scale[c]),
+        )
+    }
+
+    fn fuel(&self, standardised: f64) -> f64 {
+        self.mean[0] + self.scale[0] * standardised
+    }
+}
+
+/// What the regressors need from the past: newest first.
+#[derive(Clone, Debug, Default)]
+struct Past {
+    y: VecDeque<DVector<f64>>,
+    category: Option<usize>,
+    speed_level: usize,
+    fuel_levels: VecDeque<usize>,
+    acceleration_level: usize,
+}
+
+/// The recursive fuel estimator on vehicle samples. See the crate documentation.
+#[derive(Clone, Debug)]
+pub struct FuelMonitor {
+    config: FuelMonitorConfig,
+    channels: Vec<Channel>,
+    /// Indices (into `channels`) of the channels whose past enters `psi`.
+    lagged: Vec<usize>,
+    spec: MixtureSpec,
+    previous_time_s: Option<f64>,
+    previous_speed_m_s: Option<f64>,
+    initial: Vec<Prepared>,
+    standardiser: Option<Standardiser>,
+    past: Past,
+    mixture: Option<Mixture>,
+    /// Forecast path made at the previous step.
+    pending_forecast: Vec<f64>,
+    estimate: FuelEstimate,
+}
+
+impl FuelMonitor {
+    /// A monitor with validated `config`; it collects `init_samples` before estimating.
+    pub fn new(config: &FuelMonitorConfig) -> Result<Self, FuelError> {
+        config.validate()?;
+        let mut channels = vec![Channel::Fuel];
+        channels.extend(
+            config
+                .channels
+                .iter()
+                .copied()
+                .filter(|c| *c != Channel::Fuel),
+        );
+        let k_y = channels.len();
+        let lagged: Vec<usize> = match &config.lagged_channels {
+            Some(list) => (0..k_y).filter(|&i| list.contains(&channels[i])).collect(),
+            None => (0..k_y).collect(),
+        };
+        let categories = config
+            .categorical
+            .as_ref()
+            .map_or(0, |c| c.gear_groups.len());
+        let spec = MixtureSpec {
+            components: config.components,
+            k_y,
+            k_psi: lagged.len() * config.regression_memory + usize::from(categories > 0) + 1,
+            categories,
+            categorical_rows: categories.max(1) * config.speed_levels(),
+            switching_rows: config.switching_rows(),
+            forgetting: config.forgetting,
+            parameter_uncertainty: config.parameter_uncertainty,
+            prior_information: config.prior_information,
+            prior_kappa: config.prior_kappa,
+            min_noise_variance: config.min_noise_variance,
+            dirichlet_prior: config.dirichlet_prior,
+            switching_prior_stay: config.switching_prior_stay,
+            switching_prior_move: config.switching_prior_move,
+        };
+        Ok(FuelMonitor {
+            config: config.clone(),
+            channels,
+            lagged,
+            spec,
+            previous_time_s: None,
+            previous_speed_m_s: None,
+            initial: Vec::new(),
+            standardiser: None,
+            past: Past::default(),
+            mixture: None,
+            pending_forecast: Vec::new(),
+            estimate: FuelEstimate::default(),
+        })
+    }
+
+    pub fn config(&self) -> &FuelMonitorConfig {
+        &self.config
+    }
+
+    /// The continuous channels in the order the mixture uses (fuel first).
+    pub fn channels(&self) -> &[Channel] {
+        &self.channels
+    }
+
+    /// The mixture, once initialised (statistics in standardised units).
+    pub fn mixture(&self) -> Option<&Mixture> {
+        self.mixture.as_ref()
+    }
+
+    /// The last estimate.
+    pub fn estimate(&self) -> &FuelEstimate {
+        &self.estimate
+    }
+
+    /// Checks a sample against the configuration without changing anything.
+    fn prepare(&self, sample: &VehicleSample) -> Result<Prepared, FuelError> {
+        if !sample.time_s.is_finite() || self.previous_time_s.is_some_and(|p| sample.time_s <= p) {
+            return Err(FuelError::TimeNotIncreasing {
+                time_s: sample.time_s,
+                previous_s: self.previous_time_s.unwrap_or(f64::NEG_INFINITY),
+            });
+        }
+        let y = self
+            .channels
+            .iter()
+            .map(|&c| sample.checked(c))
+            .collect::<Result<Vec<f64>, FuelError>>()?;
+        let (category, speed_level) = match &self.config.categorical {
+            Some(cat) => {
+                let gear = sample.gear.ok_or(FuelError::MissingChannel {
+                    channel: Channel::Fuel,
+                    time_s: sample.time_s,
+                });
+                let gear = gear.map_err(|_| FuelError::UnknownCategory {
+                    gear: i32::MIN,
+                    time_s: sample.time_s,
+                })?;
+                let l = cat.category(gear).ok_or(FuelError::UnknownCategory {
+                    gear,
+                    time_s: sample.time_s,
+                })?;
+                let level = if self.config.speed_bins_m_s.is_empty() {
+                    0
+                } else {
+                    bin_index(&self.config.speed_bins_m_s, sample.checked(Channel::Speed)?)
+                };
+                (Some(l), level)
+            }
+            None => (None, 0),
+        };
+        let (acceleration_level, speed_m_s) = if self.config.acceleration_bins_m_s2.is_empty() {
+            (0, None)
+        } else {
+            let v = sample.checked(Channel::Speed)?;
+            let dt = self.previous_time_s.map_or(1.0, |p| sample.time_s - p);
+            let a = self.previous_speed_m_s.map_or(0.0, |p| (v - p) / dt);
+            (bin_index(&self.config.acceleration_bins_m_s2, a), Some(v))
+        };
+        Ok(Prepared {
+            acceleration_level,
+            speed_m_s,
+            time_s: sample.time_s,
+            fuel_level: bin_index(&self.config.fuel_bins_cm3_s, y[0]),
+            y,
+            category,
+            speed_level,
+        })
+    }
+
+    /// Processes one sample: validates it (on error nothing changes), then Algorithm 3.4's
+    /// on-line step and the outputs. The first `init_samples` only fill the initial batch.
+    pub fn update(&mut self, sample: &VehicleSample) -> Result<&FuelEstimate, FuelError> {
+        let p = self.prepare(sample)?;
+        let dt = self
+            .previous_time_s
+            .map_or(self.config.sample_period_s, |prev| p.time_s - prev);
+        let mixture_estimate = match self.mixture.is_some() {
+            true => Some(self.online_step(&p, dt)?),
+            false => {
+                self.initial.push(p.clone());
+                if self.initial.len() == self.config.init_samples {
+                    self.initialise()?;
+                }
+                None
+            }
+        };
+        self.previous_time_s = Some(p.time_s);
+        self.previous_speed_m_s = p.speed_m_s;
+        let e = &mut self.estimate;
+        e.time_s = p.time_s;
+        e.fuel_cm3_s = p.y[0];
+        e.cumulative_fuel_cm3 += p.y[0] * dt;
+        e.samples += 1;
+        e.mixture = mixture_estimate;
+        Ok(&self.estimate)
+    }
+
+    fn regressor(&self, past: &Past) -> DVector<f64> {
+        let mut psi = Vec::with_capacity(self.spec.k_psi);
+        for y in past.y.iter().take(self.config.regression_memory) {
+            psi.extend(self.lagged.iter().map(|&i| y[i]));
+        }
+        if self.spec.categories > 0 {
+            // The paper puts the gear itself in psi (section 4.2); centred, so that it does
+            // not compete with the constant.
+            let l = past.category.unwrap_or(0) as f64;
+            psi.push(l - 0.5 * (self.spec.categories - 1) as f64);
+        }
+        psi.push(1.0);
+        DVector::from_vec(psi)
+    }
+
+    fn category_cell(&self, past: &Past, now: Option<usize>) -> Option<(usize, usize)> {
+        now.map(|l| {
+            (
+                past.category.unwrap_or(0) * self.config.speed_levels() + past.speed_level,
+                l,
+            )
+        })
+    }
+
+    fn switching_row(&self, past: &Past) -> usize {
+        let n_f = self.config.fuel_levels();
+        let k_f = past.fuel_levels.iter().rev().fold(0, |k, &f| k * n_f + f);
+        k_f * self.config.acceleration_levels() + past.acceleration_level
+    }
+
+    fn push_past(past: &mut Past, y: DVector<f64>, p: &Prepared, m_y: usize, m_alpha: usize) {
+        past.y.push_front(y);
+        past.y.truncate(m_y);
+        past.category = p.category;
+        past.speed_level = p.speed_level;
+        past.fuel_levels.push_front(p.fuel_level);
+        past.fuel_levels.truncate(m_alpha);
+        past.acceleration_level = p.acceleration_level;
+    }
+
+    /// Initial part of Algorithm 3.4 from the collected samples: the components start from a
+    /// partition of the samples by fuel level (quantiles), refined by EM.
+    fn initialise(&mut self) -> Result<(), FuelError> {
+        let st = Standardiser::from_samples(&self.channels, &self.initial);
+        let (m_y, m_alpha) = (self.config.regression_memory, self.config.switching_memory);
+        let start = m_y.max(m_alpha);
+        let mut past = Past::default();
+        let mut ys = Vec::new();
+        let mut psis = Vec::new();
+        let mut cells = Vec::new();
+        let mut rows = Vec::new();
+        for (t, p) in self.initial.iter().enumerate() {
+            let y = st.apply(&p.y);
+            if t >= start {
+                psis.push(self.regressor(&past));
+                cells.push(self.category_cell(&past, p.category));
+                rows.push(self.switching_row(&past));
+                ys.push(y.clone());
+            }
+            Self::push_past(&mut past, y, p, m_y, m_alpha);
+        }
+        let inputs: Vec<MixtureInput> = (0..ys.len())
+            .map(|t| MixtureInput {
+                y: &ys[t],
+                psi: &psis[t],
+                category: cells[t],
+                switching_row: rows[t],
+            })
+            .collect();
+        let m = self.config.components;
+        let mut order: Vec<usize> = (0..ys.len()).collect();
+        if self.config.init_partition == InitialPartition::FuelRank {
+            // Component 0 the lowest fuel, m_c - 1 the highest.
+            order.sort_by(|&a, &b| ys[a][0].total_cmp(&ys[b][0]));
+        }
+        let mut labels = vec![0; ys.len()];
+        for (rank, &t) in order.iter().enumerate() {
+            labels[t] = rank * m / ys.len();
+        }
+        let mixture = Mixture::from_batch(
+            self.spec.clone(),
+            &inputs,
+            &labels,
+            self.config.init_iterations,
+            self.config.init_weight,
+        )?;
+        self.past = past;
+        self.standardiser = Some(st);
+        self.mixture = Some(mixture);
+        self.pending_forecast = self.forecast_path();
+        self.initial = Vec::new();
+        Ok(())
+    }
+
+    fn online_step(&mut self, p: &Prepared, dt: f64) -> Result<MixtureEstimate, FuelError> {
+        let (Some(st), Some(mixture)) = (self.standardiser.as_ref(), self.mixture.as_ref()) else {
+            return Err(FuelError::Numerical("monitor not initialised"));
+        };
+        let y = st.apply(&p.y);
+        let psi = self.regressor(&self.past);
+        let category = self.category_cell(&self.past, p.category);
+        let k = self.switching_row(&self.past);
+        let m = self.config.components;
+
+        // Virtual sensor (before the update: it must not see fuel now).
+        let mut log_pred = vec![0.0; m];
+        mixture.predict_pointer_from(mixture.log_weights(), k, &mut log_pred);
+        let y_other = y.rows(1, y.len() - 1).into_owned();
+        let mut cond = vec![0.0; m];
+        let mut log_v = vec![0.0; m];
+        for i in 0..m {
+            let (c, ld) = mixture.components()[i].condition_first_on_rest(
+                &psi,
+                &y_other,
+                self.config.parameter_uncertainty,
+            );
+            cond[i] = c;
+            log_v[i] = log_pred[i] + ld + mixture.log_category(i, category);
+        }
+        normalize_log_weights(&mut log_v)?;
+        let virtual_std: f64 = (0..m).map(|i| log_v[i].exp() * cond[i]).sum();
+        let virtual_sensor = st.fuel(virtual_std);
+
+        // Mixture::step changes nothing when it fails, so the monitor stays consistent.
+        let mixture = self.mixture.as_mut().expect("checked above");
+        mixture.step(&MixtureInput {
+            y: &y,
+            psi: &psi,
+            category,
+            switching_row: k,
+        })?;
+        let active = mixture.active();
+        let zero_step = st.fuel(mixture.components()[active].mean(&psi)[0]);
+        let regime_probabilities = mixture.weights();
+
+        // Commit the rest.
+        let (m_y, m_alpha) = (self.config.regression_memory, self.config.switching_memory);
+        Self::push_past(&mut self.past, y, p, m_y, m_alpha);
+        let one_step = self.pending_forecast.first().copied().unwrap_or(f64::NAN);
+        self.pending_forecast = self.forecast_path();
+        let cumulative_virtual = self
+            .estimate
+            .mixture
+            .as_ref()
+            .map_or(0.0, |e| e.cumulative_virtual_fuel_cm3)
+            + virtual_sensor * dt;
+        Ok(MixtureEstimate {
+            zero_step_cm3_s: zero_step,
+            one_step_forecast_cm3_s: one_step,
+            virtual_sensor_cm3_s: virtual_sensor,
+            forecast_cm3_s: self.pending_forecast.clone(),
+            regime_probabilities,
+            active_regime: active,
+            cumulative_virtual_fuel_cm3: cumulative_virtual,
+        })
+    }
+
+    /// Multi-step forecast of fuel from the current state (the paper's future work 2), by
+    /// propagating means: `p(c_{t+h})` with the switching model at the forecast fuel level,
+    /// `y_{t+h} = sum_i p_i theta_i' psi_{t+h}` with forecasts in the regressor.
+    fn forecast_path(&self) -> Vec<f64> {
+        let (Some(st), Some(mixture)) = (self.standardiser.as_ref(), self.mixture.as_ref()) else {
+            return Vec::new();
+        };
+        let m = self.config.components;
+        let mut past = self.past.clone();
+        let mut log_p = mixture.log_weights().to_vec();
+        let mut next = vec![0.0; m];
+        let mut path = Vec::with_capacity(self.config.forecast_horizon_steps);
+        for _ in 0..self.config.forecast_horizon_steps {
+            mixture.predict_pointer_from(&log_p, self.switching_row(&past), &mut next);
+            let psi = self.regressor(&past);
+            let mut y = DVector::zeros(self.spec.k_y);
+            for (i, comp) in mixture.components().iter().enumerate() {
+                y += comp.mean(&psi) * next[i].exp();
+            }
+            let fuel = st.fuel(y[0]);
+            path.push(fuel);
+            let level = bin_index(&self.config.fuel_bins_cm3_s, fuel);
+            past.y.push_front(y);
+            past.y.truncate(self.config.regression_memory);
+            past.fuel_levels.push_front(level);
+            past.fuel_levels.truncate(self.config.switching_memory);
+            std::mem::swap(&mut log_p, &mut next);
+        }
+        path
+    }
+
+    /// Index of the most probable component now (`None` before initialisation).
+    pub fn active_regime(&self) -> Option<usize> {
+        self.mixture.as_ref().map(|m| argmax(m.log_weights()))
+    }
+}

@@ -1,0 +1,293 @@
+//! A normal regression component `y_t ~ N(theta' psi_t, r)` with Gauss-inverse-Wishart
+//! statistics (eq. 2, 10, 11, 13, 14).
+//!
+//! The statistics are the extended information matrix `V = sum w d d'` of the data vector
+//! `d = [y; psi]` and the count `kappa = sum w`. Point estimates follow the least-squares split
+//! of `V` (seed-notes erratum to eq. 13: the printed partition (14) puts a scalar `V_1` where the
+//! regressor block is, and mixes the roles of its blocks):
+//! `V = [[V_yy, V_psiy'], [V_psiy, V_psi]]`, `theta = V_psi^-1 V_psiy`,
+//! `r = (V_yy - V_psiy' theta) / kappa`.
+
+use nalgebra::{Cholesky, DMatrix, DVector, SymmetricEigen};
+use railmon_filter::kalman::LN_2PI;
+
+use crate::FuelError;
+
+/// GiW statistics of one component and the point estimates derived from them.
+#[derive(Clone, Debug)]
+pub struct RegressionStats {
+    k_y: usize,
+    /// Extended information matrix over `d = [y; psi]`, `(k_y + p) x (k_y + p)`.
+    v: DMatrix<f64>,
+    kappa: f64,
+    /// Smallest eigenvalue allowed for `r` (a component that only ever sees exact zeros, the
+    /// fuel cut-off, would otherwise get a zero variance and an infinite density).
+    min_variance: f64,
+    // Point estimates, recomputed after each update (eq. 13).
+    theta: DMatrix<f64>,
+    r: DMatrix<f64>,
+    r_chol: Cholesky<f64, nalgebra::Dyn>,
+    r_log_det: f64,
+    v_psi_chol: Cholesky<f64, nalgebra::Dyn>,
+}
+
+impl RegressionStats {
+    /// Statistics from a prior `v0` (must be symmetric positive definite) and `kappa0 > 0`.
+    pub fn new(
+        k_y: usize,
+        v0: DMatrix<f64>,
+        kappa0: f64,
+        min_variance: f64,
+    ) -> Result<Self, FuelError> {
+        let d = v0.nrows();
+        if d <= k_y || v0.ncols() != d {
+            return Err(FuelError::Numerical(
+                "regression statistics of the wrong size",
+            ));
+        }
+        let p = d - k_y;
+        let mut s = RegressionStats {
+            k_y,
+            v: v0,
+            kappa: kappa0,
+            min_variance,
+            theta: DMatrix::zeros(p, k_y),
+            r: DMatrix::identity(k_y, k_y),
+            r_chol: Cholesky::new(DMatrix::identity(k_y, k_y)).expect("identity is SPD"),
+            r_log_det: 0.0,
+            v_psi_chol: Cholesky::new(DMatrix::identity(p, p)).expect("identity is SPD"),
+        };
+        s.recompute()?;
+        Ok(s)
+    }
+
+    pub fn k_y(&self) -> usize {
+        self.k_y
+    }
+
+    /// Dimension of the regressor `psi`.
+    pub fn k_psi(&self) -> usize {
+        self.v.nrows() - self.k_y
+    }
+
+    pub fn v(&self) -> &DMatrix<f64> {
+        &self.v
+    }
+
+    pub fn kappa(&self) -> f64 {
+        self.kappa
+    }
+
+    /// Regression coefficients, `k_psi x k_y`: the mean of `y` is `theta' psi`.
+    pub fn theta(&self) -> &DMatrix<f64> {
+        &self.theta
+    }
+
+    /// Noise covariance estimate `r` (after the variance floor).
+    pub fn r(&self) -> &DMatrix<f64> {
+        &self.r
+    }
+
+    /// Eq. (10)-(11) with optional stabilised forgetting: `V <- lambda V + (1 - lambda) V0 + w d d'`,
+    /// `kappa <- lambda kappa + (1 - lambda) kappa0 + w`. Forgetting towards the prior `V0`
+    /// (rather than towards zero) keeps `V_psi` invertible for a component that is rarely active.
+    pub fn update(
+        &mut self,
+        d: &DVector<f64>,
+        weight: f64,
+        forgetting: Option<(f64, &DMatrix<f64>, f64)>,
+    ) -> Result<(), FuelError> {
+        if let Some((lambda, v0, kappa0)) = forgetting {
+            self.v *= lambda;
+            self.v += v0 * (1.0 - lambda);
+            self.kappa = lambda * self.kappa + (1.0 - lambda) * kappa0;
+        }
+        self.v.syger(weight, d, d, 1.0);
+        self.kappa += weight;
+        self.recompute()
+    }
+
+    /// Adds `w d d'` without recomputing the point estimates (batch initialisation).
+    pub(crate) fn accumulate(&mut self, d: &DVector<f64>, weight: f64) {
+        self.v.syger(weight, d, d, 1.0);
+        self.kappa += weight;
+    }
+
+    /// Eq. (13), least-squares split (see the module comment).
+    pub fn recompute(&mut self) -> Result<(), FuelError> {
+        let k = self.k_y;
+        let p = self.k_psi();
+        // Keep V exactly symmetric: syger writes the lower triangle only.
+        for i in 0..k + p {
+            for j in (i + 1)..k + p {
+                self.v[(i, j)] = self.v[(j, i)];
+            }
+        }
+        let v_psi = self.v.view((k, k), (p, p)).into_owned();
+        let v_psiy = self.v.view((k, 0), (p, k)).into_owned();
+        let v_yy = self.v.view((0, 0), (k, k)).into_owned();
+        let chol = cholesky_with_jitter(v_psi)
+            .ok_or(FuelError::Numerical("V_psi not positive definite"))?;
+        let theta = chol.solve(&v_psiy);
+        let mut r = (v_yy - v_psiy.transpose() * &theta) / self.kappa.max(f64::MIN_POSITIVE);
+        // Floor the eigenvalues at `min_variance`: rounding in V_yy - V_psiy' theta (a
+        // difference of two large, nearly equal numbers after 10^6 steps) can leave r
+        // indefinite. Fast path: `r - floor I` positive definite means no eigenvalue is below
+        // the floor, and r stays as it is; otherwise clamp the eigenvalues.
+        r = (&r + r.transpose()) * 0.5;
+        let floor = DMatrix::identity(self.k_y, self.k_y) * self.min_variance;
+        let above_floor = r.iter().all(|v| v.is_finite()) && Cholesky::new(&r - &floor).is_some();
+        if !above_floor {
+            let eig = SymmetricEigen::new(r);
+            let vals = eig.eigenvalues.map(|l| {
+                if l.is_finite() {
+                    l.max(self.min_variance)
+                } else {
+                    self.min_variance
+                }
+            });
+            r = &eig.eigenvectors * DMatrix::from_diagonal(&vals) * eig.eigenvectors.transpose();
+            r = (&r + r.transpose()) * 0.5;
+        }
+        let r_chol = cholesky_with_jitter(r.clone()).ok_or(FuelError::Numerical(
+            "noise covariance not positive definite",
+        ))?;
+        if theta.iter().any(|v| !v.is_finite()) {
+            return Err(FuelError::Numerical("regression coefficients not finite"));
+        }
+        self.r_log_det = r_chol.l().diagonal().iter().map(|l| 2.0 * l.ln()).sum();
+        self.theta = theta;
+        self.r = r;
+        self.r_chol = r_chol;
+        self.v_psi_chol = chol;
+        Ok(())
+    }
+
+    /// Mean of `y` given the regressor: `theta' psi`.
+    pub fn mean(&self, psi: &DVector<f64>) -> DVector<f64> {
+        self.theta.tr_mul(psi)
+    }
+
+    /// `zeta = psi' V_psi^-1 psi`: the parameter uncertainty at this regressor, relative to the
+    /// noise (the GiW predictive covariance is `r (1 + zeta)`).
+    pub fn zeta(&self, psi: &DVector<f64>) -> f64 {
+        let x = self.v_psi_chol.solve(psi);
+        psi.dot(&x).max(0.0)
+    }
+
+    /// Log of the component's "proximity" to `y` (Algorithm 3.4 step 2), in log space (seed-notes:
+    /// a 5-dimensional density underflows). With `parameter_uncertainty` the covariance is
+    /// `r (1 + zeta)`, the GiW predictive's covariance; without it, the paper's plug-in `r`.
+    pub fn log_proximity(
+        &self,
+        y: &DVector<f64>,
+        psi: &DVector<f64>,
+        parameter_uncertainty: bool,
+    ) -> f64 {
+        let e = y - self.mean(psi);
+        let inflate = if parameter_uncertainty {
+            1.0 + self.zeta(psi)
+        } else {
+            1.0
+        };
+        let q = e.dot(&self.r_chol.solve(&e)) / inflate;
+        let k = self.k_y as f64;
+        -0.5 * (k * LN_2PI + self.r_log_det + k * inflate.ln() + q)
+    }
+
+    /// Fuel (channel 0) conditioned on the other channels `y_other` (channels 1..k_y) now:
+    /// returns the conditional mean of `y_0` and the log-density of `y_other` under the marginal
+    /// of the component's predictive Gaussian, used to weight the components (virtual sensor).
+    pub fn condition_first_on_rest(
+        &self,
+        psi: &DVector<f64>,
+        y_other: &DVector<f64>,
+        parameter_uncertainty: bool,
+    ) -> (f64, f64) {
+        let mean = self.mean(psi);
+        let k = self.k_y;
+        if k == 1 {
+            return (mean[0], 0.0);
+        }
+        let inflate = if parameter_uncertainty {
+            1.0 + self.zeta(psi)
+        } else {
+            1.0
+        };
+        let r_oo = self.r.view((1, 1), (k - 1, k - 1)).into_owned() * inflate;
+        let r_fo = self.r.view((0, 1), (1, k - 1)).into_owned() * inflate;
+        let e = y_other - mean.rows(1, k - 1);
+        let Some(chol) = Cholesky::new(r_oo) else {
+            // Cannot happen: a principal block of an SPD matrix is SPD. Fall back to the mean.
+            return (mean[0], 0.0);
+        };
+        let solved = chol.solve(&e);
+        let cond_mean = mean[0] + (r_fo * &solved)[0];
+        let log_det: f64 = chol.l().diagonal().iter().map(|l| 2.0 * l.ln()).sum();
+        let log_density = -0.5 * ((k - 1) as f64 * LN_2PI + log_det + e.dot(&solved));
+        (cond_mean, log_density)
+    }
+}
+
+/// Cholesky factor of a matrix that is positive definite in exact arithmetic but may not be in
+/// floating point: `V_psi = V_0 + sum w psi psi'` after 10^6 updates of size 10^12 has lost the
+/// `V_0 = 10^-3 I` of its small directions to rounding. Retries with a jitter `eps max(diag) I`,
+/// `eps = 10^-14 .. 10^-8`, used for the factor only (the statistics are left as they are).
+fn cholesky_with_jitter(m: DMatrix<f64>) -> Option<Cholesky<f64, nalgebra::Dyn>> {
+    if let Some(c) = Cholesky::new(m.clone()) {
+        return Some(c);
+    }
+    let scale = m.diagonal().iter().fold(0.0f64, |a, d| a.max(d.abs()));
+    if !scale.is_finite() {
+        return None;
+    }
+    let n = m.nrows();
+    [1e-14, 1e-12, 1e-10, 1e-8]
+        .iter()
+        .find_map(|eps| Cholesky::new(&m + DMatrix::identity(n, n) * (eps * scale)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn proximity_is_the_gaussian_log_density() {
+        // k_y = 1, psi = [1]: V = diag(v_yy, v_1) with v_psiy = 2 -> theta = 2 / v_1.
+        let v0 = DMatrix::from_row_slice(2, 2, &[10.0, 2.0, 2.0, 4.0]);
+        let s = RegressionStats::new(1, v0, 5.0, 1e-9).unwrap();
+        let theta = 0.5;
+        let r = (10.0 - 2.0 * theta) / 5.0;
+        assert!((s.theta()[0] - theta).abs() < 1e-12);
+        assert!((s.r()[(0, 0)] - r).abs() < 1e-12);
+        let y = DVector::from_element(1, 1.3);
+        let psi = DVector::from_element(1, 1.0);
+        let expected = -0.5 * (LN_2PI + r.ln() + (1.3 - theta).powi(2) / r);
+        assert!((s.log_proximity(&y, &psi, false) - expected).abs() < 1e-12);
+        // zeta = psi' V_psi^-1 psi = 1/4.
+        assert!((s.zeta(&psi) - 0.25).abs() < 1e-12);
+    }
+
+    #[test]
+    fn conditioning_matches_the_bivariate_formula() {
+        // y = [a, b], psi = [1], V chosen so that theta = [1, 2], r = [[1, .5], [.5, 2]] (kappa 1).
+        let theta = [1.0, 2.0];
+        let r = [[1.0, 0.5], [0.5, 2.0]];
+        let v_psi = 1.0;
+        let mut v = DMatrix::zeros(3, 3);
+        for i in 0..2 {
+            for j in 0..2 {
+                v[(i, j)] = r[i][j] + theta[i] * theta[j] * v_psi;
+            }
+            v[(i, 2)] = theta[i] * v_psi;
+            v[(2, i)] = theta[i] * v_psi;
+        }
+        v[(2, 2)] = v_psi;
+        let s = RegressionStats::new(2, v, 1.0, 1e-12).unwrap();
+        let psi = DVector::from_element(1, 1.0);
+        let (m, ld) = s.condition_first_on_rest(&psi, &DVector::from_element(1, 3.0), false);
+        assert!((m - (1.0 + 0.5 / 2.0 * (3.0 - 2.0))).abs() < 1e-12);
+        let expected_ld = -0.5 * (LN_2PI + 2f64.ln() + 1.0 / 2.0);
+        assert!((ld - expected_ld).abs() < 1e-12);
+    }
+}

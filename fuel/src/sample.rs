@@ -1,0 +1,185 @@
+//! One 1 Hz sample of the vehicle's channels, and its validation.
+
+use serde::{Deserialize, Serialize};
+
+use crate::FuelError;
+
+/// A continuous channel of the vehicle (the paper's `y_{1..5;t}`, section 2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Channel {
+    /// Instantaneous fuel flow, cm^3/s (the paper's `y_1`, there in microlitres per sample).
+    Fuel,
+    /// Vehicle speed, m/s.
+    Speed,
+    /// Accelerator pedal, %.
+    Pedal,
+    /// Engine torque, N m.
+    EngineTorque,
+    /// Engine speed, rpm.
+    EngineSpeed,
+}
+
+impl Channel {
+    pub const ALL: [Channel; 5] = [
+        Channel::Fuel,
+        Channel::Speed,
+        Channel::Pedal,
+        Channel::EngineTorque,
+        Channel::EngineSpeed,
+    ];
+
+    /// Name as written in configs and CSV headers.
+    pub fn name(self) -> &'static str {
+        match self {
+            Channel::Fuel => "fuel",
+            Channel::Speed => "speed",
+            Channel::Pedal => "pedal",
+            Channel::EngineTorque => "engine_torque",
+            Channel::EngineSpeed => "engine_speed",
+        }
+    }
+
+    /// Physically plausible range: a value outside it is a sensor or file fault, rejected before it
+    /// reaches the statistics (a single 1e200 would overflow `V` for good).
+    pub fn plausible_range(self) -> (f64, f64) {
+        match self {
+            // A 2.5 l petrol engine at full load burns ~10 cm^3/s; small negative values are
+            // flow-meter noise around zero (the Camry files have none, but other meters do).
+            Channel::Fuel => (-1.0, 100.0),
+            Channel::Speed => (-5.0, 100.0),
+            Channel::Pedal => (-1.0, 101.0),
+            Channel::EngineTorque => (-1000.0, 5000.0),
+            Channel::EngineSpeed => (-100.0, 20000.0),
+        }
+    }
+
+    /// Smallest spread used when standardising the channel, so that a channel that happens to be
+    /// constant during initialisation (pedal 0 while idling) does not get an infinite scale.
+    pub(crate) fn min_scale(self) -> f64 {
+        match self {
+            Channel::Fuel => 0.05,
+            Channel::Speed => 0.5,
+            Channel::Pedal => 1.0,
+            Channel::EngineTorque => 5.0,
+            Channel::EngineSpeed => 50.0,
+        }
+    }
+}
+
+impl std::fmt::Display for Channel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// One sample of the vehicle, what a CAN logger or a dynamometer gives at 1 Hz. Channels a
+/// source does not have are `None` (the Camry files have only fuel and speed).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct VehicleSample {
+    pub time_s: f64,
+    pub fuel_cm3_s: Option<f64>,
+    pub speed_m_s: Option<f64>,
+    pub pedal_pct: Option<f64>,
+    pub engine_torque_nm: Option<f64>,
+    pub engine_speed_rpm: Option<f64>,
+    /// Selected gear as the vehicle reports it (-1 reverse, 0 neutral, 1..6).
+    pub gear: Option<i32>,
+}
+
+impl VehicleSample {
+    /// The value of one continuous channel, if present.
+    pub fn channel(&self, channel: Channel) -> Option<f64> {
+        match channel {
+            Channel::Fuel => self.fuel_cm3_s,
+            Channel::Speed => self.speed_m_s,
+            Channel::Pedal => self.pedal_pct,
+            Channel::EngineTorque => self.engine_torque_nm,
+            Channel::EngineSpeed => self.engine_speed_rpm,
+        }
+    }
+
+    /// The value of `channel`, checked: present, finite and inside its plausible range.
+    pub fn checked(&self, channel: Channel) -> Result<f64, FuelError> {
+        let time_s = self.time_s;
+        let value = self
+            .channel(channel)
+            .ok_or(FuelError::MissingChannel { channel, time_s })?;
+        if !value.is_finite() {
+            return Err(FuelError::NonFinite {
+                channel,
+                value,
+                time_s,
+            });
+        }
+        let (min, max) = channel.plausible_range();
+        if !(min..=max).contains(&value) {
+            return Err(FuelError::OutOfRange {
+                channel,
+                value,
+                min,
+                max,
+                time_s,
+            });
+        }
+        Ok(value)
+    }
+}
+
+/// Index of the bin of `value` given increasing bin `edges`: the number of edges `<= value`
+/// (so `edges = [a, b]` gives 3 bins: `< a`, `[a, b)`, `>= b`). This is how the speed `s` and
+/// the fuel `f` of section 4.2 are discretised.
+pub fn bin_index(edges: &[f64], value: f64) -> usize {
+    edges.partition_point(|e| *e <= value)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bins_count_edges_below() {
+        let edges = [0.1, 1.0];
+        assert_eq!(bin_index(&edges, -0.0), 0);
+        assert_eq!(bin_index(&edges, 0.1), 1);
+        assert_eq!(bin_index(&edges, 0.99), 1);
+        assert_eq!(bin_index(&edges, 5.0), 2);
+        assert_eq!(bin_index(&[], 5.0), 0);
+    }
+
+    #[test]
+    fn checked_names_the_fault() {
+        let s = VehicleSample {
+            time_s: 3.0,
+            fuel_cm3_s: Some(f64::NAN),
+            speed_m_s: Some(1e9),
+            ..Default::default()
+        };
+        assert!(matches!(
+            s.checked(Channel::Fuel),
+            Err(FuelError::NonFinite {
+                channel: Channel::Fuel,
+                ..
+            })
+        ));
+        assert!(matches!(
+            s.checked(Channel::Speed),
+            Err(FuelError::OutOfRange {
+                channel: Channel::Speed,
+                ..
+            })
+        ));
+        assert!(matches!(
+            s.checked(Channel::Pedal),
+            Err(FuelError::MissingChannel {
+                channel: Channel::Pedal,
+                ..
+            })
+        ));
+        let msg = s.checked(Channel::Fuel).unwrap_err().to_string();
+        assert!(
+            msg.contains("fuel") && msg.contains("NaN") && msg.contains("t = 3"),
+            "{msg}"
+        );
+    }
+}

@@ -1,0 +1,285 @@
+//! The mixture's statistics against independent computations.
+
+use nalgebra::{DMatrix, DVector};
+use railmon_fuel::{CountTable, Mixture, MixtureInput, MixtureSpec, RegressionStats};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+fn spec(components: usize, k_y: usize, k_psi: usize) -> MixtureSpec {
+    MixtureSpec {
+        components,
+        k_y,
+        k_psi,
+        categories: 0,
+        categorical_rows: 1,
+        switching_rows: 1,
+        forgetting: 1.0,
+        parameter_uncertainty: true,
+        prior_information: 1e-3,
+        prior_kappa: 1.0,
+        min_noise_variance: 1e-12,
+        dirichlet_prior: 1.0,
+        switching_prior_stay: 2.0,
+        switching_prior_move: 1.0,
+    }
+}
+
+/// `y = theta' psi + e` with `k_y = 2`, `psi = [x1, x2, 1]`, correlated noise.
+fn regression_data(n: usize, seed: u64) -> (Vec<DVector<f64>>, Vec<DVector<f64>>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let normal = Normal::new(0.0, 1.0).unwrap();
+    let theta = DMatrix::from_row_slice(3, 2, &[0.8, -0.3, 0.2, 1.5, 2.0, -1.0]);
+    let (mut ys, mut psis) = (Vec::new(), Vec::new());
+    for _ in 0..n {
+        let psi = DVector::from_vec(vec![
+            rng.random_range(-2.0..2.0),
+            rng.random_range(0.0..5.0),
+            1.0,
+        ]);
+        let e1 = 0.3 * normal.sample(&mut rng);
+        let e2 = 0.5 * e1 + 0.2 * normal.sample(&mut rng);
+        ys.push(theta.tr_mul(&psi) + DVector::from_vec(vec![e1, e2]));
+        psis.push(psi);
+    }
+    (ys, psis)
+}
+
+#[test]
+fn regression_statistics_match_a_batch_least_squares_fit() {
+    let (ys, psis) = regression_data(500, 1);
+    let eps = 1e-3;
+    let mut stats = RegressionStats::new(2, DMatrix::identity(5, 5) * eps, 1.0, 1e-12).unwrap();
+    for (y, psi) in ys.iter().zip(&psis) {
+        let d = DVector::from_iterator(5, y.iter().chain(psi.iter()).copied());
+        stats.update(&d, 1.0, None).unwrap();
+    }
+    // Batch ridge least squares by SVD of the stacked system [X; sqrt(eps) I] theta = [Y; 0],
+    // a different route from the normal equations the statistics use.
+    let n = ys.len();
+    let mut x = DMatrix::zeros(n + 3, 3);
+    let mut y = DMatrix::zeros(n + 3, 2);
+    for t in 0..n {
+        x.row_mut(t).copy_from(&psis[t].transpose());
+        y.row_mut(t).copy_from(&ys[t].transpose());
+    }
+    for j in 0..3 {
+        x[(n + j, j)] = eps.sqrt();
+    }
+    let theta = x.clone().svd(true, true).solve(&y, 1e-14).unwrap();
+    assert!(
+        (stats.theta() - &theta).amax() < 1e-9,
+        "theta {} vs {}",
+        stats.theta(),
+        theta
+    );
+    // r = (V_yy - V_psiy' theta) / kappa = (eps I + E'E + eps theta'theta) / (1 + n) for the
+    // ridge solution, E the residuals of the data rows.
+    let e = y.rows(0, n) - x.rows(0, n) * &theta;
+    let r = (DMatrix::identity(2, 2) * eps + e.transpose() * &e + theta.transpose() * &theta * eps)
+        / (1.0 + n as f64);
+    assert!((stats.r() - &r).amax() < 1e-10, "r {} vs {}", stats.r(), r);
+    // And the estimates are near the truth.
+    assert!((stats.theta()[(2, 0)] - 2.0).abs() < 0.1);
+    assert!((stats.r()[(0, 0)] - 0.09).abs() < 0.02);
+}
+
+#[test]
+fn single_component_mixture_is_recursive_least_squares() {
+    let (ys, psis) = regression_data(300, 2);
+    let mut mix = Mixture::new(spec(1, 2, 3)).unwrap();
+    // Textbook RLS: P0 = I / eps, theta0 = 0, K = P psi / (1 + psi' P psi).
+    let mut p = DMatrix::<f64>::identity(3, 3) / 1e-3;
+    let mut theta = DMatrix::<f64>::zeros(3, 2);
+    for (y, psi) in ys.iter().zip(&psis) {
+        mix.step(&MixtureInput {
+            y,
+            psi,
+            category: None,
+            switching_row: 0,
+        })
+        .unwrap();
+        assert_eq!(mix.weights(), vec![1.0]);
+        let p_psi = &p * psi;
+        let gain = &p_psi / (1.0 + psi.dot(&p_psi));
+        let innovation = y.transpose() - psi.transpose() * &theta;
+        theta += &gain * innovation;
+        p -= &gain * p_psi.transpose();
+        let est = mix.components()[0].theta();
+        assert!(
+            (est - &theta).amax() < 1e-8 * theta.amax().max(1.0),
+            "{est} vs {theta}"
+        );
+    }
+}
+
+/// Categorical-only information: two components that see the same y, so only the Dirichlet
+/// tables and the switching counts tell them apart.
+fn categorical_spec(components: usize) -> MixtureSpec {
+    MixtureSpec {
+        categories: 3,
+        categorical_rows: 2,
+        switching_rows: 2,
+        ..spec(components, 1, 1)
+    }
+}
+
+#[test]
+fn one_component_counts_are_the_hand_counted_transitions() {
+    // (q, l, k) per step.
+    let seq = [
+        (0, 2, 0),
+        (1, 2, 1),
+        (1, 0, 1),
+        (0, 2, 0),
+        (1, 1, 0),
+        (0, 2, 1),
+    ];
+    let mut mix = Mixture::new(categorical_spec(1)).unwrap();
+    let y = DVector::from_element(1, 0.0);
+    let psi = DVector::from_element(1, 1.0);
+    for &(q, l, k) in &seq {
+        mix.step(&MixtureInput {
+            y: &y,
+            psi: &psi,
+            category: Some((q, l)),
+            switching_row: k,
+        })
+        .unwrap();
+    }
+    // Prior 1 in each cell; q = 0 saw l = 2 three times; q = 1 saw l = 2, 0, 1 once each.
+    let t = &mix.categorical()[0];
+    let expected = [[1.0, 1.0, 4.0], [2.0, 2.0, 2.0]];
+    for (q, row) in expected.iter().enumerate() {
+        for (l, c) in row.iter().enumerate() {
+            assert_eq!(t.count(q, l), *c, "cell ({q}, {l})");
+        }
+    }
+    // Eq. (15) corrected: normalised over the categories of the row.
+    assert!((t.probability(0, 2) - 4.0 / 6.0).abs() < 1e-15);
+    // Switching: prior stay 2 plus 3 steps in each configuration k.
+    assert_eq!(mix.switching().count(0, 0), 5.0);
+    assert_eq!(mix.switching().count(1, 0), 5.0);
+}
+
+#[test]
+fn two_component_counts_add_the_joint_posterior() {
+    let mut mix = Mixture::new(categorical_spec(2)).unwrap();
+    let y = DVector::from_element(1, 0.0);
+    let psi = DVector::from_element(1, 1.0);
+    let seq = [(0, 2, 0), (1, 2, 1), (1, 0, 1), (0, 2, 0), (1, 1, 0)];
+    for (step, &(q, l, k)) in seq.iter().enumerate() {
+        let before = mix.clone();
+        mix.step(&MixtureInput {
+            y: &y,
+            psi: &psi,
+            category: Some((q, l)),
+            switching_row: k,
+        })
+        .unwrap();
+        // Brute force in probabilities (not logs): W_ij ∝ prox_i beta_i(l|q) alpha_{i|j,k} w_j.
+        let w_prev = before.weights();
+        let mut w_joint = [[0.0; 2]; 2];
+        for (i, row) in w_joint.iter_mut().enumerate() {
+            let prox = before.components()[i].log_proximity(&y, &psi, true).exp();
+            let beta = before.categorical()[i].probability(q, l);
+            for (j, cell) in row.iter_mut().enumerate() {
+                *cell = prox * beta * before.switching().probability(k * 2 + j, i) * w_prev[j];
+            }
+        }
+        let total: f64 = w_joint.iter().flatten().sum();
+        for (i, row) in w_joint.iter().enumerate() {
+            let w_i = (row[0] + row[1]) / total;
+            assert!((mix.weights()[i] - w_i).abs() < 1e-12, "step {step} w_{i}");
+            let dirichlet = mix.categorical()[i].count(q, l) - before.categorical()[i].count(q, l);
+            assert!(
+                (dirichlet - w_i).abs() < 1e-12,
+                "step {step} eq. 12 for component {i}"
+            );
+            for (j, cell) in row.iter().enumerate() {
+                let gamma =
+                    mix.switching().count(k * 2 + j, i) - before.switching().count(k * 2 + j, i);
+                assert!(
+                    (gamma - cell / total).abs() < 1e-12,
+                    "step {step} eq. 16 ({i}|{j})"
+                );
+                assert!((mix.joint()[i * 2 + j] - cell / total).abs() < 1e-12);
+            }
+        }
+        let s: f64 = mix.weights().iter().sum();
+        assert!((s - 1.0).abs() < 1e-14);
+    }
+    // The two components started equal and saw the same data: they stay exchangeable.
+    assert!((mix.weights()[0] - 0.5).abs() < 1e-12);
+}
+
+#[test]
+fn count_tables_normalise_over_categories_not_components() {
+    // Erratum to eq. (15): 3 categories, 2 components; the row must sum to one over categories.
+    let mut t = CountTable::new(1, 3, |_, _| 0.5);
+    t.add(0, 1, 2.0);
+    let s: f64 = (0..3).map(|l| t.probability(0, l)).sum();
+    assert!((s - 1.0).abs() < 1e-15);
+    assert!((t.probability(0, 1) - 2.5 / 3.5).abs() < 1e-15);
+}
+
+/// Pointer weights sum to one and stay finite over 10^6 steps of extreme inputs: values
+/// jumping by 10^6, long constant runs (zero variance), exact zeros, and categories and
+/// switching configurations changing at random; 3 components with forgetting.
+#[test]
+fn pointer_weights_sum_to_one_over_a_million_extreme_steps() {
+    let spec = MixtureSpec {
+        categories: 5,
+        categorical_rows: 20,
+        switching_rows: 9,
+        forgetting: 0.99,
+        min_noise_variance: 1e-6,
+        ..spec(3, 2, 4)
+    };
+    let mut mix = Mixture::new(spec).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(1_000_000);
+    let mut mode = 0u32;
+    let mut y = DVector::zeros(2);
+    let mut psi = DVector::from_vec(vec![0.0, 0.0, 0.0, 1.0]);
+    for t in 0..1_000_000usize {
+        if t % 1000 == 0 {
+            mode = rng.random_range(0..5);
+        }
+        let value = |rng: &mut ChaCha8Rng| match mode {
+            0 => 1e6,
+            1 => -1e6,
+            2 => 0.0,
+            3 => {
+                if rng.random::<bool>() {
+                    1e6
+                } else {
+                    -1e6
+                }
+            }
+            _ => rng.random_range(-1e3..1e3),
+        };
+        // psi = [y_{t-1}, category, 1]
+        psi[0] = y[0];
+        psi[1] = y[1];
+        psi[2] = rng.random_range(0..5) as f64;
+        y[0] = value(&mut rng);
+        y[1] = if mode == 2 { 0.0 } else { value(&mut rng) };
+        mix.step(&MixtureInput {
+            y: &y,
+            psi: &psi,
+            category: Some((rng.random_range(0..20), rng.random_range(0..5))),
+            switching_row: rng.random_range(0..9),
+        })
+        .unwrap();
+        let w = mix.weights();
+        let sum: f64 = w.iter().sum();
+        assert!((sum - 1.0).abs() < 1e-12, "step {t}: weights sum to {sum}");
+        assert!(
+            w.iter().all(|p| p.is_finite() && *p >= 0.0),
+            "step {t}: {w:?}"
+        );
+        assert!(mix.log_weights().iter().all(|l| !l.is_nan()), "step {t}");
+    }
+    let s: f64 = mix.joint().iter().sum();
+    assert!((s - 1.0).abs() < 1e-12);
+}

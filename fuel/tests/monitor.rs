@@ -1,0 +1,365 @@
+//! The monitor on vehicle samples: validation, bad input, long runs, output consistency.
+
+use railmon_fuel::{
+    CategoricalConfig, Channel, FuelError, FuelMonitor, FuelMonitorConfig, VehicleSample,
+};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A plausible drive: speed oscillating, fuel following load, gear from speed.
+fn sample(t: usize, rng: &mut ChaCha8Rng) -> VehicleSample {
+    let x = t as f64;
+    let speed = (12.0 + 10.0 * (x / 40.0).sin()).max(0.0);
+    let accel = 10.0 / 40.0 * (x / 40.0).cos();
+    let pedal = (20.0 + 40.0 * accel + rng.random_range(-2.0..2.0)).clamp(0.0, 100.0);
+    let fuel = if accel < -0.15 {
+        0.0
+    } else {
+        0.3 + 0.03 * pedal + 0.01 * speed + rng.random_range(-0.05..0.05)
+    };
+    VehicleSample {
+        time_s: x,
+        fuel_cm3_s: Some(fuel),
+        speed_m_s: Some(speed),
+        pedal_pct: Some(pedal),
+        engine_torque_nm: Some(3.0 * pedal + rng.random_range(-1.0..1.0)),
+        engine_speed_rpm: Some(900.0 + 80.0 * speed),
+        gear: Some(((speed / 4.0) as i32).clamp(1, 6)),
+    }
+}
+
+fn run(config: &FuelMonitorConfig, n: usize, seed: u64) -> (FuelMonitor, Vec<VehicleSample>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let samples: Vec<VehicleSample> = (0..n).map(|t| sample(t, &mut rng)).collect();
+    let mut monitor = FuelMonitor::new(config).unwrap();
+    for s in &samples {
+        monitor.update(s).unwrap();
+    }
+    (monitor, samples)
+}
+
+macro_rules! rejects {
+    ($name:ident, $field:literal, |$c:ident| $change:expr) => {
+        #[test]
+        fn $name() {
+            let mut $c = FuelMonitorConfig::paper();
+            $change;
+            match FuelMonitor::new(&$c) {
+                Err(FuelError::InvalidParameter { field, .. }) => assert_eq!(field, $field),
+                other => panic!(
+                    "expected {} to be rejected, got {:?}",
+                    $field,
+                    other.map(|_| ())
+                ),
+            }
+        }
+    };
+}
+
+rejects!(rejects_channels_without_fuel, "channels", |c| c.channels =
+    vec![Channel::Speed]);
+rejects!(rejects_duplicate_channels, "channels", |c| c.channels =
+    vec![Channel::Fuel, Channel::Fuel]);
+rejects!(rejects_one_gear_group, "categorical.gear_groups", |c| c
+    .categorical =
+    Some(CategoricalConfig {
+        gear_groups: vec![vec![1]]
+    }));
+rejects!(rejects_gear_in_two_groups, "categorical.gear_groups", |c| {
+    c.categorical = Some(CategoricalConfig {
+        gear_groups: vec![vec![1, 2], vec![2]],
+    })
+});
+rejects!(rejects_zero_components, "components", |c| c.components = 0);
+rejects!(rejects_long_regression_memory, "regression_memory", |c| c
+    .regression_memory =
+    11);
+rejects!(rejects_unsorted_speed_bins, "speed_bins_m_s", |c| c
+    .speed_bins_m_s =
+    vec![5.0, 1.0]);
+rejects!(rejects_nan_fuel_bins, "fuel_bins_cm3_s", |c| c
+    .fuel_bins_cm3_s =
+    vec![f64::NAN]);
+rejects!(
+    rejects_unsorted_acceleration_bins,
+    "acceleration_bins_m_s2",
+    |c| c.acceleration_bins_m_s2 = vec![0.3, -0.3]
+);
+rejects!(rejects_zero_switching_memory, "switching_memory", |c| c
+    .switching_memory =
+    0);
+rejects!(rejects_huge_switching_memory, "switching_memory", |c| c
+    .switching_memory =
+    20);
+rejects!(rejects_too_few_init_samples, "init_samples", |c| c
+    .init_samples =
+    2);
+rejects!(rejects_too_many_init_iterations, "init_iterations", |c| c
+    .init_iterations =
+    5000);
+rejects!(rejects_zero_init_weight, "init_weight", |c| c.init_weight =
+    0.0);
+rejects!(rejects_forgetting_above_one, "forgetting", |c| c
+    .forgetting =
+    1.01);
+rejects!(
+    rejects_negative_prior_information,
+    "prior_information",
+    |c| c.prior_information = -1.0
+);
+rejects!(rejects_zero_prior_kappa, "prior_kappa", |c| c.prior_kappa =
+    0.0);
+rejects!(rejects_zero_dirichlet_prior, "dirichlet_prior", |c| c
+    .dirichlet_prior =
+    0.0);
+rejects!(
+    rejects_infinite_switching_stay,
+    "switching_prior_stay",
+    |c| c.switching_prior_stay = f64::INFINITY
+);
+rejects!(rejects_zero_switching_move, "switching_prior_move", |c| c
+    .switching_prior_move =
+    0.0);
+rejects!(rejects_zero_noise_floor, "min_noise_variance", |c| c
+    .min_noise_variance =
+    0.0);
+rejects!(rejects_zero_horizon, "forecast_horizon_steps", |c| c
+    .forecast_horizon_steps =
+    0);
+rejects!(rejects_zero_sample_period, "sample_period_s", |c| c
+    .sample_period_s =
+    0.0);
+
+#[test]
+fn config_errors_name_field_and_value() {
+    let c = FuelMonitorConfig {
+        forgetting: 1.5,
+        ..Default::default()
+    };
+    let msg = c.validate().unwrap_err().to_string();
+    assert!(msg.contains("forgetting") && msg.contains("1.5"), "{msg}");
+    assert!(FuelMonitorConfig::default().validate().is_ok());
+    assert!(FuelMonitorConfig::paper().validate().is_ok());
+}
+
+#[test]
+fn config_parses_from_toml_and_rejects_unknown_fields() {
+    let c: FuelMonitorConfig =
+        toml::from_str("components = 4\nchannels = [\"fuel\", \"engine_speed\"]").unwrap();
+    assert_eq!(c.components, 4);
+    assert_eq!(c.channels, vec![Channel::Fuel, Channel::EngineSpeed]);
+    assert!(toml::from_str::<FuelMonitorConfig>("component = 4").is_err());
+}
+
+#[test]
+fn bad_samples_are_errors_and_leave_the_state_untouched() {
+    let config = FuelMonitorConfig::paper();
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let samples: Vec<VehicleSample> = (0..400).map(|t| sample(t, &mut rng)).collect();
+    let mut clean = FuelMonitor::new(&config).unwrap();
+    let mut faulty = FuelMonitor::new(&config).unwrap();
+    for (t, s) in samples.iter().enumerate() {
+        if t % 50 == 7 {
+            let mut bad = *s;
+            match (t / 50) % 5 {
+                0 => bad.fuel_cm3_s = Some(f64::NAN),
+                1 => bad.engine_torque_nm = Some(f64::INFINITY),
+                2 => bad.pedal_pct = None,
+                3 => bad.gear = Some(9),
+                _ => bad.time_s = -1.0,
+            }
+            let err = faulty.update(&bad).unwrap_err();
+            match (t / 50) % 5 {
+                0 => assert!(matches!(
+                    err,
+                    FuelError::NonFinite {
+                        channel: Channel::Fuel,
+                        ..
+                    }
+                )),
+                1 => assert!(matches!(
+                    err,
+                    FuelError::NonFinite {
+                        channel: Channel::EngineTorque,
+                        ..
+                    }
+                )),
+                2 => assert!(matches!(
+                    err,
+                    FuelError::MissingChannel {
+                        channel: Channel::Pedal,
+                        ..
+                    }
+                )),
+                3 => assert!(matches!(err, FuelError::UnknownCategory { gear: 9, .. })),
+                _ => assert!(matches!(err, FuelError::TimeNotIncreasing { .. })),
+            }
+        }
+        let a = clean.update(s).unwrap().clone();
+        let b = faulty.update(s).unwrap().clone();
+        assert_eq!(a, b, "state diverged after a rejected sample at step {t}");
+    }
+    assert!(clean.estimate().mixture.is_some());
+}
+
+#[test]
+fn a_gear_category_never_seen_keeps_a_finite_prior_probability() {
+    // Only gears 1..3 for 300 s, then gear 6 (category 4 of the paper's grouping) appears for
+    // the first time: it has only its Dirichlet prior, so the step is finite, the weights still
+    // sum to one, and the category's counts grow by exactly the weights (sum 1, eq. 12).
+    let config = FuelMonitorConfig::paper();
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let mut monitor = FuelMonitor::new(&config).unwrap();
+    for t in 0..300 {
+        let mut s = sample(t, &mut rng);
+        s.gear = Some(s.gear.unwrap().min(3));
+        monitor.update(&s).unwrap();
+    }
+    let added = |monitor: &FuelMonitor| -> f64 {
+        let tables = monitor.mixture().unwrap().categorical();
+        tables
+            .iter()
+            .map(|t| {
+                (0..t.rows())
+                    .map(|q| t.count(q, 4) - config.dirichlet_prior)
+                    .sum::<f64>()
+            })
+            .sum()
+    };
+    assert!(added(&monitor).abs() < 1e-12);
+    let mut s = sample(300, &mut rng);
+    s.gear = Some(6);
+    let e = monitor.update(&s).unwrap();
+    let m = e.mixture.as_ref().unwrap();
+    assert!(m.regime_probabilities.iter().all(|p| p.is_finite()));
+    assert!((m.regime_probabilities.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    assert!(m.virtual_sensor_cm3_s.is_finite() && m.one_step_forecast_cm3_s.is_finite());
+    assert!((added(&monitor) - 1.0).abs() < 1e-12);
+}
+
+#[test]
+fn monitor_outputs_stay_finite_over_extreme_samples() {
+    // Extreme but plausible inputs: values jumping between the ends of each channel's
+    // plausible range, long constant runs (zero variance) and exact zeros, gear and fuel
+    // levels changing at random. Default config (forgetting on) and 3 components. (The 10^6-step
+    // version on the mixture itself is in tests/mixture.rs.)
+    let config = FuelMonitorConfig {
+        categorical: Some(CategoricalConfig::default()),
+        forecast_horizon_steps: 1,
+        ..Default::default()
+    };
+    let mut monitor = FuelMonitor::new(&config).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(42);
+    let pick = |rng: &mut ChaCha8Rng, ch: Channel, mode: u32| {
+        let (lo, hi) = ch.plausible_range();
+        match mode {
+            0 => lo,
+            1 => hi,
+            2 => 0.0,
+            _ => rng.random_range(lo..=hi),
+        }
+    };
+    let mut mode = 0;
+    for t in 0..100_000usize {
+        if t % 1000 == 0 {
+            mode = rng.random_range(0..5u32);
+        }
+        let m = if mode == 4 {
+            rng.random_range(0..4u32)
+        } else {
+            mode
+        };
+        let s = VehicleSample {
+            time_s: t as f64,
+            fuel_cm3_s: Some(pick(&mut rng, Channel::Fuel, m)),
+            speed_m_s: Some(pick(&mut rng, Channel::Speed, m)),
+            gear: Some(rng.random_range(-1..=6)),
+            ..Default::default()
+        };
+        let e = monitor.update(&s).unwrap();
+        if let Some(m) = &e.mixture {
+            let sum: f64 = m.regime_probabilities.iter().sum();
+            assert!((sum - 1.0).abs() < 1e-9, "step {t}: weights sum to {sum}");
+            assert!(
+                m.regime_probabilities
+                    .iter()
+                    .all(|p| p.is_finite() && *p >= 0.0),
+                "step {t}"
+            );
+            assert!(
+                m.one_step_forecast_cm3_s.is_finite() && m.virtual_sensor_cm3_s.is_finite(),
+                "step {t}"
+            );
+        }
+    }
+}
+
+#[test]
+fn horizon_one_forecast_is_the_next_one_step_forecast() {
+    let (mut monitor, _) = run(&FuelMonitorConfig::paper(), 300, 3);
+    let path = monitor
+        .estimate()
+        .mixture
+        .as_ref()
+        .unwrap()
+        .forecast_cm3_s
+        .clone();
+    assert_eq!(path.len(), 10);
+    let mut rng = ChaCha8Rng::seed_from_u64(77);
+    let next = monitor.update(&sample(300, &mut rng)).unwrap();
+    assert_eq!(
+        next.mixture.as_ref().unwrap().one_step_forecast_cm3_s,
+        path[0]
+    );
+}
+
+#[test]
+fn fuel_only_virtual_sensor_is_the_one_step_forecast() {
+    let config = FuelMonitorConfig {
+        channels: vec![Channel::Fuel],
+        ..Default::default()
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let mut monitor = FuelMonitor::new(&config).unwrap();
+    let mut checked = 0;
+    for t in 0..400 {
+        let e = monitor.update(&sample(t, &mut rng)).unwrap();
+        if let Some(m) = &e.mixture {
+            assert!((m.virtual_sensor_cm3_s - m.one_step_forecast_cm3_s).abs() < 1e-9);
+            checked += 1;
+        }
+    }
+    assert_eq!(checked, 250);
+}
+
+#[test]
+fn cumulative_fuel_integrates_the_measured_rate() {
+    let (monitor, samples) = run(&FuelMonitorConfig::default(), 200, 8);
+    let expected: f64 = samples.iter().map(|s| s.fuel_cm3_s.unwrap()).sum();
+    assert!((monitor.estimate().cumulative_fuel_cm3 - expected).abs() < 1e-9);
+    assert_eq!(monitor.estimate().samples, 200);
+}
+
+#[test]
+fn paper_setting_separates_fuel_cut_off_from_driving() {
+    // On the synthetic drive the cut-off (fuel exactly 0 while decelerating) is a regime of its
+    // own: the mixture's virtual sensor beats a single regression there.
+    let config = FuelMonitorConfig::paper();
+    let (mut mix, mut one) = (
+        FuelMonitor::new(&config).unwrap(),
+        FuelMonitor::new(&config.single_regression()).unwrap(),
+    );
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let (mut se_mix, mut se_one) = (0.0, 0.0);
+    for t in 0..2000 {
+        let s = sample(t, &mut rng);
+        let truth = s.fuel_cm3_s.unwrap();
+        let a = mix.update(&s).unwrap().mixture.clone();
+        let b = one.update(&s).unwrap().mixture.clone();
+        if let (Some(a), Some(b)) = (a, b) {
+            se_mix += (a.virtual_sensor_cm3_s - truth).powi(2);
+            se_one += (b.virtual_sensor_cm3_s - truth).powi(2);
+        }
+    }
+    assert!(se_mix < 0.8 * se_one, "mixture {se_mix} vs single {se_one}");
+}
