@@ -1,0 +1,236 @@
+//! Zero-copy payloads. Every type is `#[repr(C)]`, fixed-size and carries an explicit iceoryx2
+//! type name with its layout version, so a publisher and subscriber built from different layouts
+//! fail to connect with a type mismatch instead of misreading memory.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+use crate::StreamKind;
+
+/// Bumped whenever a payload layout changes (also part of every type name).
+pub const FRAME_LAYOUT_VERSION: u32 = 1;
+
+/// Capacity of a [`DriveFrame`]: the most drives one vehicle publishes in one frame.
+pub const MAX_DRIVES: usize = 32;
+
+/// User header of every frame. iceoryx2's own sample header has no sequence number, so the
+/// publisher numbers its frames here; the subscriber counts gaps per `publisher_instance`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ZeroCopySend)]
+#[type_name("railmon::FrameHeader.v1")]
+#[repr(C)]
+pub struct FrameHeader {
+    /// [`FRAME_LAYOUT_VERSION`] of the publisher.
+    pub layout_version: u32,
+    /// Source run: a replay that starts its scenario again (`--loop`) increments it, which tells
+    /// the estimators to start from their prior instead of carrying state across the jump.
+    pub run: u32,
+    /// Identifies one publisher lifetime (process id and start time); a restarted publisher
+    /// starts again at sequence 0 under a new instance.
+    pub publisher_instance: u64,
+    /// 0, 1, 2, ... per publisher instance.
+    pub sequence: u64,
+    /// CLOCK_MONOTONIC at send, ns ([`crate::monotonic_ns`]).
+    pub published_at_ns: u64,
+    /// Time of the measurement since the start of its run, ns.
+    pub sample_time_ns: u64,
+}
+
+/// A payload type bound to its stream.
+pub trait Frame: ZeroCopySend + Copy + std::fmt::Debug + 'static {
+    const STREAM: StreamKind;
+}
+
+/// What one PMSM drive measures in one control step: stator voltages (the controller's
+/// outputs, known inputs to the model) and stator currents in the alpha-beta frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, ZeroCopySend)]
+#[type_name("railmon::DriveChannels.v1")]
+#[repr(C)]
+pub struct DriveChannels {
+    pub u_alpha_v: f64,
+    pub u_beta_v: f64,
+    pub i_alpha_a: f64,
+    pub i_beta_a: f64,
+}
+
+/// All drives of one vehicle at one control step.
+#[derive(Clone, Copy, Debug, PartialEq, ZeroCopySend)]
+#[type_name("railmon::DriveFrame.v1")]
+#[repr(C)]
+pub struct DriveFrame {
+    /// Drives in use, `drives[..n_drives]`; a frame claiming more than [`MAX_DRIVES`] is invalid.
+    pub n_drives: u32,
+    pub reserved: u32,
+    /// Control step of the publisher, ns.
+    pub dt_ns: u64,
+    pub drives: [DriveChannels; MAX_DRIVES],
+}
+
+impl Frame for DriveFrame {
+    const STREAM: StreamKind = StreamKind::Drive;
+}
+
+/// Why a received frame is not used.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum FrameError {
+    #[error("frame layout version {found}, expected {FRAME_LAYOUT_VERSION}")]
+    LayoutVersion { found: u32 },
+    #[error("drive count {count} exceeds the maximum {max}")]
+    TooManyDrives { count: usize, max: usize },
+    #[error("drive count 0")]
+    NoDrives,
+    #[error("drive {drive} {channel} is {value} (not finite)")]
+    NotFinite {
+        drive: usize,
+        channel: &'static str,
+        value: f64,
+    },
+}
+
+impl FrameError {
+    /// Short label for metrics (`reason="not_finite"`).
+    pub fn reason(&self) -> &'static str {
+        match self {
+            FrameError::LayoutVersion { .. } => "layout_version",
+            FrameError::TooManyDrives { .. } => "too_many_drives",
+            FrameError::NoDrives => "no_drives",
+            FrameError::NotFinite { .. } => "not_finite",
+        }
+    }
+}
+
+impl FrameHeader {
+    pub fn check(&self) -> Result<(), FrameError> {
+        if self.layout_version == FRAME_LAYOUT_VERSION {
+            Ok(())
+        } else {
+            Err(FrameError::LayoutVersion {
+                found: self.layout_version,
+            })
+        }
+    }
+}
+
+impl DriveFrame {
+    /// A frame of `drives.len()` drives; the unused slots are zero.
+    pub fn new(dt_ns: u64, drives: &[DriveChannels]) -> Result<Self, FrameError> {
+        if drives.len() > MAX_DRIVES {
+            return Err(FrameError::TooManyDrives {
+                count: drives.len(),
+                max: MAX_DRIVES,
+            });
+        }
+        let mut frame = DriveFrame {
+            n_drives: drives.len() as u32,
+            reserved: 0,
+            dt_ns,
+            drives: [DriveChannels::default(); MAX_DRIVES],
+        };
+        frame.drives[..drives.len()].copy_from_slice(drives);
+        Ok(frame)
+    }
+
+    /// The drives in use, after checking the count against `max_drives` (at most
+    /// [`MAX_DRIVES`]) and every value for NaN/inf.
+    pub fn checked_drives(&self, max_drives: usize) -> Result<&[DriveChannels], FrameError> {
+        let count = self.n_drives as usize;
+        let max = max_drives.min(MAX_DRIVES);
+        if count > max {
+            return Err(FrameError::TooManyDrives { count, max });
+        }
+        if count == 0 {
+            return Err(FrameError::NoDrives);
+        }
+        let drives = &self.drives[..count];
+        for (drive, d) in drives.iter().enumerate() {
+            for (channel, value) in [
+                ("u_alpha_v", d.u_alpha_v),
+                ("u_beta_v", d.u_beta_v),
+                ("i_alpha_a", d.i_alpha_a),
+                ("i_beta_a", d.i_beta_a),
+            ] {
+                if !value.is_finite() {
+                    return Err(FrameError::NotFinite {
+                        drive: drive + 1,
+                        channel,
+                        value,
+                    });
+                }
+            }
+        }
+        Ok(drives)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn channels(n: usize) -> Vec<DriveChannels> {
+        (0..n)
+            .map(|i| DriveChannels {
+                u_alpha_v: i as f64,
+                u_beta_v: 1.0,
+                i_alpha_a: 2.0,
+                i_beta_a: 3.0,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn frame_round_trips_its_drives() {
+        let frame = DriveFrame::new(125_000, &channels(3)).unwrap();
+        assert_eq!(frame.checked_drives(MAX_DRIVES).unwrap(), &channels(3)[..]);
+    }
+
+    #[test]
+    fn too_many_drives_for_the_frame_is_rejected_at_construction() {
+        let err = DriveFrame::new(1, &channels(MAX_DRIVES + 1)).unwrap_err();
+        assert_eq!(err.reason(), "too_many_drives");
+    }
+
+    #[test]
+    fn count_above_configured_maximum_is_rejected() {
+        let frame = DriveFrame::new(1, &channels(8)).unwrap();
+        assert_eq!(
+            frame.checked_drives(4).unwrap_err(),
+            FrameError::TooManyDrives { count: 8, max: 4 }
+        );
+    }
+
+    #[test]
+    fn corrupt_count_beyond_capacity_is_rejected_without_indexing() {
+        let mut frame = DriveFrame::new(1, &channels(2)).unwrap();
+        frame.n_drives = u32::MAX;
+        assert_eq!(
+            frame.checked_drives(usize::MAX).unwrap_err().reason(),
+            "too_many_drives"
+        );
+    }
+
+    #[test]
+    fn empty_frame_is_rejected() {
+        let frame = DriveFrame::new(1, &[]).unwrap();
+        assert_eq!(frame.checked_drives(MAX_DRIVES).unwrap_err(), FrameError::NoDrives);
+    }
+
+    #[test]
+    fn nan_and_inf_are_rejected_naming_drive_and_channel() {
+        let mut drives = channels(3);
+        drives[1].i_beta_a = f64::NAN;
+        let frame = DriveFrame::new(1, &drives).unwrap();
+        let err = frame.checked_drives(MAX_DRIVES).unwrap_err();
+        assert!(matches!(err, FrameError::NotFinite { drive: 2, channel: "i_beta_a", .. }));
+        drives[1].i_beta_a = 0.0;
+        drives[2].u_alpha_v = f64::NEG_INFINITY;
+        let frame = DriveFrame::new(1, &drives).unwrap();
+        assert_eq!(frame.checked_drives(MAX_DRIVES).unwrap_err().reason(), "not_finite");
+    }
+
+    #[test]
+    fn header_with_other_layout_is_rejected() {
+        let header = FrameHeader {
+            layout_version: FRAME_LAYOUT_VERSION + 1,
+            ..Default::default()
+        };
+        assert_eq!(header.check().unwrap_err().reason(), "layout_version");
+    }
+}

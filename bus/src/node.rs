@@ -1,0 +1,166 @@
+use iceoryx2::config::Config;
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::{event, publish_subscribe};
+
+use crate::{
+    BusConfig, BusError, Frame, FrameHeader, FramePublisher, FrameSubscriber, StreamConfig,
+    WaitSet,
+};
+
+/// Shipped iceoryx2 settings (`config/iceoryx2.toml`), embedded so that no process depends on
+/// its working directory and iceoryx2 never falls back to its "no config file" warning.
+const ICEORYX2_CONFIG_TOML: &str = include_str!("../../config/iceoryx2.toml");
+
+/// Event ids on a stream's event service (publishers notify, subscribers listen).
+pub(crate) const EVENT_FRAMES_SENT: usize = 1;
+pub(crate) const EVENT_PUBLISHER_DEAD: usize = 2;
+/// "I exist, connect to me": sent by a publisher until a subscriber answers.
+pub(crate) const EVENT_PUBLISHER_HELLO: usize = 3;
+/// Event id on the stream's `<service>/ready` event service (subscribers notify, publishers
+/// listen): "I updated my connections after your hello".
+pub(crate) const EVENT_SUBSCRIBER_READY: usize = 4;
+
+/// The services of one stream: frames, data events, and readiness answers.
+pub(crate) struct StreamServices<F: Frame> {
+    pub(crate) frames: PubSubFactory<F>,
+    pub(crate) events: EventFactory,
+    pub(crate) ready: EventFactory,
+}
+
+pub(crate) type PubSubFactory<F> = publish_subscribe::PortFactory<ipc::Service, F, FrameHeader>;
+pub(crate) type EventFactory = event::PortFactory<ipc::Service>;
+
+/// One iceoryx2 node of this process (one per thread that owns ports: ports are not `Send`).
+pub struct BusNode {
+    node: Node<ipc::Service>,
+    config: BusConfig,
+    cleaned_at_start: u64,
+}
+
+impl std::fmt::Debug for BusNode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("BusNode")
+            .field("name", &self.node.name().as_str())
+            .field("prefix", &self.config.prefix)
+            .finish()
+    }
+}
+
+/// The iceoryx2 config for `bus`: the shipped file with railmon's prefix and root path.
+pub fn iceoryx2_config(bus: &BusConfig) -> Result<Config, BusError> {
+    let mut config: Config = toml::from_str(ICEORYX2_CONFIG_TOML)
+        .map_err(|e| BusError::ipc("embedded config/iceoryx2.toml", e.to_string()))?;
+    config.global.prefix = FileName::new(bus.prefix.as_bytes()).map_err(|e| BusError::Config {
+        key: "bus.prefix".into(),
+        reason: format!("`{}`: {e:?}", bus.prefix),
+    })?;
+    let root = Path::new(bus.root_path.as_bytes()).map_err(|e| BusError::Config {
+        key: "bus.root_path".into(),
+        reason: format!("`{}`: {e:?}", bus.root_path),
+    })?;
+    config.global.set_root_path(&root);
+    Ok(config)
+}
+
+impl BusNode {
+    /// Creates a node that installs no signal handler and first removes what dead nodes (a
+    /// SIGKILLed service or replay) left in shared memory and under the root path.
+    pub fn create(config: &BusConfig, name: &str) -> Result<Self, BusError> {
+        config.validate()?;
+        let ipc_config = iceoryx2_config(config)?;
+        let node_name = NodeName::new(name).map_err(|e| BusError::ipc(format!("node name `{name}`"), e))?;
+        let node = NodeBuilder::new()
+            .name(&node_name)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .config(&ipc_config)
+            .create::<ipc::Service>()
+            .map_err(|e| BusError::ipc(format!("create node `{name}`"), e))?;
+        // Node creation already cleans dead nodes (config/iceoryx2.toml); the explicit call
+        // catches nodes that died in between and gives the caller a number to log.
+        let cleaned_at_start = node.try_cleanup_dead_nodes().cleanups;
+        Ok(Self {
+            node,
+            config: config.clone(),
+            cleaned_at_start,
+        })
+    }
+
+    pub fn config(&self) -> &BusConfig {
+        &self.config
+    }
+
+    /// Dead nodes removed when this node was created.
+    pub fn cleaned_at_start(&self) -> u64 {
+        self.cleaned_at_start
+    }
+
+    /// Removes resources of nodes that died since (their processes are gone); returns how many.
+    /// Also wakes listeners of the dead publishers' event services.
+    pub fn cleanup_dead_nodes(&self) -> u64 {
+        self.node.try_cleanup_dead_nodes().cleanups
+    }
+
+    /// A WaitSet that leaves signals to the application.
+    pub fn waitset(&self) -> Result<WaitSet, BusError> {
+        WaitSetBuilder::new()
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(|e| BusError::ipc("create WaitSet", e))
+    }
+
+    pub fn publisher<F: Frame>(&self) -> Result<FramePublisher<F>, BusError> {
+        let stream = self.config.stream(F::STREAM);
+        let services = self.open_services::<F>(&stream)?;
+        FramePublisher::new(stream, services)
+    }
+
+    pub fn subscriber<F: Frame>(&self) -> Result<FrameSubscriber<F>, BusError> {
+        let stream = self.config.stream(F::STREAM);
+        let services = self.open_services::<F>(&stream)?;
+        FrameSubscriber::new(stream, services)
+    }
+
+    fn open_services<F: Frame>(
+        &self,
+        stream: &StreamConfig,
+    ) -> Result<StreamServices<F>, BusError> {
+        let service_name = |name: &str| {
+            ServiceName::new(name).map_err(|e| BusError::Config {
+                key: format!("bus.{}.service_name", F::STREAM),
+                reason: format!("`{name}`: {e:?}"),
+            })
+        };
+        let name = service_name(&stream.service_name)?;
+        let ready_name = format!("{}/ready", stream.service_name);
+        let frames = self
+            .node
+            .service_builder(&name)
+            .publish_subscribe::<F>()
+            .user_header::<FrameHeader>()
+            .enable_safe_overflow(stream.safe_overflow)
+            .subscriber_max_buffer_size(stream.subscriber_buffer_size)
+            .history_size(0)
+            .open_or_create()
+            .map_err(|e| {
+                BusError::ipc(format!("open publish-subscribe service `{}`", stream.service_name), e)
+            })?;
+        let events = self
+            .node
+            .service_builder(&name)
+            .event()
+            .notifier_dead_event(EventId::new(EVENT_PUBLISHER_DEAD))
+            .open_or_create()
+            .map_err(|e| BusError::ipc(format!("open event service `{}`", stream.service_name), e))?;
+        let ready = self
+            .node
+            .service_builder(&service_name(&ready_name)?)
+            .event()
+            .open_or_create()
+            .map_err(|e| BusError::ipc(format!("open event service `{ready_name}`"), e))?;
+        Ok(StreamServices {
+            frames,
+            events,
+            ready,
+        })
+    }
+}

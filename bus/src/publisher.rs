@@ -1,0 +1,170 @@
+use std::time::{Duration, Instant};
+
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::{BackpressureAction, BackpressureInfo};
+use iceoryx2::prelude::*;
+
+use crate::node::{
+    PubSubFactory, StreamServices, EVENT_FRAMES_SENT, EVENT_PUBLISHER_HELLO,
+    EVENT_SUBSCRIBER_READY,
+};
+use crate::{monotonic_ns, BusError, Frame, FrameHeader, StreamConfig, FRAME_LAYOUT_VERSION};
+
+/// Publishes one stream's frames, numbering and stamping each, and wakes the subscribers.
+pub struct FramePublisher<F: Frame> {
+    stream: StreamConfig,
+    frames: PubSubFactory<F>,
+    // Field order is drop order: the port goes before the notifier and listener.
+    publisher: Publisher<ipc::Service, F, FrameHeader>,
+    notifier: Notifier<ipc::Service>,
+    ready_listener: Listener<ipc::Service>,
+    instance: u64,
+    run: u32,
+    sequence: u64,
+}
+
+impl<F: Frame> std::fmt::Debug for FramePublisher<F> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FramePublisher")
+            .field("service", &self.stream.service_name)
+            .field("sequence", &self.sequence)
+            .finish()
+    }
+}
+
+impl<F: Frame> FramePublisher<F> {
+    pub(crate) fn new(stream: StreamConfig, services: StreamServices<F>) -> Result<Self, BusError> {
+        let name = stream.service_name.clone();
+        let limit = Duration::from_millis(stream.backpressure_timeout_ms);
+        // Lossless mode waits for a full subscriber, but never longer than `limit`: a SIGKILLed
+        // subscriber never drains its buffer and would block us until its node is cleaned up.
+        let give_up_after_limit = move |info: &BackpressureInfo| {
+            if info.elapsed_time < limit {
+                BackpressureAction::Retry
+            } else {
+                BackpressureAction::DiscardData
+            }
+        };
+        // The listener exists before the port, so every readiness answer to our hello reaches it.
+        let ready_listener = services
+            .ready
+            .listener_builder()
+            .create()
+            .map_err(|e| BusError::ipc(format!("create listener on `{name}/ready`"), e))?;
+        let notifier = services
+            .events
+            .notifier_builder()
+            .default_event_id(EventId::new(EVENT_FRAMES_SENT))
+            .create()
+            .map_err(|e| BusError::ipc(format!("create notifier on `{name}`"), e))?;
+        let publisher = services
+            .frames
+            .publisher_builder()
+            .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+            .set_backpressure_handler(give_up_after_limit)
+            .create()
+            .map_err(|e| BusError::ipc(format!("create publisher on `{name}`"), e))?;
+        let instance = (u64::from(std::process::id()) << 32) ^ (monotonic_ns() & 0xffff_ffff);
+        Ok(Self {
+            stream,
+            frames: services.frames,
+            publisher,
+            notifier,
+            ready_listener,
+            instance,
+            run: 0,
+            sequence: 0,
+        })
+    }
+
+    pub fn service_name(&self) -> &str {
+        &self.stream.service_name
+    }
+
+    /// Subscribers registered on the service (connected or not yet).
+    pub fn subscriber_count(&self) -> usize {
+        self.frames.dynamic_config().number_of_subscribers()
+    }
+
+    /// Sequence number the next frame gets.
+    pub fn next_sequence(&self) -> u64 {
+        self.sequence
+    }
+
+    /// Marks the following frames as a new run of the source (estimators restart from their prior).
+    pub fn start_new_run(&mut self) {
+        self.run = self.run.wrapping_add(1);
+    }
+
+    /// Waits until a subscriber has connected to this publisher: iceoryx2 queues frames for a
+    /// subscriber that has not yet looked at its port only until its buffer is full and then
+    /// drops them, so streaming must not start before. Says hello every 10 ms and returns when
+    /// a subscriber answers that it updated its connections, when `stop()` says so (error
+    /// `Stopped`) or after `timeout` (error `NoSubscriber`).
+    pub fn wait_for_subscriber(
+        &self,
+        timeout: Option<Duration>,
+        stop: &dyn Fn() -> bool,
+    ) -> Result<(), BusError> {
+        let start = Instant::now();
+        loop {
+            self.notifier
+                .notify_with_custom_event_id(EventId::new(EVENT_PUBLISHER_HELLO))
+                .map_err(|e| BusError::ipc(format!("hello on `{}`", self.service_name()), e))?;
+            let mut ready = false;
+            self.ready_listener
+                .timed_wait(
+                    |event| ready |= event.id.as_value() == EVENT_SUBSCRIBER_READY,
+                    Duration::from_millis(10),
+                )
+                .map_err(|e| BusError::ipc(format!("wait on `{}/ready`", self.service_name()), e))?;
+            if ready {
+                return Ok(());
+            }
+            if stop() {
+                return Err(BusError::Stopped {
+                    service: self.stream.service_name.clone(),
+                });
+            }
+            if timeout.is_some_and(|t| start.elapsed() > t) {
+                return Err(BusError::NoSubscriber {
+                    service: self.stream.service_name.clone(),
+                    waited_ms: start.elapsed().as_millis() as u64,
+                });
+            }
+        }
+    }
+
+    /// Sends one frame; returns how many subscribers took it (0: nobody is subscribed, or a
+    /// subscriber was full for longer than the backpressure limit). Does not notify: call
+    /// [`Self::notify`] after one frame or a batch.
+    pub fn send(&mut self, frame: &F, sample_time_ns: u64) -> Result<usize, BusError> {
+        let mut sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(|e| BusError::ipc(format!("loan on `{}`", self.stream.service_name), e))?;
+        *sample.user_header_mut() = FrameHeader {
+            layout_version: FRAME_LAYOUT_VERSION,
+            run: self.run,
+            publisher_instance: self.instance,
+            sequence: self.sequence,
+            published_at_ns: monotonic_ns(),
+            sample_time_ns,
+        };
+        self.sequence += 1;
+        sample
+            .write_payload(*frame)
+            .send()
+            .map_err(|e| BusError::ipc(format!("send on `{}`", self.stream.service_name), e))
+    }
+
+    /// Wakes the subscribers' WaitSets.
+    pub fn notify(&self) -> Result<(), BusError> {
+        self.notifier
+            .notify()
+            .map(|_| ())
+            .map_err(|e| BusError::ipc(format!("notify on `{}`", self.stream.service_name), e))
+    }
+}

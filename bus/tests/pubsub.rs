@@ -1,0 +1,102 @@
+//! Two nodes in one process (as two processes would be): lossless delivery in order, the
+//! first-frame handshake, and the backpressure time limit.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+use railmon_bus::{BusConfig, BusNode, DriveChannels, DriveFrame, FrameHeader};
+
+fn private_bus(buffer: usize, backpressure_ms: u64) -> BusConfig {
+    static N: AtomicUsize = AtomicUsize::new(0);
+    let n = N.fetch_add(1, Ordering::Relaxed);
+    let mut config = BusConfig {
+        prefix: format!("rmbt{}_{n}_", std::process::id()),
+        root_path: "/tmp/railmon-test/".into(),
+        ..BusConfig::default()
+    };
+    config.drive.subscriber_buffer_size = buffer;
+    config.drive.backpressure_timeout_ms = backpressure_ms;
+    config
+}
+
+fn frame(step: u64) -> DriveFrame {
+    let drive = DriveChannels {
+        u_alpha_v: step as f64,
+        ..Default::default()
+    };
+    DriveFrame::new(125_000, &[drive; 3]).unwrap()
+}
+
+#[test]
+fn lossless_stream_arrives_complete_and_in_order() {
+    let config = private_bus(8, 2_000);
+    let subscriber_node = BusNode::create(&config, "sub").unwrap();
+    let subscriber = subscriber_node.subscriber::<DriveFrame>().unwrap();
+    let total = 3_000u64;
+    let publisher_config = config.clone();
+    let sender = std::thread::spawn(move || {
+        let node = BusNode::create(&publisher_config, "pub").unwrap();
+        let mut publisher = node.publisher::<DriveFrame>().unwrap();
+        publisher
+            .wait_for_subscriber(Some(Duration::from_secs(5)), &|| false)
+            .unwrap();
+        for step in 0..total {
+            assert_eq!(publisher.send(&frame(step), step * 125_000).unwrap(), 1);
+            publisher.notify().unwrap();
+        }
+    });
+    let waitset = subscriber_node.waitset().unwrap();
+    let _guard = waitset.attach_notification(subscriber.listener()).unwrap();
+    let mut headers: Vec<FrameHeader> = Vec::new();
+    let start = Instant::now();
+    while (headers.len() as u64) < total && start.elapsed() < Duration::from_secs(20) {
+        waitset
+            .wait_and_process_once_with_timeout(|_| iceoryx2::prelude::CallbackProgression::Continue, Duration::from_millis(50))
+            .unwrap();
+        subscriber.take_wakeups().unwrap();
+        subscriber
+            .drain(usize::MAX, |received| {
+                assert_eq!(received.frame.drives[0].u_alpha_v, received.header.sequence as f64);
+                assert!(received.received_at_ns >= received.header.published_at_ns);
+                headers.push(*received.header);
+            })
+            .unwrap();
+    }
+    sender.join().unwrap();
+    assert_eq!(headers.len() as u64, total);
+    for (i, h) in headers.iter().enumerate() {
+        assert_eq!(h.sequence, i as u64);
+        assert_eq!(h.sample_time_ns, i as u64 * 125_000);
+        assert_eq!(h.publisher_instance, headers[0].publisher_instance);
+    }
+}
+
+#[test]
+fn a_subscriber_that_never_reads_delays_each_send_by_at_most_the_time_limit() {
+    let config = private_bus(2, 20);
+    let node = BusNode::create(&config, "both").unwrap();
+    let stuck = node.subscriber::<DriveFrame>().unwrap();
+    let mut publisher = node.publisher::<DriveFrame>().unwrap();
+    publisher.notify().unwrap();
+    stuck.attach().unwrap(); // connects, as the service does on its first wake-up
+    let start = Instant::now();
+    for step in 0..5 {
+        publisher.send(&frame(step), 0).unwrap();
+    }
+    // 2 fit in the buffer, the other 3 each wait ~20 ms and are dropped.
+    let elapsed = start.elapsed();
+    assert!(elapsed >= Duration::from_millis(40), "{elapsed:?}");
+    assert!(elapsed < Duration::from_millis(1_000), "{elapsed:?}");
+}
+
+#[test]
+fn waiting_for_a_subscriber_times_out_with_the_service_name() {
+    let config = private_bus(2, 20);
+    let node = BusNode::create(&config, "lonely").unwrap();
+    let publisher = node.publisher::<DriveFrame>().unwrap();
+    let err = publisher
+        .wait_for_subscriber(Some(Duration::from_millis(30)), &|| false)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("railmon/drive"), "{err}");
+}
