@@ -4,4 +4,7 @@
 //!
 //! `report` holds what every domain shares (output directory, progress bar, plots).
 
+pub mod adhesion;
+pub mod damper;
+pub mod fuel;
 pub mod report;

@@ -14,6 +14,10 @@ use std::fs::File;
 use std::io::{BufWriter, Read};
 use std::path::Path;
 
+pub mod bogie;
+pub mod drive;
+pub mod vehicle;
+
 /// What went wrong, and where, when reading or writing a record file.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub struct RecordError {

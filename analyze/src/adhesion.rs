@@ -1,0 +1,703 @@
+//! `railmon analyze adhesion`: the drive EKFs and every adhesion-loss method (issue 2) over a
+//! simulated scenario or a recorded drive CSV.
+//!
+//! Writes into `--out`:
+//! - `estimates.csv`: per step and drive (numbered from 1): EKF speed and torque, the truth
+//!   when known, and per method the global torque `M_z^(G)` and the slip probability;
+//! - `table1.csv`: `method,drive,min,q1,median,q3,max,mean,std,iqr` of `M_z,i - M_z^(G)`,
+//!   the paper's Table 1;
+//! - `detection.csv` (when the truth is known): per method and drive, precision, recall and
+//!   F1 of "probability > 0.5" against the true slip flag, and the median detection delay;
+//! - `drives.csv` (scenarios only): the simulated record, in the layout `--input` reads
+//!   (`railmon_records::drive`), so a scenario run can be replayed from its file;
+//! - PNG plots after the paper's figures 5-9 (see [`plots`]).
+
+pub mod plots;
+
+use std::path::{Path, PathBuf};
+
+use railmon_filter::stats::Summary;
+use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveMeasurement, DriveTruthRecord};
+use railmon_records::{create_csv, RecordError};
+use railmon_slip::{
+    AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveSample,
+    DriveSimulator, MultiMethodPipeline, SlipError, SlipMonitorConfig,
+};
+
+use crate::report::{create_out_dir, progress_bar, ReportError};
+
+/// Arguments of `railmon analyze adhesion`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct Args {
+    /// A recorded drive CSV (layout: docs/adhesion.md, `railmon_records::drive`).
+    #[arg(
+        long,
+        required_unless_present = "scenario",
+        conflicts_with = "scenario"
+    )]
+    pub input: Option<PathBuf>,
+    /// A simulator scenario (`config/scenarios/adhesion-*.toml`).
+    #[arg(long)]
+    pub scenario: Option<PathBuf>,
+    /// Estimator settings (TOML, the fields of `SlipMonitorConfig`). Default: the scenario's
+    /// `[monitor]` table, or the built-in setting (paper values) for recordings.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Output directory (created if needed).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Skip the PNG plots (CSV reports only).
+    #[arg(long)]
+    pub no_plots: bool,
+    /// Leave the first N steps (the EKFs locking on) out of `table1.csv`; 0 (the paper's
+    /// way) takes every step. Detection is always scored over every step.
+    #[arg(long, default_value_t = 0)]
+    pub table1_skip_steps: usize,
+}
+
+/// Why an analysis failed.
+#[derive(Debug, thiserror::Error)]
+pub enum AdhesionAnalysisError {
+    #[error(transparent)]
+    Record(#[from] RecordError),
+    #[error(transparent)]
+    Report(#[from] ReportError),
+    #[error("{file}: {source}")]
+    Estimator { file: String, source: SlipError },
+    #[error("{file}: {reason}")]
+    Input { file: String, reason: String },
+}
+
+/// Where the frames come from.
+enum Source {
+    Simulator(Box<DriveSimulator>),
+    Recording(Box<DriveCsvReader<std::fs::File>>),
+}
+
+/// One frame: samples of every drive and, when known, the truth.
+struct Frame {
+    samples: Vec<DriveSample>,
+    truth: Option<Vec<DriveTruthRecord>>,
+}
+
+impl Source {
+    fn next(&mut self) -> Result<Option<Frame>, RecordError> {
+        match self {
+            Source::Simulator(sim) => Ok(sim.step().map(|(samples, truth)| Frame {
+                samples: samples.to_vec(),
+                truth: Some(
+                    truth
+                        .iter()
+                        .map(|t| DriveTruthRecord {
+                            speed_rad_s: t.speed_rad_s,
+                            angle_rad: t.angle_rad,
+                            torque_nm: t.torque_nm,
+                            slipping: t.slipping,
+                        })
+                        .collect(),
+                ),
+            })),
+            Source::Recording(reader) => Ok(reader.next_frame()?.map(|f| Frame {
+                samples: f
+                    .drives
+                    .iter()
+                    .map(|d| DriveSample {
+                        u_alpha_v: d.u_alpha_v,
+                        u_beta_v: d.u_beta_v,
+                        i_alpha_a: d.i_alpha_a,
+                        i_beta_a: d.i_beta_a,
+                    })
+                    .collect(),
+                truth: f.truth,
+            })),
+        }
+    }
+}
+
+/// Everything the run produced, kept for the tables and plots.
+#[derive(Debug, Clone)]
+pub struct AdhesionRun {
+    /// What was analysed (file name), for titles.
+    pub name: String,
+    pub n_drives: usize,
+    pub dt_s: f64,
+    /// `[drive][step]` EKF torque estimates.
+    pub ekf_torque_nm: Vec<Vec<f64>>,
+    /// `[drive][step]` true load torque and slip flag, when known.
+    pub truth: Option<Vec<Vec<(f64, bool)>>>,
+    /// Per method: `[step]` global torque and `[drive][step]` slip probability.
+    pub methods: Vec<MethodTrace>,
+}
+
+#[derive(Debug, Clone)]
+pub struct MethodTrace {
+    pub method: AdhesionMethod,
+    pub global_torque_nm: Vec<f64>,
+    pub slip_probability: Vec<Vec<f64>>,
+}
+
+/// A row of `table1.csv`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Table1Row {
+    pub method: AdhesionMethod,
+    /// 1-based.
+    pub drive: usize,
+    pub summary: Summary,
+}
+
+/// A row of `detection.csv`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetectionRow {
+    pub method: AdhesionMethod,
+    /// 1-based.
+    pub drive: usize,
+    pub score: DetectionScore,
+}
+
+/// The result of `run`: the tables it wrote.
+#[derive(Debug, Clone)]
+pub struct AdhesionReport {
+    pub table1: Vec<Table1Row>,
+    pub detection: Vec<DetectionRow>,
+    pub n_steps: usize,
+}
+
+fn input_error(path: &Path, reason: impl ToString) -> AdhesionAnalysisError {
+    AdhesionAnalysisError::Input {
+        file: path.display().to_string(),
+        reason: reason.to_string(),
+    }
+}
+
+fn read_text(path: &Path) -> Result<String, AdhesionAnalysisError> {
+    std::fs::read_to_string(path).map_err(|e| input_error(path, format!("cannot read: {e}")))
+}
+
+fn estimator_error(path: &Path) -> impl Fn(SlipError) -> AdhesionAnalysisError + '_ {
+    move |source| AdhesionAnalysisError::Estimator {
+        file: path.display().to_string(),
+        source,
+    }
+}
+
+/// Runs the analysis the arguments ask for and writes every report file.
+pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
+    create_out_dir(&args.out)?;
+    let (name, mut config, source, n_drives, n_steps_hint, record) =
+        match (&args.input, &args.scenario) {
+            (Some(path), _) => {
+                let reader = DriveCsvReader::open(path, None)?;
+                let name = path.display().to_string();
+                (
+                    name,
+                    SlipMonitorConfig::default(),
+                    Source::Recording(Box::new(reader)),
+                    None,
+                    0,
+                    None,
+                )
+            }
+            (None, Some(path)) => {
+                let scenario = AdhesionScenario::from_toml_str(&read_text(path)?)
+                    .map_err(estimator_error(path))?;
+                let sim = DriveSimulator::new(&scenario).map_err(estimator_error(path))?;
+                let writer = DriveCsvWriter::create(&args.out.join("drives.csv"), true)?;
+                let name = path.display().to_string();
+                let n = scenario.n_drives();
+                (
+                    name,
+                    scenario.monitor_config(),
+                    Source::Simulator(Box::new(sim)),
+                    Some(n),
+                    scenario.n_steps(),
+                    Some(writer),
+                )
+            }
+            (None, None) => {
+                return Err(input_error(
+                    Path::new("<arguments>"),
+                    "give --input CSV or --scenario FILE",
+                ))
+            }
+        };
+    if let Some(path) = &args.config {
+        config =
+            SlipMonitorConfig::from_toml_str(&read_text(path)?).map_err(estimator_error(path))?;
+    }
+    let run = analyse(
+        &name,
+        &config,
+        source,
+        n_drives,
+        n_steps_hint,
+        record,
+        &args.out,
+    )?;
+    let report = write_tables(&run, args.table1_skip_steps, &args.out)?;
+    if !args.no_plots {
+        plots::write_all(&run, &report, &args.out)?;
+    }
+    print_summary(&run, &report);
+    Ok(report)
+}
+
+/// Steps every frame through the EKFs and all methods, writing `estimates.csv` (and the
+/// simulated record) as it goes.
+fn analyse(
+    name: &str,
+    config: &SlipMonitorConfig,
+    mut source: Source,
+    n_drives: Option<usize>,
+    n_steps_hint: usize,
+    mut record: Option<DriveCsvWriter<std::io::BufWriter<std::fs::File>>>,
+    out: &Path,
+) -> Result<AdhesionRun, AdhesionAnalysisError> {
+    let est_path = out.join("estimates.csv");
+    let mut est = create_csv(&est_path)?;
+    let write_err = |e: csv::Error| write_error(&est_path, e);
+    let bar = progress_bar(n_steps_hint as u64, "adhesion");
+    let label = name.to_owned();
+    let mut pipeline: Option<MultiMethodPipeline> = None;
+    let mut run = AdhesionRun {
+        name: name.to_owned(),
+        n_drives: n_drives.unwrap_or(0),
+        dt_s: config.dt_s,
+        ekf_torque_nm: Vec::new(),
+        truth: None,
+        methods: Vec::new(),
+    };
+    let mut step = 0usize;
+    while let Some(frame) = source.next()? {
+        let pipe = match &mut pipeline {
+            Some(p) => p,
+            None => {
+                // First frame: now the drive count and the presence of truth are known.
+                let n = frame.samples.len();
+                run.n_drives = n;
+                run.ekf_torque_nm = vec![Vec::with_capacity(n_steps_hint); n];
+                run.truth = frame
+                    .truth
+                    .as_ref()
+                    .map(|_| vec![Vec::with_capacity(n_steps_hint); n]);
+                run.methods = AdhesionMethod::ALL
+                    .iter()
+                    .map(|&method| MethodTrace {
+                        method,
+                        global_torque_nm: Vec::with_capacity(n_steps_hint),
+                        slip_probability: vec![Vec::with_capacity(n_steps_hint); n],
+                    })
+                    .collect();
+                est.write_record(estimates_header(run.truth.is_some()))
+                    .map_err(write_err)?;
+                pipeline.insert(MultiMethodPipeline::new(config, n).map_err(|source| {
+                    AdhesionAnalysisError::Estimator {
+                        file: label.clone(),
+                        source,
+                    }
+                })?)
+            }
+        };
+        if let Some(w) = record.as_mut() {
+            let drives: Vec<DriveMeasurement> = frame
+                .samples
+                .iter()
+                .map(|s| DriveMeasurement {
+                    u_alpha_v: s.u_alpha_v,
+                    u_beta_v: s.u_beta_v,
+                    i_alpha_a: s.i_alpha_a,
+                    i_beta_a: s.i_beta_a,
+                })
+                .collect();
+            w.write_frame(step as u64, &drives, frame.truth.as_deref())?;
+        }
+        pipe.step(&frame.samples)
+            .map_err(|source| AdhesionAnalysisError::Estimator {
+                file: format!("{label}: step {step}"),
+                source,
+            })?;
+        for (k, f) in pipe.bank().filters().iter().enumerate() {
+            run.ekf_torque_nm[k].push(f.torque_nm());
+            let mut fields = vec![
+                step.to_string(),
+                (k + 1).to_string(),
+                fmt(f.speed_rad_s()),
+                fmt(f.torque_nm()),
+            ];
+            if let (Some(truth), Some(t)) = (run.truth.as_mut(), frame.truth.as_ref()) {
+                truth[k].push((t[k].torque_nm, t[k].slipping));
+                fields.push(fmt(t[k].torque_nm));
+                fields.push(u8::from(t[k].slipping).to_string());
+            }
+            for (_, out) in pipe.outputs() {
+                fields.push(fmt(out.global_torque_nm));
+                fields.push(fmt(out.slip_probability[k]));
+            }
+            est.write_record(&fields).map_err(write_err)?;
+        }
+        for (trace, (_, out)) in run.methods.iter_mut().zip(pipe.outputs()) {
+            trace.global_torque_nm.push(out.global_torque_nm);
+            for (p, &v) in trace.slip_probability.iter_mut().zip(&out.slip_probability) {
+                p.push(v);
+            }
+        }
+        step += 1;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    if step == 0 {
+        return Err(AdhesionAnalysisError::Input {
+            file: label,
+            reason: "no data rows".into(),
+        });
+    }
+    est.flush().map_err(|e| write_error(&est_path, e))?;
+    if let Some(w) = record {
+        w.finish()?;
+    }
+    Ok(run)
+}
+
+fn write_error(path: &Path, e: impl std::fmt::Display) -> ReportError {
+    ReportError::new(path, format!("write error: {e}"))
+}
+
+fn fmt(v: f64) -> String {
+    format!("{v:.6}")
+}
+
+fn estimates_header(with_truth: bool) -> Vec<String> {
+    let mut h: Vec<String> = ["step", "drive", "ekf_speed_rad_s", "ekf_torque_nm"]
+        .map(String::from)
+        .to_vec();
+    if with_truth {
+        h.extend(["true_torque_nm", "true_slipping"].map(String::from));
+    }
+    for m in AdhesionMethod::ALL {
+        h.push(format!("{m}_global_torque_nm"));
+        h.push(format!("{m}_slip_probability"));
+    }
+    h
+}
+
+/// Table 1 (statistics of `M_z,i - M_z^(G)` from step `skip` on) and the detection scores.
+pub fn tables(run: &AdhesionRun, skip: usize) -> AdhesionReport {
+    let mut table1 = Vec::new();
+    let mut detection = Vec::new();
+    for trace in &run.methods {
+        for k in 0..run.n_drives {
+            let diff: Vec<f64> = run.ekf_torque_nm[k]
+                .iter()
+                .zip(&trace.global_torque_nm)
+                .skip(skip)
+                .map(|(x, g)| x - g)
+                .collect();
+            if let Some(summary) = Summary::of(&diff) {
+                table1.push(Table1Row {
+                    method: trace.method,
+                    drive: k + 1,
+                    summary,
+                });
+            }
+            if let Some(truth) = &run.truth {
+                let mut counter = DetectionCounter::default();
+                for (step, (&p, &(_, slipping))) in
+                    trace.slip_probability[k].iter().zip(&truth[k]).enumerate()
+                {
+                    counter.push(step, p > 0.5, slipping);
+                }
+                detection.push(DetectionRow {
+                    method: trace.method,
+                    drive: k + 1,
+                    score: counter.score(),
+                });
+            }
+        }
+    }
+    AdhesionReport {
+        table1,
+        detection,
+        n_steps: run.ekf_torque_nm.first().map_or(0, Vec::len),
+    }
+}
+
+fn write_tables(
+    run: &AdhesionRun,
+    skip: usize,
+    out: &Path,
+) -> Result<AdhesionReport, AdhesionAnalysisError> {
+    let report = tables(run, skip);
+    let path = out.join("table1.csv");
+    let mut w = create_csv(&path)?;
+    w.write_record([
+        "method", "drive", "min", "q1", "median", "q3", "max", "mean", "std", "iqr",
+    ])
+    .map_err(|e| write_error(&path, e))?;
+    for r in &report.table1 {
+        let s = r.summary;
+        let fields = [s.min, s.q1, s.median, s.q3, s.max, s.mean, s.std, s.iqr].map(fmt);
+        let mut row = vec![r.method.to_string(), r.drive.to_string()];
+        row.extend(fields);
+        w.write_record(&row).map_err(|e| write_error(&path, e))?;
+    }
+    w.flush().map_err(|e| write_error(&path, e))?;
+    if run.truth.is_some() {
+        let path = out.join("detection.csv");
+        let mut w = create_csv(&path)?;
+        w.write_record([
+            "method",
+            "drive",
+            "precision",
+            "recall",
+            "f1",
+            "median_delay_steps",
+            "true_pos",
+            "false_pos",
+            "false_neg",
+            "events",
+            "missed_events",
+        ])
+        .map_err(|e| write_error(&path, e))?;
+        let opt = |v: Option<f64>| v.map_or(String::new(), fmt);
+        for r in &report.detection {
+            let s = &r.score;
+            w.write_record([
+                r.method.to_string(),
+                r.drive.to_string(),
+                opt(s.precision),
+                opt(s.recall),
+                opt(s.f1),
+                opt(s.median_delay_steps),
+                s.true_pos.to_string(),
+                s.false_pos.to_string(),
+                s.false_neg.to_string(),
+                s.events.to_string(),
+                s.missed_events.to_string(),
+            ])
+            .map_err(|e| write_error(&path, e))?;
+        }
+        w.flush().map_err(|e| write_error(&path, e))?;
+    }
+    Ok(report)
+}
+
+fn print_summary(run: &AdhesionRun, report: &AdhesionReport) {
+    println!(
+        "{}: {} drives, {} steps",
+        run.name, run.n_drives, report.n_steps
+    );
+    println!(
+        "{:<9} {:>5} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "method", "drive", "min", "median", "max", "mean", "std", "iqr"
+    );
+    for r in &report.table1 {
+        let s = r.summary;
+        println!(
+            "{:<9} {:>5} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2}",
+            r.method.to_string(),
+            r.drive,
+            s.min,
+            s.median,
+            s.max,
+            s.mean,
+            s.std,
+            s.iqr
+        );
+    }
+    if !report.detection.is_empty() {
+        println!(
+            "{:<9} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9}",
+            "method", "drive", "precision", "recall", "f1", "delay", "false_pos"
+        );
+        let opt = |v: Option<f64>| v.map_or("-".to_owned(), |x| format!("{x:.4}"));
+        for r in &report.detection {
+            let s = &r.score;
+            println!(
+                "{:<9} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9}",
+                r.method.to_string(),
+                r.drive,
+                opt(s.precision),
+                opt(s.recall),
+                opt(s.f1),
+                opt(s.median_delay_steps),
+                s.false_pos
+            );
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SEED: &str = include_str!("../../config/scenarios/adhesion-seed.toml");
+
+    struct TempDir(PathBuf);
+    impl TempDir {
+        fn new(tag: &str) -> Self {
+            let dir =
+                std::env::temp_dir().join(format!("railmon-adhesion-{tag}-{}", std::process::id()));
+            let _ = std::fs::remove_dir_all(&dir);
+            std::fs::create_dir_all(&dir).unwrap();
+            TempDir(dir)
+        }
+    }
+    impl Drop for TempDir {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+
+    fn args(
+        input: Option<PathBuf>,
+        scenario: Option<PathBuf>,
+        config: Option<PathBuf>,
+        out: PathBuf,
+        no_plots: bool,
+    ) -> Args {
+        Args {
+            input,
+            scenario,
+            config,
+            out,
+            no_plots,
+            table1_skip_steps: 0,
+        }
+    }
+
+    #[test]
+    fn seed_scenario_report_and_replay_from_its_record_agree() {
+        let tmp = TempDir::new("seed");
+        let scenario_path = tmp.0.join("seed.toml");
+        std::fs::write(&scenario_path, SEED).unwrap();
+        let out = tmp.0.join("sim");
+        let report = run(&args(None, Some(scenario_path), None, out.clone(), true)).unwrap();
+        assert_eq!(report.n_steps, 20_000);
+        assert_eq!(report.table1.len(), 15);
+        // The paper's shape: drive 1 has a large negative minimum (a drop of 20 N m), drives
+        // 2-3 centre on 0.
+        for r in &report.table1 {
+            if r.drive == 1 {
+                assert!(r.summary.min < -15.0, "{r:?}");
+            } else {
+                assert!(r.summary.median.abs() < 0.2 && r.summary.iqr < 0.5, "{r:?}");
+            }
+        }
+        let temporal = |d: usize| {
+            &report
+                .detection
+                .iter()
+                .find(|r| r.method == AdhesionMethod::Temporal && r.drive == d)
+                .unwrap()
+                .score
+        };
+        assert!(temporal(1).f1.unwrap() >= 0.98);
+        for name in ["estimates.csv", "table1.csv", "detection.csv", "drives.csv"] {
+            assert!(out.join(name).is_file(), "{name}");
+        }
+        let table1 = std::fs::read_to_string(out.join("table1.csv")).unwrap();
+        assert!(
+            table1.starts_with("method,drive,min,q1,median,q3,max,mean,std,iqr\nvb,1,"),
+            "{table1}"
+        );
+
+        // Replay the record with the scenario's settings: the same numbers.
+        let config_path = tmp.0.join("monitor.toml");
+        let scenario = AdhesionScenario::from_toml_str(SEED).unwrap();
+        std::fs::write(
+            &config_path,
+            toml::to_string(&scenario.monitor_config()).unwrap(),
+        )
+        .unwrap();
+        let replay_out = tmp.0.join("replay");
+        let replay = run(&args(
+            Some(out.join("drives.csv")),
+            None,
+            Some(config_path),
+            replay_out.clone(),
+            true,
+        ))
+        .unwrap();
+        assert_eq!(replay.table1, report.table1);
+        assert_eq!(replay.detection, report.detection);
+        assert_eq!(
+            std::fs::read_to_string(replay_out.join("table1.csv")).unwrap(),
+            table1
+        );
+    }
+
+    #[test]
+    fn plots_are_written() {
+        let tmp = TempDir::new("plots");
+        let scenario_path = tmp.0.join("short.toml");
+        std::fs::write(
+            &scenario_path,
+            SEED.replace("n_steps = 20000", "n_steps = 1500"),
+        )
+        .unwrap();
+        run(&args(None, Some(scenario_path), None, tmp.0.clone(), false)).unwrap();
+        for name in [
+            "torque_drive1.png",
+            "temporal_differences.png",
+            "vb_histogram_drive3.png",
+            "median_slip_probability.png",
+        ] {
+            let bytes = std::fs::read(tmp.0.join(name)).unwrap();
+            assert_eq!(&bytes[1..4], b"PNG", "{name}");
+        }
+    }
+
+    /// Runs `--input` on `text` and returns the error message.
+    fn input_error_of(tag: &str, text: &str) -> String {
+        let tmp = TempDir::new(tag);
+        let path = tmp.0.join("drives.csv");
+        std::fs::write(&path, text).unwrap();
+        let err = run(&args(
+            Some(path.clone()),
+            None,
+            None,
+            tmp.0.join("out"),
+            true,
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(!err.contains('\n'), "one line: {err}");
+        assert!(
+            err.contains(&path.display().to_string()),
+            "names the file: {err}"
+        );
+        err
+    }
+
+    const GOOD: &str = "step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a\n\
+                        0,1,10,20,1,2\n0,2,10,20,1,2\n1,1,10,20,1,2\n1,2,10,20,1,2\n";
+
+    #[test]
+    fn bad_recordings_give_one_line_errors_naming_file_line_and_field() {
+        let err = input_error_of("nan", &GOOD.replace("1,1,10,20,1,2", "1,1,10,NaN,1,2"));
+        assert!(err.contains(":4: field \"u_beta_v\" = \"NaN\""), "{err}");
+        let err = input_error_of("missing", &GOOD.replace(",i_alpha_a", ",i_alpha"));
+        assert!(
+            err.contains(":1: field \"i_alpha_a\": missing column"),
+            "{err}"
+        );
+        let err = input_error_of("truncated", &format!("{GOOD}2,1,10"));
+        assert!(err.contains(":6:") && err.contains("truncated"), "{err}");
+        let err = input_error_of("range", &format!("{GOOD}2,1,10,20,1,2\n2,3,10,20,1,2\n"));
+        assert!(
+            err.contains(":7: field \"drive\" = \"3\": drive number out of range 1..=2"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn a_good_recording_without_truth_gives_table1_only() {
+        let tmp = TempDir::new("notruth");
+        let path = tmp.0.join("drives.csv");
+        std::fs::write(&path, GOOD).unwrap();
+        let out = tmp.0.join("out");
+        let report = run(&args(Some(path), None, None, out.clone(), true)).unwrap();
+        assert_eq!(report.n_steps, 2);
+        assert!(report.detection.is_empty());
+        assert!(out.join("table1.csv").is_file() && !out.join("detection.csv").exists());
+    }
+}

@@ -1,0 +1,655 @@
+//! `railmon analyze damper`: the RBPF and the EKF baseline (issue 4) over a simulated
+//! scenario or a recorded bogie CSV.
+//!
+//! Writes into `--out`:
+//! - `estimates.csv`: every `--csv-every` steps: time, per damper the RBPF mean and 90%
+//!   interval, its health ratio, the EKF estimate and standard deviation, the truth when
+//!   known; and the effective sample size;
+//! - `summary.csv` (when the truth is known):
+//!   `method,damper,truth,error_10s,error_30s,error_end,settle_s,covered_end`: relative
+//!   errors `estimate / truth - 1` at 10 s, 30 s and the end; `settle_s` the time after which
+//!   the estimate stays within 5% of the truth (empty if it never does); `covered_end` whether
+//!   the 90% interval holds the truth at the end (RBPF: its 5%/95% quantiles; EKF: its mean
+//!   +- 1.645 standard deviations);
+//! - `faults.csv` (scenarios with faults): per fault, method and damper, the relative error
+//!   10 s after the fault is complete and the time from then until the estimate settles
+//!   within 5% for good;
+//! - `bogie.csv` (scenarios only): the simulated record in the layout `--input` reads
+//!   (`railmon_records::bogie`), so a scenario run can be replayed from its file;
+//! - PNG plots after the paper's figures 2-5 (RBPF and EKF estimates of both dampers
+//!   against the truth) and of the effective sample size.
+//!
+//! Errors and settling times are evaluated on the `--csv-every` grid (10 ms by default).
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use railmon_damper::{
+    BogieSample, BogieSimulator, DamperError, DamperEstimate, DamperFault, DamperId, DamperMonitor,
+    DamperMonitorConfig, DamperScenario, FaultKind, Propagation,
+};
+use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord};
+use railmon_records::{create_csv, RecordError};
+
+use crate::report::{create_out_dir, line_plot, progress_bar, Axes, ReportError, Series};
+
+/// Arguments of `railmon analyze damper`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct Args {
+    /// A recorded bogie CSV (layout: docs/damper.md, `railmon_records::bogie`).
+    #[arg(
+        long,
+        required_unless_present = "scenario",
+        conflicts_with = "scenario"
+    )]
+    pub input: Option<PathBuf>,
+    /// A simulator scenario (`config/scenarios/damper-*.toml`).
+    #[arg(long)]
+    pub scenario: Option<PathBuf>,
+    /// Estimator settings (TOML, the fields of `DamperMonitorConfig`). Default: the
+    /// scenario's `[monitor]` table, or the built-in settings for recordings.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Output directory (created if needed).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Number of particles (overrides the configuration).
+    #[arg(long)]
+    pub particles: Option<usize>,
+    /// Per-particle filter: `steady-state` (fast, default) or `exact` (reference, slow).
+    #[arg(long, value_parser = parse_propagation)]
+    pub propagation: Option<Propagation>,
+    /// Run only the first seconds of the scenario or recording.
+    #[arg(long)]
+    pub duration_s: Option<f64>,
+    /// Write a row of `estimates.csv` (and a plot point) every this many steps.
+    #[arg(long, default_value_t = 10)]
+    pub csv_every: usize,
+    /// Skip the PNG plots (CSV reports only).
+    #[arg(long)]
+    pub no_plots: bool,
+}
+
+fn parse_propagation(s: &str) -> Result<Propagation, String> {
+    match s {
+        "exact" => Ok(Propagation::Exact),
+        "steady-state" | "steady_state" => Ok(Propagation::SteadyState),
+        _ => Err(format!("unknown propagation {s:?} (exact, steady-state)")),
+    }
+}
+
+/// Why an analysis failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DamperAnalysisError {
+    #[error(transparent)]
+    Record(#[from] RecordError),
+    #[error(transparent)]
+    Report(#[from] ReportError),
+    #[error("{file}: {reason}")]
+    Input { file: String, reason: String },
+    #[error("{file}: {source}")]
+    Estimator {
+        file: String,
+        #[source]
+        source: DamperError,
+    },
+}
+
+fn input_error(path: &Path, reason: impl ToString) -> DamperAnalysisError {
+    DamperAnalysisError::Input {
+        file: path.display().to_string(),
+        reason: reason.to_string(),
+    }
+}
+
+fn estimator_error(file: &str) -> impl Fn(DamperError) -> DamperAnalysisError + '_ {
+    move |source| DamperAnalysisError::Estimator {
+        file: file.to_owned(),
+        source,
+    }
+}
+
+fn read_text(path: &Path) -> Result<String, DamperAnalysisError> {
+    std::fs::read_to_string(path).map_err(|e| input_error(path, format!("cannot read: {e}")))
+}
+
+/// One row of `summary.csv`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SummaryRow {
+    pub method: &'static str,
+    pub damper: &'static str,
+    /// Truth at the end (N s/m).
+    pub truth: f64,
+    pub error_10s: Option<f64>,
+    pub error_30s: Option<f64>,
+    pub error_end: Option<f64>,
+    pub settle_s: Option<f64>,
+    pub covered_end: bool,
+}
+
+/// One row of `faults.csv`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaultRow {
+    pub method: &'static str,
+    pub damper: &'static str,
+    pub kind: &'static str,
+    pub at_s: f64,
+    /// When the fault is complete (`at_s` for a step).
+    pub done_s: f64,
+    pub ratio: f64,
+    pub error_10s_after: Option<f64>,
+    /// Time from `done_s` until the estimate stays within 5% of the truth.
+    pub settle_after_s: Option<f64>,
+}
+
+/// What a run produced (also written to the output directory).
+#[derive(Debug, Clone)]
+pub struct DamperReport {
+    pub summary: Vec<SummaryRow>,
+    pub faults: Vec<FaultRow>,
+    pub steps: u64,
+    /// Mean wall time of one monitor step (RBPF + EKF + posterior summary).
+    pub mean_step_us: f64,
+    pub ekf_diverged_at_s: Option<f64>,
+}
+
+/// One point of the estimate trace.
+#[derive(Debug, Clone, Copy)]
+struct TracePoint {
+    time_s: f64,
+    estimate: DamperEstimate,
+    truth: Option<[f64; 2]>,
+}
+
+enum Source {
+    Simulator(Box<BogieSimulator>),
+    Recording(BogieCsvReader<std::fs::File>),
+}
+
+impl Source {
+    /// Next sample and truth; `Ok(None)` at the end.
+    fn next(&mut self) -> Result<Option<(BogieSample, Option<[f64; 2]>)>, DamperAnalysisError> {
+        match self {
+            Source::Simulator(sim) => Ok(sim
+                .step()
+                .map(|(y, t)| (*y, Some([t.dampers.csy_ns_per_m, t.dampers.csay_ns_per_m])))),
+            Source::Recording(r) => Ok(r.next_record()?.map(|rec| {
+                let s = rec.sensors;
+                (
+                    BogieSample {
+                        wheelset1_accel_m_s2: s[0],
+                        wheelset2_accel_m_s2: s[1],
+                        bogie_accel_m_s2: s[2],
+                        bogie_yaw_rate_rad_s: s[3],
+                        body_accel_m_s2: s[4],
+                    },
+                    rec.truth_ns_per_m,
+                )
+            })),
+        }
+    }
+}
+
+/// Runs the analysis the arguments ask for and writes every report file.
+pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
+    create_out_dir(&args.out)?;
+    let (name, mut config, source, n_steps, faults, record) = match (&args.input, &args.scenario) {
+        (Some(path), _) => {
+            let reader = BogieCsvReader::open(path)?;
+            let name = path.display().to_string();
+            (
+                name,
+                DamperMonitorConfig::default(),
+                Source::Recording(reader),
+                None,
+                vec![],
+                None,
+            )
+        }
+        (None, Some(path)) => {
+            let name = path.display().to_string();
+            let mut scenario =
+                DamperScenario::from_toml_str(&read_text(path)?).map_err(estimator_error(&name))?;
+            if let Some(d) = args.duration_s {
+                scenario.duration_s = d;
+            }
+            let sim = BogieSimulator::new(&scenario).map_err(estimator_error(&name))?;
+            let writer = BogieCsvWriter::create(&args.out.join("bogie.csv"), true)?;
+            (
+                name,
+                scenario.monitor_config(),
+                Source::Simulator(Box::new(sim)),
+                Some(scenario.n_steps()),
+                scenario.faults.clone(),
+                Some(writer),
+            )
+        }
+        (None, None) => {
+            return Err(input_error(
+                Path::new("<arguments>"),
+                "give --input CSV or --scenario FILE",
+            ))
+        }
+    };
+    if let Some(path) = &args.config {
+        let file = path.display().to_string();
+        config = DamperMonitorConfig::from_toml_str(&read_text(path)?)
+            .map_err(estimator_error(&file))?;
+    }
+    if let Some(n) = args.particles {
+        config.rbpf.particles = n;
+    }
+    if let Some(p) = args.propagation {
+        config.rbpf.propagation = p;
+    }
+    let max_steps = args
+        .duration_s
+        .map(|d| (d / config.dt_s).round() as u64)
+        .or(n_steps.map(|n| n as u64));
+    let (trace, steps, elapsed, ekf_diverged_at_s) = run_monitor(
+        &name,
+        &config,
+        source,
+        record,
+        max_steps,
+        args.csv_every.max(1),
+    )?;
+    write_estimates(&args.out.join("estimates.csv"), &trace)?;
+    let has_truth = trace.iter().all(|p| p.truth.is_some()) && !trace.is_empty();
+    let summary = if has_truth { summarise(&trace) } else { vec![] };
+    if has_truth {
+        write_summary(&args.out.join("summary.csv"), &summary)?;
+    }
+    let fault_rows = if has_truth && !faults.is_empty() {
+        let rows = fault_table(&trace, &faults);
+        write_faults(&args.out.join("faults.csv"), &rows)?;
+        rows
+    } else {
+        vec![]
+    };
+    if !args.no_plots {
+        plots(&args.out, &trace)?;
+    }
+    Ok(DamperReport {
+        summary,
+        faults: fault_rows,
+        steps,
+        mean_step_us: elapsed.as_secs_f64() * 1e6 / steps.max(1) as f64,
+        ekf_diverged_at_s,
+    })
+}
+
+type MonitorRun = (Vec<TracePoint>, u64, Duration, Option<f64>);
+
+fn run_monitor(
+    name: &str,
+    config: &DamperMonitorConfig,
+    mut source: Source,
+    mut record: Option<BogieCsvWriter>,
+    max_steps: Option<u64>,
+    every: usize,
+) -> Result<MonitorRun, DamperAnalysisError> {
+    let mut monitor =
+        DamperMonitor::new(config, config.rbpf.seed).map_err(estimator_error(name))?;
+    let bar = progress_bar(max_steps.unwrap_or(0), "damper");
+    let mut trace = vec![];
+    let mut steps = 0u64;
+    let mut elapsed = Duration::ZERO;
+    while max_steps.is_none_or(|m| steps < m) {
+        let Some((sample, truth)) = source.next()? else {
+            break;
+        };
+        let started = Instant::now();
+        let estimate = *monitor.step(&sample).map_err(estimator_error(name))?;
+        elapsed += started.elapsed();
+        steps += 1;
+        if let Some(w) = record.as_mut() {
+            w.write(&BogieRecord {
+                time_s: estimate.time_s,
+                sensors: sample_array(&sample),
+                truth_ns_per_m: truth,
+            })?;
+        }
+        if (steps as usize).is_multiple_of(every) {
+            trace.push(TracePoint {
+                time_s: estimate.time_s,
+                estimate,
+                truth,
+            });
+        }
+        if steps.is_multiple_of(1000) {
+            bar.inc(1000);
+        }
+    }
+    bar.finish_and_clear();
+    if let Some(w) = record {
+        w.finish()?;
+    }
+    Ok((trace, steps, elapsed, monitor.ekf_diverged_at_s()))
+}
+
+fn sample_array(s: &BogieSample) -> [f64; 5] {
+    [
+        s.wheelset1_accel_m_s2,
+        s.wheelset2_accel_m_s2,
+        s.bogie_accel_m_s2,
+        s.bogie_yaw_rate_rad_s,
+        s.body_accel_m_s2,
+    ]
+}
+
+/// What one method says about one damper at a trace point: estimate and 90% interval.
+fn method_view(p: &TracePoint, method: &str, damper: DamperId) -> Option<(f64, f64, f64)> {
+    let e = &p.estimate;
+    match method {
+        "rbpf" => {
+            let post = match damper {
+                DamperId::Csy => e.csy,
+                DamperId::Csay => e.csay,
+            };
+            Some((post.mean_ns_per_m, post.q05_ns_per_m, post.q95_ns_per_m))
+        }
+        _ => e.ekf.map(|k| {
+            let i = damper.index();
+            let mean = [k.dampers.csy_ns_per_m, k.dampers.csay_ns_per_m][i];
+            let half = 1.645 * k.std_ns_per_m[i];
+            (mean, mean - half, mean + half)
+        }),
+    }
+}
+
+const METHODS: [&str; 2] = ["rbpf", "ekf"];
+const SETTLE_TOLERANCE: f64 = 0.05;
+
+fn relative_error(p: &TracePoint, method: &str, damper: DamperId) -> Option<f64> {
+    let truth = p.truth?[damper.index()];
+    method_view(p, method, damper).map(|(m, _, _)| m / truth - 1.0)
+}
+
+/// The trace point nearest to `t_s`, if the run reached it.
+fn at_time(trace: &[TracePoint], t_s: f64) -> Option<&TracePoint> {
+    let last = trace.last()?;
+    if t_s > last.time_s + 1e-9 {
+        return None;
+    }
+    trace
+        .iter()
+        .min_by(|a, b| (a.time_s - t_s).abs().total_cmp(&(b.time_s - t_s).abs()))
+}
+
+/// First time from which every later point is within tolerance (`None` if the last is not).
+fn settle_time(points: &[TracePoint], method: &str, damper: DamperId) -> Option<f64> {
+    let mut settled = None;
+    for p in points.iter().rev() {
+        match relative_error(p, method, damper) {
+            Some(e) if e.abs() <= SETTLE_TOLERANCE => settled = Some(p.time_s),
+            _ => break,
+        }
+    }
+    settled
+}
+
+fn summarise(trace: &[TracePoint]) -> Vec<SummaryRow> {
+    let mut rows = vec![];
+    let Some(end) = trace.last() else {
+        return rows;
+    };
+    for method in METHODS {
+        for damper in DamperId::ALL {
+            let truth = end.truth.map_or(f64::NAN, |t| t[damper.index()]);
+            let err_at = |t: f64| at_time(trace, t).and_then(|p| relative_error(p, method, damper));
+            rows.push(SummaryRow {
+                method,
+                damper: damper.name(),
+                truth,
+                error_10s: err_at(10.0),
+                error_30s: err_at(30.0),
+                error_end: relative_error(end, method, damper),
+                settle_s: settle_time(trace, method, damper),
+                covered_end: method_view(end, method, damper)
+                    .is_some_and(|(_, lo, hi)| lo <= truth && truth <= hi),
+            });
+        }
+    }
+    rows
+}
+
+fn fault_table(trace: &[TracePoint], faults: &[DamperFault]) -> Vec<FaultRow> {
+    let mut rows = vec![];
+    for f in faults {
+        let done_s = match f.kind {
+            FaultKind::Step => f.at_s,
+            FaultKind::Ramp => f.end_s.unwrap_or(f.at_s),
+        };
+        let after: Vec<TracePoint> = trace
+            .iter()
+            .filter(|p| p.time_s >= done_s)
+            .copied()
+            .collect();
+        for method in METHODS {
+            rows.push(FaultRow {
+                method,
+                damper: f.damper.name(),
+                kind: match f.kind {
+                    FaultKind::Step => "step",
+                    FaultKind::Ramp => "ramp",
+                },
+                at_s: f.at_s,
+                done_s,
+                ratio: f.ratio,
+                error_10s_after: at_time(trace, done_s + 10.0)
+                    .and_then(|p| relative_error(p, method, f.damper)),
+                settle_after_s: settle_time(&after, method, f.damper).map(|t| t - done_s),
+            });
+        }
+    }
+    rows
+}
+
+fn opt(v: Option<f64>) -> String {
+    v.map_or_else(String::new, |x| format!("{x:.6}"))
+}
+
+fn csv_write<W: std::io::Write>(
+    w: &mut csv::Writer<W>,
+    path: &Path,
+    record: &[String],
+) -> Result<(), DamperAnalysisError> {
+    w.write_record(record).map_err(|e| {
+        RecordError::file(&path.display().to_string(), format!("write error: {e}")).into()
+    })
+}
+
+fn csv_flush<W: std::io::Write>(
+    mut w: csv::Writer<W>,
+    path: &Path,
+) -> Result<(), DamperAnalysisError> {
+    w.flush().map_err(|e| {
+        RecordError::file(&path.display().to_string(), format!("write error: {e}")).into()
+    })
+}
+
+fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), DamperAnalysisError> {
+    let mut w = create_csv(path)?;
+    let mut header = vec!["time_s".to_owned()];
+    for d in DamperId::ALL {
+        let n = d.name();
+        for col in [
+            "rbpf_mean_ns_per_m",
+            "rbpf_q05_ns_per_m",
+            "rbpf_q95_ns_per_m",
+            "rbpf_health_ratio",
+            "ekf_ns_per_m",
+            "ekf_std_ns_per_m",
+            "true_ns_per_m",
+        ] {
+            header.push(format!("{n}_{col}"));
+        }
+    }
+    header.push("effective_sample_size".to_owned());
+    csv_write(&mut w, path, &header)?;
+    for p in trace {
+        let mut row = vec![format!("{:.3}", p.time_s)];
+        for d in DamperId::ALL {
+            let post = match d {
+                DamperId::Csy => p.estimate.csy,
+                DamperId::Csay => p.estimate.csay,
+            };
+            let ekf = p.estimate.ekf.map(|k| {
+                (
+                    [k.dampers.csy_ns_per_m, k.dampers.csay_ns_per_m][d.index()],
+                    k.std_ns_per_m[d.index()],
+                )
+            });
+            row.extend([
+                format!("{:.3}", post.mean_ns_per_m),
+                format!("{:.3}", post.q05_ns_per_m),
+                format!("{:.3}", post.q95_ns_per_m),
+                format!("{:.6}", post.health_ratio),
+                opt(ekf.map(|e| e.0)),
+                opt(ekf.map(|e| e.1)),
+                opt(p.truth.map(|t| t[d.index()])),
+            ]);
+        }
+        row.push(format!("{:.1}", p.estimate.effective_sample_size));
+        csv_write(&mut w, path, &row)?;
+    }
+    csv_flush(w, path)
+}
+
+fn write_summary(path: &Path, rows: &[SummaryRow]) -> Result<(), DamperAnalysisError> {
+    let mut w = create_csv(path)?;
+    let header = [
+        "method",
+        "damper",
+        "truth",
+        "error_10s",
+        "error_30s",
+        "error_end",
+        "settle_s",
+        "covered_end",
+    ];
+    csv_write(&mut w, path, &header.map(str::to_owned))?;
+    for r in rows {
+        csv_write(
+            &mut w,
+            path,
+            &[
+                r.method.to_owned(),
+                r.damper.to_owned(),
+                format!("{:.1}", r.truth),
+                opt(r.error_10s),
+                opt(r.error_30s),
+                opt(r.error_end),
+                r.settle_s.map_or_else(String::new, |s| format!("{s:.2}")),
+                r.covered_end.to_string(),
+            ],
+        )?;
+    }
+    csv_flush(w, path)
+}
+
+fn write_faults(path: &Path, rows: &[FaultRow]) -> Result<(), DamperAnalysisError> {
+    let mut w = create_csv(path)?;
+    let header = [
+        "method",
+        "damper",
+        "kind",
+        "at_s",
+        "done_s",
+        "ratio",
+        "error_10s_after",
+        "settle_after_s",
+    ];
+    csv_write(&mut w, path, &header.map(str::to_owned))?;
+    for r in rows {
+        csv_write(
+            &mut w,
+            path,
+            &[
+                r.method.to_owned(),
+                r.damper.to_owned(),
+                r.kind.to_owned(),
+                format!("{:.3}", r.at_s),
+                format!("{:.3}", r.done_s),
+                format!("{:.3}", r.ratio),
+                opt(r.error_10s_after),
+                r.settle_after_s
+                    .map_or_else(String::new, |s| format!("{s:.2}")),
+            ],
+        )?;
+    }
+    csv_flush(w, path)
+}
+
+/// Figures 2-5 of the paper (RBPF and EKF, each damper, estimate against truth, in
+/// kN s/m), with the RBPF's 90% interval, plus the effective sample size.
+fn plots(dir: &Path, trace: &[TracePoint]) -> Result<(), DamperAnalysisError> {
+    let kn = |v: f64| v / 1e3;
+    for (method, label) in [("rbpf", "RBPF"), ("ekf", "EKF")] {
+        for d in DamperId::ALL {
+            let view: Vec<(f64, (f64, f64, f64))> = trace
+                .iter()
+                .filter_map(|p| method_view(p, method, d).map(|v| (p.time_s, v)))
+                .collect();
+            let mut series = vec![Series {
+                label: "estimate",
+                points: view.iter().map(|(t, v)| (*t, kn(v.0))).collect(),
+            }];
+            series.push(Series {
+                label: "90% interval",
+                points: view.iter().map(|(t, v)| (*t, kn(v.1))).collect(),
+            });
+            series.push(Series {
+                label: "",
+                points: view.iter().map(|(t, v)| (*t, kn(v.2))).collect(),
+            });
+            if trace.iter().all(|p| p.truth.is_some()) {
+                series.push(Series {
+                    label: "truth",
+                    points: trace
+                        .iter()
+                        .filter_map(|p| p.truth.map(|t| (p.time_s, kn(t[d.index()]))))
+                        .collect(),
+                });
+            }
+            let title = format!(
+                "{label}: {} ({})",
+                match d {
+                    DamperId::Csy => "secondary lateral damping C_sy",
+                    DamperId::Csay => "anti-yaw damping C_say",
+                },
+                if method == "ekf" {
+                    "+-1.645 sd"
+                } else {
+                    "90% interval"
+                }
+            );
+            line_plot(
+                &dir.join(format!("{method}_{}.png", d.name())),
+                &Axes {
+                    title: &title,
+                    x_label: "time (s)",
+                    y_label: "damping (kN s/m)",
+                },
+                &series,
+            )?;
+        }
+    }
+    line_plot(
+        &dir.join("ess.png"),
+        &Axes {
+            title: "RBPF effective sample size",
+            x_label: "time (s)",
+            y_label: "ESS",
+        },
+        &[Series {
+            label: "ESS",
+            points: trace
+                .iter()
+                .map(|p| (p.time_s, p.estimate.effective_sample_size))
+                .collect(),
+        }],
+    )?;
+    Ok(())
+}

@@ -1,0 +1,356 @@
+//! `railmon analyze fuel`: the recursive mixture (issue 5) over a recorded vehicle CSV or a
+//! simulated scenario, scored against persistence and a single recursive regression.
+//!
+//! Writes into `--out`:
+//! - `predictions.csv`: per evaluated second, the measured fuel, the mixture's 0-step
+//!   estimate, honest 1-step forecast and virtual sensor, the baselines, the regime
+//!   probabilities and active regime (and the label, for simulated data);
+//! - `summary.csv`: `method,horizon_s,rmse,mae,n` (horizon 0: estimates of the current sample);
+//! - `regimes.csv` (labelled data only): per component its matched label, and the accuracy;
+//! - `simulated.csv` (scenarios only): the simulated samples in the railmon vehicle layout;
+//! - PNG plots after the paper's figures 1-3: `fuel_predictions.png` (+ a 300 s zoom),
+//!   `regime_probabilities.png`, `clusters_fuel_speed.png` (+ `clusters_fuel_engine_speed.png`).
+
+pub mod evaluate;
+mod plots;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use railmon_fuel::{
+    DriveCycle, FuelError, FuelMonitorConfig, VehicleSample, VehicleScenario, VehicleSimulator,
+};
+use railmon_records::vehicle::{read_drive_cycle, read_vehicle_csv, write_vehicle_csv, VehicleRow};
+use railmon_records::{create_csv, RecordError};
+
+use crate::report::{create_out_dir, progress_bar, ReportError};
+pub use evaluate::{evaluate, Evaluation, PredictionRow, RegimeScore, ScoreRow};
+
+/// Arguments of `railmon analyze fuel`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct Args {
+    /// A vehicle recording: the railmon layout or an ANL Camry dynamometer file as shipped.
+    #[arg(
+        long,
+        required_unless_present = "scenario",
+        conflicts_with = "scenario"
+    )]
+    pub input: Option<PathBuf>,
+    /// A simulator scenario (`config/scenarios/fuel-*.toml`).
+    #[arg(long)]
+    pub scenario: Option<PathBuf>,
+    /// Estimator settings (TOML, the fields of `FuelMonitorConfig`). Default: the scenario's
+    /// `[monitor]` table, or the built-in setting for recordings.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Output directory (created if needed).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Why an analysis failed.
+#[derive(Debug, thiserror::Error)]
+pub enum FuelAnalysisError {
+    #[error(transparent)]
+    Record(#[from] RecordError),
+    #[error(transparent)]
+    Report(#[from] ReportError),
+    #[error("{file}: {source}")]
+    Estimator { file: String, source: FuelError },
+    #[error("{file}: {reason}")]
+    Input { file: String, reason: String },
+}
+
+/// Samples to analyse, with labels when simulated.
+pub struct FuelInput {
+    pub samples: Vec<VehicleSample>,
+    pub labels: Option<(Vec<usize>, Vec<String>)>,
+    pub config: FuelMonitorConfig,
+    /// What the data is (file name), for titles and errors.
+    pub name: String,
+}
+
+fn read_text(path: &Path) -> Result<String, FuelAnalysisError> {
+    std::fs::read_to_string(path).map_err(|e| FuelAnalysisError::Input {
+        file: path.display().to_string(),
+        reason: format!("cannot read: {e}"),
+    })
+}
+
+fn read_config(path: &Path) -> Result<FuelMonitorConfig, FuelAnalysisError> {
+    let file = path.display().to_string();
+    let config: FuelMonitorConfig =
+        toml::from_str(&read_text(path)?).map_err(|e| FuelAnalysisError::Input {
+            file: file.clone(),
+            reason: e.to_string(),
+        })?;
+    config
+        .validate()
+        .map_err(|source| FuelAnalysisError::Estimator { file, source })?;
+    Ok(config)
+}
+
+/// A recording as monitor samples.
+pub fn samples_from_rows(rows: &[VehicleRow]) -> Vec<VehicleSample> {
+    rows.iter()
+        .map(|r| VehicleSample {
+            time_s: r.time_s,
+            fuel_cm3_s: r.fuel_cm3_s,
+            speed_m_s: r.speed_m_s,
+            pedal_pct: r.pedal_pct,
+            engine_torque_nm: r.engine_torque_nm,
+            engine_speed_rpm: r.engine_speed_rpm,
+            gear: r.gear,
+        })
+        .collect()
+}
+
+/// Reads a recording (labels from a `regime` column if it has one).
+pub fn load_recording(path: &Path) -> Result<FuelInput, FuelAnalysisError> {
+    let (_, rows) = read_vehicle_csv(path)?;
+    let labels = if rows.iter().all(|r| r.regime.is_some()) {
+        let mut names: Vec<String> = Vec::new();
+        let idx = rows
+            .iter()
+            .map(|r| {
+                let name = r.regime.clone().unwrap_or_default();
+                names.iter().position(|n| *n == name).unwrap_or_else(|| {
+                    names.push(name);
+                    names.len() - 1
+                })
+            })
+            .collect();
+        Some((idx, names))
+    } else {
+        None
+    };
+    Ok(FuelInput {
+        samples: samples_from_rows(&rows),
+        labels,
+        config: FuelMonitorConfig::default(),
+        name: path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        ),
+    })
+}
+
+/// Runs a scenario's simulator; drive cycles are read from `drive_cycle_dir` relative to the
+/// scenario file.
+pub fn simulate_scenario(path: &Path) -> Result<(FuelInput, Vec<VehicleRow>), FuelAnalysisError> {
+    let file = path.display().to_string();
+    let scenario = VehicleScenario::from_toml_str(&read_text(path)?).map_err(|source| {
+        FuelAnalysisError::Estimator {
+            file: file.clone(),
+            source,
+        }
+    })?;
+    let dir = path
+        .parent()
+        .unwrap_or(Path::new("."))
+        .join(&scenario.drive_cycle_dir);
+    let mut cycles = BTreeMap::new();
+    for name in scenario.cycle_names() {
+        let trace = read_drive_cycle(&dir.join(format!("{name}.csv")))?;
+        cycles.insert(
+            name,
+            DriveCycle {
+                speed_m_s: trace.speed_m_s,
+                grade_rad: trace.grade_rad,
+            },
+        );
+    }
+    let mut sim = VehicleSimulator::new(&scenario, &cycles).map_err(|source| {
+        FuelAnalysisError::Estimator {
+            file: file.clone(),
+            source,
+        }
+    })?;
+    let names = scenario.regimes();
+    let (mut samples, mut labels, mut rows) = (Vec::new(), Vec::new(), Vec::new());
+    while let Some((s, truth)) = sim.step() {
+        rows.push(VehicleRow {
+            time_s: s.time_s,
+            fuel_cm3_s: s.fuel_cm3_s,
+            speed_m_s: s.speed_m_s,
+            pedal_pct: s.pedal_pct,
+            engine_torque_nm: s.engine_torque_nm,
+            engine_speed_rpm: s.engine_speed_rpm,
+            gear: s.gear,
+            regime: Some(names[truth.regime].clone()),
+        });
+        samples.push(s);
+        labels.push(truth.regime);
+    }
+    let input = FuelInput {
+        samples,
+        labels: Some((labels, names)),
+        config: scenario.monitor.clone(),
+        name: path
+            .file_name()
+            .map_or(file.clone(), |n| n.to_string_lossy().into_owned()),
+    };
+    Ok((input, rows))
+}
+
+/// `railmon analyze fuel`.
+pub fn run(args: &Args) -> Result<Evaluation, FuelAnalysisError> {
+    create_out_dir(&args.out)?;
+    let mut input = match (&args.input, &args.scenario) {
+        (Some(path), _) => load_recording(path)?,
+        (None, Some(path)) => {
+            let (input, rows) = simulate_scenario(path)?;
+            write_vehicle_csv(&args.out.join("simulated.csv"), &rows)?;
+            input
+        }
+        (None, None) => {
+            return Err(FuelAnalysisError::Input {
+                file: "<arguments>".into(),
+                reason: "give --input CSV or --scenario FILE".into(),
+            })
+        }
+    };
+    if let Some(path) = &args.config {
+        input.config = read_config(path)?;
+    }
+    let evaluation = analyse(&input, &args.out)?;
+    Ok(evaluation)
+}
+
+/// Evaluates `input` and writes the report files into `out`.
+pub fn analyse(input: &FuelInput, out: &Path) -> Result<Evaluation, FuelAnalysisError> {
+    let bar = progress_bar(input.samples.len() as u64, "fuel");
+    let labels = input
+        .labels
+        .as_ref()
+        .map(|(l, names)| (l.as_slice(), names.len()));
+    let evaluation =
+        evaluate(&input.config, &input.samples, labels, || bar.inc(1)).map_err(|source| {
+            FuelAnalysisError::Estimator {
+                file: input.name.clone(),
+                source,
+            }
+        })?;
+    bar.finish_and_clear();
+    let label_names: Option<&[String]> = input.labels.as_ref().map(|(_, n)| n.as_slice());
+    write_predictions(&out.join("predictions.csv"), &evaluation, label_names)?;
+    write_summary(&out.join("summary.csv"), &evaluation.scores)?;
+    if let (Some(score), Some(names)) = (&evaluation.regimes, label_names) {
+        write_regimes(&out.join("regimes.csv"), score, names)?;
+    }
+    plots::write_all(out, &input.name, &evaluation, label_names)?;
+    Ok(evaluation)
+}
+
+fn csv_err(path: &Path) -> impl Fn(csv::Error) -> RecordError + '_ {
+    move |e| RecordError::file(&path.display().to_string(), format!("write error: {e}"))
+}
+
+fn write_predictions(
+    path: &Path,
+    ev: &Evaluation,
+    labels: Option<&[String]>,
+) -> Result<(), RecordError> {
+    let mut w = create_csv(path)?;
+    let mut header: Vec<String> = [
+        "time_s",
+        "fuel_cm3_s",
+        "mixture_0step_cm3_s",
+        "mixture_1step_cm3_s",
+        "virtual_sensor_cm3_s",
+        "single_regression_1step_cm3_s",
+        "single_regression_virtual_sensor_cm3_s",
+        "persistence_cm3_s",
+        "active_regime",
+    ]
+    .map(String::from)
+    .to_vec();
+    header.extend((0..ev.components).map(|i| format!("p_regime_{i}")));
+    if labels.is_some() {
+        header.push("label".into());
+    }
+    w.write_record(&header).map_err(csv_err(path))?;
+    for r in &ev.rows {
+        let mut f: Vec<String> = [
+            r.time_s,
+            r.fuel_cm3_s,
+            r.zero_step_cm3_s,
+            r.one_step_cm3_s,
+            r.virtual_sensor_cm3_s,
+            r.single_one_step_cm3_s,
+            r.single_virtual_sensor_cm3_s,
+            r.persistence_cm3_s,
+        ]
+        .iter()
+        .map(|v| format!("{v:.6}"))
+        .collect();
+        f.push(r.active_regime.to_string());
+        f.extend(r.regime_probabilities.iter().map(|p| format!("{p:.6}")));
+        if let (Some(names), Some(l)) = (labels, r.label) {
+            f.push(names[l].clone());
+        }
+        w.write_record(&f).map_err(csv_err(path))?;
+    }
+    w.flush()
+        .map_err(|e| RecordError::file(&path.display().to_string(), e.to_string()))
+}
+
+fn write_summary(path: &Path, scores: &[ScoreRow]) -> Result<(), RecordError> {
+    let mut w = create_csv(path)?;
+    w.write_record(["method", "horizon_s", "rmse", "mae", "n"])
+        .map_err(csv_err(path))?;
+    for s in scores {
+        w.write_record([
+            s.method.to_string(),
+            s.horizon_s.to_string(),
+            format!("{:.6}", s.rmse),
+            format!("{:.6}", s.mae),
+            s.n.to_string(),
+        ])
+        .map_err(csv_err(path))?;
+    }
+    w.flush()
+        .map_err(|e| RecordError::file(&path.display().to_string(), e.to_string()))
+}
+
+fn write_regimes(path: &Path, score: &RegimeScore, names: &[String]) -> Result<(), RecordError> {
+    let mut w = create_csv(path)?;
+    let mut header = vec![
+        "component".to_string(),
+        "matched_label".into(),
+        "n".into(),
+        "correct".into(),
+        "accuracy".into(),
+    ];
+    header.extend(names.iter().map(|n| format!("n_{n}")));
+    w.write_record(&header).map_err(csv_err(path))?;
+    for (c, row) in score.confusion.iter().enumerate() {
+        let n: usize = row.iter().sum();
+        let correct = row[score.matched_label[c]];
+        let mut f = vec![
+            c.to_string(),
+            names[score.matched_label[c]].clone(),
+            n.to_string(),
+            correct.to_string(),
+            format!("{:.4}", correct as f64 / n.max(1) as f64),
+        ];
+        f.extend(row.iter().map(|v| v.to_string()));
+        w.write_record(&f).map_err(csv_err(path))?;
+    }
+    let mut f = vec![
+        "all".to_string(),
+        if score.one_to_one {
+            "one_to_one"
+        } else {
+            "majority"
+        }
+        .to_string(),
+        score.n.to_string(),
+        score.correct.to_string(),
+        format!("{:.4}", score.accuracy()),
+    ];
+    f.extend(names.iter().map(|_| String::new()));
+    w.write_record(&f).map_err(csv_err(path))?;
+    w.flush()
+        .map_err(|e| RecordError::file(&path.display().to_string(), e.to_string()))
+}

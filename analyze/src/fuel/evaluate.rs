@@ -1,0 +1,303 @@
+//! Runs the mixture and its baselines over one sample sequence and scores them, no I/O.
+//!
+//! Three estimators see the same samples in the same run: the mixture ([`FuelMonitor`] with the
+//! given config), the single recursive regression (the same config with one component) and
+//! persistence (`y_{t-1}`, or `y_t` for every horizon). Every score is computed over the same
+//! target times for all methods: those after both estimators finished initialisation.
+
+use std::collections::VecDeque;
+
+use railmon_fuel::{FuelError, FuelMonitor, FuelMonitorConfig, VehicleSample};
+
+/// One evaluated time step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PredictionRow {
+    pub time_s: f64,
+    pub fuel_cm3_s: f64,
+    pub zero_step_cm3_s: f64,
+    pub one_step_cm3_s: f64,
+    pub virtual_sensor_cm3_s: f64,
+    pub single_one_step_cm3_s: f64,
+    pub single_virtual_sensor_cm3_s: f64,
+    pub persistence_cm3_s: f64,
+    pub regime_probabilities: Vec<f64>,
+    pub active_regime: usize,
+    pub label: Option<usize>,
+    pub speed_m_s: Option<f64>,
+    pub engine_speed_rpm: Option<f64>,
+}
+
+/// One line of `summary.csv`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScoreRow {
+    pub method: &'static str,
+    /// 0 for estimates of the current sample (0-step, virtual sensor).
+    pub horizon_s: usize,
+    pub rmse: f64,
+    pub mae: f64,
+    pub n: usize,
+}
+
+/// Regime recognition against known labels.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RegimeScore {
+    /// `confusion[component][label]`: samples where that component was active under that label.
+    pub confusion: Vec<Vec<usize>>,
+    /// Label matched to each component.
+    pub matched_label: Vec<usize>,
+    /// `true`: one component per label (best permutation); `false`: each component to its
+    /// majority label (when the numbers of components and labels differ).
+    pub one_to_one: bool,
+    pub correct: usize,
+    pub n: usize,
+}
+
+impl RegimeScore {
+    pub fn accuracy(&self) -> f64 {
+        self.correct as f64 / self.n.max(1) as f64
+    }
+}
+
+/// Everything a run produces.
+#[derive(Clone, Debug)]
+pub struct Evaluation {
+    pub rows: Vec<PredictionRow>,
+    pub scores: Vec<ScoreRow>,
+    pub regimes: Option<RegimeScore>,
+    pub components: usize,
+    pub samples: usize,
+}
+
+impl Evaluation {
+    /// The score of `method` at `horizon_s`.
+    pub fn score(&self, method: &str, horizon_s: usize) -> Option<&ScoreRow> {
+        self.scores
+            .iter()
+            .find(|s| s.method == method && s.horizon_s == horizon_s)
+    }
+}
+
+#[derive(Default)]
+struct ErrorSum {
+    sq: f64,
+    abs: f64,
+    n: usize,
+}
+
+impl ErrorSum {
+    fn add(&mut self, estimate: f64, truth: f64) {
+        let e = estimate - truth;
+        self.sq += e * e;
+        self.abs += e.abs();
+        self.n += 1;
+    }
+
+    fn row(&self, method: &'static str, horizon_s: usize) -> ScoreRow {
+        let n = self.n.max(1) as f64;
+        ScoreRow {
+            method,
+            horizon_s,
+            rmse: (self.sq / n).sqrt(),
+            mae: self.abs / n,
+            n: self.n,
+        }
+    }
+}
+
+/// Runs the three estimators over `samples`. `labels[t]` (indices into a label list of length
+/// `n_labels`) enables the regime score. `on_step` is called after every sample (progress).
+pub fn evaluate(
+    config: &FuelMonitorConfig,
+    samples: &[VehicleSample],
+    labels: Option<(&[usize], usize)>,
+    mut on_step: impl FnMut(),
+) -> Result<Evaluation, FuelError> {
+    let mut mixture = FuelMonitor::new(config)?;
+    let mut single = FuelMonitor::new(&config.single_regression())?;
+    let horizon = config.forecast_horizon_steps;
+    // Forecast paths made at earlier steps, newest first: (mixture, single, persistence value).
+    let mut paths: VecDeque<(Vec<f64>, Vec<f64>, f64)> = VecDeque::with_capacity(horizon + 1);
+    let mut mix_h: Vec<ErrorSum> = (0..=horizon).map(|_| ErrorSum::default()).collect();
+    let mut single_h: Vec<ErrorSum> = (0..=horizon).map(|_| ErrorSum::default()).collect();
+    let mut persist_h: Vec<ErrorSum> = (0..=horizon).map(|_| ErrorSum::default()).collect();
+    let (mut virtual_mix, mut virtual_single) = (ErrorSum::default(), ErrorSum::default());
+    let mut rows = Vec::new();
+    let mut previous_fuel: Option<f64> = None;
+    for (t, sample) in samples.iter().enumerate() {
+        let a = mixture.update(sample)?.mixture.clone();
+        let b = single.update(sample)?.mixture.clone();
+        let fuel = sample.fuel_cm3_s.unwrap_or(f64::NAN);
+        if let (Some(a), Some(b)) = (a, b) {
+            // Forecasts of this sample made h steps ago (h = 1 is element 0 of the newest path).
+            for (age, (pm, ps, pp)) in paths.iter().enumerate() {
+                let h = age + 1;
+                mix_h[h].add(pm[h - 1], fuel);
+                single_h[h].add(ps[h - 1], fuel);
+                persist_h[h].add(*pp, fuel);
+            }
+            mix_h[0].add(a.zero_step_cm3_s, fuel);
+            single_h[0].add(b.zero_step_cm3_s, fuel);
+            virtual_mix.add(a.virtual_sensor_cm3_s, fuel);
+            virtual_single.add(b.virtual_sensor_cm3_s, fuel);
+            paths.push_front((a.forecast_cm3_s.clone(), b.forecast_cm3_s.clone(), fuel));
+            paths.truncate(horizon);
+            rows.push(PredictionRow {
+                time_s: sample.time_s,
+                fuel_cm3_s: fuel,
+                zero_step_cm3_s: a.zero_step_cm3_s,
+                one_step_cm3_s: a.one_step_forecast_cm3_s,
+                virtual_sensor_cm3_s: a.virtual_sensor_cm3_s,
+                single_one_step_cm3_s: b.one_step_forecast_cm3_s,
+                single_virtual_sensor_cm3_s: b.virtual_sensor_cm3_s,
+                persistence_cm3_s: previous_fuel.unwrap_or(fuel),
+                regime_probabilities: a.regime_probabilities.clone(),
+                active_regime: a.active_regime,
+                label: labels.map(|(l, _)| l[t]),
+                speed_m_s: sample.speed_m_s,
+                engine_speed_rpm: sample.engine_speed_rpm,
+            });
+        }
+        previous_fuel = Some(fuel);
+        on_step();
+    }
+    let mut scores = vec![
+        mix_h[0].row("mixture", 0),
+        virtual_mix.row("virtual_sensor", 0),
+        single_h[0].row("single_regression", 0),
+        virtual_single.row("single_regression_virtual_sensor", 0),
+    ];
+    for h in 1..=horizon {
+        scores.push(mix_h[h].row("mixture", h));
+        scores.push(single_h[h].row("single_regression", h));
+        scores.push(persist_h[h].row("persistence", h));
+    }
+    let regimes = labels.map(|(_, n_labels)| score_regimes(&rows, config.components, n_labels));
+    Ok(Evaluation {
+        rows,
+        scores,
+        regimes,
+        components: config.components,
+        samples: samples.len(),
+    })
+}
+
+/// Confusion of active component vs label, and the matching of components to labels.
+pub fn score_regimes(rows: &[PredictionRow], components: usize, n_labels: usize) -> RegimeScore {
+    let mut confusion = vec![vec![0usize; n_labels]; components];
+    for r in rows {
+        if let Some(l) = r.label {
+            confusion[r.active_regime][l] += 1;
+        }
+    }
+    let n = confusion.iter().flatten().sum();
+    let (matched_label, one_to_one) = if components == n_labels && components <= 8 {
+        (best_permutation(&confusion), true)
+    } else {
+        let majority = confusion
+            .iter()
+            .map(|row| (0..n_labels).max_by_key(|&l| row[l]).unwrap_or(0))
+            .collect();
+        (majority, false)
+    };
+    let correct = matched_label
+        .iter()
+        .enumerate()
+        .map(|(c, &l)| confusion[c][l])
+        .sum();
+    RegimeScore {
+        confusion,
+        matched_label,
+        one_to_one,
+        correct,
+        n,
+    }
+}
+
+/// The assignment component -> label (a permutation) with the most agreeing samples, by
+/// exhaustive search (at most 8! = 40320 permutations).
+fn best_permutation(confusion: &[Vec<usize>]) -> Vec<usize> {
+    fn search(
+        confusion: &[Vec<usize>],
+        c: usize,
+        used: &mut Vec<bool>,
+        current: &mut Vec<usize>,
+        best: &mut (usize, Vec<usize>),
+    ) {
+        if c == confusion.len() {
+            let total = current
+                .iter()
+                .enumerate()
+                .map(|(i, &l)| confusion[i][l])
+                .sum();
+            if total > best.0 || best.1.is_empty() {
+                *best = (total, current.clone());
+            }
+            return;
+        }
+        for l in 0..used.len() {
+            if !used[l] {
+                used[l] = true;
+                current.push(l);
+                search(confusion, c + 1, used, current, best);
+                current.pop();
+                used[l] = false;
+            }
+        }
+    }
+    let mut best = (0, Vec::new());
+    let n_labels = confusion.first().map_or(0, |r| r.len());
+    search(
+        confusion,
+        0,
+        &mut vec![false; n_labels],
+        &mut Vec::new(),
+        &mut best,
+    );
+    best.1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(active: usize, label: usize) -> PredictionRow {
+        PredictionRow {
+            time_s: 0.0,
+            fuel_cm3_s: 0.0,
+            zero_step_cm3_s: 0.0,
+            one_step_cm3_s: 0.0,
+            virtual_sensor_cm3_s: 0.0,
+            single_one_step_cm3_s: 0.0,
+            single_virtual_sensor_cm3_s: 0.0,
+            persistence_cm3_s: 0.0,
+            regime_probabilities: vec![],
+            active_regime: active,
+            label: Some(label),
+            speed_m_s: None,
+            engine_speed_rpm: None,
+        }
+    }
+
+    #[test]
+    fn matching_finds_the_best_permutation_not_the_greedy_one() {
+        // Component 0 is mostly label 0 (5) but also label 1 (4); component 1 is only label 0 (4).
+        // Greedy would give 0->0 (5) + 1->1 (0) = 5; the best is 0->1 (4) + 1->0 (4) = 8.
+        let mut rows = Vec::new();
+        rows.extend((0..5).map(|_| row(0, 0)));
+        rows.extend((0..4).map(|_| row(0, 1)));
+        rows.extend((0..4).map(|_| row(1, 0)));
+        let s = score_regimes(&rows, 2, 2);
+        assert_eq!(s.matched_label, vec![1, 0]);
+        assert_eq!((s.correct, s.n), (8, 13));
+        assert!(s.one_to_one);
+    }
+
+    #[test]
+    fn more_components_than_labels_map_to_majorities() {
+        let rows = vec![row(0, 0), row(1, 0), row(2, 1), row(2, 1), row(2, 0)];
+        let s = score_regimes(&rows, 3, 2);
+        assert_eq!(s.matched_label, vec![0, 0, 1]);
+        assert_eq!(s.correct, 4);
+        assert!(!s.one_to_one);
+    }
+}

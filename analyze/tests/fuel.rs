@@ -1,0 +1,187 @@
+//! `railmon analyze fuel` on the real Camry files and on simulated scenarios.
+
+use std::path::{Path, PathBuf};
+
+use railmon_analyze::fuel::{evaluate, load_recording, run, simulate_scenario, Args, Evaluation};
+
+fn shared_data() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
+}
+
+fn rmse(ev: &Evaluation, method: &str, horizon: usize) -> f64 {
+    ev.score(method, horizon)
+        .unwrap_or_else(|| panic!("no score {method} {horizon}"))
+        .rmse
+}
+
+/// Issue 5: on each Camry file, started cold, the mixture's honest 1-step forecast and its
+/// virtual sensor beat persistence and the single recursive regression of the same run.
+#[test]
+fn mixture_beats_both_baselines_on_every_camry_file() {
+    for file in ["61811011.csv", "61811013.csv", "61811014.csv"] {
+        let input = load_recording(&shared_data().join("anl-camry-2018").join(file)).unwrap();
+        let ev = evaluate(&input.config, &input.samples, None, || {}).unwrap();
+        let n = ev.score("mixture", 1).unwrap().n;
+        assert_eq!(n, ev.score("persistence", 1).unwrap().n);
+        assert_eq!(n, ev.score("single_regression", 1).unwrap().n);
+        assert!(n > 1000, "{file}: {n} scored samples");
+        let (mix, single, persistence) = (
+            rmse(&ev, "mixture", 1),
+            rmse(&ev, "single_regression", 1),
+            rmse(&ev, "persistence", 1),
+        );
+        assert!(
+            mix < single && mix < persistence,
+            "{file}: 1-step RMSE mixture {mix} single {single} persistence {persistence}"
+        );
+        let (virt, virt_single) = (
+            rmse(&ev, "virtual_sensor", 0),
+            rmse(&ev, "single_regression_virtual_sensor", 0),
+        );
+        assert!(
+            virt < virt_single && virt < persistence,
+            "{file}: virtual sensor {virt} vs single {virt_single}, persistence {persistence}"
+        );
+    }
+}
+
+fn small_scenario(dir: &Path) -> PathBuf {
+    let cycles = shared_data().join("drive-cycles");
+    let text = format!(
+        "seed = 1\ndrive_cycle_dir = {:?}\n\
+         [[segment]]\ncycle = \"udds\"\ndriver = \"eco\"\nregime = \"city\"\nmax_s = 300\n\
+         [[segment]]\ncycle = \"wltc_3b\"\ndriver = \"sporty\"\nregime = \"aggressive\"\nmax_s = 200\n\
+         [monitor]\ninit_samples = 100\ncomponents = 2\nforecast_horizon_steps = 5\n\
+         channels = [\"fuel\", \"speed\", \"pedal\", \"engine_torque\", \"engine_speed\"]\n\
+         [monitor.categorical]\ngear_groups = [[-1, 0], [1, 2, 3], [4], [5], [6]]\n",
+        cycles.display().to_string()
+    );
+    let path = dir.join("fuel-small.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn scenario_run_writes_every_report() {
+    let dir = std::env::temp_dir().join(format!("railmon-fuel-analyze-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scenario = small_scenario(&dir);
+    let out = dir.join("out");
+    let ev = run(&Args {
+        input: None,
+        scenario: Some(scenario.clone()),
+        config: None,
+        out: out.clone(),
+    })
+    .unwrap();
+    assert_eq!(ev.samples, 500);
+    for f in [
+        "predictions.csv",
+        "summary.csv",
+        "regimes.csv",
+        "simulated.csv",
+        "fuel_predictions.png",
+        "fuel_predictions_zoom.png",
+        "regime_probabilities.png",
+        "clusters_fuel_speed.png",
+        "clusters_fuel_engine_speed.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
+    assert!(summary.starts_with("method,horizon_s,rmse,mae,n\n"));
+    for method in [
+        "mixture,0,",
+        "virtual_sensor,0,",
+        "persistence,1,",
+        "single_regression,1,",
+        "mixture,5,",
+    ] {
+        assert!(summary.contains(method), "{method} missing from\n{summary}");
+    }
+    let regimes = std::fs::read_to_string(out.join("regimes.csv")).unwrap();
+    assert!(
+        regimes
+            .lines()
+            .last()
+            .unwrap()
+            .starts_with("all,one_to_one,400,"),
+        "{regimes}"
+    );
+    // The simulated samples read back as a labelled recording and give the same evaluation.
+    let again = load_recording(&out.join("simulated.csv")).unwrap();
+    let (direct, _) = simulate_scenario(&scenario).unwrap();
+    assert_eq!(again.labels.as_ref().unwrap().1, vec!["city", "aggressive"]);
+    assert_eq!(again.samples.len(), direct.samples.len());
+    for (a, b) in again.samples.iter().zip(&direct.samples) {
+        assert!((a.fuel_cm3_s.unwrap() - b.fuel_cm3_s.unwrap()).abs() < 1e-9);
+        assert_eq!(a.gear, b.gear);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_nan_in_a_recording_names_file_line_and_field() {
+    let dir = std::env::temp_dir().join(format!("railmon-fuel-nan-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("bad.csv");
+    std::fs::write(
+        &path,
+        "Time[s],Eng_FuelFlow_Direct_DI[ccps],Dyno_Spd[mph]\n-0.0,0.1,0\n1.0,0.2,1\n2.0,0.3,nan\n",
+    )
+    .unwrap();
+    let msg = match load_recording(&path) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("NaN accepted"),
+    };
+    assert!(
+        msg.contains("bad.csv:4") && msg.contains("Dyno_Spd[mph]") && msg.contains("nan"),
+        "{msg}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_recording_without_a_configured_channel_is_a_clear_error() {
+    // The Camry files have no engine speed; asking for it names the channel and the time.
+    let mut input = load_recording(&shared_data().join("anl-camry-2018/61811014.csv")).unwrap();
+    input
+        .config
+        .channels
+        .push(railmon_fuel::Channel::EngineSpeed);
+    let err = evaluate(&input.config, &input.samples, None, || {}).unwrap_err();
+    assert!(
+        err.to_string().contains("engine_speed") && err.to_string().contains("missing"),
+        "{err}"
+    );
+}
+
+/// Issue 5: regime accuracy on `fuel-cycles.toml` against the simulator's labels, after
+/// matching components to labels, at least 85 %.
+#[test]
+fn fuel_cycles_regime_accuracy_is_at_least_85_percent() {
+    let scenario =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenarios/fuel-cycles.toml");
+    let (input, _) = simulate_scenario(&scenario).unwrap();
+    let (labels, names) = input.labels.as_ref().unwrap();
+    assert_eq!(names, &vec!["eco".to_string(), "sporty".to_string()]);
+    let ev = evaluate(
+        &input.config,
+        &input.samples,
+        Some((labels, names.len())),
+        || {},
+    )
+    .unwrap();
+    let regimes = ev.regimes.as_ref().unwrap();
+    assert!(regimes.one_to_one);
+    assert!(
+        regimes.accuracy() >= 0.85,
+        "accuracy {} ({:?})",
+        regimes.accuracy(),
+        regimes.confusion
+    );
+    // The mixture also beats both baselines on this data.
+    let mix = rmse(&ev, "mixture", 1);
+    assert!(mix < rmse(&ev, "single_regression", 1) && mix < rmse(&ev, "persistence", 1));
+    assert!(rmse(&ev, "virtual_sensor", 0) < rmse(&ev, "single_regression_virtual_sensor", 0));
+}

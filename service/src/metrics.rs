@@ -1,0 +1,157 @@
+//! Prometheus metrics, named by the Prometheus conventions: one `railmon_` prefix, base units
+//! (seconds, radians per second, newton metres), `_total` counters, `_ratio` for 0..1.
+//! Counters and histograms are atomics, so the ingest threads update them without locks; label
+//! lookups (which do lock) happen once per stream or drive, never per frame.
+
+use prometheus::{
+    Encoder, Gauge, GaugeVec, HistogramOpts, HistogramVec, IntCounterVec, IntGaugeVec, Opts,
+    Registry, TextEncoder,
+};
+
+/// Histogram buckets from 1 us to 50 ms (values in seconds).
+pub const MICROSECOND_BUCKETS_S: [f64; 14] = [
+    1e-6, 2e-6, 5e-6, 10e-6, 20e-6, 50e-6, 100e-6, 200e-6, 500e-6, 1e-3, 2e-3, 5e-3, 10e-3, 50e-3,
+];
+
+pub struct Metrics {
+    registry: Registry,
+    pub samples_received: IntCounterVec,
+    pub sequence_gaps: IntCounterVec,
+    pub samples_rejected: IntCounterVec,
+    pub last_sample_age: GaugeVec,
+    pub stream_fresh: IntGaugeVec,
+    pub estimator_step: HistogramVec,
+    pub publish_to_estimate: HistogramVec,
+    pub slip_probability: GaugeVec,
+    pub speed: GaugeVec,
+    pub load_torque: GaugeVec,
+    pub slipping: IntGaugeVec,
+    pub global_torque: Gauge,
+    pub slip_events: IntCounterVec,
+}
+
+fn opts(name: &str, help: &str) -> Opts {
+    Opts::new(name, help).namespace("railmon")
+}
+
+fn histogram(name: &str, help: &str) -> HistogramOpts {
+    HistogramOpts::new(name, help)
+        .namespace("railmon")
+        .buckets(MICROSECOND_BUCKETS_S.to_vec())
+}
+
+impl Metrics {
+    pub fn new() -> Result<Self, prometheus::Error> {
+        let registry = Registry::new();
+        let stream = &["stream"];
+        let drive = &["drive"];
+        let m = Metrics {
+            samples_received: IntCounterVec::new(
+                opts("stream_samples_received_total", "Frames taken from the bus."),
+                stream,
+            )?,
+            sequence_gaps: IntCounterVec::new(
+                opts(
+                    "stream_sequence_gaps_total",
+                    "Frames missing from a publisher's sequence (lost on the bus).",
+                ),
+                stream,
+            )?,
+            samples_rejected: IntCounterVec::new(
+                opts(
+                    "stream_samples_rejected_total",
+                    "Frames rejected before reaching the estimator (NaN, too many drives, ...).",
+                ),
+                &["stream", "reason"],
+            )?,
+            last_sample_age: GaugeVec::new(
+                opts(
+                    "stream_last_sample_age_seconds",
+                    "Time since the last frame (-1: none yet).",
+                ),
+                stream,
+            )?,
+            stream_fresh: IntGaugeVec::new(
+                opts("stream_fresh", "1 while the stream delivers within its staleness limit."),
+                stream,
+            )?,
+            estimator_step: HistogramVec::new(
+                histogram(
+                    "estimator_step_duration_seconds",
+                    "Time of one estimator step (one frame).",
+                ),
+                stream,
+            )?,
+            publish_to_estimate: HistogramVec::new(
+                histogram(
+                    "publish_to_estimate_latency_seconds",
+                    "From the publisher's send to the estimate being ready (CLOCK_MONOTONIC).",
+                ),
+                stream,
+            )?,
+            slip_probability: GaugeVec::new(
+                opts(
+                    "drive_slip_probability_ratio",
+                    "Probability that the drive has lost adhesion.",
+                ),
+                drive,
+            )?,
+            speed: GaugeVec::new(
+                opts(
+                    "drive_speed_radians_per_second",
+                    "Estimated electrical speed of the drive.",
+                ),
+                drive,
+            )?,
+            load_torque: GaugeVec::new(
+                opts("drive_load_torque_newton_metres", "Estimated load torque of the drive."),
+                drive,
+            )?,
+            slipping: IntGaugeVec::new(
+                opts("drive_slipping", "1 while the drive is flagged as slipping (hysteresis)."),
+                drive,
+            )?,
+            global_torque: Gauge::with_opts(opts(
+                "drive_global_torque_newton_metres",
+                "Global (adhesion-consistent) load torque over all drives.",
+            ))?,
+            slip_events: IntCounterVec::new(
+                opts("drive_slip_events_total", "Slip started / ended events."),
+                &["drive", "kind"],
+            )?,
+            registry,
+        };
+        m.register_all()?;
+        Ok(m)
+    }
+
+    fn register_all(&self) -> Result<(), prometheus::Error> {
+        let r = &self.registry;
+        r.register(Box::new(self.samples_received.clone()))?;
+        r.register(Box::new(self.sequence_gaps.clone()))?;
+        r.register(Box::new(self.samples_rejected.clone()))?;
+        r.register(Box::new(self.last_sample_age.clone()))?;
+        r.register(Box::new(self.stream_fresh.clone()))?;
+        r.register(Box::new(self.estimator_step.clone()))?;
+        r.register(Box::new(self.publish_to_estimate.clone()))?;
+        r.register(Box::new(self.slip_probability.clone()))?;
+        r.register(Box::new(self.speed.clone()))?;
+        r.register(Box::new(self.load_torque.clone()))?;
+        r.register(Box::new(self.slipping.clone()))?;
+        r.register(Box::new(self.global_torque.clone()))?;
+        r.register(Box::new(self.slip_events.clone()))?;
+        #[cfg(target_os = "linux")]
+        r.register(Box::new(prometheus::process_collector::ProcessCollector::new(
+            std::process::id() as i32,
+            "railmon",
+        )))?;
+        Ok(())
+    }
+
+    /// The text exposition format.
+    pub fn render(&self) -> Result<String, prometheus::Error> {
+        let mut out = Vec::new();
+        TextEncoder::new().encode(&self.registry.gather(), &mut out)?;
+        Ok(String::from_utf8_lossy(&out).into_owned())
+    }
+}

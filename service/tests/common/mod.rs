@@ -1,0 +1,89 @@
+//! Feeds the drive pipeline with the seed scenario's simulated frames, without the bus.
+#![allow(dead_code)] // each test binary uses a different part
+
+use std::path::Path;
+use std::sync::Arc;
+
+use railmon_bus::{DriveChannels, DriveFrame, FrameHeader, FRAME_LAYOUT_VERSION};
+use railmon_service::drive::{DrivePipeline, DriveShared, DrivesView};
+use railmon_service::metrics::Metrics;
+use railmon_service::stream::Pipeline;
+use railmon_service::ServiceConfig;
+use railmon_slip::{AdhesionScenario, DriveSample, DriveSimulator};
+
+pub fn seed() -> AdhesionScenario {
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenarios/adhesion-seed.toml");
+    AdhesionScenario::from_toml_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+pub fn frame_of(samples: &[DriveSample], dt_ns: u64) -> DriveFrame {
+    let drives: Vec<DriveChannels> = samples
+        .iter()
+        .map(|s| DriveChannels {
+            u_alpha_v: s.u_alpha_v,
+            u_beta_v: s.u_beta_v,
+            i_alpha_a: s.i_alpha_a,
+            i_beta_a: s.i_beta_a,
+        })
+        .collect();
+    DriveFrame::new(dt_ns, &drives).unwrap()
+}
+
+pub fn header(step: u64, dt_ns: u64) -> FrameHeader {
+    FrameHeader {
+        layout_version: FRAME_LAYOUT_VERSION,
+        sequence: step,
+        sample_time_ns: step * dt_ns,
+        ..Default::default()
+    }
+}
+
+pub struct Harness {
+    pub pipeline: DrivePipeline,
+    pub shared: Arc<DriveShared>,
+    pub simulator: DriveSimulator,
+    pub dt_ns: u64,
+    pub step: u64,
+}
+
+impl Harness {
+    pub fn new() -> Self {
+        let config = ServiceConfig::default().drive;
+        let shared = Arc::new(DriveShared::new(&config));
+        Self::with(shared, Arc::new(Metrics::new().unwrap()))
+    }
+
+    /// Publishes into `shared` and `metrics` (those of an `AppState`).
+    pub fn with(shared: Arc<DriveShared>, metrics: Arc<Metrics>) -> Self {
+        let scenario = seed();
+        let config = ServiceConfig::default().drive;
+        let mut pipeline = DrivePipeline::new(config, shared.clone(), metrics);
+        pipeline.restart();
+        Self {
+            pipeline,
+            shared,
+            simulator: DriveSimulator::new(&scenario).unwrap(),
+            dt_ns: (scenario.dt_s() * 1e9).round() as u64,
+            step: 0,
+        }
+    }
+
+    /// Steps the pipeline with the next simulated frame; returns the samples used.
+    pub fn advance(&mut self) -> Option<Vec<DriveSample>> {
+        let (samples, _) = self.simulator.step()?;
+        let samples = samples.to_vec();
+        let frame = frame_of(&samples, self.dt_ns);
+        let header = header(self.step, self.dt_ns);
+        self.pipeline.check(&header, &frame).unwrap();
+        self.pipeline.step(&header, &frame).unwrap();
+        self.step += 1;
+        Some(samples)
+    }
+
+    pub fn view(&mut self) -> DrivesView {
+        self.pipeline.publish();
+        DrivesView::clone(&self.shared.snapshot.load())
+    }
+}
+

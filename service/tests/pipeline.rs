@@ -1,0 +1,80 @@
+//! The drive pipeline without the bus: the service's numbers are the library's numbers, bad
+//! frames change nothing, hysteresis events follow the seed scenario's slips.
+
+mod common;
+
+use common::{frame_of, header, seed, Harness};
+use railmon_service::stream::Pipeline;
+use railmon_service::ServiceConfig;
+use railmon_slip::SlipMonitor;
+
+#[test]
+fn service_estimator_defaults_are_the_seed_scenarios_monitor() {
+    assert_eq!(
+        ServiceConfig::default().drive.estimator,
+        seed().monitor_config()
+    );
+}
+
+#[test]
+fn pipeline_reproduces_the_library_and_flags_drive_1_slips() {
+    let scenario = seed();
+    let mut reference = SlipMonitor::new(&scenario.monitor_config(), scenario.n_drives()).unwrap();
+    let mut harness = Harness::new();
+    while let Some(samples) = harness.advance() {
+        reference.step(&samples).unwrap();
+        if harness.step % 250 == 0 {
+            let view = harness.view();
+            for (got, want) in view.drives.iter().zip(&reference.last().drives) {
+                assert_eq!(got.slip_probability, want.slip_probability);
+                assert_eq!(got.load_torque_nm, want.torque_nm);
+                assert_eq!(got.speed_rad_s, want.speed_rad_s);
+            }
+        }
+    }
+    harness.view();
+    let events = harness.shared.events.collect(|_| true);
+    assert!(events.iter().all(|e| e.drive == 1), "{events:?}");
+    // Drive 1 slips on steps [500, 1500] (62.5-187.5 ms), edges smoothed by a normal CDF of
+    // scale 30 steps (so the load starts falling ~3 scales early): one start, its end after.
+    let dt_s = scenario.dt_s();
+    let first_start = events.iter().find(|e| e.kind == "slip_started").unwrap();
+    assert!((410.0 * dt_s..1500.0 * dt_s).contains(&first_start.run_time_s), "{first_start:?}");
+    let first_end = events.iter().find(|e| e.kind == "slip_ended").unwrap();
+    assert!(first_end.run_time_s > 1500.0 * dt_s, "{first_end:?}");
+}
+
+#[test]
+fn bad_frames_are_rejected_and_change_nothing() {
+    let mut harness = Harness::new();
+    for _ in 0..600 {
+        harness.advance();
+    }
+    let before = harness.view();
+    let (samples, _) = harness.simulator.step().unwrap();
+    let good = frame_of(samples, harness.dt_ns);
+    let next = header(harness.step, harness.dt_ns);
+
+    let mut nan = good;
+    nan.drives[1].i_alpha_a = f64::NAN;
+    let rejection = harness.pipeline.check(&next, &nan).unwrap_err();
+    assert_eq!(rejection.reason, "not_finite");
+    assert!(rejection.message.contains("drive 2"), "{}", rejection.message);
+
+    let mut too_many = good;
+    too_many.n_drives = 40;
+    assert_eq!(harness.pipeline.check(&next, &too_many).unwrap_err().reason, "too_many_drives");
+
+    let mut other_dt = good;
+    other_dt.dt_ns = 100_000;
+    assert_eq!(harness.pipeline.check(&next, &other_dt).unwrap_err().reason, "dt_mismatch");
+
+    let mut fewer = good;
+    fewer.n_drives = 2;
+    harness.pipeline.check(&next, &fewer).unwrap();
+    assert_eq!(
+        harness.pipeline.step(&next, &fewer).unwrap_err().reason,
+        "drive_count_changed"
+    );
+    assert_eq!(harness.view(), before);
+}
