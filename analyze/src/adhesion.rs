@@ -26,7 +26,8 @@ use railmon_slip::{
 
 use crate::report::{create_out_dir, progress_bar, ReportError};
 
-/// Arguments of `railmon analyze adhesion`.
+/// Run the drive EKFs and every adhesion-loss method (VB, VMP, k-means, median, temporal) over
+/// a scenario or a recorded drive CSV; write estimates, Table 1, detection scores and plots.
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
     /// A recorded drive CSV (layout: docs/adhesion.md, `railmon_records::drive`).

@@ -14,6 +14,9 @@
 //! - `faults.csv` (scenarios with faults): per fault, method and damper, the relative error
 //!   10 s after the fault is complete and the time from then until the estimate settles
 //!   within 5% for good;
+//! - `timing.csv`: steps, particles, propagation, mean wall time of one monitor step (RBPF,
+//!   EKF and the posterior summary) and the real-time factor at the sample rate, and when
+//!   the EKF diverged if it did;
 //! - `bogie.csv` (scenarios only): the simulated record in the layout `--input` reads
 //!   (`railmon_records::bogie`), so a scenario run can be replayed from its file;
 //! - PNG plots after the paper's figures 2-5 (RBPF and EKF estimates of both dampers
@@ -163,12 +166,15 @@ struct TracePoint {
 
 enum Source {
     Simulator(Box<BogieSimulator>),
-    Recording(BogieCsvReader<std::fs::File>),
+    Recording(Box<BogieCsvReader<std::fs::File>>),
 }
+
+/// A sample and, for simulated or recorded-with-truth data, the true `[C_sy, C_say]`.
+type TruthSample = (BogieSample, Option<[f64; 2]>);
 
 impl Source {
     /// Next sample and truth; `Ok(None)` at the end.
-    fn next(&mut self) -> Result<Option<(BogieSample, Option<[f64; 2]>)>, DamperAnalysisError> {
+    fn next(&mut self) -> Result<Option<TruthSample>, DamperAnalysisError> {
         match self {
             Source::Simulator(sim) => Ok(sim
                 .step()
@@ -200,7 +206,7 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
             (
                 name,
                 DamperMonitorConfig::default(),
-                Source::Recording(reader),
+                Source::Recording(Box::new(reader)),
                 None,
                 vec![],
                 None,
@@ -270,11 +276,35 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
     if !args.no_plots {
         plots(&args.out, &trace)?;
     }
+    let mean_step_us = elapsed.as_secs_f64() * 1e6 / steps.max(1) as f64;
+    write_table(
+        &args.out.join("timing.csv"),
+        &[
+            "steps",
+            "particles",
+            "propagation",
+            "mean_step_us",
+            "real_time_factor",
+            "ekf_diverged_at_s",
+        ],
+        [vec![
+            steps.to_string(),
+            config.rbpf.particles.to_string(),
+            match config.rbpf.propagation {
+                Propagation::Exact => "exact",
+                Propagation::SteadyState => "steady_state",
+            }
+            .to_owned(),
+            format!("{mean_step_us:.1}"),
+            format!("{:.2}", config.dt_s * 1e6 / mean_step_us),
+            opt(ekf_diverged_at_s),
+        ]],
+    )?;
     Ok(DamperReport {
         summary,
         faults: fault_rows,
         steps,
-        mean_step_us: elapsed.as_secs_f64() * 1e6 / steps.max(1) as f64,
+        mean_step_us,
         ekf_diverged_at_s,
     })
 }
@@ -450,27 +480,26 @@ fn opt(v: Option<f64>) -> String {
     v.map_or_else(String::new, |x| format!("{x:.6}"))
 }
 
-fn csv_write<W: std::io::Write>(
-    w: &mut csv::Writer<W>,
+/// Writes a CSV file: the header, then the rows.
+fn write_table<S: AsRef<str>>(
     path: &Path,
-    record: &[String],
+    header: &[S],
+    rows: impl IntoIterator<Item = Vec<String>>,
 ) -> Result<(), DamperAnalysisError> {
-    w.write_record(record).map_err(|e| {
-        RecordError::file(&path.display().to_string(), format!("write error: {e}")).into()
-    })
-}
-
-fn csv_flush<W: std::io::Write>(
-    mut w: csv::Writer<W>,
-    path: &Path,
-) -> Result<(), DamperAnalysisError> {
-    w.flush().map_err(|e| {
-        RecordError::file(&path.display().to_string(), format!("write error: {e}")).into()
-    })
+    let err =
+        |e: csv::Error| RecordError::file(&path.display().to_string(), format!("write error: {e}"));
+    let mut w = create_csv(path)?;
+    w.write_record(header.iter().map(|h| h.as_ref()))
+        .map_err(err)?;
+    for row in rows {
+        w.write_record(&row).map_err(err)?;
+    }
+    w.flush()
+        .map_err(|e| RecordError::file(&path.display().to_string(), format!("write error: {e}")))?;
+    Ok(())
 }
 
 fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), DamperAnalysisError> {
-    let mut w = create_csv(path)?;
     let mut header = vec!["time_s".to_owned()];
     for d in DamperId::ALL {
         let n = d.name();
@@ -487,8 +516,7 @@ fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), DamperAnalys
         }
     }
     header.push("effective_sample_size".to_owned());
-    csv_write(&mut w, path, &header)?;
-    for p in trace {
+    let rows = trace.iter().map(|p| {
         let mut row = vec![format!("{:.3}", p.time_s)];
         for d in DamperId::ALL {
             let post = match d {
@@ -512,13 +540,12 @@ fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), DamperAnalys
             ]);
         }
         row.push(format!("{:.1}", p.estimate.effective_sample_size));
-        csv_write(&mut w, path, &row)?;
-    }
-    csv_flush(w, path)
+        row
+    });
+    write_table(path, &header, rows)
 }
 
 fn write_summary(path: &Path, rows: &[SummaryRow]) -> Result<(), DamperAnalysisError> {
-    let mut w = create_csv(path)?;
     let header = [
         "method",
         "damper",
@@ -529,28 +556,25 @@ fn write_summary(path: &Path, rows: &[SummaryRow]) -> Result<(), DamperAnalysisE
         "settle_s",
         "covered_end",
     ];
-    csv_write(&mut w, path, &header.map(str::to_owned))?;
-    for r in rows {
-        csv_write(
-            &mut w,
-            path,
-            &[
+    write_table(
+        path,
+        &header,
+        rows.iter().map(|r| {
+            vec![
                 r.method.to_owned(),
                 r.damper.to_owned(),
                 format!("{:.1}", r.truth),
                 opt(r.error_10s),
                 opt(r.error_30s),
                 opt(r.error_end),
-                r.settle_s.map_or_else(String::new, |s| format!("{s:.2}")),
+                opt_s(r.settle_s),
                 r.covered_end.to_string(),
-            ],
-        )?;
-    }
-    csv_flush(w, path)
+            ]
+        }),
+    )
 }
 
 fn write_faults(path: &Path, rows: &[FaultRow]) -> Result<(), DamperAnalysisError> {
-    let mut w = create_csv(path)?;
     let header = [
         "method",
         "damper",
@@ -561,12 +585,11 @@ fn write_faults(path: &Path, rows: &[FaultRow]) -> Result<(), DamperAnalysisErro
         "error_10s_after",
         "settle_after_s",
     ];
-    csv_write(&mut w, path, &header.map(str::to_owned))?;
-    for r in rows {
-        csv_write(
-            &mut w,
-            path,
-            &[
+    write_table(
+        path,
+        &header,
+        rows.iter().map(|r| {
+            vec![
                 r.method.to_owned(),
                 r.damper.to_owned(),
                 r.kind.to_owned(),
@@ -574,12 +597,14 @@ fn write_faults(path: &Path, rows: &[FaultRow]) -> Result<(), DamperAnalysisErro
                 format!("{:.3}", r.done_s),
                 format!("{:.3}", r.ratio),
                 opt(r.error_10s_after),
-                r.settle_after_s
-                    .map_or_else(String::new, |s| format!("{s:.2}")),
-            ],
-        )?;
-    }
-    csv_flush(w, path)
+                opt_s(r.settle_after_s),
+            ]
+        }),
+    )
+}
+
+fn opt_s(v: Option<f64>) -> String {
+    v.map_or_else(String::new, |s| format!("{s:.2}"))
 }
 
 /// Figures 2-5 of the paper (RBPF and EKF, each damper, estimate against truth, in

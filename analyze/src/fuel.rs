@@ -195,13 +195,12 @@ pub fn simulate_scenario(path: &Path) -> Result<(FuelInput, Vec<VehicleRow>), Fu
 
 /// `railmon analyze fuel`.
 pub fn run(args: &Args) -> Result<Evaluation, FuelAnalysisError> {
-    create_out_dir(&args.out)?;
-    let mut input = match (&args.input, &args.scenario) {
-        (Some(path), _) => load_recording(path)?,
+    // Read everything first: a bad input leaves no half-written output directory.
+    let (mut input, simulated) = match (&args.input, &args.scenario) {
+        (Some(path), _) => (load_recording(path)?, None),
         (None, Some(path)) => {
             let (input, rows) = simulate_scenario(path)?;
-            write_vehicle_csv(&args.out.join("simulated.csv"), &rows)?;
-            input
+            (input, Some(rows))
         }
         (None, None) => {
             return Err(FuelAnalysisError::Input {
@@ -213,8 +212,11 @@ pub fn run(args: &Args) -> Result<Evaluation, FuelAnalysisError> {
     if let Some(path) = &args.config {
         input.config = read_config(path)?;
     }
-    let evaluation = analyse(&input, &args.out)?;
-    Ok(evaluation)
+    create_out_dir(&args.out)?;
+    if let Some(rows) = simulated {
+        write_vehicle_csv(&args.out.join("simulated.csv"), &rows)?;
+    }
+    analyse(&input, &args.out)
 }
 
 /// Evaluates `input` and writes the report files into `out`.

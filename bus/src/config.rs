@@ -87,7 +87,6 @@ impl Default for StreamConfig {
             backpressure_timeout_ms: 250,
         }
     }
-
 }
 
 impl StreamConfig {
@@ -125,7 +124,9 @@ impl BusConfig {
     /// Checks every value; the error names the key (`bus.drive.subscriber_buffer_size`).
     pub fn validate(&self) -> Result<(), BusError> {
         let file_name_ok = |c: char| c.is_ascii_alphanumeric() || "_-.".contains(c);
-        if self.prefix.is_empty() || self.prefix.len() > 64 || !self.prefix.chars().all(file_name_ok)
+        if self.prefix.is_empty()
+            || self.prefix.len() > 64
+            || !self.prefix.chars().all(file_name_ok)
         {
             return Err(BusError::Config {
                 key: "bus.prefix".into(),
@@ -205,18 +206,27 @@ mod tests {
     #[test]
     fn empty_service_name_means_railmon_slash_stream() {
         let config = BusConfig::default();
-        assert_eq!(config.stream(StreamKind::Vehicle).service_name, "railmon/vehicle");
+        assert_eq!(
+            config.stream(StreamKind::Vehicle).service_name,
+            "railmon/vehicle"
+        );
     }
 
     #[test]
     fn zero_buffer_is_rejected() {
         let message = rejected(|c| c.drive.subscriber_buffer_size = 0);
-        assert!(message.contains("bus.drive.subscriber_buffer_size"), "{message}");
+        assert!(
+            message.contains("bus.drive.subscriber_buffer_size"),
+            "{message}"
+        );
     }
 
     #[test]
     fn zero_backpressure_timeout_is_rejected() {
         let message = rejected(|c| c.vehicle.backpressure_timeout_ms = 0);
-        assert!(message.contains("bus.vehicle.backpressure_timeout_ms"), "{message}");
+        assert!(
+            message.contains("bus.vehicle.backpressure_timeout_ms"),
+            "{message}"
+        );
     }
 }

@@ -209,7 +209,10 @@ mod tests {
     #[test]
     fn empty_frame_is_rejected() {
         let frame = DriveFrame::new(1, &[]).unwrap();
-        assert_eq!(frame.checked_drives(MAX_DRIVES).unwrap_err(), FrameError::NoDrives);
+        assert_eq!(
+            frame.checked_drives(MAX_DRIVES).unwrap_err(),
+            FrameError::NoDrives
+        );
     }
 
     #[test]
@@ -218,11 +221,21 @@ mod tests {
         drives[1].i_beta_a = f64::NAN;
         let frame = DriveFrame::new(1, &drives).unwrap();
         let err = frame.checked_drives(MAX_DRIVES).unwrap_err();
-        assert!(matches!(err, FrameError::NotFinite { drive: 2, channel: "i_beta_a", .. }));
+        assert!(matches!(
+            err,
+            FrameError::NotFinite {
+                drive: 2,
+                channel: "i_beta_a",
+                ..
+            }
+        ));
         drives[1].i_beta_a = 0.0;
         drives[2].u_alpha_v = f64::NEG_INFINITY;
         let frame = DriveFrame::new(1, &drives).unwrap();
-        assert_eq!(frame.checked_drives(MAX_DRIVES).unwrap_err().reason(), "not_finite");
+        assert_eq!(
+            frame.checked_drives(MAX_DRIVES).unwrap_err().reason(),
+            "not_finite"
+        );
     }
 
     #[test]

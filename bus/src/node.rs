@@ -3,8 +3,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 
 use crate::{
-    BusConfig, BusError, Frame, FrameHeader, FramePublisher, FrameSubscriber, StreamConfig,
-    WaitSet,
+    BusConfig, BusError, Frame, FrameHeader, FramePublisher, FrameSubscriber, StreamConfig, WaitSet,
 };
 
 /// Shipped iceoryx2 settings (`config/iceoryx2.toml`), embedded so that no process depends on
@@ -68,7 +67,8 @@ impl BusNode {
     pub fn create(config: &BusConfig, name: &str) -> Result<Self, BusError> {
         config.validate()?;
         let ipc_config = iceoryx2_config(config)?;
-        let node_name = NodeName::new(name).map_err(|e| BusError::ipc(format!("node name `{name}`"), e))?;
+        let node_name =
+            NodeName::new(name).map_err(|e| BusError::ipc(format!("node name `{name}`"), e))?;
         let node = NodeBuilder::new()
             .name(&node_name)
             .signal_handling_mode(SignalHandlingMode::Disabled)
@@ -142,7 +142,10 @@ impl BusNode {
             .history_size(0)
             .open_or_create()
             .map_err(|e| {
-                BusError::ipc(format!("open publish-subscribe service `{}`", stream.service_name), e)
+                BusError::ipc(
+                    format!("open publish-subscribe service `{}`", stream.service_name),
+                    e,
+                )
             })?;
         let events = self
             .node
@@ -150,7 +153,9 @@ impl BusNode {
             .event()
             .notifier_dead_event(EventId::new(EVENT_PUBLISHER_DEAD))
             .open_or_create()
-            .map_err(|e| BusError::ipc(format!("open event service `{}`", stream.service_name), e))?;
+            .map_err(|e| {
+                BusError::ipc(format!("open event service `{}`", stream.service_name), e)
+            })?;
         let ready = self
             .node
             .service_builder(&service_name(&ready_name)?)

@@ -7,8 +7,7 @@ use iceoryx2::port::{BackpressureAction, BackpressureInfo};
 use iceoryx2::prelude::*;
 
 use crate::node::{
-    PubSubFactory, StreamServices, EVENT_FRAMES_SENT, EVENT_PUBLISHER_HELLO,
-    EVENT_SUBSCRIBER_READY,
+    PubSubFactory, StreamServices, EVENT_FRAMES_SENT, EVENT_PUBLISHER_HELLO, EVENT_SUBSCRIBER_READY,
 };
 use crate::{monotonic_ns, BusError, Frame, FrameHeader, StreamConfig, FRAME_LAYOUT_VERSION};
 
@@ -119,7 +118,9 @@ impl<F: Frame> FramePublisher<F> {
                     |event| ready |= event.id.as_value() == EVENT_SUBSCRIBER_READY,
                     Duration::from_millis(10),
                 )
-                .map_err(|e| BusError::ipc(format!("wait on `{}/ready`", self.service_name()), e))?;
+                .map_err(|e| {
+                    BusError::ipc(format!("wait on `{}/ready`", self.service_name()), e)
+                })?;
             if ready {
                 return Ok(());
             }

@@ -145,7 +145,9 @@ mod tests {
 
     #[test]
     fn unknown_key_is_named() {
-        let err = bus_from("[bus.drive]\nbuffer = 3\n", &[]).unwrap_err().to_string();
+        let err = bus_from("[bus.drive]\nbuffer = 3\n", &[])
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("bus.drive") && err.contains("buffer"), "{err}");
     }
 
@@ -166,9 +168,12 @@ mod tests {
 
     #[test]
     fn override_of_a_value_with_a_section_is_rejected() {
-        let err = bus_from("[bus]\nprefix = \"x\"\n", &[("RAILMON_BUS__PREFIX__A", "1")])
-            .unwrap_err()
-            .to_string();
+        let err = bus_from(
+            "[bus]\nprefix = \"x\"\n",
+            &[("RAILMON_BUS__PREFIX__A", "1")],
+        )
+        .unwrap_err()
+        .to_string();
         assert!(err.contains("bus.prefix.a"), "{err}");
     }
 }

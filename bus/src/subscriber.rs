@@ -51,19 +51,22 @@ impl<F: Frame> FrameSubscriber<F> {
             .subscriber_builder()
             .buffer_size(stream.subscriber_buffer_size)
             .create()
-            .map_err(|e| BusError::ipc(format!("create subscriber on `{}`", stream.service_name), e))?;
-        let listener = services
-            .events
-            .listener_builder()
-            .create()
-            .map_err(|e| BusError::ipc(format!("create listener on `{}`", stream.service_name), e))?;
+            .map_err(|e| {
+                BusError::ipc(format!("create subscriber on `{}`", stream.service_name), e)
+            })?;
+        let listener = services.events.listener_builder().create().map_err(|e| {
+            BusError::ipc(format!("create listener on `{}`", stream.service_name), e)
+        })?;
         let ready_notifier = services
             .ready
             .notifier_builder()
             .default_event_id(EventId::new(EVENT_SUBSCRIBER_READY))
             .create()
             .map_err(|e| {
-                BusError::ipc(format!("create notifier on `{}/ready`", stream.service_name), e)
+                BusError::ipc(
+                    format!("create notifier on `{}/ready`", stream.service_name),
+                    e,
+                )
             })?;
         let this = Self {
             stream,
@@ -85,7 +88,10 @@ impl<F: Frame> FrameSubscriber<F> {
     /// whenever woken up (done by [`Self::drain`]).
     pub fn attach(&self) -> Result<(), BusError> {
         self.subscriber.update_connections().map_err(|e| {
-            BusError::ipc(format!("connect subscriber on `{}`", self.stream.service_name), e)
+            BusError::ipc(
+                format!("connect subscriber on `{}`", self.stream.service_name),
+                e,
+            )
         })
     }
 

@@ -51,12 +51,18 @@ fn lossless_stream_arrives_complete_and_in_order() {
     let start = Instant::now();
     while (headers.len() as u64) < total && start.elapsed() < Duration::from_secs(20) {
         waitset
-            .wait_and_process_once_with_timeout(|_| iceoryx2::prelude::CallbackProgression::Continue, Duration::from_millis(50))
+            .wait_and_process_once_with_timeout(
+                |_| iceoryx2::prelude::CallbackProgression::Continue,
+                Duration::from_millis(50),
+            )
             .unwrap();
         subscriber.take_wakeups().unwrap();
         subscriber
             .drain(usize::MAX, |received| {
-                assert_eq!(received.frame.drives[0].u_alpha_v, received.header.sequence as f64);
+                assert_eq!(
+                    received.frame.drives[0].u_alpha_v,
+                    received.header.sequence as f64
+                );
                 assert!(received.received_at_ns >= received.header.published_at_ns);
                 headers.push(*received.header);
             })

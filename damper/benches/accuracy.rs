@@ -16,8 +16,8 @@ use std::time::Instant;
 
 use railmon_damper::model::Vector5;
 use railmon_damper::{
-    BogieSimulator, DamperMonitorConfig, DamperScenario, Dampers, GainGridConfig,
-    KernelSchedule, Propagation, Rbpf,
+    BogieSimulator, DamperMonitorConfig, DamperScenario, Dampers, GainGridConfig, KernelSchedule,
+    Propagation, Rbpf,
 };
 
 const SEED: &str = include_str!("../../config/scenarios/damper-seed.toml");
@@ -73,12 +73,42 @@ fn main() {
         ys.push(y.to_vector());
     }
     let variants = [
-        Variant { name: "exact", propagation: Propagation::Exact, taylor_order: 10, grid_points: 33 },
-        Variant { name: "steady, Taylor 10, grid 33 (default)", propagation: Propagation::SteadyState, taylor_order: 10, grid_points: 33 },
-        Variant { name: "steady, Taylor 12, grid 65", propagation: Propagation::SteadyState, taylor_order: 12, grid_points: 65 },
-        Variant { name: "steady, Taylor 6, grid 33", propagation: Propagation::SteadyState, taylor_order: 6, grid_points: 33 },
-        Variant { name: "steady, Taylor 1 (I + A T), grid 33", propagation: Propagation::SteadyState, taylor_order: 1, grid_points: 33 },
-        Variant { name: "steady, Taylor 10, grid 9", propagation: Propagation::SteadyState, taylor_order: 10, grid_points: 9 },
+        Variant {
+            name: "exact",
+            propagation: Propagation::Exact,
+            taylor_order: 10,
+            grid_points: 33,
+        },
+        Variant {
+            name: "steady, Taylor 10, grid 33 (default)",
+            propagation: Propagation::SteadyState,
+            taylor_order: 10,
+            grid_points: 33,
+        },
+        Variant {
+            name: "steady, Taylor 12, grid 65",
+            propagation: Propagation::SteadyState,
+            taylor_order: 12,
+            grid_points: 65,
+        },
+        Variant {
+            name: "steady, Taylor 6, grid 33",
+            propagation: Propagation::SteadyState,
+            taylor_order: 6,
+            grid_points: 33,
+        },
+        Variant {
+            name: "steady, Taylor 1 (I + A T), grid 33",
+            propagation: Propagation::SteadyState,
+            taylor_order: 1,
+            grid_points: 33,
+        },
+        Variant {
+            name: "steady, Taylor 10, grid 9",
+            propagation: Propagation::SteadyState,
+            taylor_order: 10,
+            grid_points: 9,
+        },
     ];
     let truth = Dampers::NOMINAL;
     let steps = [("csy", 0.02), ("csay", 0.05)];
@@ -112,7 +142,11 @@ fn main() {
         println!(
             "{:<40} {:>14.3} {:>14.3} {:>12.3} {:>14.3} {:>12.3} {:>9.1}",
             v.name,
-            if v.propagation == Propagation::Exact { l0 } else { dl },
+            if v.propagation == Propagation::Exact {
+                l0
+            } else {
+                dl
+            },
             cols[0].0,
             cols[0].1,
             cols[1].0,
@@ -123,7 +157,10 @@ fn main() {
     println!("(lnL column: exact value, then each variant's difference from it in nats)");
 
     println!("\nWhole RBPF, N = 100, {DURATION_S} s, same data and seed:");
-    for (name, p) in [("exact", Propagation::Exact), ("steady_state", Propagation::SteadyState)] {
+    for (name, p) in [
+        ("exact", Propagation::Exact),
+        ("steady_state", Propagation::SteadyState),
+    ] {
         let mut c = config;
         c.rbpf.particles = 100;
         c.rbpf.propagation = p;

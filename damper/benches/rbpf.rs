@@ -41,7 +41,11 @@ fn warmed_up(config: &DamperMonitorConfig, ys: &[Vector5], n: usize, p: Propagat
     c.rbpf.particles = n;
     c.rbpf.propagation = p;
     let mut rbpf = Rbpf::new(&c).expect("rbpf");
-    let warm = if p == Propagation::Exact { 200 } else { WARM_UP_STEPS };
+    let warm = if p == Propagation::Exact {
+        200
+    } else {
+        WARM_UP_STEPS
+    };
     for y in &ys[..warm] {
         rbpf.step(y).expect("step");
     }
@@ -53,7 +57,11 @@ fn bench_rbpf(c: &mut Criterion) {
     let mut group = c.benchmark_group("rbpf_step");
     group.measurement_time(Duration::from_secs(5));
     for (p, name, sizes) in [
-        (Propagation::SteadyState, "steady_state", &[100, 1000, 10_000][..]),
+        (
+            Propagation::SteadyState,
+            "steady_state",
+            &[100, 1000, 10_000][..],
+        ),
         (Propagation::Exact, "exact", &[10, 100][..]),
     ] {
         for &n in sizes {
@@ -61,7 +69,11 @@ fn bench_rbpf(c: &mut Criterion) {
             let mut k = WARM_UP_STEPS;
             group.bench_with_input(BenchmarkId::new(name, n), &n, |b, _| {
                 b.iter(|| {
-                    k = if k + 1 < ys.len() { k + 1 } else { WARM_UP_STEPS };
+                    k = if k + 1 < ys.len() {
+                        k + 1
+                    } else {
+                        WARM_UP_STEPS
+                    };
                     rbpf.step(black_box(&ys[k])).expect("step");
                 })
             });
@@ -70,7 +82,7 @@ fn bench_rbpf(c: &mut Criterion) {
     group.finish();
     let mut group = c.benchmark_group("rbpf_estimate");
     for n in [1000, 10_000] {
-        let rbpf = warmed_up(&config, &ys, n, Propagation::SteadyState);
+        let mut rbpf = warmed_up(&config, &ys, n, Propagation::SteadyState);
         group.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
             b.iter(|| black_box(rbpf.estimate()))
         });
@@ -90,9 +102,16 @@ fn bench_rbpf(c: &mut Criterion) {
 fn real_time_table() {
     let (config, ys) = samples(WARM_UP_STEPS + 3000);
     println!("\nRBPF step, one core, after {WARM_UP_STEPS} warm-up steps:");
-    println!("{:>14} {:>7} {:>14} {:>18}", "propagation", "N", "us/step", "real-time factor");
+    println!(
+        "{:>14} {:>7} {:>14} {:>18}",
+        "propagation", "N", "us/step", "real-time factor"
+    );
     for (p, name, sizes) in [
-        (Propagation::SteadyState, "steady_state", &[100, 1000, 10_000][..]),
+        (
+            Propagation::SteadyState,
+            "steady_state",
+            &[100, 1000, 10_000][..],
+        ),
         (Propagation::Exact, "exact", &[100][..]),
     ] {
         for &n in sizes {

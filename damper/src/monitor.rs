@@ -53,7 +53,7 @@ impl DamperMonitor {
     ) -> Result<Self, DamperError> {
         let mut config = *config;
         config.rbpf.seed = seed;
-        let rbpf = Rbpf::with_gain_table(&config, table)?;
+        let mut rbpf = Rbpf::with_gain_table(&config, table)?;
         let ekf = if config.ekf.enabled {
             Some(AugmentedEkf::new(&config)?)
         } else {

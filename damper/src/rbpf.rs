@@ -102,71 +102,113 @@ impl SparsePropagator {
         })
     }
 
-    /// `out = Phi_f(theta_i) x` for all `n` particles (structure-of-arrays), where
-    /// `yaw[i]`, `series[i]` are the damper entries of particle `i` (`DamperEntries`).
-    /// `term`, `next` are scratch of the same length as `x`.
-    #[allow(clippy::too_many_arguments)]
-    pub fn propagate(
-        &self,
-        n: usize,
-        x: &[f64],
-        yaw: &[f64],
-        series: &[f64],
-        out: &mut [f64],
-        term: &mut [f64],
-        next: &mut [f64],
-    ) {
-        let (mut term, mut next) = (term, next);
-        out.copy_from_slice(x);
-        term.copy_from_slice(x);
+    /// `out = Phi_f(theta_i) x` for all `n` particles (structure-of-arrays, `x[s * n + i]`),
+    /// where `yaw[i]`, `series[i]` are the damper entries of particle `i`
+    /// (`DamperEntries`); in blocks of [`BLOCK`] particles.
+    pub fn propagate(&self, n: usize, x: &[f64], yaw: &[f64], series: &[f64], out: &mut [f64]) {
+        let mut blk = Block::new();
+        for i0 in (0..n).step_by(BLOCK) {
+            let len = BLOCK.min(n - i0);
+            blk.load(x, n, i0, len);
+            self.propagate_block(&mut blk, &yaw[i0..i0 + len], &series[i0..i0 + len]);
+            blk.store(out, n, i0, len);
+        }
+    }
+
+    /// `blk.acc = Phi_f(theta_j) blk.x` for the particles of one block (first `yaw.len()`
+    /// columns), by the Taylor series `sum_k (A T)^k / k!` of the sparse `A(theta_j)`.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    fn propagate_block(&self, blk: &mut Block, yaw: &[f64], series: &[f64]) {
+        let len = yaw.len();
+        blk.acc = blk.x;
+        blk.term = blk.x;
         for k in 1..=self.order {
             let s = self.dt_s / k as f64;
-            next.fill(0.0);
+            blk.next = [0.0; N_STATES * BLOCK];
             for &(r, c, v) in &self.entries {
                 let sv = s * v;
-                let dst = &mut next[r * n..(r + 1) * n];
-                let src = &term[c * n..(c + 1) * n];
-                for (d, t) in dst.iter_mut().zip(src) {
-                    *d += sv * t;
+                for j in 0..len {
+                    blk.next[r * BLOCK + j] += sv * blk.term[c * BLOCK + j];
                 }
             }
             // The two damper rows, per particle.
-            let (head, tail) = next.split_at_mut(state::YSR * n);
-            let yaw_row = &mut head[state::PSIB_DOT * n..(state::PSIB_DOT + 1) * n];
-            let psib_dot = &term[state::PSIB_DOT * n..(state::PSIB_DOT + 1) * n];
-            for i in 0..n {
-                yaw_row[i] += s * yaw[i] * psib_dot[i];
+            for j in 0..len {
+                blk.next[state::PSIB_DOT * BLOCK + j] +=
+                    s * yaw[j] * blk.term[state::PSIB_DOT * BLOCK + j];
+                blk.next[state::YSR * BLOCK + j] += s
+                    * series[j]
+                    * (blk.term[state::YB * BLOCK + j] - blk.term[state::YSR * BLOCK + j]);
             }
-            let ysr_row = &mut tail[..n];
-            let yb = &term[state::YB * n..(state::YB + 1) * n];
-            let ysr = &term[state::YSR * n..(state::YSR + 1) * n];
-            for i in 0..n {
-                ysr_row[i] += s * series[i] * (yb[i] - ysr[i]);
+            for (a, v) in blk.acc.iter_mut().zip(&blk.next) {
+                *a += v;
             }
-            for (o, v) in out.iter_mut().zip(next.iter()) {
-                *o += v;
-            }
-            std::mem::swap(&mut term, &mut next);
+            std::mem::swap(&mut blk.term, &mut blk.next);
         }
-        // Drift leak: out += (exp(-eps T) - 1) V W out (A and V W commute).
-        for i in 0..n {
-            let w0 = out[state::YW1 * n + i] - out[state::D1 * n + i];
-            let w1 = out[state::YW2 * n + i] - out[state::D2 * n + i];
+        // Drift leak: acc += (exp(-eps T) - 1) V W acc (A and V W commute).
+        for j in 0..len {
+            let w0 = blk.acc[state::YW1 * BLOCK + j] - blk.acc[state::D1 * BLOCK + j];
+            let w1 = blk.acc[state::YW2 * BLOCK + j] - blk.acc[state::D2 * BLOCK + j];
             for &r in &self.drift_rows {
-                out[r * n + i] +=
+                blk.acc[r * BLOCK + j] +=
                     self.leak * (self.drift_basis[(r, 0)] * w0 + self.drift_basis[(r, 1)] * w1);
             }
         }
     }
 
-    /// `y - H x` of particle `i`.
-    #[inline]
-    pub fn innovation(&self, n: usize, x: &[f64], i: usize, y: &Vector5) -> Vector5 {
-        let mut e = *y;
-        for &(m, c, v) in &self.h_entries {
-            e[m] -= v * x[c * n + i];
+    /// `blk.e = y - H blk.acc` for the first `len` particles of a block.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    fn innovation_block(&self, blk: &mut Block, y: &Vector5, len: usize) {
+        for m in 0..N_OUTPUTS {
+            blk.e[m * BLOCK..m * BLOCK + len].fill(y[m]);
         }
-        e
+        for &(m, c, v) in &self.h_entries {
+            for j in 0..len {
+                blk.e[m * BLOCK + j] -= v * blk.acc[c * BLOCK + j];
+            }
+        }
+    }
+}
+
+/// Particles processed together: small enough for the level-1 cache (about 26 kB), long
+/// enough for the inner loops to vectorise.
+pub const BLOCK: usize = 64;
+
+/// Block-local working arrays, `[row * BLOCK + particle]`.
+#[derive(Debug, Clone)]
+struct Block {
+    x: [f64; N_STATES * BLOCK],
+    acc: [f64; N_STATES * BLOCK],
+    term: [f64; N_STATES * BLOCK],
+    next: [f64; N_STATES * BLOCK],
+    e: [f64; N_OUTPUTS * BLOCK],
+}
+
+impl Block {
+    fn new() -> Box<Self> {
+        Box::new(Block {
+            x: [0.0; N_STATES * BLOCK],
+            acc: [0.0; N_STATES * BLOCK],
+            term: [0.0; N_STATES * BLOCK],
+            next: [0.0; N_STATES * BLOCK],
+            e: [0.0; N_OUTPUTS * BLOCK],
+        })
+    }
+
+    /// Copies particles `i0..i0 + len` of the structure-of-arrays `src` (stride `n`) into `x`.
+    fn load(&mut self, src: &[f64], n: usize, i0: usize, len: usize) {
+        for s in 0..N_STATES {
+            self.x[s * BLOCK..s * BLOCK + len].copy_from_slice(&src[s * n + i0..s * n + i0 + len]);
+        }
+    }
+
+    /// Copies `acc` back into particles `i0..i0 + len` of `dst`.
+    fn store(&self, dst: &mut [f64], n: usize, i0: usize, len: usize) {
+        for s in 0..N_STATES {
+            dst[s * n + i0..s * n + i0 + len]
+                .copy_from_slice(&self.acc[s * BLOCK..s * BLOCK + len]);
+        }
     }
 }
 
@@ -194,18 +236,18 @@ struct SteadyBank {
     table: Arc<GainTable>,
     csay_gain: f64,
     end_stiffness: f64,
-    /// Posterior states, structure-of-arrays.
+    /// Posterior states, structure-of-arrays `x[state * n + particle]`.
     x: Vec<f64>,
     /// The step's new posterior states (committed by swapping with `x`).
     next: Vec<f64>,
-    term: Vec<f64>,
-    scratch: Vec<f64>,
     yaw: Vec<f64>,
     series: Vec<f64>,
-    /// Per particle: the interpolated gain node and the `ln theta` it was computed for
-    /// (recomputed only when the particle's parameters changed).
-    nodes: Vec<[f64; NODE_LEN]>,
+    /// Per particle: the interpolated gain node, structure-of-arrays
+    /// `nodes[value * n + particle]`, and the `ln theta` it was computed for (recomputed
+    /// only when the particle's parameters changed).
+    nodes: Vec<f64>,
     node_theta: Vec<[f64; 2]>,
+    block: Box<Block>,
 }
 
 impl Bank {
@@ -292,54 +334,89 @@ impl SteadyBank {
         let n = self.n;
         // Parameters change only at kernel moves (or every step with `EveryStep`): refresh the
         // damper entries and the interpolated gain of the particles that moved.
+        let mut node = [0.0; NODE_LEN];
         for (i, th) in ln_theta.iter().enumerate() {
             if self.node_theta[i] != *th {
                 self.yaw[i] = self.csay_gain * th[1].exp();
                 self.series[i] = self.end_stiffness * (-th[0]).exp();
-                self.table
-                    .interpolate(&self.table.cell(*th), &mut self.nodes[i]);
+                self.table.interpolate(&self.table.cell(*th), &mut node);
+                for (k, v) in node.iter().enumerate() {
+                    self.nodes[k * n + i] = *v;
+                }
                 self.node_theta[i] = *th;
             }
         }
-        self.prop.propagate(
-            n,
-            &self.x,
-            &self.yaw,
-            &self.series,
-            &mut self.next,
-            &mut self.term,
-            &mut self.scratch,
-        );
-        let const_term = N_OUTPUTS as f64 * LN_2PI;
-        for (i, ll_i) in ll.iter_mut().enumerate() {
-            let e = self.prop.innovation(n, &self.next, i, y);
-            let node = &self.nodes[i];
-            let s_inv = &node[S_INV_OFFSET..S_INV_OFFSET + N_OUTPUTS * N_OUTPUTS];
-            let mut mahalanobis = 0.0;
-            for r in 0..N_OUTPUTS {
-                let mut acc = 0.0;
-                for c in 0..N_OUTPUTS {
-                    acc += s_inv[r * N_OUTPUTS + c] * e[c];
-                }
-                mahalanobis += e[r] * acc;
-            }
-            *ll_i = -0.5 * (const_term + node[LN_DET_OFFSET] + mahalanobis);
-            for s in 0..N_STATES {
-                let k = &node[s * N_OUTPUTS..(s + 1) * N_OUTPUTS];
-                let mut dx = 0.0;
-                for m in 0..N_OUTPUTS {
-                    dx += k[m] * e[m];
-                }
-                self.next[s * n + i] += dx;
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU supports AVX2, checked just above.
+                unsafe { self.filter_all_avx2(y, ll) };
+                return check_finite(ll);
             }
         }
-        if ll.iter().any(|v| !v.is_finite()) {
-            return Err(DamperError::NonFinite {
-                what: "particle likelihood",
-            });
-        }
-        Ok(())
+        self.filter_all(y, ll);
+        check_finite(ll)
     }
+
+    /// [`SteadyBank::filter_all`] compiled for AVX2 (4-wide vectors instead of SSE2's 2).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn filter_all_avx2(&mut self, y: &Vector5, ll: &mut [f64]) {
+        self.filter_all(y, ll)
+    }
+
+    /// Predict, innovation, log-likelihood and update of every particle, block by block.
+    // Index loops over rows of several block arrays read as the maths and vectorise.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    fn filter_all(&mut self, y: &Vector5, ll: &mut [f64]) {
+        let n = self.n;
+        let const_term = N_OUTPUTS as f64 * LN_2PI;
+        let blk = &mut self.block;
+        for i0 in (0..n).step_by(BLOCK) {
+            let len = BLOCK.min(n - i0);
+            blk.load(&self.x, n, i0, len);
+            self.prop
+                .propagate_block(blk, &self.yaw[i0..i0 + len], &self.series[i0..i0 + len]);
+            self.prop.innovation_block(blk, y, len);
+            let node = |k: usize| &self.nodes[k * n + i0..k * n + i0 + len];
+            // ln N(e; 0, S) with S^-1 and ln det S of each particle's parameters.
+            let lls = &mut ll[i0..i0 + len];
+            for (l, d) in lls.iter_mut().zip(node(LN_DET_OFFSET)) {
+                *l = const_term + d;
+            }
+            for r in 0..N_OUTPUTS {
+                for c in 0..N_OUTPUTS {
+                    let s_inv = node(S_INV_OFFSET + r * N_OUTPUTS + c);
+                    for j in 0..len {
+                        lls[j] += s_inv[j] * blk.e[r * BLOCK + j] * blk.e[c * BLOCK + j];
+                    }
+                }
+            }
+            for l in lls.iter_mut() {
+                *l *= -0.5;
+            }
+            // x+ = x- + K e.
+            for s in 0..N_STATES {
+                for m in 0..N_OUTPUTS {
+                    let k = node(s * N_OUTPUTS + m);
+                    for j in 0..len {
+                        blk.acc[s * BLOCK + j] += k[j] * blk.e[m * BLOCK + j];
+                    }
+                }
+            }
+            blk.store(&mut self.next, n, i0, len);
+        }
+    }
+}
+
+fn check_finite(ll: &[f64]) -> Result<(), DamperError> {
+    if ll.iter().any(|v| !v.is_finite()) {
+        return Err(DamperError::NonFinite {
+            what: "particle likelihood",
+        });
+    }
+    Ok(())
 }
 
 /// The filter.
@@ -362,6 +439,30 @@ pub struct Rbpf {
     ess: f64,
     log_evidence: f64,
     resamples: u64,
+    sorted: SortedParticles,
+}
+
+/// Per coefficient: particle indices in increasing order of the coefficient, and the
+/// coefficients (N s/m) in that order. Valid until the parameters move.
+#[derive(Debug, Clone, Default)]
+struct SortedParticles {
+    stale: bool,
+    order: [Vec<usize>; 2],
+    values: [Vec<f64>; 2],
+}
+
+impl SortedParticles {
+    fn refresh(&mut self, ln_theta: &[[f64; 2]]) {
+        for k in 0..2 {
+            let order = &mut self.order[k];
+            order.clear();
+            order.extend(0..ln_theta.len());
+            order.sort_unstable_by(|&i, &j| ln_theta[i][k].total_cmp(&ln_theta[j][k]));
+            self.values[k].clear();
+            self.values[k].extend(order.iter().map(|&i| ln_theta[i][k].exp()));
+        }
+        self.stale = false;
+    }
 }
 
 impl Rbpf {
@@ -433,12 +534,11 @@ impl Rbpf {
                     end_stiffness: entries.series_rate_per_s,
                     x: vec![0.0; N_STATES * n],
                     next: vec![0.0; N_STATES * n],
-                    term: vec![0.0; N_STATES * n],
-                    scratch: vec![0.0; N_STATES * n],
                     yaw: vec![0.0; n],
                     series: vec![0.0; n],
-                    nodes: vec![[0.0; NODE_LEN]; n],
+                    nodes: vec![0.0; NODE_LEN * n],
                     node_theta: vec![[f64::NAN; 2]; n],
+                    block: Block::new(),
                 }))
             }
         };
@@ -475,6 +575,10 @@ impl Rbpf {
             ess: n as f64,
             log_evidence: 0.0,
             resamples: 0,
+            sorted: SortedParticles {
+                stale: true,
+                ..SortedParticles::default()
+            },
         })
     }
 
@@ -502,6 +606,9 @@ impl Rbpf {
         let log_increment = normalize_log_weights(&mut self.log_w_next)?;
         // Commit.
         self.bank.commit();
+        if self.config.kernel == KernelSchedule::EveryStep {
+            self.sorted.stale = true;
+        }
         std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
         std::mem::swap(&mut self.log_w, &mut self.log_w_next);
         self.log_evidence += log_increment;
@@ -516,6 +623,7 @@ impl Rbpf {
             std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
             self.log_w.fill(-(n as f64).ln());
             self.resamples += 1;
+            self.sorted.stale = true;
             if self.config.kernel == KernelSchedule::AtResampling {
                 self.kernel_move();
                 std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
@@ -591,27 +699,24 @@ impl Rbpf {
     }
 
     /// Posterior summary (mean, 5%/95% quantiles, health ratio) and effective sample size.
-    /// Sorts the particles: O(N log N).
-    pub fn estimate(&self) -> RbpfEstimate {
+    /// O(N); the particles are sorted (O(N log N)) only after their parameters changed.
+    pub fn estimate(&mut self) -> RbpfEstimate {
+        if self.sorted.stale {
+            self.sorted.refresh(&self.ln_theta);
+        }
         let w: Vec<f64> = self.log_w.iter().map(|v| v.exp()).collect();
         let post = |k: usize, nominal: f64| {
-            let mut order: Vec<usize> = (0..w.len()).collect();
-            order.sort_unstable_by(|&i, &j| self.ln_theta[i][k].total_cmp(&self.ln_theta[j][k]));
-            let mean: f64 = self
-                .ln_theta
-                .iter()
-                .zip(&w)
-                .map(|(th, wi)| wi * th[k].exp())
-                .sum();
+            let (order, values) = (&self.sorted.order[k], &self.sorted.values[k]);
+            let mean: f64 = order.iter().zip(values).map(|(&i, v)| w[i] * v).sum();
             let quantile = |q: f64| {
                 let mut cum = 0.0;
-                for &i in &order {
+                for (&i, v) in order.iter().zip(values) {
                     cum += w[i];
                     if cum >= q {
-                        return self.ln_theta[i][k].exp();
+                        return *v;
                     }
                 }
-                self.ln_theta[order[order.len() - 1]][k].exp()
+                values[values.len() - 1]
             };
             DamperPosterior {
                 mean_ns_per_m: mean,
@@ -732,8 +837,8 @@ mod tests {
         let mut errors = vec![];
         for order in [4, 6, 8, 10, 12] {
             let prop = SparsePropagator::new(&model, dt, order).unwrap();
-            let (mut out, mut t1, mut t2) = (soa.clone(), soa.clone(), soa.clone());
-            prop.propagate(n, &soa, &yaw, &series, &mut out, &mut t1, &mut t2);
+            let mut out = soa.clone();
+            prop.propagate(n, &soa, &yaw, &series, &mut out);
             let err = (0..n)
                 .map(|i| {
                     let got = Vector17::from_fn(|s, _| out[s * n + i]);

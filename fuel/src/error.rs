@@ -16,6 +16,9 @@ pub enum FuelError {
     /// A configured channel is absent from the sample.
     #[error("sample at t = {time_s} s: channel `{channel}` is missing")]
     MissingChannel { channel: Channel, time_s: f64 },
+    /// The categorical channel (gear) is configured but absent from the sample.
+    #[error("sample at t = {time_s} s: the gear is missing (a categorical channel is configured)")]
+    MissingGear { time_s: f64 },
     /// A channel value is NaN or infinite.
     #[error("sample at t = {time_s} s: channel `{channel}` is not finite ({value})")]
     NonFinite {

@@ -9,7 +9,12 @@
 //! - [`FuelMonitor`]: the mixture on [`VehicleSample`]s with a validated [`FuelMonitorConfig`]:
 //!   any subset of channels, discretised speed and fuel, initialisation from the first samples,
 //!   forgetting; outputs the 0-step estimate, the honest 1-step forecast, a multi-step forecast,
-//!   a virtual fuel sensor, regime probabilities and cumulative fuel ([`FuelEstimate`]).
+//!   a virtual fuel sensor, regime probabilities and cumulative fuel ([`FuelEstimate`]);
+//! - [`VehicleSimulator`]: a car following drive-cycle speed traces (passed in as data) with an
+//!   eco or sporty driver, road load, a 6-speed gearbox and a fuel map with cut-off on overrun,
+//!   giving the paper's channels at 1 Hz and the regime label of a [`VehicleScenario`].
+//!
+//! Results, commands and CSV layouts: `docs/fuel.md`.
 
 pub mod config;
 pub mod counts;

@@ -73,6 +73,31 @@ impl Mixture {
         if spec.components == 0 || spec.k_y == 0 || spec.k_psi == 0 || spec.switching_rows == 0 {
             return Err(FuelError::Numerical("mixture of zero size"));
         }
+        if spec.categories > 0 && spec.categorical_rows == 0 {
+            return Err(FuelError::invalid(
+                "categorical_rows",
+                0,
+                "must be > 0 with categories",
+            ));
+        }
+        if !(spec.forgetting > 0.0 && spec.forgetting <= 1.0) {
+            return Err(FuelError::invalid(
+                "forgetting",
+                spec.forgetting,
+                "must be in (0, 1]",
+            ));
+        }
+        let positive = [
+            ("prior_information", spec.prior_information),
+            ("prior_kappa", spec.prior_kappa),
+            ("min_noise_variance", spec.min_noise_variance),
+            ("dirichlet_prior", spec.dirichlet_prior),
+            ("switching_prior_stay", spec.switching_prior_stay),
+            ("switching_prior_move", spec.switching_prior_move),
+        ];
+        if let Some((field, v)) = positive.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+            return Err(FuelError::invalid(field, v, "must be finite and > 0"));
+        }
         let d = spec.k_y + spec.k_psi;
         let v0 = DMatrix::identity(d, d) * spec.prior_information;
         let comp = RegressionStats::new(

@@ -23,7 +23,7 @@ use crate::FuelError;
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct MixtureEstimate {
     /// The paper's 0-step estimate (section 4.4): `theta' psi_t` of the active component, the
-    /// pointer picked with `y_t` itself. Not a forecast.
+    /// pointer picked and the statistics updated with `y_t` itself. Not a forecast.
     pub zero_step_cm3_s: f64,
     /// Honest 1-step forecast of this sample's fuel, made at `t-1` from data up to `t-1`, the
     /// pointer predicted with the switching model.
@@ -34,13 +34,16 @@ pub struct MixtureEstimate {
     /// the only continuous channel (and there is no gear).
     pub virtual_sensor_cm3_s: f64,
     /// Fuel forecasts for `t+1 .. t+H` (H = `forecast_horizon_steps`): pointer propagated with
-    /// the switching model, regressors filled with the forecast means, gear and speed level
-    /// held at their last values.
+    /// the switching model, regressors filled with the forecast means, gear, speed level and
+    /// acceleration level held at their last values.
     pub forecast_cm3_s: Vec<f64>,
     /// `w_{i;t}`: probability of each component (driving regime).
     pub regime_probabilities: Vec<f64>,
     /// `argmax_i w_{i;t}`: the point estimate of the pointer.
     pub active_regime: usize,
+    /// The active regime differs from the previous sample's (false on the first estimate): the
+    /// regime-change event of a live service.
+    pub regime_changed: bool,
     /// Fuel integrated from the virtual sensor since initialisation, cm^3.
     pub cumulative_virtual_fuel_cm3: f64,
 }
@@ -225,12 +228,7 @@ impl FuelMonitor {
             .collect::<Result<Vec<f64>, FuelError>>()?;
         let (category, speed_level) = match &self.config.categorical {
             Some(cat) => {
-                let gear = sample.gear.ok_or(FuelError::MissingChannel {
-                    channel: Channel::Fuel,
-                    time_s: sample.time_s,
-                });
-                let gear = gear.map_err(|_| FuelError::UnknownCategory {
-                    gear: i32::MIN,
+                let gear = sample.gear.ok_or(FuelError::MissingGear {
                     time_s: sample.time_s,
                 })?;
                 let l = cat.category(gear).ok_or(FuelError::UnknownCategory {
@@ -433,12 +431,10 @@ impl FuelMonitor {
         Self::push_past(&mut self.past, y, p, m_y, m_alpha);
         let one_step = self.pending_forecast.first().copied().unwrap_or(f64::NAN);
         self.pending_forecast = self.forecast_path();
-        let cumulative_virtual = self
-            .estimate
-            .mixture
-            .as_ref()
-            .map_or(0.0, |e| e.cumulative_virtual_fuel_cm3)
-            + virtual_sensor * dt;
+        let previous = self.estimate.mixture.as_ref();
+        let regime_changed = previous.is_some_and(|e| e.active_regime != active);
+        let cumulative_virtual =
+            previous.map_or(0.0, |e| e.cumulative_virtual_fuel_cm3) + virtual_sensor * dt;
         Ok(MixtureEstimate {
             zero_step_cm3_s: zero_step,
             one_step_forecast_cm3_s: one_step,
@@ -446,6 +442,7 @@ impl FuelMonitor {
             forecast_cm3_s: self.pending_forecast.clone(),
             regime_probabilities,
             active_regime: active,
+            regime_changed,
             cumulative_virtual_fuel_cm3: cumulative_virtual,
         })
     }

@@ -155,21 +155,22 @@ fn config_parses_from_toml_and_rejects_unknown_fields() {
 fn bad_samples_are_errors_and_leave_the_state_untouched() {
     let config = FuelMonitorConfig::paper();
     let mut rng = ChaCha8Rng::seed_from_u64(5);
-    let samples: Vec<VehicleSample> = (0..400).map(|t| sample(t, &mut rng)).collect();
+    let samples: Vec<VehicleSample> = (0..450).map(|t| sample(t, &mut rng)).collect();
     let mut clean = FuelMonitor::new(&config).unwrap();
     let mut faulty = FuelMonitor::new(&config).unwrap();
     for (t, s) in samples.iter().enumerate() {
         if t % 50 == 7 {
             let mut bad = *s;
-            match (t / 50) % 5 {
+            match (t / 50) % 6 {
                 0 => bad.fuel_cm3_s = Some(f64::NAN),
                 1 => bad.engine_torque_nm = Some(f64::INFINITY),
                 2 => bad.pedal_pct = None,
                 3 => bad.gear = Some(9),
+                4 => bad.gear = None,
                 _ => bad.time_s = -1.0,
             }
             let err = faulty.update(&bad).unwrap_err();
-            match (t / 50) % 5 {
+            match (t / 50) % 6 {
                 0 => assert!(matches!(
                     err,
                     FuelError::NonFinite {
@@ -192,6 +193,7 @@ fn bad_samples_are_errors_and_leave_the_state_untouched() {
                     }
                 )),
                 3 => assert!(matches!(err, FuelError::UnknownCategory { gear: 9, .. })),
+                4 => assert!(matches!(err, FuelError::MissingGear { .. })),
                 _ => assert!(matches!(err, FuelError::TimeNotIncreasing { .. })),
             }
         }
@@ -362,4 +364,25 @@ fn paper_setting_separates_fuel_cut_off_from_driving() {
         }
     }
     assert!(se_mix < 0.8 * se_one, "mixture {se_mix} vs single {se_one}");
+}
+
+#[test]
+fn regime_changes_are_flagged_once_per_change() {
+    let (mut monitor, _) = run(&FuelMonitorConfig::paper(), 160, 12);
+    let mut rng = ChaCha8Rng::seed_from_u64(13);
+    let mut previous = monitor.estimate().mixture.as_ref().map(|m| m.active_regime);
+    let mut changes = 0;
+    for t in 160..1000 {
+        let e = monitor
+            .update(&sample(t, &mut rng))
+            .unwrap()
+            .mixture
+            .clone()
+            .unwrap();
+        let expected = previous.is_some_and(|p| p != e.active_regime);
+        assert_eq!(e.regime_changed, expected, "t = {t}");
+        changes += usize::from(e.regime_changed);
+        previous = Some(e.active_regime);
+    }
+    assert!(changes > 0, "the synthetic drive switches regime");
 }

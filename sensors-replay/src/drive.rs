@@ -69,9 +69,15 @@ impl Source {
                 simulator: Box::new(simulator),
             });
         }
-        let path = args.csv.clone().context("give --scenario FILE or --csv FILE")?;
+        let path = args
+            .csv
+            .clone()
+            .context("give --scenario FILE or --csv FILE")?;
         if !(args.dt_s.is_finite() && args.dt_s > 0.0) {
-            bail!("--dt-s {}: expected a positive number of seconds", args.dt_s);
+            bail!(
+                "--dt-s {}: expected a positive number of seconds",
+                args.dt_s
+            );
         }
         let reader = DriveCsvReader::open(&path, None)?;
         Ok(Source::Csv {
@@ -211,7 +217,7 @@ pub fn run(args: DriveArgs) -> anyhow::Result<()> {
         let frame = DriveFrame::new(dt_ns, &drives)?;
         pacer.wait_next();
         let recipients = publisher.send(&frame, run_step * dt_ns)?;
-        if recipients == 0 || sent % notify_every == 0 {
+        if recipients == 0 || sent.is_multiple_of(notify_every) {
             publisher.notify()?;
         }
         if recipients == 0 {

@@ -16,7 +16,11 @@ use clap::{Parser, Subcommand};
 use railmon_bus::{settings, BusConfig};
 
 #[derive(Parser)]
-#[command(name = "sensors-replay", version, about = "Publish simulated or recorded sensor streams on the railmon bus")]
+#[command(
+    name = "sensors-replay",
+    version,
+    about = "Publish simulated or recorded sensor streams on the railmon bus"
+)]
 struct Cli {
     #[command(subcommand)]
     stream: StreamCommand,

@@ -19,7 +19,9 @@ impl FromStr for Speed {
         }
         match text.parse::<f64>() {
             Ok(x) if x.is_finite() && x > 0.0 => Ok(Speed::Times(x)),
-            _ => Err(format!("`{text}`: expected a positive number (1 = real time) or `max`")),
+            _ => Err(format!(
+                "`{text}`: expected a positive number (1 = real time) or `max`"
+            )),
         }
     }
 }

@@ -315,8 +315,11 @@ mod tests {
 
     #[test]
     fn estimator_keys_override_single_seed_values() {
-        let config = load_with(&[("RAILMON_DRIVE__ESTIMATOR__EKF__MEASUREMENT_NOISE_A2", "0.02")])
-            .unwrap();
+        let config = load_with(&[(
+            "RAILMON_DRIVE__ESTIMATOR__EKF__MEASUREMENT_NOISE_A2",
+            "0.02",
+        )])
+        .unwrap();
         let mut expected = default_estimator();
         expected.ekf.measurement_noise_a2 = 0.02;
         assert_eq!(config.drive.estimator, expected);
@@ -360,7 +363,9 @@ mod tests {
 
     #[test]
     fn zero_staleness_is_rejected() {
-        assert!(error_of(&[("RAILMON_DRIVE__STALE_AFTER_MS", "0")]).contains("drive.stale_after_ms"));
+        assert!(
+            error_of(&[("RAILMON_DRIVE__STALE_AFTER_MS", "0")]).contains("drive.stale_after_ms")
+        );
     }
 
     #[test]
@@ -370,13 +375,16 @@ mod tests {
 
     #[test]
     fn slip_on_ratio_above_one_is_rejected() {
-        assert!(error_of(&[("RAILMON_DRIVE__SLIP_ON_RATIO", "1.5")]).contains("drive.slip_on_ratio"));
+        assert!(
+            error_of(&[("RAILMON_DRIVE__SLIP_ON_RATIO", "1.5")]).contains("drive.slip_on_ratio")
+        );
     }
 
     #[test]
     fn slip_off_ratio_not_below_on_ratio_is_rejected() {
-        assert!(error_of(&[("RAILMON_DRIVE__SLIP_OFF_RATIO", "0.9")])
-            .contains("drive.slip_off_ratio"));
+        assert!(
+            error_of(&[("RAILMON_DRIVE__SLIP_OFF_RATIO", "0.9")]).contains("drive.slip_off_ratio")
+        );
     }
 
     #[test]
@@ -393,8 +401,9 @@ mod tests {
 
     #[test]
     fn zero_events_capacity_is_rejected() {
-        assert!(error_of(&[("RAILMON_DRIVE__EVENTS_CAPACITY", "0")])
-            .contains("drive.events_capacity"));
+        assert!(
+            error_of(&[("RAILMON_DRIVE__EVENTS_CAPACITY", "0")]).contains("drive.events_capacity")
+        );
     }
 
     #[test]

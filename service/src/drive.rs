@@ -177,10 +177,11 @@ impl DrivePipeline {
     }
 
     fn start_monitor(&mut self, n_drives: usize) -> Result<(), Rejection> {
-        let monitor = SlipMonitor::new(&self.config.estimator, n_drives).map_err(|e| Rejection {
-            reason: "estimator",
-            message: e.to_string(),
-        })?;
+        let monitor =
+            SlipMonitor::new(&self.config.estimator, n_drives).map_err(|e| Rejection {
+                reason: "estimator",
+                message: e.to_string(),
+            })?;
         self.monitor = Some(monitor);
         self.slipping = vec![false; n_drives];
         self.gauges = (1..=n_drives)
@@ -201,7 +202,10 @@ impl DrivePipeline {
             };
             self.slipping[k] = kind == "slip_started";
             let id = (k + 1).to_string();
-            self.metrics.slip_events.with_label_values(&[id.as_str(), kind]).inc();
+            self.metrics
+                .slip_events
+                .with_label_values(&[id.as_str(), kind])
+                .inc();
             tracing::info!(drive = k + 1, time_s, slip_probability = p, "{kind}");
             self.pending_events.push(SlipEventView {
                 id: self.next_event_id,
@@ -243,10 +247,7 @@ impl Pipeline for DrivePipeline {
 
     fn restart(&mut self) {
         self.monitor = None;
-        self.clock.run_offset_s = self
-            .clock
-            .last_time_s
-            .map_or(0.0, |t| t + self.clock.dt_s);
+        self.clock.run_offset_s = self.clock.last_time_s.map_or(0.0, |t| t + self.clock.dt_s);
         self.next_history_s = self.clock.run_offset_s;
     }
 

@@ -70,9 +70,28 @@ impl IntoResponse for AppError {
 
 #[derive(OpenApi)]
 #[openapi(
-    info(title = "railmon", description = "Onboard condition monitoring: wheel slip of traction drives (damper and fuel streams join later)."),
+    info(
+        title = "railmon",
+        description = "Onboard condition monitoring: wheel slip of traction drives (damper and fuel streams join later)."
+    ),
     paths(drives, drive, drive_history, events, status, healthz, readyz, metrics),
-    components(schemas(DrivesView, DriveView, DriveDetail, DriveHistory, DriveHistoryPoint, SlipEventView, EventsView, StatusView, StreamStatusView, RejectionRecord, Readiness, StreamReadiness, Health, ErrorBody, ErrorDetail))
+    components(schemas(
+        DrivesView,
+        DriveView,
+        DriveDetail,
+        DriveHistory,
+        DriveHistoryPoint,
+        SlipEventView,
+        EventsView,
+        StatusView,
+        StreamStatusView,
+        RejectionRecord,
+        Readiness,
+        StreamReadiness,
+        Health,
+        ErrorBody,
+        ErrorDetail
+    ))
 )]
 pub struct ApiDoc;
 
@@ -169,7 +188,7 @@ pub struct DriveHistory {
 
 const MAX_HISTORY_SECONDS: f64 = 86_400.0;
 
-fn only_params<'a>(query: &'a HashMap<String, String>, known: &[&str]) -> Result<(), AppError> {
+fn only_params(query: &HashMap<String, String>, known: &[&str]) -> Result<(), AppError> {
     match query.keys().find(|k| !known.contains(&k.as_str())) {
         Some(k) => Err(AppError::BadQuery(format!(
             "unknown query parameter `{k}` (known: {})",
@@ -344,7 +363,10 @@ async fn metrics(State(state): State<AppState>) -> Result<Response, AppError> {
         .render()
         .map_err(|e| AppError::Internal(e.to_string()))?;
     Ok((
-        [(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")],
+        [(
+            header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
         text,
     )
         .into_response())
@@ -356,9 +378,21 @@ async fn openapi() -> Json<utoipa::openapi::OpenApi> {
 
 /// Swagger UI from the vendored `swagger-ui-dist` files (`service/assets/swagger-ui/`).
 const SWAGGER_ASSETS: [(&str, &str, &[u8]); 4] = [
-    ("index.html", "text/html; charset=utf-8", include_bytes!("../assets/swagger-ui/index.html")),
-    ("init.js", "text/javascript", include_bytes!("../assets/swagger-ui/init.js")),
-    ("swagger-ui.css", "text/css", include_bytes!("../assets/swagger-ui/swagger-ui.css")),
+    (
+        "index.html",
+        "text/html; charset=utf-8",
+        include_bytes!("../assets/swagger-ui/index.html"),
+    ),
+    (
+        "init.js",
+        "text/javascript",
+        include_bytes!("../assets/swagger-ui/init.js"),
+    ),
+    (
+        "swagger-ui.css",
+        "text/css",
+        include_bytes!("../assets/swagger-ui/swagger-ui.css"),
+    ),
     (
         "swagger-ui-bundle.js",
         "text/javascript",

@@ -5,7 +5,11 @@ mod serve;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "railmon", version, about = "Onboard condition monitoring for rail vehicles")]
+#[command(
+    name = "railmon",
+    version,
+    about = "Onboard condition monitoring for rail vehicles"
+)]
 struct Cli {
     /// Logs as JSON lines instead of human-readable text.
     #[arg(long, global = true)]
@@ -37,9 +41,15 @@ fn main() -> anyhow::Result<()> {
     match cli.command {
         Command::Serve(args) => serve::run(args),
         Command::Analyze(analyze) => match analyze {
-            Analyze::Adhesion(args) => railmon_analyze::adhesion::run(&args).map(|_| ()).map_err(anyhow::Error::from),
-            Analyze::Damper(args) => railmon_analyze::damper::run(&args).map(|_| ()).map_err(anyhow::Error::from),
-            Analyze::Fuel(args) => railmon_analyze::fuel::run(&args).map(|_| ()).map_err(anyhow::Error::from),
+            Analyze::Adhesion(args) => railmon_analyze::adhesion::run(&args)
+                .map(|_| ())
+                .map_err(anyhow::Error::from),
+            Analyze::Damper(args) => railmon_analyze::damper::run(&args)
+                .map(|_| ())
+                .map_err(anyhow::Error::from),
+            Analyze::Fuel(args) => railmon_analyze::fuel::run(&args)
+                .map(|_| ())
+                .map_err(anyhow::Error::from),
         },
     }
 }

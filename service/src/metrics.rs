@@ -47,7 +47,10 @@ impl Metrics {
         let drive = &["drive"];
         let m = Metrics {
             samples_received: IntCounterVec::new(
-                opts("stream_samples_received_total", "Frames taken from the bus."),
+                opts(
+                    "stream_samples_received_total",
+                    "Frames taken from the bus.",
+                ),
                 stream,
             )?,
             sequence_gaps: IntCounterVec::new(
@@ -72,7 +75,10 @@ impl Metrics {
                 stream,
             )?,
             stream_fresh: IntGaugeVec::new(
-                opts("stream_fresh", "1 while the stream delivers within its staleness limit."),
+                opts(
+                    "stream_fresh",
+                    "1 while the stream delivers within its staleness limit.",
+                ),
                 stream,
             )?,
             estimator_step: HistogramVec::new(
@@ -104,11 +110,17 @@ impl Metrics {
                 drive,
             )?,
             load_torque: GaugeVec::new(
-                opts("drive_load_torque_newton_metres", "Estimated load torque of the drive."),
+                opts(
+                    "drive_load_torque_newton_metres",
+                    "Estimated load torque of the drive.",
+                ),
                 drive,
             )?,
             slipping: IntGaugeVec::new(
-                opts("drive_slipping", "1 while the drive is flagged as slipping (hysteresis)."),
+                opts(
+                    "drive_slipping",
+                    "1 while the drive is flagged as slipping (hysteresis).",
+                ),
                 drive,
             )?,
             global_torque: Gauge::with_opts(opts(
@@ -141,10 +153,12 @@ impl Metrics {
         r.register(Box::new(self.global_torque.clone()))?;
         r.register(Box::new(self.slip_events.clone()))?;
         #[cfg(target_os = "linux")]
-        r.register(Box::new(prometheus::process_collector::ProcessCollector::new(
-            std::process::id() as i32,
-            "railmon",
-        )))?;
+        r.register(Box::new(
+            prometheus::process_collector::ProcessCollector::new(
+                std::process::id() as i32,
+                "railmon",
+            ),
+        ))?;
         Ok(())
     }
 

@@ -45,13 +45,19 @@ impl<T: Clone> Ring<T> {
 
     /// Copies the items that pass `keep`, oldest first.
     pub fn collect(&self, keep: impl Fn(&T) -> bool) -> Vec<T> {
-        let items = self.items.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let items = self
+            .items
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
         items.iter().filter(|item| keep(item)).cloned().collect()
     }
 
     /// The newest item.
     pub fn last(&self) -> Option<T> {
-        let items = self.items.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let items = self
+            .items
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
         items.back().cloned()
     }
 }

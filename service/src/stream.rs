@@ -129,7 +129,10 @@ impl StreamStatus {
     pub fn refresh_gauges(&self, now_ns: u64) {
         let label = [self.kind.name()];
         let age = self.last_sample_age_s(now_ns).unwrap_or(-1.0);
-        self.metrics.last_sample_age.with_label_values(&label).set(age);
+        self.metrics
+            .last_sample_age
+            .with_label_values(&label)
+            .set(age);
         self.metrics
             .stream_fresh
             .with_label_values(&label)
@@ -229,7 +232,9 @@ fn handle_frame<P: Pipeline>(
     received_at_ns: u64,
 ) {
     status.received.inc();
-    status.last_received_ns.store(received_at_ns, Ordering::Relaxed);
+    status
+        .last_received_ns
+        .store(received_at_ns, Ordering::Relaxed);
     let checked = header
         .check()
         .map_err(|e| Rejection {
@@ -336,7 +341,14 @@ fn ingest_loop<P: Pipeline>(
         }
         loop {
             let handled = subscriber.drain(ingest.max_batch, |rx| {
-                handle_frame(pipeline, &mut tracker, status, rx.header, rx.frame, rx.received_at_ns)
+                handle_frame(
+                    pipeline,
+                    &mut tracker,
+                    status,
+                    rx.header,
+                    rx.frame,
+                    rx.received_at_ns,
+                )
             })?;
             if handled > 0 {
                 pipeline.publish();
@@ -378,7 +390,10 @@ mod tests {
         t.accept(&header(7, 0, 5));
         assert_eq!(t.check(&header(7, 0, 6)), SequenceCheck::InOrder);
         t.accept(&header(7, 0, 6));
-        assert_eq!(t.check(&header(7, 0, 10)), SequenceCheck::Gap { missing: 3 });
+        assert_eq!(
+            t.check(&header(7, 0, 10)),
+            SequenceCheck::Gap { missing: 3 }
+        );
         t.accept(&header(7, 0, 10));
         assert_eq!(t.check(&header(7, 0, 10)), SequenceCheck::Stale);
         assert_eq!(t.check(&header(7, 1, 11)), SequenceCheck::NewSource);

@@ -21,12 +21,19 @@ async fn get(state: &AppState, uri: &str) -> (StatusCode, String, String) {
         .map(|v| v.to_str().unwrap().to_string())
         .unwrap_or_default();
     let body = to_bytes(response.into_body(), 16 << 20).await.unwrap();
-    (status, content_type, String::from_utf8_lossy(&body).into_owned())
+    (
+        status,
+        content_type,
+        String::from_utf8_lossy(&body).into_owned(),
+    )
 }
 
 async fn get_json(state: &AppState, uri: &str) -> (StatusCode, Value) {
     let (status, content_type, body) = get(state, uri).await;
-    assert!(content_type.starts_with("application/json"), "{uri}: {content_type}");
+    assert!(
+        content_type.starts_with("application/json"),
+        "{uri}: {content_type}"
+    );
     (status, serde_json::from_str(&body).unwrap())
 }
 
@@ -44,7 +51,9 @@ fn state_after(steps: usize) -> AppState {
 fn assert_error(body: &Value, status: u16, code: &str) {
     assert_eq!(body["error"]["status"], status, "{body}");
     assert_eq!(body["error"]["code"], code, "{body}");
-    assert!(body["error"]["message"].as_str().is_some_and(|m| !m.is_empty()));
+    assert!(body["error"]["message"]
+        .as_str()
+        .is_some_and(|m| !m.is_empty()));
 }
 
 #[tokio::test]
@@ -57,7 +66,10 @@ async fn drives_list_every_drive_with_its_estimate() {
     assert_eq!(body["sequence"], 999);
     let drives = body["drives"].as_array().unwrap();
     assert_eq!(drives.len(), 3);
-    assert!(drives[0]["slip_probability"].as_f64().unwrap() > 0.9, "{body}");
+    assert!(
+        drives[0]["slip_probability"].as_f64().unwrap() > 0.9,
+        "{body}"
+    );
     assert_eq!(drives[0]["slipping"], true);
     for d in &drives[1..] {
         assert!(d["slip_probability"].as_f64().unwrap() < 0.1, "{body}");
@@ -75,7 +87,10 @@ async fn metrics_carry_the_same_numbers_as_the_api() {
     assert_eq!(status, StatusCode::OK);
     assert!(content_type.starts_with("text/plain"), "{content_type}");
     for d in body["drives"].as_array().unwrap() {
-        let line = format!("railmon_drive_slip_probability_ratio{{drive=\"{}\"}} ", d["id"]);
+        let line = format!(
+            "railmon_drive_slip_probability_ratio{{drive=\"{}\"}} ",
+            d["id"]
+        );
         let value: f64 = text
             .lines()
             .find_map(|l| l.strip_prefix(&line))
@@ -91,7 +106,12 @@ async fn metrics_carry_the_same_numbers_as_the_api() {
 #[tokio::test]
 async fn unknown_drive_is_a_json_404() {
     let state = state_after(10);
-    for uri in ["/api/v1/drives/0", "/api/v1/drives/4", "/api/v1/drives/x", "/api/v1/drives/4/history"] {
+    for uri in [
+        "/api/v1/drives/0",
+        "/api/v1/drives/4",
+        "/api/v1/drives/x",
+        "/api/v1/drives/4/history",
+    ] {
         let (status, body) = get_json(&state, uri).await;
         assert_eq!(status, StatusCode::NOT_FOUND, "{uri}");
         assert_error(&body, 404, "unknown_drive");
@@ -127,11 +147,17 @@ async fn history_returns_the_window_of_stream_time() {
     let points = body["points"].as_array().unwrap();
     assert!((10..=12).contains(&points.len()), "{} points", points.len());
     let newest = points.last().unwrap()["time_s"].as_f64().unwrap();
-    assert!(points.iter().all(|p| p["time_s"].as_f64().unwrap() >= newest - 0.1));
+    assert!(points
+        .iter()
+        .all(|p| p["time_s"].as_f64().unwrap() >= newest - 0.1));
     let (_, all) = get_json(&state, "/api/v1/drives/1/history").await;
     assert_eq!(all["points"].as_array().unwrap().len(), 25);
     // Drive 1 slips at 62.5-187.5 ms: the history shows it.
-    assert!(all["points"].as_array().unwrap().iter().any(|p| p["slipping"] == true));
+    assert!(all["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|p| p["slipping"] == true));
 }
 
 #[tokio::test]
@@ -152,7 +178,10 @@ async fn events_filter_by_drive_and_id() {
 async fn probes_status_and_docs() {
     let state = AppState::new(ServiceConfig::default()).unwrap();
     let (status, body) = get_json(&state, "/healthz").await;
-    assert_eq!((status, body["status"].as_str()), (StatusCode::OK, Some("ok")));
+    assert_eq!(
+        (status, body["status"].as_str()),
+        (StatusCode::OK, Some("ok"))
+    );
     // No ingest thread ran: the drive stream never delivered, so the service is not ready.
     let (status, body) = get_json(&state, "/readyz").await;
     assert_eq!(status, StatusCode::SERVICE_UNAVAILABLE);
@@ -163,8 +192,16 @@ async fn probes_status_and_docs() {
     assert_eq!(body["streams"][0]["samples_received"], 0);
     let (status, api) = get_json(&state, "/openapi.json").await;
     assert_eq!(status, StatusCode::OK);
-    for path in ["/api/v1/drives", "/api/v1/drives/{id}/history", "/api/v1/status", "/readyz"] {
-        assert!(api["paths"][path].is_object(), "{path} missing from the OpenAPI document");
+    for path in [
+        "/api/v1/drives",
+        "/api/v1/drives/{id}/history",
+        "/api/v1/status",
+        "/readyz",
+    ] {
+        assert!(
+            api["paths"][path].is_object(),
+            "{path} missing from the OpenAPI document"
+        );
     }
     let (status, content_type, html) = get(&state, "/docs").await;
     assert_eq!(status, StatusCode::OK);

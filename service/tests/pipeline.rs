@@ -23,7 +23,7 @@ fn pipeline_reproduces_the_library_and_flags_drive_1_slips() {
     let mut harness = Harness::new();
     while let Some(samples) = harness.advance() {
         reference.step(&samples).unwrap();
-        if harness.step % 250 == 0 {
+        if harness.step.is_multiple_of(250) {
             let view = harness.view();
             for (got, want) in view.drives.iter().zip(&reference.last().drives) {
                 assert_eq!(got.slip_probability, want.slip_probability);
@@ -39,7 +39,10 @@ fn pipeline_reproduces_the_library_and_flags_drive_1_slips() {
     // scale 30 steps (so the load starts falling ~3 scales early): one start, its end after.
     let dt_s = scenario.dt_s();
     let first_start = events.iter().find(|e| e.kind == "slip_started").unwrap();
-    assert!((410.0 * dt_s..1500.0 * dt_s).contains(&first_start.run_time_s), "{first_start:?}");
+    assert!(
+        (410.0 * dt_s..1500.0 * dt_s).contains(&first_start.run_time_s),
+        "{first_start:?}"
+    );
     let first_end = events.iter().find(|e| e.kind == "slip_ended").unwrap();
     assert!(first_end.run_time_s > 1500.0 * dt_s, "{first_end:?}");
 }
@@ -59,15 +62,25 @@ fn bad_frames_are_rejected_and_change_nothing() {
     nan.drives[1].i_alpha_a = f64::NAN;
     let rejection = harness.pipeline.check(&next, &nan).unwrap_err();
     assert_eq!(rejection.reason, "not_finite");
-    assert!(rejection.message.contains("drive 2"), "{}", rejection.message);
+    assert!(
+        rejection.message.contains("drive 2"),
+        "{}",
+        rejection.message
+    );
 
     let mut too_many = good;
     too_many.n_drives = 40;
-    assert_eq!(harness.pipeline.check(&next, &too_many).unwrap_err().reason, "too_many_drives");
+    assert_eq!(
+        harness.pipeline.check(&next, &too_many).unwrap_err().reason,
+        "too_many_drives"
+    );
 
     let mut other_dt = good;
     other_dt.dt_ns = 100_000;
-    assert_eq!(harness.pipeline.check(&next, &other_dt).unwrap_err().reason, "dt_mismatch");
+    assert_eq!(
+        harness.pipeline.check(&next, &other_dt).unwrap_err().reason,
+        "dt_mismatch"
+    );
 
     let mut fewer = good;
     fewer.n_drives = 2;

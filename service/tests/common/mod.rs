@@ -12,8 +12,7 @@ use railmon_service::ServiceConfig;
 use railmon_slip::{AdhesionScenario, DriveSample, DriveSimulator};
 
 pub fn seed() -> AdhesionScenario {
-    let path =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenarios/adhesion-seed.toml");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenarios/adhesion-seed.toml");
     AdhesionScenario::from_toml_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
 
@@ -86,4 +85,3 @@ impl Harness {
         DrivesView::clone(&self.shared.snapshot.load())
     }
 }
-

@@ -1,0 +1,101 @@
+//! `railmon analyze damper` end to end: a short scenario run writes every report, and its
+//! recorded `bogie.csv` replayed through `--input` gives the same estimates.
+
+use std::path::{Path, PathBuf};
+
+use railmon_analyze::damper::{run, Args, DamperAnalysisError};
+
+fn scenario(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../config/scenarios/{name}.toml"))
+}
+
+fn out_dir(tag: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("railmon-damper-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn args(out: &Path) -> Args {
+    Args {
+        input: None,
+        scenario: None,
+        config: None,
+        out: out.to_owned(),
+        particles: Some(100),
+        propagation: None,
+        duration_s: Some(3.0),
+        csv_every: 10,
+        no_plots: false,
+    }
+}
+
+#[test]
+fn scenario_run_writes_reports_and_its_recording_replays_identically() {
+    let out = out_dir("scenario");
+    let mut a = args(&out);
+    a.scenario = Some(scenario("damper-seed"));
+    let report = run(&a).unwrap();
+    assert_eq!(report.steps, 3000);
+    assert_eq!(report.summary.len(), 4);
+    let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
+    let mut lines = summary.lines();
+    assert_eq!(
+        lines.next(),
+        Some("method,damper,truth,error_10s,error_30s,error_end,settle_s,covered_end")
+    );
+    let rows: Vec<&str> = lines.collect();
+    assert_eq!(rows.len(), 4);
+    assert!(rows[0].starts_with("rbpf,csy,16000.0,,,"), "{}", rows[0]);
+    assert!(rows[3].starts_with("ekf,csay,160000.0,,,"), "{}", rows[3]);
+    let timing = std::fs::read_to_string(out.join("timing.csv")).unwrap();
+    assert!(timing.starts_with("steps,particles,propagation,mean_step_us,real_time_factor"));
+    assert!(timing.lines().nth(1).unwrap().starts_with("3000,100,steady_state,"));
+    for png in ["rbpf_csy", "rbpf_csay", "ekf_csy", "ekf_csay", "ess"] {
+        let bytes = std::fs::read(out.join(format!("{png}.png"))).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG");
+    }
+    let estimates = std::fs::read_to_string(out.join("estimates.csv")).unwrap();
+    assert_eq!(estimates.lines().count(), 301);
+
+    // Replay: the scenario's monitor settings as a config file, the recording as input.
+    let replay = out_dir("replay");
+    std::fs::create_dir_all(&replay).unwrap();
+    let config = replay.join("monitor.toml");
+    std::fs::write(
+        &config,
+        "track_velocity_std_m_s = 0.1\n[rbpf]\ndelta = 0.99\nseed = 11\n",
+    )
+    .unwrap();
+    let mut b = args(&replay);
+    b.input = Some(out.join("bogie.csv"));
+    b.config = Some(config);
+    run(&b).unwrap();
+    let replayed = std::fs::read_to_string(replay.join("estimates.csv")).unwrap();
+    assert_eq!(replayed, estimates);
+    std::fs::remove_dir_all(&out).unwrap();
+    std::fs::remove_dir_all(&replay).unwrap();
+}
+
+#[test]
+fn a_bad_recording_is_an_error_naming_file_line_and_field() {
+    let out = out_dir("bad");
+    std::fs::create_dir_all(&out).unwrap();
+    let input = out.join("bad.csv");
+    std::fs::write(
+        &input,
+        "time_s,wheelset1_accel_m_s2,wheelset2_accel_m_s2,bogie_accel_m_s2,bogie_yaw_rate_rad_s,body_accel_m_s2\n\
+         0.001,0.1,0.1,0.1,0.01,0.01\n0.002,0.1,nan,0.1,0.01,0.01\n",
+    )
+    .unwrap();
+    let mut a = args(&out);
+    a.input = Some(input);
+    a.duration_s = None;
+    let err = run(&a).unwrap_err();
+    assert!(matches!(err, DamperAnalysisError::Record(_)));
+    let msg = err.to_string();
+    assert!(
+        msg.contains("bad.csv:3:") && msg.contains("wheelset2_accel_m_s2") && msg.contains("nan"),
+        "{msg}"
+    );
+    std::fs::remove_dir_all(&out).unwrap();
+}
