@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 /// An error writing a report: which file, and why.
@@ -95,13 +96,21 @@ fn padded_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
     (lo - pad)..(hi + pad)
 }
 
-/// Writes a PNG with one line per series.
-pub fn line_plot(path: &Path, axes: &Axes, series: &[Series]) -> Result<(), ReportError> {
+type Chart<'a> = ChartContext<'a, BitMapBackend<'a>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// Draws the white background, caption and labelled mesh every plot shares, then hands the
+/// chart to `draw`, and writes the file.
+fn draw_chart(
+    path: &Path,
+    size: (u32, u32),
+    axes: &Axes,
+    x_range: std::ops::Range<f64>,
+    y_range: std::ops::Range<f64>,
+    draw: impl FnOnce(&mut Chart) -> Result<(), String>,
+) -> Result<(), ReportError> {
     let err = |e: &dyn std::fmt::Display| ReportError::new(path, e);
-    let root = BitMapBackend::new(path, PLOT_SIZE).into_drawing_area();
+    let root = BitMapBackend::new(path, size).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
-    let x_range = padded_range(series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
-    let y_range = padded_range(series.iter().flat_map(|s| s.points.iter().map(|p| p.1)));
     let mut chart = ChartBuilder::on(&root)
         .caption(axes.title, ("sans-serif", 22))
         .margin(10)
@@ -115,31 +124,66 @@ pub fn line_plot(path: &Path, axes: &Axes, series: &[Series]) -> Result<(), Repo
         .y_desc(axes.y_label)
         .draw()
         .map_err(|e| err(&e))?;
-    for (i, s) in series.iter().enumerate() {
-        let color = palette(i);
-        chart
-            .draw_series(LineSeries::new(
-                s.points.iter().copied(),
-                color.stroke_width(1),
-            ))
-            .map_err(|e| err(&e))?
-            .label(s.label)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color));
-    }
-    if series.len() > 1 {
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|e| err(&e))?;
-    }
+    draw(&mut chart).map_err(|e| err(&e))?;
     root.present().map_err(|e| err(&e))
+}
+
+fn draw_legend(chart: &mut Chart) -> Result<(), String> {
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| e.to_string())
+}
+
+fn x_and_y_ranges(series: &[Series]) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
+    (
+        padded_range(series.iter().flat_map(|s| s.points.iter().map(|p| p.0))),
+        padded_range(series.iter().flat_map(|s| s.points.iter().map(|p| p.1))),
+    )
+}
+
+/// Writes a PNG with one line per series.
+pub fn line_plot(path: &Path, axes: &Axes, series: &[Series]) -> Result<(), ReportError> {
+    let (x_range, y_range) = x_and_y_ranges(series);
+    draw_chart(path, PLOT_SIZE, axes, x_range, y_range, |chart| {
+        for (i, s) in series.iter().enumerate() {
+            let color = palette(i);
+            chart
+                .draw_series(LineSeries::new(
+                    s.points.iter().copied(),
+                    color.stroke_width(1),
+                ))
+                .map_err(|e| e.to_string())?
+                .label(s.label)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color));
+        }
+        if series.len() > 1 {
+            draw_legend(chart)?;
+        }
+        Ok(())
+    })
+}
+
+/// Writes a PNG scatter plot, one colour per series (e.g. per mixture component).
+pub fn scatter_plot(path: &Path, axes: &Axes, series: &[Series]) -> Result<(), ReportError> {
+    let (x_range, y_range) = x_and_y_ranges(series);
+    draw_chart(path, (900, 700), axes, x_range, y_range, |chart| {
+        for (i, s) in series.iter().enumerate() {
+            let color = palette(i);
+            chart
+                .draw_series(s.points.iter().map(|&p| Circle::new(p, 2, color.filled())))
+                .map_err(|e| e.to_string())?
+                .label(s.label)
+                .legend(move |(x, y)| Circle::new((x + 10, y), 4, color.filled()));
+        }
+        draw_legend(chart)
+    })
 }
 
 /// Writes a PNG histogram of `values` with `bins` equal-width bins.
 pub fn histogram(path: &Path, axes: &Axes, values: &[f64], bins: usize) -> Result<(), ReportError> {
-    let err = |e: &dyn std::fmt::Display| ReportError::new(path, e);
     let bins = bins.max(1);
     let range = padded_range(values.iter().copied());
     let width = (range.end - range.start) / bins as f64;
@@ -148,29 +192,23 @@ pub fn histogram(path: &Path, axes: &Axes, values: &[f64], bins: usize) -> Resul
         let k = (((v - range.start) / width) as usize).min(bins - 1);
         counts[k] += 1;
     }
-    let max_count = counts.iter().copied().max().unwrap_or(0).max(1);
-    let root = BitMapBackend::new(path, PLOT_SIZE).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(&e))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(axes.title, ("sans-serif", 22))
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(range.clone(), 0u64..max_count + max_count / 20 + 1)
-        .map_err(|e| err(&e))?;
-    chart
-        .configure_mesh()
-        .x_desc(axes.x_label)
-        .y_desc(axes.y_label)
-        .draw()
-        .map_err(|e| err(&e))?;
-    chart
-        .draw_series(counts.iter().enumerate().map(|(k, &c)| {
-            let x0 = range.start + k as f64 * width;
-            Rectangle::new([(x0, 0), (x0 + width, c)], palette(0).filled())
-        }))
-        .map_err(|e| err(&e))?;
-    root.present().map_err(|e| err(&e))
+    let max_count = counts.iter().copied().max().unwrap_or(0).max(1) as f64;
+    draw_chart(
+        path,
+        PLOT_SIZE,
+        axes,
+        range.clone(),
+        0.0..max_count * 1.05,
+        |chart| {
+            chart
+                .draw_series(counts.iter().enumerate().map(|(k, &c)| {
+                    let x0 = range.start + k as f64 * width;
+                    Rectangle::new([(x0, 0.0), (x0 + width, c as f64)], palette(0).filled())
+                }))
+                .map(|_| ())
+                .map_err(|e| e.to_string())
+        },
+    )
 }
 
 #[cfg(test)]
@@ -202,7 +240,9 @@ mod tests {
         line_plot(&line, &axes, &series).unwrap();
         let hist = dir.join("hist.png");
         histogram(&hist, &axes, &[1.0, 2.0, 2.5, f64::NAN, 3.0], 10).unwrap();
-        for p in [line, hist] {
+        let scatter = dir.join("scatter.png");
+        scatter_plot(&scatter, &axes, &series).unwrap();
+        for p in [line, hist, scatter] {
             let bytes = std::fs::read(&p).unwrap();
             assert_eq!(&bytes[1..4], b"PNG", "{}", p.display());
         }

@@ -4,10 +4,8 @@
 
 use std::path::Path;
 
-use plotters::prelude::*;
-
 use super::Evaluation;
-use crate::report::{line_plot, Axes, ReportError, Series};
+use crate::report::{line_plot, scatter_plot, Axes, ReportError, Series};
 
 pub(super) fn write_all(
     out: &Path,
@@ -108,7 +106,7 @@ pub(super) fn write_all(
             &out.join("clusters_fuel_speed.png"),
             &format!("{name}: fuel vs speed by active component"),
             "speed (m/s)",
-            &speed,
+            speed,
         )?;
     }
     let rpm = by_component(|r| r.engine_speed_rpm);
@@ -117,62 +115,31 @@ pub(super) fn write_all(
             &out.join("clusters_fuel_engine_speed.png"),
             &format!("{name}: fuel vs engine speed by active component"),
             "engine speed (rpm)",
-            &rpm,
+            rpm,
         )?;
     }
     Ok(())
 }
 
-/// A scatter plot of `(x, fuel)` points, one colour per group (component).
+/// Fuel against `x`, one colour per component (fig. 3).
 fn scatter(
     path: &Path,
     title: &str,
     x_label: &str,
-    groups: &[Vec<(f64, f64)>],
+    groups: Vec<Vec<(f64, f64)>>,
 ) -> Result<(), ReportError> {
-    let err = |e: &dyn std::fmt::Display| ReportError::new(path, e);
-    let all = groups.iter().flatten();
-    let (x_lo, x_hi, y_lo, y_hi) = all.fold(
-        (
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-        ),
-        |a, p| (a.0.min(p.0), a.1.max(p.0), a.2.min(p.1), a.3.max(p.1)),
-    );
-    let pad = |lo: f64, hi: f64| {
-        let p = ((hi - lo) * 0.05).max(1e-6);
-        (lo - p)..(hi + p)
+    let labels: Vec<String> = (0..groups.len())
+        .map(|i| format!("component {i}"))
+        .collect();
+    let series: Vec<Series> = groups
+        .into_iter()
+        .zip(&labels)
+        .map(|(points, label)| Series { label, points })
+        .collect();
+    let axes = Axes {
+        title,
+        x_label,
+        y_label: "fuel (cm^3/s)",
     };
-    let root = BitMapBackend::new(path, (900, 700)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(&e))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 20))
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(pad(x_lo, x_hi), pad(y_lo, y_hi))
-        .map_err(|e| err(&e))?;
-    chart
-        .configure_mesh()
-        .x_desc(x_label)
-        .y_desc("fuel (cm^3/s)")
-        .draw()
-        .map_err(|e| err(&e))?;
-    for (i, g) in groups.iter().enumerate() {
-        let color = Palette99::pick(i).to_rgba();
-        chart
-            .draw_series(g.iter().map(|&p| Circle::new(p, 2, color.filled())))
-            .map_err(|e| err(&e))?
-            .label(format!("component {i}"))
-            .legend(move |(x, y)| Circle::new((x + 10, y), 4, color.filled()));
-    }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| err(&e))?;
-    root.present().map_err(|e| err(&e))
+    scatter_plot(path, &axes, &series)
 }
