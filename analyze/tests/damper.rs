@@ -49,7 +49,11 @@ fn scenario_run_writes_reports_and_its_recording_replays_identically() {
     assert!(rows[3].starts_with("ekf,csay,160000.0,,,"), "{}", rows[3]);
     let timing = std::fs::read_to_string(out.join("timing.csv")).unwrap();
     assert!(timing.starts_with("steps,particles,propagation,mean_step_us,real_time_factor"));
-    assert!(timing.lines().nth(1).unwrap().starts_with("3000,100,steady_state,"));
+    assert!(timing
+        .lines()
+        .nth(1)
+        .unwrap()
+        .starts_with("3000,100,steady_state,"));
     for png in ["rbpf_csy", "rbpf_csay", "ekf_csy", "ekf_csay", "ess"] {
         let bytes = std::fs::read(out.join(format!("{png}.png"))).unwrap();
         assert_eq!(&bytes[1..4], b"PNG");

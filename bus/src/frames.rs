@@ -51,6 +51,29 @@ pub struct DriveChannels {
     pub i_beta_a: f64,
 }
 
+// The estimator's own sample type (not `#[repr(C)]`, no type name): one conversion each way.
+impl From<&railmon_slip::DriveSample> for DriveChannels {
+    fn from(s: &railmon_slip::DriveSample) -> Self {
+        DriveChannels {
+            u_alpha_v: s.u_alpha_v,
+            u_beta_v: s.u_beta_v,
+            i_alpha_a: s.i_alpha_a,
+            i_beta_a: s.i_beta_a,
+        }
+    }
+}
+
+impl From<&DriveChannels> for railmon_slip::DriveSample {
+    fn from(d: &DriveChannels) -> Self {
+        railmon_slip::DriveSample {
+            u_alpha_v: d.u_alpha_v,
+            u_beta_v: d.u_beta_v,
+            i_alpha_a: d.i_alpha_a,
+            i_beta_a: d.i_beta_a,
+        }
+    }
+}
+
 /// All drives of one vehicle at one control step.
 #[derive(Clone, Copy, Debug, PartialEq, ZeroCopySend)]
 #[type_name("railmon::DriveFrame.v1")]

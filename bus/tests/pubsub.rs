@@ -6,17 +6,41 @@ use std::time::{Duration, Instant};
 
 use railmon_bus::{BusConfig, BusNode, DriveChannels, DriveFrame, FrameHeader};
 
-fn private_bus(buffer: usize, backpressure_ms: u64) -> BusConfig {
+/// Removes what iceoryx2 leaves of a private bus (per-prefix segment, root directory).
+struct Cleanup(BusConfig);
+
+impl Drop for Cleanup {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0.root_path);
+        for entry in std::fs::read_dir("/dev/shm")
+            .into_iter()
+            .flatten()
+            .flatten()
+        {
+            if entry
+                .file_name()
+                .to_string_lossy()
+                .starts_with(&self.0.prefix)
+            {
+                let _ = std::fs::remove_file(entry.path());
+            }
+        }
+    }
+}
+
+/// A bus of its own (tests run in parallel); keep the `Cleanup` until the nodes are gone.
+fn private_bus(buffer: usize, backpressure_ms: u64) -> (BusConfig, Cleanup) {
     static N: AtomicUsize = AtomicUsize::new(0);
     let n = N.fetch_add(1, Ordering::Relaxed);
+    let prefix = format!("rmbt{}_{n}_", std::process::id());
     let mut config = BusConfig {
-        prefix: format!("rmbt{}_{n}_", std::process::id()),
-        root_path: "/tmp/railmon-test/".into(),
+        root_path: format!("/tmp/railmon-test/{prefix}/"),
+        prefix,
         ..BusConfig::default()
     };
     config.drive.subscriber_buffer_size = buffer;
     config.drive.backpressure_timeout_ms = backpressure_ms;
-    config
+    (config.clone(), Cleanup(config))
 }
 
 fn frame(step: u64) -> DriveFrame {
@@ -29,7 +53,7 @@ fn frame(step: u64) -> DriveFrame {
 
 #[test]
 fn lossless_stream_arrives_complete_and_in_order() {
-    let config = private_bus(8, 2_000);
+    let (config, _cleanup) = private_bus(8, 2_000);
     let subscriber_node = BusNode::create(&config, "sub").unwrap();
     let subscriber = subscriber_node.subscriber::<DriveFrame>().unwrap();
     let total = 3_000u64;
@@ -79,7 +103,7 @@ fn lossless_stream_arrives_complete_and_in_order() {
 
 #[test]
 fn a_subscriber_that_never_reads_delays_each_send_by_at_most_the_time_limit() {
-    let config = private_bus(2, 20);
+    let (config, _cleanup) = private_bus(2, 20);
     let node = BusNode::create(&config, "both").unwrap();
     let stuck = node.subscriber::<DriveFrame>().unwrap();
     let mut publisher = node.publisher::<DriveFrame>().unwrap();
@@ -97,7 +121,7 @@ fn a_subscriber_that_never_reads_delays_each_send_by_at_most_the_time_limit() {
 
 #[test]
 fn waiting_for_a_subscriber_times_out_with_the_service_name() {
-    let config = private_bus(2, 20);
+    let (config, _cleanup) = private_bus(2, 20);
     let node = BusNode::create(&config, "lonely").unwrap();
     let publisher = node.publisher::<DriveFrame>().unwrap();
     let err = publisher

@@ -109,105 +109,135 @@ impl SparsePropagator {
         let mut blk = Block::new();
         for i0 in (0..n).step_by(BLOCK) {
             let len = BLOCK.min(n - i0);
-            blk.load(x, n, i0, len);
-            self.propagate_block(&mut blk, &yaw[i0..i0 + len], &series[i0..i0 + len]);
+            blk.load(x, &yaw[i0..i0 + len], &series[i0..i0 + len], n, i0);
+            self.propagate_block(&mut blk);
             blk.store(out, n, i0, len);
         }
     }
 
-    /// `blk.acc = Phi_f(theta_j) blk.x` for the particles of one block (first `yaw.len()`
-    /// columns), by the Taylor series `sum_k (A T)^k / k!` of the sparse `A(theta_j)`.
-    #[allow(clippy::needless_range_loop)]
+    /// `blk.acc = Phi_f(theta_j) blk.x` for the particles of one block, by the Taylor series
+    /// `sum_k (A T)^k / k!` of the sparse `A(theta_j)`. Works on whole rows of [`BLOCK`]
+    /// (padding columns hold zeros): fixed-length loops without bounds checks, which the
+    /// compiler vectorises.
     #[inline(always)]
-    fn propagate_block(&self, blk: &mut Block, yaw: &[f64], series: &[f64]) {
-        let len = yaw.len();
+    fn propagate_block(&self, blk: &mut Block) {
         blk.acc = blk.x;
         blk.term = blk.x;
         for k in 1..=self.order {
             let s = self.dt_s / k as f64;
-            blk.next = [0.0; N_STATES * BLOCK];
+            for row in blk.next.iter_mut() {
+                *row = [0.0; BLOCK];
+            }
             for &(r, c, v) in &self.entries {
                 let sv = s * v;
-                for j in 0..len {
-                    blk.next[r * BLOCK + j] += sv * blk.term[c * BLOCK + j];
+                let src = &blk.term[c];
+                for (d, t) in blk.next[r].iter_mut().zip(src) {
+                    *d += sv * t;
                 }
             }
             // The two damper rows, per particle.
-            for j in 0..len {
-                blk.next[state::PSIB_DOT * BLOCK + j] +=
-                    s * yaw[j] * blk.term[state::PSIB_DOT * BLOCK + j];
-                blk.next[state::YSR * BLOCK + j] += s
-                    * series[j]
-                    * (blk.term[state::YB * BLOCK + j] - blk.term[state::YSR * BLOCK + j]);
+            let term = &blk.term;
+            for ((d, y), t) in blk.next[state::PSIB_DOT]
+                .iter_mut()
+                .zip(&blk.yaw)
+                .zip(&term[state::PSIB_DOT])
+            {
+                *d += s * y * t;
             }
-            for (a, v) in blk.acc.iter_mut().zip(&blk.next) {
-                *a += v;
+            for (((d, g), yb), ysr) in blk.next[state::YSR]
+                .iter_mut()
+                .zip(&blk.series)
+                .zip(&term[state::YB])
+                .zip(&term[state::YSR])
+            {
+                *d += s * g * (yb - ysr);
+            }
+            for (acc_row, next_row) in blk.acc.iter_mut().zip(&blk.next) {
+                for (a, v) in acc_row.iter_mut().zip(next_row) {
+                    *a += v;
+                }
             }
             std::mem::swap(&mut blk.term, &mut blk.next);
         }
         // Drift leak: acc += (exp(-eps T) - 1) V W acc (A and V W commute).
-        for j in 0..len {
-            let w0 = blk.acc[state::YW1 * BLOCK + j] - blk.acc[state::D1 * BLOCK + j];
-            let w1 = blk.acc[state::YW2 * BLOCK + j] - blk.acc[state::D2 * BLOCK + j];
-            for &r in &self.drift_rows {
-                blk.acc[r * BLOCK + j] +=
-                    self.leak * (self.drift_basis[(r, 0)] * w0 + self.drift_basis[(r, 1)] * w1);
+        let mut w0 = [0.0; BLOCK];
+        let mut w1 = [0.0; BLOCK];
+        for j in 0..BLOCK {
+            w0[j] = self.leak * (blk.acc[state::YW1][j] - blk.acc[state::D1][j]);
+            w1[j] = self.leak * (blk.acc[state::YW2][j] - blk.acc[state::D2][j]);
+        }
+        for &r in &self.drift_rows {
+            let (v0, v1) = (self.drift_basis[(r, 0)], self.drift_basis[(r, 1)]);
+            for ((a, p), q) in blk.acc[r].iter_mut().zip(&w0).zip(&w1) {
+                *a += v0 * p + v1 * q;
             }
         }
     }
 
-    /// `blk.e = y - H blk.acc` for the first `len` particles of a block.
-    #[allow(clippy::needless_range_loop)]
+    /// `blk.e = y - H blk.acc` for one block.
     #[inline(always)]
-    fn innovation_block(&self, blk: &mut Block, y: &Vector5, len: usize) {
-        for m in 0..N_OUTPUTS {
-            blk.e[m * BLOCK..m * BLOCK + len].fill(y[m]);
+    fn innovation_block(&self, blk: &mut Block, y: &Vector5) {
+        for (m, row) in blk.e.iter_mut().enumerate() {
+            *row = [y[m]; BLOCK];
         }
         for &(m, c, v) in &self.h_entries {
-            for j in 0..len {
-                blk.e[m * BLOCK + j] -= v * blk.acc[c * BLOCK + j];
+            for (e, a) in blk.e[m].iter_mut().zip(&blk.acc[c]) {
+                *e -= v * a;
             }
         }
     }
 }
 
-/// Particles processed together: small enough for the level-1 cache (about 26 kB), long
+/// Particles processed together: small enough for the level-1 cache (about 35 kB), long
 /// enough for the inner loops to vectorise.
 pub const BLOCK: usize = 64;
 
-/// Block-local working arrays, `[row * BLOCK + particle]`.
+type Row = [f64; BLOCK];
+
+/// Block-local working arrays, one row of [`BLOCK`] particles per state or output.
 #[derive(Debug, Clone)]
 struct Block {
-    x: [f64; N_STATES * BLOCK],
-    acc: [f64; N_STATES * BLOCK],
-    term: [f64; N_STATES * BLOCK],
-    next: [f64; N_STATES * BLOCK],
-    e: [f64; N_OUTPUTS * BLOCK],
+    x: [Row; N_STATES],
+    acc: [Row; N_STATES],
+    term: [Row; N_STATES],
+    next: [Row; N_STATES],
+    e: [Row; N_OUTPUTS],
+    /// The damper entries of the block's particles (`DamperEntries`).
+    yaw: Row,
+    series: Row,
 }
 
 impl Block {
     fn new() -> Box<Self> {
         Box::new(Block {
-            x: [0.0; N_STATES * BLOCK],
-            acc: [0.0; N_STATES * BLOCK],
-            term: [0.0; N_STATES * BLOCK],
-            next: [0.0; N_STATES * BLOCK],
-            e: [0.0; N_OUTPUTS * BLOCK],
+            x: [[0.0; BLOCK]; N_STATES],
+            acc: [[0.0; BLOCK]; N_STATES],
+            term: [[0.0; BLOCK]; N_STATES],
+            next: [[0.0; BLOCK]; N_STATES],
+            e: [[0.0; BLOCK]; N_OUTPUTS],
+            yaw: [0.0; BLOCK],
+            series: [0.0; BLOCK],
         })
     }
 
-    /// Copies particles `i0..i0 + len` of the structure-of-arrays `src` (stride `n`) into `x`.
-    fn load(&mut self, src: &[f64], n: usize, i0: usize, len: usize) {
-        for s in 0..N_STATES {
-            self.x[s * BLOCK..s * BLOCK + len].copy_from_slice(&src[s * n + i0..s * n + i0 + len]);
+    /// Copies particles `i0..i0 + yaw.len()` of the structure-of-arrays `src` (stride `n`)
+    /// and their damper entries in; zeros in the padding.
+    fn load(&mut self, src: &[f64], yaw: &[f64], series: &[f64], n: usize, i0: usize) {
+        let len = yaw.len();
+        for (s, row) in self.x.iter_mut().enumerate() {
+            row[..len].copy_from_slice(&src[s * n + i0..s * n + i0 + len]);
+            row[len..].fill(0.0);
         }
+        self.yaw[..len].copy_from_slice(yaw);
+        self.yaw[len..].fill(0.0);
+        self.series[..len].copy_from_slice(series);
+        self.series[len..].fill(0.0);
     }
 
     /// Copies `acc` back into particles `i0..i0 + len` of `dst`.
     fn store(&self, dst: &mut [f64], n: usize, i0: usize, len: usize) {
-        for s in 0..N_STATES {
-            dst[s * n + i0..s * n + i0 + len]
-                .copy_from_slice(&self.acc[s * BLOCK..s * BLOCK + len]);
+        for (s, row) in self.acc.iter().enumerate() {
+            dst[s * n + i0..s * n + i0 + len].copy_from_slice(&row[..len]);
         }
     }
 }
@@ -366,8 +396,6 @@ impl SteadyBank {
     }
 
     /// Predict, innovation, log-likelihood and update of every particle, block by block.
-    // Index loops over rows of several block arrays read as the maths and vectorise.
-    #[allow(clippy::needless_range_loop)]
     #[inline(always)]
     fn filter_all(&mut self, y: &Vector5, ll: &mut [f64]) {
         let n = self.n;
@@ -375,10 +403,15 @@ impl SteadyBank {
         let blk = &mut self.block;
         for i0 in (0..n).step_by(BLOCK) {
             let len = BLOCK.min(n - i0);
-            blk.load(&self.x, n, i0, len);
-            self.prop
-                .propagate_block(blk, &self.yaw[i0..i0 + len], &self.series[i0..i0 + len]);
-            self.prop.innovation_block(blk, y, len);
+            blk.load(
+                &self.x,
+                &self.yaw[i0..i0 + len],
+                &self.series[i0..i0 + len],
+                n,
+                i0,
+            );
+            self.prop.propagate_block(blk);
+            self.prop.innovation_block(blk, y);
             let node = |k: usize| &self.nodes[k * n + i0..k * n + i0 + len];
             // ln N(e; 0, S) with S^-1 and ln det S of each particle's parameters.
             let lls = &mut ll[i0..i0 + len];
@@ -388,8 +421,10 @@ impl SteadyBank {
             for r in 0..N_OUTPUTS {
                 for c in 0..N_OUTPUTS {
                     let s_inv = node(S_INV_OFFSET + r * N_OUTPUTS + c);
-                    for j in 0..len {
-                        lls[j] += s_inv[j] * blk.e[r * BLOCK + j] * blk.e[c * BLOCK + j];
+                    for (((l, si), er), ec) in
+                        lls.iter_mut().zip(s_inv).zip(&blk.e[r]).zip(&blk.e[c])
+                    {
+                        *l += si * er * ec;
                     }
                 }
             }
@@ -397,11 +432,11 @@ impl SteadyBank {
                 *l *= -0.5;
             }
             // x+ = x- + K e.
-            for s in 0..N_STATES {
-                for m in 0..N_OUTPUTS {
+            for (s, acc_row) in blk.acc.iter_mut().enumerate() {
+                for (m, e_row) in blk.e.iter().enumerate() {
                     let k = node(s * N_OUTPUTS + m);
-                    for j in 0..len {
-                        blk.acc[s * BLOCK + j] += k[j] * blk.e[m * BLOCK + j];
+                    for ((a, kj), ej) in acc_row.iter_mut().zip(k).zip(e_row) {
+                        *a += kj * ej;
                     }
                 }
             }
@@ -433,6 +468,7 @@ pub struct Rbpf {
     log_w: Vec<f64>,
     log_w_next: Vec<f64>,
     ll: Vec<f64>,
+    regeneration_penalty: Vec<f64>,
     indices: Vec<usize>,
     bank: Bank,
     rng: ChaCha8Rng,
@@ -569,6 +605,7 @@ impl Rbpf {
             log_w: vec![-(n as f64).ln(); n],
             log_w_next: vec![0.0; n],
             ll: vec![0.0; n],
+            regeneration_penalty: vec![0.0; n],
             indices: vec![0; n],
             bank,
             rng,
@@ -597,11 +634,20 @@ impl Rbpf {
         self.steps_since_move += 1;
         match self.config.kernel {
             KernelSchedule::EveryStep => self.kernel_move(),
-            KernelSchedule::AtResampling => self.ln_theta_next.clone_from(&self.ln_theta),
+            KernelSchedule::AtResampling => {
+                self.ln_theta_next.clone_from(&self.ln_theta);
+                self.regeneration_penalty.fill(0.0);
+            }
         }
         self.bank.step(&self.ln_theta_next, y, &mut self.ll)?;
-        for ((next, w), l) in self.log_w_next.iter_mut().zip(&self.log_w).zip(&self.ll) {
-            *next = w + l;
+        for (((next, w), l), pen) in self
+            .log_w_next
+            .iter_mut()
+            .zip(&self.log_w)
+            .zip(&self.ll)
+            .zip(&self.regeneration_penalty)
+        {
+            *next = w + l + pen;
         }
         let log_increment = normalize_log_weights(&mut self.log_w_next)?;
         // Commit.
@@ -627,6 +673,11 @@ impl Rbpf {
             if self.config.kernel == KernelSchedule::AtResampling {
                 self.kernel_move();
                 std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
+                for (w, pen) in self.log_w.iter_mut().zip(&self.regeneration_penalty) {
+                    *w += pen;
+                }
+                normalize_log_weights(&mut self.log_w)?;
+                self.ess = effective_sample_size(&self.log_w);
             }
         }
         Ok(())
@@ -635,7 +686,9 @@ impl Rbpf {
     /// Liu-West (eq. 24) on `ln theta`: `m_i = a theta_i + (1 - a) theta_bar`,
     /// `theta_i' ~ N(m_i, h^2 V)`, with `theta_bar`, `V` the weighted mean and covariance;
     /// plus the optional random walk over the time since the last move and the optional
-    /// regeneration from the prior. Writes `ln_theta_next`.
+    /// regeneration. Writes `ln_theta_next`, and in `regeneration_penalty` the log-weight
+    /// each particle's weight is to be scaled by (`ln regeneration_weight` for a regenerated
+    /// one, else 0).
     fn kernel_move(&mut self) {
         let dif =
             self.config.ln_diffusion_per_sqrt_s * (self.steps_since_move as f64 * self.dt_s).sqrt();
@@ -653,7 +706,14 @@ impl Rbpf {
             .map(|c| c.l())
             .unwrap_or_else(Matrix2::zeros);
         let (a, h) = (self.kernel_a, self.kernel_h);
-        for (dst, th) in self.ln_theta_next.iter_mut().zip(&self.ln_theta) {
+        let ln_regen_weight = self.config.regeneration_weight.ln();
+        for ((dst, th), penalty) in self
+            .ln_theta_next
+            .iter_mut()
+            .zip(&self.ln_theta)
+            .zip(self.regeneration_penalty.iter_mut())
+        {
+            *penalty = 0.0;
             let z0: f64 = self.rng.sample(StandardNormal);
             let z1: f64 = self.rng.sample(StandardNormal);
             for k in 0..2 {
@@ -666,10 +726,13 @@ impl Rbpf {
             }
             // Regeneration, one coefficient at a time (the other is usually known to a fraction
             // of a percent: redrawing both would almost never land near the truth), uniform
-            // in log over the gain grid's range.
+            // in log over the gain grid's range. A newcomer starts with a small weight: it
+            // does not move the estimate, yet takes over within tens of milliseconds when the
+            // data favour it by more than ln(1 / regeneration_weight) nats (a failed damper).
             for k in 0..2 {
                 if regen > 0.0 && self.rng.random::<f64>() < regen {
                     dst[k] = nominal[k] + lo + (hi - lo) * self.rng.random::<f64>();
+                    *penalty = ln_regen_weight;
                 }
             }
         }

@@ -187,6 +187,14 @@ impl DrivePipeline {
         self.gauges = (1..=n_drives)
             .map(|id| DriveGauges::new(&self.metrics, id))
             .collect();
+        for id in 1..=n_drives {
+            for kind in ["slip_started", "slip_ended"] {
+                let id = id.to_string();
+                self.metrics
+                    .slip_events
+                    .with_label_values(&[id.as_str(), kind]);
+            }
+        }
         Ok(())
     }
 
@@ -273,12 +281,7 @@ impl Pipeline for DrivePipeline {
             None => self.start_monitor(drives.len())?,
         }
         self.samples.clear();
-        self.samples.extend(drives.iter().map(|d| DriveSample {
-            u_alpha_v: d.u_alpha_v,
-            u_beta_v: d.u_beta_v,
-            i_alpha_a: d.i_alpha_a,
-            i_beta_a: d.i_beta_a,
-        }));
+        self.samples.extend(drives.iter().map(DriveSample::from));
         let monitor = self.monitor.as_mut().expect("started above");
         monitor.step(&self.samples).map_err(|e| Rejection {
             reason: "estimator",

@@ -16,6 +16,19 @@ use utoipa::ToSchema;
 use crate::config::IngestConfig;
 use crate::metrics::Metrics;
 
+/// Every rejection reason, so each series exists (at 0) from the start: Prometheus queries on
+/// a counter that appears only with its first increment miss that increment.
+pub const REJECTION_REASONS: [&str; 8] = [
+    "layout_version",
+    "too_many_drives",
+    "no_drives",
+    "not_finite",
+    "dt_mismatch",
+    "drive_count_changed",
+    "estimator",
+    "out_of_order",
+];
+
 /// Why a frame was not used.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Rejection {
@@ -94,6 +107,11 @@ pub struct StreamStatusView {
 impl StreamStatus {
     pub fn new(kind: StreamKind, stale_after: Duration, metrics: Arc<Metrics>) -> Self {
         let label = [kind.name()];
+        for reason in REJECTION_REASONS {
+            metrics
+                .samples_rejected
+                .with_label_values(&[kind.name(), reason]);
+        }
         Self {
             kind,
             stale_after,

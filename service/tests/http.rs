@@ -210,3 +210,26 @@ async fn probes_status_and_docs() {
     assert_eq!(status, StatusCode::OK);
     assert!(js.len() > 100_000);
 }
+
+#[tokio::test]
+async fn every_metric_the_dashboard_queries_is_exported() {
+    let state = state_after(10);
+    let (_, _, metrics) = get(&state, "/metrics").await;
+    let dashboard = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../dashboards/railmon.json"),
+    )
+    .unwrap();
+    let mut names: Vec<&str> = dashboard
+        .split(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+        .filter(|w| w.starts_with("railmon_") && w.len() > "railmon_".len())
+        .collect();
+    names.sort();
+    names.dedup();
+    assert!(names.len() > 10, "{names:?}");
+    for name in names {
+        assert!(
+            metrics.lines().any(|l| l.starts_with(name)),
+            "the dashboard queries {name}, which /metrics does not export"
+        );
+    }
+}

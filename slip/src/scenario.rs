@@ -519,5 +519,43 @@ mod tests {
             ("[noise]", "[noise]\nvoltage_std_v = nan"),
             "noise.voltage_std_v",
         );
+        rejects(("substeps = 1", "substeps = 0"), "plant.substeps");
+        rejects(
+            (
+                "reference_speed_rad_s = 200.0",
+                "reference_speed_rad_s = 200.0\nmax_current_a = 0.0",
+            ),
+            "plant.controller.max_current_a",
+        );
+        rejects(
+            (
+                "reference_speed_rad_s = 200.0",
+                "reference_speed_rad_s = inf",
+            ),
+            "plant.controller.reference_speed_rad_s",
+        );
+        rejects(
+            (
+                "smoothing_steps = 30.0",
+                "smoothing_steps = 30.0\ndrive_scale = [1.0, -1.0, 1.0]",
+            ),
+            "load.drive_scale",
+        );
+        rejects(
+            ("[monitor]\ndt_s = 125e-6", "[monitor]\ndt_s = 1e-4"),
+            "monitor.dt_s",
+        );
+        rejects(
+            ("end_step = 1500.0", "end_step = 400.0"),
+            "events[0].end_step",
+        );
+        rejects(
+            ("amplitude_nm = 10.0", "amplitude_nm = nan"),
+            "events[2].amplitude_nm",
+        );
+        rejects(
+            ("[noise]", "[plant.motor]\nl_s_h = 0.0\n\n[noise]"),
+            "plant.motor.l_s_h",
+        );
     }
 }

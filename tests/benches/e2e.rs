@@ -19,13 +19,15 @@ const DRIVES: usize = 8;
 
 /// The seed scenario with `DRIVES` drives and `steps` steps, written to a temporary file.
 fn scenario(steps: usize) -> PathBuf {
-    let seed = std::fs::read_to_string(workspace_root().join("config/scenarios/adhesion-seed.toml"))
-        .expect("seed scenario");
+    let seed =
+        std::fs::read_to_string(workspace_root().join("config/scenarios/adhesion-seed.toml"))
+            .expect("seed scenario");
     let mut table: toml::Table = seed.parse().expect("seed TOML");
     table.insert("n_drives".into(), toml::Value::Integer(DRIVES as i64));
     table.insert("n_steps".into(), toml::Value::Integer(steps as i64));
     table.insert("name".into(), toml::Value::String("bench-8-drives".into()));
-    let path = std::env::temp_dir().join(format!("railmon-bench-{}-{steps}.toml", std::process::id()));
+    let path =
+        std::env::temp_dir().join(format!("railmon-bench-{}-{steps}.toml", std::process::id()));
     std::fs::write(&path, toml::to_string(&table).unwrap()).unwrap();
     path
 }
@@ -38,7 +40,11 @@ fn histogram_quantile(metrics: &str, name: &str, q: f64) -> Option<f64> {
         .filter(|l| l.starts_with(&prefix))
         .filter_map(|l| {
             let le = l.split("le=\"").nth(1)?.split('"').next()?;
-            let le = if le == "+Inf" { f64::INFINITY } else { le.parse().ok()? };
+            let le = if le == "+Inf" {
+                f64::INFINITY
+            } else {
+                le.parse().ok()?
+            };
             let count = l.rsplit(' ').next()?.parse().ok()?;
             Some((le, count))
         })
@@ -55,7 +61,11 @@ fn histogram_quantile(metrics: &str, name: &str, q: f64) -> Option<f64> {
             if le.is_infinite() {
                 return Some(lower);
             }
-            let fraction = if count > below { (rank - below) / (count - below) } else { 1.0 };
+            let fraction = if count > below {
+                (rank - below) / (count - below)
+            } else {
+                1.0
+            };
             return Some(lower + (le - lower) * fraction);
         }
         (lower, below) = (le, count);
@@ -74,7 +84,10 @@ fn throughput(steps: usize) {
     let path = scenario(steps);
     let bus = PrivateBus::new();
     let service = Service::start(&bus, &[]);
-    let mut replay = start_replay(&bus, &["--scenario", path.to_str().unwrap(), "--speed", "max"]);
+    let mut replay = start_replay(
+        &bus,
+        &["--scenario", path.to_str().unwrap(), "--speed", "max"],
+    );
     let first = service.wait_for_status(Duration::from_secs(30), "first frame", |s| {
         s["samples_received"].as_u64() > Some(0)
     });
@@ -86,9 +99,11 @@ fn throughput(steps: usize) {
     });
     let elapsed = t_first.elapsed().as_secs_f64();
     assert!(replay.wait(Duration::from_secs(60)).success());
-    let received = last["samples_received"].as_u64().unwrap() - first["samples_received"].as_u64().unwrap();
+    let received =
+        last["samples_received"].as_u64().unwrap() - first["samples_received"].as_u64().unwrap();
     let frames_per_s = received as f64 / elapsed;
-    let drops = last["sequence_gaps"].as_u64().unwrap() + last["samples_rejected"].as_u64().unwrap()
+    let drops = last["sequence_gaps"].as_u64().unwrap()
+        + last["samples_rejected"].as_u64().unwrap()
         + (n - last["samples_received"].as_u64().unwrap());
     let (p50, p99) = latency_us(&service);
     println!(
@@ -105,7 +120,16 @@ fn real_time_and_http(seconds: f64) {
     let path = scenario(steps);
     let bus = PrivateBus::new();
     let service = Service::start(&bus, &[]);
-    let mut replay = start_replay(&bus, &["--scenario", path.to_str().unwrap(), "--speed", "1", "--loop"]);
+    let mut replay = start_replay(
+        &bus,
+        &[
+            "--scenario",
+            path.to_str().unwrap(),
+            "--speed",
+            "1",
+            "--loop",
+        ],
+    );
     service.wait_for_readyz(200, Duration::from_secs(30));
     std::thread::sleep(Duration::from_secs_f64(seconds));
     let (p50, p99) = latency_us(&service);

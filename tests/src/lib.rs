@@ -73,8 +73,10 @@ pub fn workspace_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// A bus nobody else uses: its own iceoryx2 prefix (and a shared scratch root path).
-#[derive(Clone, Debug)]
+/// A bus nobody else uses: its own iceoryx2 prefix and root path. Dropping it (after the
+/// processes, which are declared later) removes what iceoryx2 leaves behind: the per-prefix
+/// management segment in /dev/shm and the sockets of SIGKILLed processes.
+#[derive(Debug)]
 pub struct PrivateBus {
     pub prefix: String,
     pub root_path: String,
@@ -84,9 +86,10 @@ impl PrivateBus {
     pub fn new() -> Self {
         static N: AtomicUsize = AtomicUsize::new(0);
         let n = N.fetch_add(1, Ordering::Relaxed);
+        let prefix = format!("rmst{}_{n}_", std::process::id());
         Self {
-            prefix: format!("rmst{}_{n}_", std::process::id()),
-            root_path: "/tmp/railmon-test/".into(),
+            root_path: format!("/tmp/railmon-test/{prefix}/"),
+            prefix,
         }
     }
 
@@ -104,6 +107,23 @@ impl PrivateBus {
             prefix: self.prefix.clone(),
             root_path: self.root_path.clone(),
             ..BusConfig::default()
+        }
+    }
+}
+
+impl Drop for PrivateBus {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.root_path);
+        if let Ok(entries) = std::fs::read_dir("/dev/shm") {
+            for entry in entries.flatten() {
+                if entry
+                    .file_name()
+                    .to_string_lossy()
+                    .starts_with(&self.prefix)
+                {
+                    let _ = std::fs::remove_file(entry.path());
+                }
+            }
         }
     }
 }

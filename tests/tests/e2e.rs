@@ -1,11 +1,13 @@
 //! End to end: the real `railmon serve` and `sensors-replay` processes on a private bus and a
 //! free port. Each test has its own bus prefix, so they run in parallel.
 
+use std::process::Command;
 use std::time::Duration;
 
 use railmon_bus::{BusNode, DriveChannels, DriveFrame};
+use railmon_records::drive::DriveCsvReader;
 use railmon_slip::{AdhesionScenario, DriveSimulator};
-use railmon_system_tests::{start_replay, workspace_root, PrivateBus, Service};
+use railmon_system_tests::{binaries, start_replay, workspace_root, PrivateBus, Service};
 use serde_json::Value;
 
 const SEED: &str = "config/scenarios/adhesion-seed.toml";
@@ -39,7 +41,10 @@ fn max_probability(service: &Service, drive: usize, from_s: f64, to_s: f64) -> f
 fn seed_replay_reaches_the_service_complete_and_flags_drive_1() {
     let bus = PrivateBus::new();
     let mut service = Service::start(&bus, &[("RAILMON_DRIVE__HISTORY_INTERVAL_MS", "1")]);
-    let mut replay = start_replay(&bus, &["--scenario", SEED, "--speed", "10"]);
+    let record = std::env::temp_dir().join(format!("railmon-e2e-record-{}.csv", bus.prefix));
+    let record_arg = record.to_str().unwrap();
+    let args = ["--scenario", SEED, "--speed", "10", "--record", record_arg];
+    let mut replay = start_replay(&bus, &args);
     assert!(
         replay.wait(Duration::from_secs(60)).success(),
         "sensors-replay failed"
@@ -98,8 +103,62 @@ fn seed_replay_reaches_the_service_complete_and_flags_drive_1() {
     let events = service.get_json("/api/v1/events?drive=1");
     assert_eq!(events["events"][0]["kind"], "slip_started", "{events}");
 
+    // --record wrote every frame sent, with the simulator's truth.
+    let mut reader = DriveCsvReader::open(&record, Some(scenario.n_drives())).unwrap();
+    assert!(reader.has_truth());
+    let mut frames = 0u64;
+    while reader.next_frame().unwrap().is_some() {
+        frames += 1;
+    }
+    assert_eq!(frames, n_steps);
+
+    // Replaying the recording is a new source with the same data: the estimator restarts and
+    // ends on exactly the same estimate (Rust prints floats so that they parse back exactly).
+    let mut replay = start_replay(&bus, &["--csv", record_arg, "--speed", "max"]);
+    assert!(
+        replay.wait(Duration::from_secs(60)).success(),
+        "CSV replay failed"
+    );
+    let status = service.wait_for_status(Duration::from_secs(10), "the recording", |s| {
+        s["samples_received"].as_u64() == Some(2 * n_steps)
+    });
+    assert_eq!(status["sequence_gaps"], 0, "{status}");
+    assert_eq!(status["sources"], 2, "{status}");
+    let again = service.get_json("/api/v1/drives");
+    assert_eq!(again["drives"], drives["drives"]);
+    assert_eq!(again["run_time_s"], drives["run_time_s"]);
+    let _ = std::fs::remove_file(record);
+
     let exit = service.process.terminate(Duration::from_secs(10));
     assert!(exit.success(), "railmon serve exited with {exit}");
+}
+
+#[test]
+fn bad_command_lines_and_settings_fail_with_the_culprit_named() {
+    let binaries = binaries();
+    let replay = Command::new(&binaries.replay)
+        .args(["drive", "--scenario", "no/such/scenario.toml"])
+        .output()
+        .unwrap();
+    assert!(!replay.status.success());
+    let stderr = String::from_utf8_lossy(&replay.stderr);
+    assert!(stderr.contains("no/such/scenario.toml"), "{stderr}");
+
+    let replay = Command::new(&binaries.replay)
+        .args(["drive", "--scenario", SEED, "--speed", "fast"])
+        .output()
+        .unwrap();
+    assert!(!replay.status.success());
+    assert!(String::from_utf8_lossy(&replay.stderr).contains("fast"));
+
+    let service = Command::new(&binaries.railmon)
+        .arg("serve")
+        .env("RAILMON_DRIVE__SLIP_ON_RATIO", "2")
+        .output()
+        .unwrap();
+    assert!(!service.status.success());
+    let stderr = String::from_utf8_lossy(&service.stderr);
+    assert!(stderr.contains("drive.slip_on_ratio"), "{stderr}");
 }
 
 #[test]
@@ -159,15 +218,7 @@ fn bad_frames_are_rejected_counted_and_leave_the_estimate_alone() {
     let mut simulator = DriveSimulator::new(&scenario).unwrap();
     let mut next_frame = || {
         let (samples, _) = simulator.step().unwrap();
-        let drives: Vec<DriveChannels> = samples
-            .iter()
-            .map(|s| DriveChannels {
-                u_alpha_v: s.u_alpha_v,
-                u_beta_v: s.u_beta_v,
-                i_alpha_a: s.i_alpha_a,
-                i_beta_a: s.i_beta_a,
-            })
-            .collect();
+        let drives: Vec<DriveChannels> = samples.iter().map(DriveChannels::from).collect();
         DriveFrame::new(dt_ns, &drives).unwrap()
     };
     for step in 0..10 {

@@ -17,15 +17,7 @@ pub fn seed() -> AdhesionScenario {
 }
 
 pub fn frame_of(samples: &[DriveSample], dt_ns: u64) -> DriveFrame {
-    let drives: Vec<DriveChannels> = samples
-        .iter()
-        .map(|s| DriveChannels {
-            u_alpha_v: s.u_alpha_v,
-            u_beta_v: s.u_beta_v,
-            i_alpha_a: s.i_alpha_a,
-            i_beta_a: s.i_beta_a,
-        })
-        .collect();
+    let drives: Vec<DriveChannels> = samples.iter().map(DriveChannels::from).collect();
     DriveFrame::new(dt_ns, &drives).unwrap()
 }
 

@@ -7,7 +7,7 @@
 //!    follows the load), the precisions with `precision_forgetting` (long memory: the spread
 //!    of healthy drives changes slowly and three drives per step say little about it).
 //! 2. **Stop on the lower bound** (the paper's other suggestion): with a good prior VB
-//!    converges in one or two iterations, so this is cheaper than a fixed count as well.
+//!    converges in two or three iterations, fewer than the paper's fixed five.
 //! 3. **A broad "adhesion lost" component** (`vb.loss_wishart_scale`). With the paper's
 //!    equal priors a drive that departs *slowly* (the half sine, a ramp) stays in the tight
 //!    adhesion component, which widens to hold it and pulls the global torque towards it; a
