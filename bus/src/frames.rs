@@ -100,12 +100,30 @@ pub enum FrameError {
     TooManyDrives { count: usize, max: usize },
     #[error("drive count 0")]
     NoDrives,
-    #[error("drive {drive} {channel} is {value} (not finite)")]
+    /// `place` says where in the frame: `drive 2`, `vehicle`.
+    #[error("{place} {channel} is {value} (not finite)")]
     NotFinite {
-        drive: usize,
+        place: String,
         channel: &'static str,
         value: f64,
     },
+    #[error("channel bits {bits:#x} name channels this layout does not have")]
+    UnknownChannels { bits: u32 },
+}
+
+/// The first NaN or infinity among `values`, as a [`FrameError::NotFinite`] at `place`.
+fn check_finite<const N: usize>(
+    place: impl FnOnce() -> String,
+    values: [(&'static str, f64); N],
+) -> Result<(), FrameError> {
+    match values.into_iter().find(|(_, v)| !v.is_finite()) {
+        Some((channel, value)) => Err(FrameError::NotFinite {
+            place: place(),
+            channel,
+            value,
+        }),
+        None => Ok(()),
+    }
 }
 
 impl FrameError {
@@ -116,6 +134,7 @@ impl FrameError {
             FrameError::TooManyDrives { .. } => "too_many_drives",
             FrameError::NoDrives => "no_drives",
             FrameError::NotFinite { .. } => "not_finite",
+            FrameError::UnknownChannels { .. } => "unknown_channels",
         }
     }
 }
@@ -164,22 +183,99 @@ impl DriveFrame {
         }
         let drives = &self.drives[..count];
         for (drive, d) in drives.iter().enumerate() {
-            for (channel, value) in [
-                ("u_alpha_v", d.u_alpha_v),
-                ("u_beta_v", d.u_beta_v),
-                ("i_alpha_a", d.i_alpha_a),
-                ("i_beta_a", d.i_beta_a),
-            ] {
-                if !value.is_finite() {
-                    return Err(FrameError::NotFinite {
-                        drive: drive + 1,
-                        channel,
-                        value,
-                    });
-                }
-            }
+            check_finite(
+                || format!("drive {}", drive + 1),
+                [
+                    ("u_alpha_v", d.u_alpha_v),
+                    ("u_beta_v", d.u_beta_v),
+                    ("i_alpha_a", d.i_alpha_a),
+                    ("i_beta_a", d.i_beta_a),
+                ],
+            )?;
         }
         Ok(drives)
+    }
+}
+
+/// One 1 Hz sample of a road vehicle's channels (fuel monitoring). A source that lacks a channel
+/// (the Camry dynamometer files have only fuel and speed) leaves its bit in `present` clear;
+/// the value of an absent channel is ignored.
+#[derive(Clone, Copy, Debug, Default, PartialEq, ZeroCopySend)]
+#[type_name("railmon::VehicleFrame.v1")]
+#[repr(C)]
+pub struct VehicleFrame {
+    /// Bit set per channel present: [`VehicleFrame::FUEL`], [`VehicleFrame::SPEED`], ...
+    pub present: u32,
+    /// Selected gear (-1 reverse, 0 neutral, 1..), valid with [`VehicleFrame::GEAR`].
+    pub gear: i32,
+    pub fuel_cm3_s: f64,
+    pub speed_m_s: f64,
+    pub pedal_pct: f64,
+    pub engine_torque_nm: f64,
+    pub engine_speed_rpm: f64,
+}
+
+impl Frame for VehicleFrame {
+    const STREAM: StreamKind = StreamKind::Vehicle;
+}
+
+impl VehicleFrame {
+    pub const FUEL: u32 = 1 << 0;
+    pub const SPEED: u32 = 1 << 1;
+    pub const PEDAL: u32 = 1 << 2;
+    pub const ENGINE_TORQUE: u32 = 1 << 3;
+    pub const ENGINE_SPEED: u32 = 1 << 4;
+    pub const GEAR: u32 = 1 << 5;
+    const ALL: u32 = (1 << 6) - 1;
+
+    /// The frame of a sample (its `time_s` travels in the header's `sample_time_ns`).
+    pub fn from_sample(s: &railmon_fuel::VehicleSample) -> Self {
+        let bit = |bit: u32, present: bool| if present { bit } else { 0 };
+        VehicleFrame {
+            present: bit(Self::FUEL, s.fuel_cm3_s.is_some())
+                | bit(Self::SPEED, s.speed_m_s.is_some())
+                | bit(Self::PEDAL, s.pedal_pct.is_some())
+                | bit(Self::ENGINE_TORQUE, s.engine_torque_nm.is_some())
+                | bit(Self::ENGINE_SPEED, s.engine_speed_rpm.is_some())
+                | bit(Self::GEAR, s.gear.is_some()),
+            gear: s.gear.unwrap_or(0),
+            fuel_cm3_s: s.fuel_cm3_s.unwrap_or(0.0),
+            speed_m_s: s.speed_m_s.unwrap_or(0.0),
+            pedal_pct: s.pedal_pct.unwrap_or(0.0),
+            engine_torque_nm: s.engine_torque_nm.unwrap_or(0.0),
+            engine_speed_rpm: s.engine_speed_rpm.unwrap_or(0.0),
+        }
+    }
+
+    /// The sample at `time_s`, after checking that `present` names only known channels and that
+    /// every present value is finite. Range checks and which channels are required are the
+    /// estimator's business (its configuration decides).
+    pub fn checked_sample(&self, time_s: f64) -> Result<railmon_fuel::VehicleSample, FrameError> {
+        if self.present & !Self::ALL != 0 {
+            return Err(FrameError::UnknownChannels { bits: self.present });
+        }
+        let value = |bit: u32, v: f64| (self.present & bit != 0).then_some(v);
+        let sample = railmon_fuel::VehicleSample {
+            time_s,
+            fuel_cm3_s: value(Self::FUEL, self.fuel_cm3_s),
+            speed_m_s: value(Self::SPEED, self.speed_m_s),
+            pedal_pct: value(Self::PEDAL, self.pedal_pct),
+            engine_torque_nm: value(Self::ENGINE_TORQUE, self.engine_torque_nm),
+            engine_speed_rpm: value(Self::ENGINE_SPEED, self.engine_speed_rpm),
+            gear: (self.present & Self::GEAR != 0).then_some(self.gear),
+        };
+        let present = |v: Option<f64>| v.unwrap_or(0.0);
+        check_finite(
+            || "vehicle".to_string(),
+            [
+                ("fuel_cm3_s", present(sample.fuel_cm3_s)),
+                ("speed_m_s", present(sample.speed_m_s)),
+                ("pedal_pct", present(sample.pedal_pct)),
+                ("engine_torque_nm", present(sample.engine_torque_nm)),
+                ("engine_speed_rpm", present(sample.engine_speed_rpm)),
+            ],
+        )?;
+        Ok(sample)
     }
 }
 
@@ -247,11 +343,11 @@ mod tests {
         assert!(matches!(
             err,
             FrameError::NotFinite {
-                drive: 2,
                 channel: "i_beta_a",
                 ..
             }
         ));
+        assert!(err.to_string().starts_with("drive 2 i_beta_a"), "{err}");
         drives[1].i_beta_a = 0.0;
         drives[2].u_alpha_v = f64::NEG_INFINITY;
         let frame = DriveFrame::new(1, &drives).unwrap();
@@ -268,5 +364,59 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(header.check().unwrap_err().reason(), "layout_version");
+    }
+
+    fn camry_like() -> railmon_fuel::VehicleSample {
+        railmon_fuel::VehicleSample {
+            time_s: 7.0,
+            fuel_cm3_s: Some(1.25),
+            speed_m_s: Some(-0.0),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn vehicle_frame_round_trips_present_and_absent_channels() {
+        let sample = camry_like();
+        let frame = VehicleFrame::from_sample(&sample);
+        assert_eq!(frame.present, VehicleFrame::FUEL | VehicleFrame::SPEED);
+        assert_eq!(frame.checked_sample(7.0).unwrap(), sample);
+        let full = railmon_fuel::VehicleSample {
+            pedal_pct: Some(12.0),
+            engine_torque_nm: Some(-30.0),
+            engine_speed_rpm: Some(2100.0),
+            gear: Some(-1),
+            ..sample
+        };
+        assert_eq!(
+            VehicleFrame::from_sample(&full)
+                .checked_sample(7.0)
+                .unwrap(),
+            full
+        );
+    }
+
+    #[test]
+    fn vehicle_nan_is_rejected_only_in_a_present_channel() {
+        let mut frame = VehicleFrame::from_sample(&camry_like());
+        frame.pedal_pct = f64::NAN; // absent: ignored
+        frame.checked_sample(0.0).unwrap();
+        frame.speed_m_s = f64::INFINITY;
+        let err = frame.checked_sample(0.0).unwrap_err();
+        assert_eq!(err.reason(), "not_finite");
+        assert!(
+            err.to_string().contains("vehicle speed_m_s is inf"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn vehicle_unknown_channel_bits_are_rejected() {
+        let mut frame = VehicleFrame::from_sample(&camry_like());
+        frame.present |= 1 << 9;
+        assert_eq!(
+            frame.checked_sample(0.0).unwrap_err().reason(),
+            "unknown_channels"
+        );
     }
 }

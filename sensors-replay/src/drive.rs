@@ -4,15 +4,14 @@
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::PathBuf;
-use std::time::Instant;
 
 use anyhow::{bail, Context};
-use railmon_bus::{BusNode, DriveChannels, DriveFrame, FramePublisher, MAX_DRIVES};
+use railmon_bus::{DriveChannels, DriveFrame, MAX_DRIVES};
 use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveMeasurement, DriveTruthRecord};
 use railmon_slip::{AdhesionScenario, DriveSimulator};
 
-use crate::pacing::{Pacer, Speed};
-use crate::{load_bus_config, stop_requested, ReplayArgs};
+use crate::replay::{publish, Source};
+use crate::ReplayArgs;
 
 #[derive(clap::Args, Debug)]
 pub struct DriveArgs {
@@ -36,7 +35,7 @@ struct Step {
     truth: Option<Vec<DriveTruthRecord>>,
 }
 
-enum Source {
+enum DriveData {
     Scenario {
         scenario: Box<AdhesionScenario>,
         simulator: Box<DriveSimulator>,
@@ -48,7 +47,7 @@ enum Source {
     },
 }
 
-impl Source {
+impl DriveData {
     fn open(args: &DriveArgs) -> anyhow::Result<Self> {
         if let Some(path) = &args.scenario {
             let text = std::fs::read_to_string(path)
@@ -64,7 +63,7 @@ impl Source {
             }
             let simulator = DriveSimulator::new(&scenario)
                 .with_context(|| format!("cannot simulate {}", path.display()))?;
-            return Ok(Source::Scenario {
+            return Ok(DriveData::Scenario {
                 scenario: Box::new(scenario),
                 simulator: Box::new(simulator),
             });
@@ -80,7 +79,7 @@ impl Source {
             );
         }
         let reader = DriveCsvReader::open(&path, None)?;
-        Ok(Source::Csv {
+        Ok(DriveData::Csv {
             path,
             reader: Box::new(reader),
             dt_s: args.dt_s,
@@ -89,22 +88,22 @@ impl Source {
 
     fn dt_s(&self) -> f64 {
         match self {
-            Source::Scenario { scenario, .. } => scenario.dt_s(),
-            Source::Csv { dt_s, .. } => *dt_s,
+            DriveData::Scenario { scenario, .. } => scenario.dt_s(),
+            DriveData::Csv { dt_s, .. } => *dt_s,
         }
     }
 
     fn has_truth(&self) -> bool {
         match self {
-            Source::Scenario { .. } => true,
-            Source::Csv { reader, .. } => reader.has_truth(),
+            DriveData::Scenario { .. } => true,
+            DriveData::Csv { reader, .. } => reader.has_truth(),
         }
     }
 
     /// Fills `step` with the next step; false at the end.
     fn next(&mut self, step: &mut Step) -> anyhow::Result<bool> {
         match self {
-            Source::Scenario { simulator, .. } => {
+            DriveData::Scenario { simulator, .. } => {
                 let Some((samples, truth)) = simulator.step() else {
                     return Ok(false);
                 };
@@ -128,7 +127,7 @@ impl Source {
                 );
                 Ok(true)
             }
-            Source::Csv { reader, .. } => match reader.next_frame()? {
+            DriveData::Csv { reader, .. } => match reader.next_frame()? {
                 Some(frame) => {
                     if frame.drives.len() > MAX_DRIVES {
                         bail!(
@@ -149,101 +148,88 @@ impl Source {
     /// Back to the first step (for `--loop`).
     fn rewind(&mut self) -> anyhow::Result<()> {
         match self {
-            Source::Scenario {
+            DriveData::Scenario {
                 scenario,
                 simulator,
             } => **simulator = DriveSimulator::new(scenario)?,
-            Source::Csv { path, reader, .. } => **reader = DriveCsvReader::open(path, None)?,
+            DriveData::Csv { path, reader, .. } => **reader = DriveCsvReader::open(path, None)?,
         }
         Ok(())
     }
 }
 
-fn channels(step: &Step, out: &mut Vec<DriveChannels>) {
-    out.clear();
-    out.extend(step.drives.iter().map(|d| DriveChannels {
-        u_alpha_v: d.u_alpha_v,
-        u_beta_v: d.u_beta_v,
-        i_alpha_a: d.i_alpha_a,
-        i_beta_a: d.i_beta_a,
-    }));
+/// The drive stream's [`Source`]: steps of a simulator or a recording, with its recorder.
+struct DriveSource {
+    source: DriveData,
+    dt_ns: u64,
+    step: Step,
+    run_step: u64,
+    drives: Vec<DriveChannels>,
+    recorder: Option<DriveCsvWriter<BufWriter<File>>>,
 }
 
-fn wait_for_subscriber(
-    publisher: &FramePublisher<DriveFrame>,
-    args: &ReplayArgs,
-) -> anyhow::Result<()> {
-    eprintln!(
-        "sensors-replay: waiting for a subscriber on `{}`",
-        publisher.service_name()
-    );
-    publisher.wait_for_subscriber(args.wait_timeout(), &stop_requested)?;
-    eprintln!("sensors-replay: subscriber connected");
-    Ok(())
+impl Source for DriveSource {
+    type Frame = DriveFrame;
+
+    fn period_s(&self) -> f64 {
+        self.source.dt_s()
+    }
+
+    fn next(&mut self) -> anyhow::Result<Option<(DriveFrame, u64)>> {
+        if !self.source.next(&mut self.step)? {
+            return Ok(None);
+        }
+        self.drives.clear();
+        self.drives
+            .extend(self.step.drives.iter().map(|d| DriveChannels {
+                u_alpha_v: d.u_alpha_v,
+                u_beta_v: d.u_beta_v,
+                i_alpha_a: d.i_alpha_a,
+                i_beta_a: d.i_beta_a,
+            }));
+        let frame = DriveFrame::new(self.dt_ns, &self.drives)?;
+        let sample_time_ns = self.run_step * self.dt_ns;
+        self.run_step += 1;
+        Ok(Some((frame, sample_time_ns)))
+    }
+
+    fn rewind(&mut self) -> anyhow::Result<()> {
+        self.run_step = 0;
+        self.source.rewind()
+    }
+
+    fn record(&mut self, sent: u64) -> anyhow::Result<()> {
+        if let Some(recorder) = self.recorder.as_mut() {
+            recorder.write_frame(sent, &self.step.drives, self.step.truth.as_deref())?;
+        }
+        Ok(())
+    }
+
+    fn finish_recording(&mut self) -> anyhow::Result<()> {
+        if let Some(recorder) = self.recorder.take() {
+            recorder.finish()?;
+        }
+        Ok(())
+    }
+
+    fn describe(&self) -> String {
+        format!("{} drives", self.drives.len())
+    }
 }
 
 pub fn run(args: DriveArgs) -> anyhow::Result<()> {
-    let bus = load_bus_config(args.replay.config.as_deref())?;
-    let mut source = Source::open(&args)?;
-    let dt_ns = (source.dt_s() * 1e9).round() as u64;
-    let mut recorder: Option<DriveCsvWriter<BufWriter<File>>> = match &args.replay.record {
+    let source = DriveData::open(&args)?;
+    let recorder = match &args.replay.record {
         Some(path) => Some(DriveCsvWriter::create(path, source.has_truth())?),
         None => None,
     };
-    let node = BusNode::create(&bus, "sensors-replay-drive")?;
-    let mut publisher = node.publisher::<DriveFrame>()?;
-    let replay = &args.replay;
-    wait_for_subscriber(&publisher, replay)?;
-    let mut pacer = Pacer::new(replay.speed, source.dt_s());
-    let notify_every = if pacer.is_paced() {
-        1
-    } else {
-        replay.notify_every.max(1)
+    let mut drive = DriveSource {
+        dt_ns: (source.dt_s() * 1e9).round() as u64,
+        source,
+        step: Step::default(),
+        run_step: 0,
+        drives: Vec::new(),
+        recorder,
     };
-    let (mut step, mut drives) = (Step::default(), Vec::new());
-    let (mut run_step, mut sent, mut undelivered, mut runs) = (0u64, 0u64, 0u64, 1u64);
-    let start = Instant::now();
-    while !stop_requested() && replay.max_frames.is_none_or(|max| sent < max) {
-        if !source.next(&mut step)? {
-            if !replay.repeat {
-                break;
-            }
-            source.rewind()?;
-            publisher.start_new_run();
-            (run_step, runs) = (0, runs + 1);
-            continue;
-        }
-        channels(&step, &mut drives);
-        let frame = DriveFrame::new(dt_ns, &drives)?;
-        pacer.wait_next();
-        let recipients = publisher.send(&frame, run_step * dt_ns)?;
-        if recipients == 0 || sent.is_multiple_of(notify_every) {
-            publisher.notify()?;
-        }
-        if recipients == 0 {
-            undelivered += 1;
-            eprintln!("sensors-replay: frame {sent} reached no subscriber");
-            wait_for_subscriber(&publisher, replay)?;
-            pacer.reset();
-        }
-        if let Some(recorder) = recorder.as_mut() {
-            recorder.write_frame(sent, &step.drives, step.truth.as_deref())?;
-        }
-        (run_step, sent) = (run_step + 1, sent + 1);
-    }
-    publisher.notify()?;
-    if let Some(recorder) = recorder {
-        recorder.finish()?;
-    }
-    let elapsed_s = start.elapsed().as_secs_f64();
-    let speed = match replay.speed {
-        Speed::Max => "max".to_string(),
-        Speed::Times(x) => format!("{x}x"),
-    };
-    eprintln!(
-        "sensors-replay: sent {sent} frames ({} drives, {runs} run(s)) in {elapsed_s:.3} s = {:.0} frames/s at speed {speed}; undelivered {undelivered}",
-        drives.len(),
-        sent as f64 / elapsed_s.max(1e-9),
-    );
-    Ok(())
+    publish(&mut drive, &args.replay)
 }

@@ -6,6 +6,8 @@
 
 mod drive;
 mod pacing;
+mod replay;
+mod vehicle;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -26,11 +28,13 @@ struct Cli {
     stream: StreamCommand,
 }
 
-/// One subcommand per stream (bogie and vehicle join with their issues).
+/// One subcommand per stream (bogie joins with its issue).
 #[derive(Subcommand)]
 enum StreamCommand {
     /// Traction drives: voltages and currents of all drives per control step.
     Drive(drive::DriveArgs),
+    /// Road vehicle at 1 Hz: fuel flow, speed, pedal, engine torque and speed, gear.
+    Vehicle(vehicle::VehicleArgs),
 }
 
 /// Options every stream shares.
@@ -42,7 +46,8 @@ pub struct ReplayArgs {
     /// Start again from the beginning at the end (the service restarts its estimator).
     #[arg(long = "loop")]
     pub repeat: bool,
-    /// Also write every frame sent to this CSV file (the stream's recording format).
+    /// Also write every frame sent to this CSV file (the stream's recording format; vehicle:
+    /// the first run, written at the end).
     #[arg(long)]
     pub record: Option<PathBuf>,
     /// Config file whose `[bus]` section names prefix, root path and services (default: the
@@ -109,5 +114,6 @@ fn main() -> anyhow::Result<()> {
     install_stop_handlers();
     match Cli::parse().stream {
         StreamCommand::Drive(args) => drive::run(args),
+        StreamCommand::Vehicle(args) => vehicle::run(args),
     }
 }

@@ -26,45 +26,46 @@ impl FromStr for Speed {
     }
 }
 
-/// Absolute deadlines, so sleep overshoot never accumulates: a late frame goes at once.
+/// Absolute deadlines from the samples' own time stamps, so sleep overshoot never accumulates
+/// (a late frame goes at once) and irregular recordings keep their rhythm.
 pub struct Pacer {
+    speed: Option<f64>,
+    /// Wall-clock instant of stream time `origin`.
     start: Instant,
-    period: Option<Duration>,
-    frames: u64,
+    origin: Duration,
 }
 
 impl Pacer {
-    pub fn new(speed: Speed, dt_s: f64) -> Self {
+    pub fn new(speed: Speed) -> Self {
         Self {
-            start: Instant::now(),
-            period: match speed {
-                Speed::Times(x) => Some(Duration::from_secs_f64(dt_s / x)),
+            speed: match speed {
+                Speed::Times(x) => Some(x),
                 Speed::Max => None,
             },
-            frames: 0,
+            start: Instant::now(),
+            origin: Duration::ZERO,
         }
     }
 
     pub fn is_paced(&self) -> bool {
-        self.period.is_some()
+        self.speed.is_some()
     }
 
-    /// Sleeps until the next frame is due.
-    pub fn wait_next(&mut self) {
-        if let Some(period) = self.period {
-            let due = self.start + period.mul_f64(self.frames as f64);
+    /// Sleeps until the sample at stream time `time` is due (`start + (time - origin) / speed`).
+    pub fn wait_until(&self, time: Duration) {
+        if let Some(speed) = self.speed {
+            let due = self.start + time.saturating_sub(self.origin).div_f64(speed);
             let now = Instant::now();
             if due > now {
                 std::thread::sleep(due - now);
             }
         }
-        self.frames += 1;
     }
 
-    /// Restarts the schedule (after waiting for a subscriber).
-    pub fn reset(&mut self) {
+    /// Restarts the schedule with stream time `time` due now (after waiting for a subscriber).
+    pub fn reset(&mut self, time: Duration) {
         self.start = Instant::now();
-        self.frames = 0;
+        self.origin = time;
     }
 }
 
@@ -84,13 +85,29 @@ mod tests {
 
     #[test]
     fn paced_frames_follow_the_schedule() {
-        let mut pacer = Pacer::new(Speed::Times(2.0), 0.01); // one frame per 5 ms
+        let pacer = Pacer::new(Speed::Times(2.0)); // samples 10 ms apart: one per 5 ms
         let start = Instant::now();
-        for _ in 0..11 {
-            pacer.wait_next();
+        for k in 0..11 {
+            pacer.wait_until(Duration::from_millis(10 * k));
         }
         let elapsed = start.elapsed();
         assert!(elapsed >= Duration::from_millis(50), "{elapsed:?}");
         assert!(elapsed < Duration::from_millis(500), "{elapsed:?}");
+    }
+
+    #[test]
+    fn reset_makes_the_given_time_due_now_and_max_never_waits() {
+        let mut pacer = Pacer::new(Speed::Times(1.0));
+        pacer.reset(Duration::from_secs(100));
+        let start = Instant::now();
+        pacer.wait_until(Duration::from_secs(100));
+        pacer.wait_until(Duration::from_millis(100_020));
+        let elapsed = start.elapsed();
+        assert!(elapsed >= Duration::from_millis(20), "{elapsed:?}");
+        assert!(elapsed < Duration::from_millis(500), "{elapsed:?}");
+        let max = Pacer::new(Speed::Max);
+        let start = Instant::now();
+        max.wait_until(Duration::from_secs(3600));
+        assert!(start.elapsed() < Duration::from_millis(100));
     }
 }

@@ -6,6 +6,7 @@ use std::net::SocketAddr;
 use std::path::Path;
 
 use railmon_bus::{settings, BusConfig, BusError, MAX_DRIVES};
+use railmon_fuel::FuelMonitorConfig;
 use railmon_slip::SlipMonitorConfig;
 use serde::{Deserialize, Serialize};
 
@@ -32,7 +33,7 @@ pub struct ServiceConfig {
     pub ingest: IngestConfig,
     pub drive: DriveConfig,
     pub bogie: PendingStreamConfig,
-    pub vehicle: PendingStreamConfig,
+    pub vehicle: VehicleConfig,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -141,7 +142,39 @@ fn merge_tables(base: &mut toml::Table, overlay: toml::Table) {
     }
 }
 
-/// Streams whose estimators join in later issues (bogie: damper health, vehicle: fuel).
+/// `[vehicle]`: the road-vehicle stream (fuel flow, speed, ... at 1 Hz) -> `railmon_fuel::FuelMonitor`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VehicleConfig {
+    /// Off by default: only vehicles with a fuel meter publish this stream, and `/readyz`
+    /// requires every enabled stream to be fresh.
+    pub enabled: bool,
+    /// The stream is stale (and `/readyz` fails) when no frame came for this long.
+    pub stale_after_ms: u64,
+    /// One history point per this much stream time.
+    pub history_interval_ms: u64,
+    /// History points kept (the oldest are dropped).
+    pub history_capacity: usize,
+    /// Regime-change events kept.
+    pub events_capacity: usize,
+    /// The estimator (`railmon_fuel::FuelMonitorConfig`); keys given override single defaults.
+    pub estimator: FuelMonitorConfig,
+}
+
+impl Default for VehicleConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            stale_after_ms: 3000,
+            history_interval_ms: 1000,
+            history_capacity: 86_400,
+            events_capacity: 1000,
+            estimator: FuelMonitorConfig::default(),
+        }
+    }
+}
+
+/// Streams whose estimators join in later issues (bogie: damper health).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PendingStreamConfig {
@@ -204,13 +237,12 @@ impl ServiceConfig {
             ));
         }
         self.drive.validate()?;
-        for (name, stream) in [("bogie", &self.bogie), ("vehicle", &self.vehicle)] {
-            if stream.enabled {
-                return Err(invalid(
-                    &format!("{name}.enabled"),
-                    format!("the {name} stream has no estimator in this version; set false"),
-                ));
-            }
+        self.vehicle.validate()?;
+        if self.bogie.enabled {
+            return Err(invalid(
+                "bogie.enabled",
+                "the bogie stream has no estimator in this version; set false".into(),
+            ));
         }
         Ok(())
     }
@@ -225,14 +257,63 @@ impl ServiceConfig {
     }
 }
 
-impl DriveConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        if !(1..=3_600_000).contains(&self.stale_after_ms) {
+/// The keys every stream section has: staleness, history and event ring sizes.
+fn validate_stream_keys(
+    section: &str,
+    stale_after_ms: u64,
+    history_interval_ms: u64,
+    history_capacity: usize,
+    events_capacity: usize,
+) -> Result<(), ConfigError> {
+    for (key, value) in [
+        ("stale_after_ms", stale_after_ms),
+        ("history_interval_ms", history_interval_ms),
+    ] {
+        if !(1..=3_600_000).contains(&value) {
             return Err(invalid(
-                "drive.stale_after_ms",
-                format!("{} is not in 1..=3600000", self.stale_after_ms),
+                &format!("{section}.{key}"),
+                format!("{value} is not in 1..=3600000"),
             ));
         }
+    }
+    for (key, value) in [
+        ("history_capacity", history_capacity),
+        ("events_capacity", events_capacity),
+    ] {
+        if !(1..=1_000_000).contains(&value) {
+            return Err(invalid(
+                &format!("{section}.{key}"),
+                format!("{value} is not in 1..=1000000"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+impl VehicleConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        validate_stream_keys(
+            "vehicle",
+            self.stale_after_ms,
+            self.history_interval_ms,
+            self.history_capacity,
+            self.events_capacity,
+        )?;
+        self.estimator
+            .validate()
+            .map_err(|e| invalid("vehicle.estimator", e.to_string()))
+    }
+}
+
+impl DriveConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        validate_stream_keys(
+            "drive",
+            self.stale_after_ms,
+            self.history_interval_ms,
+            self.history_capacity,
+            self.events_capacity,
+        )?;
         if !(1..=MAX_DRIVES).contains(&self.max_drives) {
             return Err(invalid(
                 "drive.max_drives",
@@ -253,20 +334,6 @@ impl DriveConfig {
                     self.slip_off_ratio, self.slip_on_ratio
                 ),
             ));
-        }
-        if !(1..=3_600_000).contains(&self.history_interval_ms) {
-            return Err(invalid(
-                "drive.history_interval_ms",
-                format!("{} is not in 1..=3600000", self.history_interval_ms),
-            ));
-        }
-        for (key, value) in [
-            ("drive.history_capacity", self.history_capacity),
-            ("drive.events_capacity", self.events_capacity),
-        ] {
-            if !(1..=1_000_000).contains(&value) {
-                return Err(invalid(key, format!("{value} is not in 1..=1000000")));
-            }
         }
         self.estimator
             .validate()
@@ -414,6 +481,54 @@ mod tests {
     #[test]
     fn enabling_a_stream_without_estimator_is_rejected() {
         assert!(error_of(&[("RAILMON_BOGIE__ENABLED", "true")]).contains("bogie.enabled"));
+    }
+
+    #[test]
+    fn vehicle_estimator_keys_override_single_defaults() {
+        let config = load_with(&[
+            ("RAILMON_VEHICLE__ENABLED", "true"),
+            ("RAILMON_VEHICLE__ESTIMATOR__COMPONENTS", "4"),
+        ])
+        .unwrap();
+        assert!(config.vehicle.enabled);
+        let expected = FuelMonitorConfig {
+            components: 4,
+            ..FuelMonitorConfig::default()
+        };
+        assert_eq!(config.vehicle.estimator, expected);
+    }
+
+    #[test]
+    fn zero_vehicle_staleness_is_rejected() {
+        assert!(error_of(&[("RAILMON_VEHICLE__STALE_AFTER_MS", "0")])
+            .contains("vehicle.stale_after_ms"));
+    }
+
+    #[test]
+    fn zero_vehicle_history_interval_is_rejected() {
+        assert!(error_of(&[("RAILMON_VEHICLE__HISTORY_INTERVAL_MS", "0")])
+            .contains("vehicle.history_interval_ms"));
+    }
+
+    #[test]
+    fn zero_vehicle_history_capacity_is_rejected() {
+        assert!(error_of(&[("RAILMON_VEHICLE__HISTORY_CAPACITY", "0")])
+            .contains("vehicle.history_capacity"));
+    }
+
+    #[test]
+    fn zero_vehicle_events_capacity_is_rejected() {
+        assert!(error_of(&[("RAILMON_VEHICLE__EVENTS_CAPACITY", "0")])
+            .contains("vehicle.events_capacity"));
+    }
+
+    #[test]
+    fn bad_vehicle_estimator_value_is_rejected() {
+        let err = error_of(&[("RAILMON_VEHICLE__ESTIMATOR__FORGETTING", "1.5")]);
+        assert!(
+            err.contains("vehicle.estimator") && err.contains("forgetting"),
+            "{err}"
+        );
     }
 
     #[test]

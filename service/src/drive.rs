@@ -3,7 +3,6 @@
 
 use std::sync::Arc;
 
-use arc_swap::ArcSwap;
 use prometheus::{Gauge, IntGauge};
 use railmon_bus::{DriveFrame, FrameHeader};
 use railmon_slip::{DriveSample, SlipMonitor};
@@ -12,7 +11,7 @@ use utoipa::ToSchema;
 
 use crate::config::DriveConfig;
 use crate::metrics::Metrics;
-use crate::ring::Ring;
+use crate::outbox::{Outbox, Stamp, Track};
 use crate::stream::{Pipeline, Rejection};
 
 /// One drive's latest estimate.
@@ -71,19 +70,12 @@ pub struct SlipEventView {
 }
 
 /// What the ingest thread shares with the HTTP side.
-pub struct DriveShared {
-    pub snapshot: ArcSwap<DrivesView>,
-    pub history: Ring<HistoryPoint>,
-    pub events: Ring<SlipEventView>,
-}
+pub type DriveShared = Outbox<DrivesView, HistoryPoint, SlipEventView>;
 
-impl DriveShared {
-    pub fn new(config: &DriveConfig) -> Self {
-        Self {
-            snapshot: ArcSwap::from_pointee(DrivesView::default()),
-            history: Ring::new(config.history_capacity),
-            events: Ring::new(config.events_capacity),
-        }
+impl DriveConfig {
+    /// The outbox of the drive stream, sized by this config.
+    pub fn outbox(&self) -> DriveShared {
+        Outbox::new(self.history_capacity, self.events_capacity)
     }
 }
 
@@ -107,14 +99,6 @@ impl DriveGauges {
     }
 }
 
-/// Stream time bookkeeping: each new source continues where the previous one stopped.
-#[derive(Clone, Copy, Debug, Default)]
-struct StreamClock {
-    run_offset_s: f64,
-    last_time_s: Option<f64>,
-    dt_s: f64,
-}
-
 pub struct DrivePipeline {
     config: DriveConfig,
     shared: Arc<DriveShared>,
@@ -123,18 +107,12 @@ pub struct DrivePipeline {
     samples: Vec<DriveSample>,
     slipping: Vec<bool>,
     gauges: Vec<DriveGauges>,
-    clock: StreamClock,
-    last: Option<(FrameHeader, f64)>,
-    next_history_s: f64,
-    pending_history: Vec<HistoryPoint>,
-    pending_events: Vec<SlipEventView>,
-    next_event_id: u64,
-    dirty: bool,
+    track: Track<HistoryPoint, SlipEventView>,
 }
 
 impl DrivePipeline {
     pub fn new(config: DriveConfig, shared: Arc<DriveShared>, metrics: Arc<Metrics>) -> Self {
-        let dt_s = config.estimator.dt_s;
+        let track = Track::new(config.estimator.dt_s, config.history_interval_ms);
         Self {
             config,
             shared,
@@ -143,16 +121,7 @@ impl DrivePipeline {
             samples: Vec::new(),
             slipping: Vec::new(),
             gauges: Vec::new(),
-            clock: StreamClock {
-                dt_s,
-                ..Default::default()
-            },
-            last: None,
-            next_history_s: 0.0,
-            pending_history: Vec::new(),
-            pending_events: Vec::new(),
-            next_event_id: 1,
-            dirty: false,
+            track,
         }
     }
 
@@ -199,7 +168,7 @@ impl DrivePipeline {
     }
 
     /// Hysteresis on the slip probability; crossings become events.
-    fn update_slipping(&mut self, header: &FrameHeader, time_s: f64, run_time_s: f64) {
+    fn update_slipping(&mut self, stamp: &Stamp) {
         let Some(monitor) = &self.monitor else { return };
         for (k, drive) in monitor.last().drives.iter().enumerate() {
             let p = drive.slip_probability;
@@ -214,23 +183,34 @@ impl DrivePipeline {
                 .slip_events
                 .with_label_values(&[id.as_str(), kind])
                 .inc();
-            tracing::info!(drive = k + 1, time_s, slip_probability = p, "{kind}");
-            self.pending_events.push(SlipEventView {
-                id: self.next_event_id,
+            tracing::info!(
+                drive = k + 1,
+                time_s = stamp.time_s,
+                slip_probability = p,
+                "{kind}"
+            );
+            self.track.push_event(|id| SlipEventView {
+                id,
                 kind: kind.into(),
                 drive: k + 1,
-                time_s,
-                run: header.run,
-                run_time_s,
+                time_s: stamp.time_s,
+                run: stamp.header.run,
+                run_time_s: stamp.run_time_s,
                 slip_probability: p,
             });
-            self.next_event_id += 1;
         }
     }
 }
 
 impl Pipeline for DrivePipeline {
     type Frame = DriveFrame;
+    const REJECTION_REASONS: &'static [&'static str] = &[
+        "too_many_drives",
+        "no_drives",
+        "not_finite",
+        "dt_mismatch",
+        "drive_count_changed",
+    ];
 
     fn check(&self, _header: &FrameHeader, frame: &DriveFrame) -> Result<(), Rejection> {
         frame
@@ -255,8 +235,7 @@ impl Pipeline for DrivePipeline {
 
     fn restart(&mut self) {
         self.monitor = None;
-        self.clock.run_offset_s = self.clock.last_time_s.map_or(0.0, |t| t + self.clock.dt_s);
-        self.next_history_s = self.clock.run_offset_s;
+        self.track.restart();
     }
 
     fn step(&mut self, header: &FrameHeader, frame: &DriveFrame) -> Result<(), Rejection> {
@@ -287,43 +266,32 @@ impl Pipeline for DrivePipeline {
             reason: "estimator",
             message: e.to_string(),
         })?;
-        let run_time_s = header.sample_time_ns as f64 * 1e-9;
-        let time_s = self.clock.run_offset_s + run_time_s;
-        self.clock.last_time_s = Some(time_s);
-        self.update_slipping(header, time_s, run_time_s);
-        if time_s >= self.next_history_s {
-            let interval_s = self.config.history_interval_ms as f64 * 1e-3;
-            self.next_history_s = ((time_s / interval_s).floor() + 1.0) * interval_s;
-            self.pending_history.push(HistoryPoint {
-                time_s,
+        let stamp = self.track.stamp(header);
+        self.update_slipping(&stamp);
+        if self.track.history_due(stamp.time_s) {
+            let drives = self.drive_views();
+            self.track.push_history(HistoryPoint {
+                time_s: stamp.time_s,
                 run: header.run,
-                run_time_s,
-                drives: self.drive_views(),
+                run_time_s: stamp.run_time_s,
+                drives,
             });
         }
-        self.last = Some((*header, time_s));
-        self.dirty = true;
         Ok(())
     }
 
     fn publish(&mut self) {
-        self.shared.history.try_append(&mut self.pending_history);
-        self.shared.events.try_append(&mut self.pending_events);
-        if !self.dirty {
-            return;
-        }
-        self.dirty = false;
-        let (Some(monitor), Some((header, time_s))) = (&self.monitor, self.last) else {
+        let (Some(stamp), Some(monitor)) = (self.track.flush(&self.shared), &self.monitor) else {
             return;
         };
         let estimate = monitor.last();
         let view = DrivesView {
             method: Some(estimate.method.to_string()),
             global_torque_nm: Some(estimate.global_torque_nm),
-            time_s: Some(time_s),
-            run: header.run,
-            run_time_s: Some(header.sample_time_ns as f64 * 1e-9),
-            sequence: Some(header.sequence),
+            time_s: Some(stamp.time_s),
+            run: stamp.header.run,
+            run_time_s: Some(stamp.run_time_s),
+            sequence: Some(stamp.header.sequence),
             drives: self.drive_views(),
         };
         // Gauges and the JSON snapshot come from the same estimate: /metrics and the API agree.

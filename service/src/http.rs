@@ -14,7 +14,9 @@ use utoipa::{OpenApi, ToSchema};
 
 use crate::drive::{DriveView, DrivesView, SlipEventView};
 use crate::stream::{RejectionRecord, StreamStatusView};
+use crate::vehicle::{RegimeEventView, VehicleHistoryPoint, VehicleView};
 use crate::AppState;
+use railmon_bus::StreamKind;
 
 /// Every error body: `{"error": {"status": 404, "code": "unknown_drive", "message": "..."}}`.
 #[derive(Debug, Serialize, ToSchema)]
@@ -25,7 +27,8 @@ pub struct ErrorBody {
 #[derive(Debug, Serialize, ToSchema)]
 pub struct ErrorDetail {
     pub status: u16,
-    /// Stable machine-readable code: `unknown_drive`, `bad_query`, `bad_path`, `not_found`, `internal`.
+    /// Stable machine-readable code: `unknown_drive`, `stream_disabled`, `bad_query`, `bad_path`,
+    /// `not_found`, `internal`.
     pub code: String,
     pub message: String,
 }
@@ -34,6 +37,8 @@ pub struct ErrorDetail {
 pub enum AppError {
     #[error("drive {id} is not known ({known} drives)")]
     UnknownDrive { id: String, known: usize },
+    #[error("the {0} stream is not enabled ({0}.enabled = false)")]
+    StreamDisabled(StreamKind),
     #[error("{0}")]
     BadQuery(String),
     #[error("{0}")]
@@ -48,6 +53,7 @@ impl IntoResponse for AppError {
     fn into_response(self) -> Response {
         let (status, code) = match &self {
             AppError::UnknownDrive { .. } => (StatusCode::NOT_FOUND, "unknown_drive"),
+            AppError::StreamDisabled(_) => (StatusCode::NOT_FOUND, "stream_disabled"),
             AppError::BadQuery(_) => (StatusCode::BAD_REQUEST, "bad_query"),
             AppError::BadPath(_) => (StatusCode::BAD_REQUEST, "bad_path"),
             AppError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
@@ -72,9 +78,21 @@ impl IntoResponse for AppError {
 #[openapi(
     info(
         title = "railmon",
-        description = "Onboard condition monitoring: wheel slip of traction drives (damper and fuel streams join later)."
+        description = "Onboard condition monitoring: wheel slip of traction drives, fuel use and driving regime of road vehicles (the damper stream joins later)."
     ),
-    paths(drives, drive, drive_history, events, status, healthz, readyz, metrics),
+    paths(
+        drives,
+        drive,
+        drive_history,
+        events,
+        vehicle,
+        vehicle_history,
+        vehicle_events,
+        status,
+        healthz,
+        readyz,
+        metrics
+    ),
     components(schemas(
         DrivesView,
         DriveView,
@@ -83,6 +101,11 @@ impl IntoResponse for AppError {
         DriveHistoryPoint,
         SlipEventView,
         EventsView,
+        VehicleView,
+        VehicleHistory,
+        VehicleHistoryPoint,
+        RegimeEventView,
+        VehicleEventsView,
         StatusView,
         StreamStatusView,
         RejectionRecord,
@@ -102,6 +125,9 @@ pub fn app(state: AppState) -> Router {
         .route("/api/v1/drives/{id}", get(drive))
         .route("/api/v1/drives/{id}/history", get(drive_history))
         .route("/api/v1/events", get(events))
+        .route("/api/v1/vehicle", get(vehicle))
+        .route("/api/v1/vehicle/history", get(vehicle_history))
+        .route("/api/v1/vehicle/events", get(vehicle_events))
         .route("/api/v1/status", get(status))
         .route("/healthz", get(healthz))
         .route("/readyz", get(readyz))
@@ -214,6 +240,18 @@ fn parse_param<T: std::str::FromStr>(
         .ok_or_else(|| AppError::BadQuery(format!("`{name}={raw}`: expected {expected}")))
 }
 
+/// `?seconds=N` of a history endpoint (the only parameter it takes).
+fn history_seconds(query: &HashMap<String, String>, default: f64) -> Result<f64, AppError> {
+    only_params(query, &["seconds"])?;
+    parse_param(
+        query,
+        "seconds",
+        default,
+        |s: &f64| s.is_finite() && *s > 0.0 && *s <= MAX_HISTORY_SECONDS,
+        "a number of seconds in (0, 86400]",
+    )
+}
+
 #[utoipa::path(get, path = "/api/v1/drives/{id}/history",
     params(("id" = usize, Path, description = "Drive number, 1-based"),
            ("seconds" = Option<f64>, Query, description = "Window of stream time, s (default 10, at most 86400)")),
@@ -223,20 +261,12 @@ async fn drive_history(
     Path(id): Path<String>,
     Query(query): Query<HashMap<String, String>>,
 ) -> Result<Json<DriveHistory>, AppError> {
-    only_params(&query, &["seconds"])?;
-    let seconds = parse_param(
-        &query,
-        "seconds",
-        10.0,
-        |s: &f64| s.is_finite() && *s > 0.0 && *s <= MAX_HISTORY_SECONDS,
-        "a number of seconds in (0, 86400]",
-    )?;
+    let seconds = history_seconds(&query, 10.0)?;
     let k = drive_index(&id, state.drive.snapshot.load().drives.len())?;
-    let newest = state.drive.history.last().map_or(0.0, |p| p.time_s);
     let points = state
         .drive
         .history
-        .collect(|p| p.time_s >= newest - seconds && k < p.drives.len())
+        .recent(seconds, |p| p.time_s, |p| k < p.drives.len())
         .into_iter()
         .map(|p| {
             let d = &p.drives[k];
@@ -274,13 +304,82 @@ async fn events(
     Query(query): Query<HashMap<String, String>>,
 ) -> Result<Json<EventsView>, AppError> {
     only_params(&query, &["after_id", "drive"])?;
-    let after_id = parse_param(&query, "after_id", 0u64, |_| true, "an event id")?;
+    let after_id = after_id(&query)?;
     let drive = parse_param(&query, "drive", 0usize, |d| *d > 0, "a drive number >= 1")?;
     let events = state
         .drive
         .events
         .collect(|e| e.id > after_id && (drive == 0 || e.drive == drive));
     Ok(Json(EventsView { events }))
+}
+
+fn after_id(query: &HashMap<String, String>) -> Result<u64, AppError> {
+    parse_param(query, "after_id", 0u64, |_| true, "an event id")
+}
+
+/// The vehicle stream's outbox, or `stream_disabled`.
+fn vehicle_outbox(state: &AppState) -> Result<&crate::vehicle::VehicleShared, AppError> {
+    match state.config.vehicle.enabled {
+        true => Ok(&state.vehicle),
+        false => Err(AppError::StreamDisabled(StreamKind::Vehicle)),
+    }
+}
+
+/// Fuel rate now, virtual sensor, forecast over the horizon, regime and its probabilities,
+/// cumulative fuel (cm^3/s and cm^3).
+#[utoipa::path(get, path = "/api/v1/vehicle",
+    responses((status = 200, body = VehicleView), (status = 404, body = ErrorBody)))]
+async fn vehicle(State(state): State<AppState>) -> Result<Json<VehicleView>, AppError> {
+    Ok(Json(VehicleView::clone(
+        &vehicle_outbox(&state)?.snapshot.load(),
+    )))
+}
+
+/// `GET /api/v1/vehicle/history?seconds=N`.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct VehicleHistory {
+    /// The window, s of stream time before the newest point.
+    pub seconds: f64,
+    /// Stream time between points, s (`vehicle.history_interval_ms`).
+    pub interval_s: f64,
+    pub points: Vec<VehicleHistoryPoint>,
+}
+
+#[utoipa::path(get, path = "/api/v1/vehicle/history",
+    params(("seconds" = Option<f64>, Query, description = "Window of stream time, s (default 600, at most 86400)")),
+    responses((status = 200, body = VehicleHistory), (status = 400, body = ErrorBody), (status = 404, body = ErrorBody)))]
+async fn vehicle_history(
+    State(state): State<AppState>,
+    Query(query): Query<HashMap<String, String>>,
+) -> Result<Json<VehicleHistory>, AppError> {
+    let outbox = vehicle_outbox(&state)?;
+    let seconds = history_seconds(&query, 600.0)?;
+    Ok(Json(VehicleHistory {
+        seconds,
+        interval_s: state.config.vehicle.history_interval_ms as f64 * 1e-3,
+        points: outbox.history.recent(seconds, |p| p.time_s, |_| true),
+    }))
+}
+
+/// `GET /api/v1/vehicle/events`: regime changes, oldest first.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct VehicleEventsView {
+    pub events: Vec<RegimeEventView>,
+}
+
+#[utoipa::path(get, path = "/api/v1/vehicle/events",
+    params(("after_id" = Option<u64>, Query, description = "Only events with a larger id")),
+    responses((status = 200, body = VehicleEventsView), (status = 400, body = ErrorBody), (status = 404, body = ErrorBody)))]
+async fn vehicle_events(
+    State(state): State<AppState>,
+    Query(query): Query<HashMap<String, String>>,
+) -> Result<Json<VehicleEventsView>, AppError> {
+    let outbox = vehicle_outbox(&state)?;
+    only_params(&query, &["after_id"])?;
+    let after_id = after_id(&query)?;
+    Ok(Json(VehicleEventsView {
+        events: outbox.events.collect(|e| e.id > after_id),
+    }))
 }
 
 /// `GET /api/v1/status`.

@@ -1,20 +1,23 @@
 //! `railmon serve`: bus -> estimators -> HTTP API and Prometheus metrics.
 //!
 //! Data path, in one direction: an ingest thread per stream ([`stream::run_ingest`]) owns the
-//! iceoryx2 subscriber and the stream's [`stream::Pipeline`] (for drives:
-//! [`drive::DrivePipeline`] over `railmon_slip::SlipMonitor`) and publishes results through
-//! atomics, `arc-swap` snapshots and non-blocking rings; the axum handlers ([`http::app`]) only
-//! read those. Adding the bogie or vehicle stream means a `Pipeline` for its frame type and
-//! one more ingest thread in [`start_ingest`].
+//! iceoryx2 subscriber and the stream's [`stream::Pipeline`] (drives:
+//! [`drive::DrivePipeline`] over `railmon_slip::SlipMonitor`; vehicle:
+//! [`vehicle::VehiclePipeline`] over `railmon_fuel::FuelMonitor`) and publishes results through
+//! atomics, `arc-swap` snapshots and non-blocking rings ([`outbox`]); the axum handlers
+//! ([`http::app`]) only read those. Adding the bogie stream means a `Pipeline` for its frame
+//! type, an outbox, and one more [`spawn_ingest`] call in [`start_ingest`].
 
 pub mod config;
 pub mod drive;
 pub mod http;
 pub mod metrics;
+pub mod outbox;
 pub mod ring;
 pub mod stream;
+pub mod vehicle;
 
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -24,8 +27,9 @@ pub use http::app;
 
 use drive::{DrivePipeline, DriveShared};
 use metrics::Metrics;
-use railmon_bus::StreamKind;
-use stream::StreamStatus;
+use railmon_bus::{Frame, StreamKind};
+use stream::{Pipeline, StreamStatus};
+use vehicle::{VehiclePipeline, VehicleShared};
 
 /// Everything the HTTP handlers read; cheap to clone.
 #[derive(Clone)]
@@ -35,6 +39,7 @@ pub struct AppInner {
     pub config: ServiceConfig,
     pub metrics: Arc<Metrics>,
     pub drive: Arc<DriveShared>,
+    pub vehicle: Arc<VehicleShared>,
     /// The enabled streams (those `/readyz` requires).
     pub streams: Vec<Arc<StreamStatus>>,
     pub started: Instant,
@@ -50,25 +55,43 @@ impl std::ops::Deref for AppState {
 impl AppState {
     pub fn new(config: ServiceConfig) -> Result<Self, prometheus::Error> {
         let metrics = Arc::new(Metrics::new()?);
-        let drive = Arc::new(DriveShared::new(&config.drive));
+        let drive = Arc::new(config.drive.outbox());
+        let vehicle = Arc::new(config.vehicle.outbox());
+        let status = |kind, stale_after_ms, reasons| {
+            Arc::new(StreamStatus::new(
+                kind,
+                Duration::from_millis(stale_after_ms),
+                metrics.clone(),
+                reasons,
+            ))
+        };
         let mut streams = Vec::new();
         if config.drive.enabled {
-            streams.push(Arc::new(StreamStatus::new(
+            streams.push(status(
                 StreamKind::Drive,
-                Duration::from_millis(config.drive.stale_after_ms),
-                metrics.clone(),
-            )));
+                config.drive.stale_after_ms,
+                DrivePipeline::REJECTION_REASONS,
+            ));
+        }
+        if config.vehicle.enabled {
+            streams.push(status(
+                StreamKind::Vehicle,
+                config.vehicle.stale_after_ms,
+                VehiclePipeline::REJECTION_REASONS,
+            ));
         }
         Ok(Self(Arc::new(AppInner {
             config,
             metrics,
             drive,
+            vehicle,
             streams,
             started: Instant::now(),
         })))
     }
 
-    fn stream(&self, kind: StreamKind) -> Option<Arc<StreamStatus>> {
+    /// The status of `kind`, if that stream is enabled.
+    pub fn stream(&self, kind: StreamKind) -> Option<Arc<StreamStatus>> {
         self.streams.iter().find(|s| s.kind == kind).cloned()
     }
 }
@@ -80,36 +103,52 @@ pub fn start_ingest(
 ) -> std::io::Result<Vec<JoinHandle<()>>> {
     let mut threads = Vec::new();
     if let Some(status) = state.stream(StreamKind::Drive) {
-        let config = state.config.clone();
-        let mut pipeline = DrivePipeline::new(
-            config.drive.clone(),
+        let pipeline = DrivePipeline::new(
+            state.config.drive.clone(),
             state.drive.clone(),
             state.metrics.clone(),
         );
-        let shutdown = shutdown.clone();
-        threads.push(
-            std::thread::Builder::new()
-                .name("ingest-drive".into())
-                .spawn(move || {
-                    // A bus failure (e.g. /dev/shm full) is recorded in the status and retried:
-                    // the HTTP side stays up and /readyz says the stream is not fresh.
-                    while let Err(e) = stream::run_ingest(
-                        &config.bus,
-                        &config.ingest,
-                        &mut pipeline,
-                        &status,
-                        &shutdown,
-                    ) {
-                        tracing::error!(stream = "drive", "ingest failed, retrying in 1 s: {e}");
-                        for _ in 0..20 {
-                            if shutdown.load(std::sync::atomic::Ordering::Relaxed) {
-                                return;
-                            }
-                            std::thread::sleep(Duration::from_millis(50));
-                        }
-                    }
-                })?,
+        threads.push(spawn_ingest(state, pipeline, status, shutdown.clone())?);
+    }
+    if let Some(status) = state.stream(StreamKind::Vehicle) {
+        let pipeline = VehiclePipeline::new(
+            state.config.vehicle.clone(),
+            state.vehicle.clone(),
+            state.metrics.clone(),
         );
+        threads.push(spawn_ingest(state, pipeline, status, shutdown.clone())?);
     }
     Ok(threads)
+}
+
+/// The ingest thread of `pipeline`'s stream.
+pub fn spawn_ingest<P: Pipeline + Send + 'static>(
+    state: &AppState,
+    mut pipeline: P,
+    status: Arc<StreamStatus>,
+    shutdown: Arc<AtomicBool>,
+) -> std::io::Result<JoinHandle<()>> {
+    let kind = <P::Frame as Frame>::STREAM;
+    let config = state.config.clone();
+    std::thread::Builder::new()
+        .name(format!("ingest-{kind}"))
+        .spawn(move || {
+            // A bus failure (e.g. /dev/shm full) is recorded in the status and retried: the
+            // HTTP side stays up and /readyz says the stream is not fresh.
+            while let Err(e) = stream::run_ingest(
+                &config.bus,
+                &config.ingest,
+                &mut pipeline,
+                &status,
+                &shutdown,
+            ) {
+                tracing::error!(stream = %kind, "ingest failed, retrying in 1 s: {e}");
+                for _ in 0..20 {
+                    if shutdown.load(Ordering::Relaxed) {
+                        return;
+                    }
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+            }
+        })
 }

@@ -1,17 +1,23 @@
 //! Prometheus metrics, named by the Prometheus conventions: one `railmon_` prefix, base units
-//! (seconds, radians per second, newton metres), `_total` counters, `_ratio` for 0..1.
+//! (seconds, radians per second, newton metres, cubic metres per second for fuel), `_total`
+//! counters, `_ratio` for 0..1.
 //! Counters and histograms are atomics, so the ingest threads update them without locks; label
 //! lookups (which do lock) happen once per stream or drive, never per frame.
 
 use prometheus::{
-    Encoder, Gauge, GaugeVec, HistogramOpts, HistogramVec, IntCounterVec, IntGaugeVec, Opts,
-    Registry, TextEncoder,
+    Encoder, Gauge, GaugeVec, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec,
+    IntGauge, IntGaugeVec, Opts, Registry, TextEncoder,
 };
 
 /// Histogram buckets from 1 us to 50 ms (values in seconds).
 pub const MICROSECOND_BUCKETS_S: [f64; 14] = [
     1e-6, 2e-6, 5e-6, 10e-6, 20e-6, 50e-6, 100e-6, 200e-6, 500e-6, 1e-3, 2e-3, 5e-3, 10e-3, 50e-3,
 ];
+
+/// Buckets of the absolute fuel forecast error, m^3/s: 0.01 to 10 cm^3/s (a 2.5 l engine at
+/// full load burns ~10 cm^3/s).
+pub const FUEL_ERROR_BUCKETS_M3_S: [f64; 10] =
+    [1e-8, 2e-8, 5e-8, 1e-7, 2e-7, 5e-7, 1e-6, 2e-6, 5e-6, 1e-5];
 
 pub struct Metrics {
     registry: Registry,
@@ -28,6 +34,16 @@ pub struct Metrics {
     pub slipping: IntGaugeVec,
     pub global_torque: Gauge,
     pub slip_events: IntCounterVec,
+    pub vehicle_fuel_rate: GaugeVec,
+    pub vehicle_fuel_forecast: GaugeVec,
+    pub vehicle_fuel_consumed: GaugeVec,
+    pub vehicle_forecast_error: Gauge,
+    pub vehicle_forecast_abs_error: Histogram,
+    pub vehicle_regime_probability: GaugeVec,
+    pub vehicle_regime_active: IntGauge,
+    pub vehicle_regime_changes: IntCounter,
+    pub vehicle_speed: Gauge,
+    pub vehicle_initialising: IntGauge,
 }
 
 fn opts(name: &str, help: &str) -> Opts {
@@ -131,6 +147,62 @@ impl Metrics {
                 opts("drive_slip_events_total", "Slip started / ended events."),
                 &["drive", "kind"],
             )?,
+            vehicle_fuel_rate: GaugeVec::new(
+                opts(
+                    "vehicle_fuel_rate_cubic_meters_per_second",
+                    "Fuel flow now: measured, virtual sensor, 0-step estimate, 1-step forecast made a step ago.",
+                ),
+                &["kind"],
+            )?,
+            vehicle_fuel_forecast: GaugeVec::new(
+                opts(
+                    "vehicle_fuel_forecast_cubic_meters_per_second",
+                    "Forecast fuel flow horizon_s seconds ahead.",
+                ),
+                &["horizon_s"],
+            )?,
+            vehicle_fuel_consumed: GaugeVec::new(
+                opts(
+                    "vehicle_fuel_consumed_cubic_meters",
+                    "Fuel used since the source started: measured, and from the virtual sensor since initialisation.",
+                ),
+                &["kind"],
+            )?,
+            vehicle_forecast_error: Gauge::with_opts(opts(
+                "vehicle_fuel_forecast_error_cubic_meters_per_second",
+                "Measured fuel minus its honest 1-step forecast, last sample.",
+            ))?,
+            vehicle_forecast_abs_error: Histogram::with_opts(
+                HistogramOpts::new(
+                    "vehicle_fuel_forecast_absolute_error_cubic_meters_per_second",
+                    "Absolute error of the honest 1-step fuel forecast.",
+                )
+                .namespace("railmon")
+                .buckets(FUEL_ERROR_BUCKETS_M3_S.to_vec()),
+            )?,
+            vehicle_regime_probability: GaugeVec::new(
+                opts(
+                    "vehicle_regime_probability_ratio",
+                    "Probability of each driving regime (mixture component, 0-based).",
+                ),
+                &["regime"],
+            )?,
+            vehicle_regime_active: IntGauge::with_opts(opts(
+                "vehicle_regime_active",
+                "The most probable regime (0-based; -1 while initialising).",
+            ))?,
+            vehicle_regime_changes: IntCounter::with_opts(opts(
+                "vehicle_regime_changes_total",
+                "Changes of the most probable regime.",
+            ))?,
+            vehicle_speed: Gauge::with_opts(opts(
+                "vehicle_speed_meters_per_second",
+                "Measured vehicle speed.",
+            ))?,
+            vehicle_initialising: IntGauge::with_opts(opts(
+                "vehicle_estimator_initialising",
+                "1 while the fuel estimator collects its initial samples.",
+            ))?,
             registry,
         };
         m.register_all()?;
@@ -152,6 +224,16 @@ impl Metrics {
         r.register(Box::new(self.slipping.clone()))?;
         r.register(Box::new(self.global_torque.clone()))?;
         r.register(Box::new(self.slip_events.clone()))?;
+        r.register(Box::new(self.vehicle_fuel_rate.clone()))?;
+        r.register(Box::new(self.vehicle_fuel_forecast.clone()))?;
+        r.register(Box::new(self.vehicle_fuel_consumed.clone()))?;
+        r.register(Box::new(self.vehicle_forecast_error.clone()))?;
+        r.register(Box::new(self.vehicle_forecast_abs_error.clone()))?;
+        r.register(Box::new(self.vehicle_regime_probability.clone()))?;
+        r.register(Box::new(self.vehicle_regime_active.clone()))?;
+        r.register(Box::new(self.vehicle_regime_changes.clone()))?;
+        r.register(Box::new(self.vehicle_speed.clone()))?;
+        r.register(Box::new(self.vehicle_initialising.clone()))?;
         #[cfg(target_os = "linux")]
         r.register(Box::new(
             prometheus::process_collector::ProcessCollector::new(

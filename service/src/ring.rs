@@ -52,6 +52,26 @@ impl<T: Clone> Ring<T> {
         items.iter().filter(|item| keep(item)).cloned().collect()
     }
 
+    /// The items of the last `seconds` before the newest one (by `time_s`) that pass `keep`,
+    /// oldest first.
+    pub fn recent(
+        &self,
+        seconds: f64,
+        time_s: impl Fn(&T) -> f64,
+        keep: impl Fn(&T) -> bool,
+    ) -> Vec<T> {
+        let items = self
+            .items
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        let newest = items.back().map_or(0.0, &time_s);
+        items
+            .iter()
+            .filter(|item| time_s(item) >= newest - seconds && keep(item))
+            .cloned()
+            .collect()
+    }
+
     /// The newest item.
     pub fn last(&self) -> Option<T> {
         let items = self
@@ -75,6 +95,8 @@ mod tests {
         assert_eq!(ring.collect(|_| true), vec![3, 4, 5]);
         assert_eq!(ring.collect(|&x| x > 3), vec![4, 5]);
         assert_eq!(ring.last(), Some(5));
+        assert_eq!(ring.recent(1.0, |&x| x as f64, |_| true), vec![4, 5]);
+        assert_eq!(ring.recent(9.0, |&x| x as f64, |&x| x != 4), vec![3, 5]);
     }
 
     #[test]

@@ -16,18 +16,10 @@ use utoipa::ToSchema;
 use crate::config::IngestConfig;
 use crate::metrics::Metrics;
 
-/// Every rejection reason, so each series exists (at 0) from the start: Prometheus queries on
-/// a counter that appears only with its first increment miss that increment.
-pub const REJECTION_REASONS: [&str; 8] = [
-    "layout_version",
-    "too_many_drives",
-    "no_drives",
-    "not_finite",
-    "dt_mismatch",
-    "drive_count_changed",
-    "estimator",
-    "out_of_order",
-];
+/// The rejection reasons of every stream (header layout, sequence, estimator failure); each
+/// [`Pipeline`] adds its own. All are exported from the start, so each series exists (at 0):
+/// Prometheus queries on a counter that appears only with its first increment miss that increment.
+pub const COMMON_REJECTION_REASONS: [&str; 3] = ["layout_version", "estimator", "out_of_order"];
 
 /// Why a frame was not used.
 #[derive(Clone, Debug, PartialEq)]
@@ -40,6 +32,8 @@ pub struct Rejection {
 /// A stream's estimator, as the ingest loop drives it.
 pub trait Pipeline {
     type Frame: Frame;
+    /// The reasons this pipeline's `check` and `step` reject with (besides the common ones).
+    const REJECTION_REASONS: &'static [&'static str];
     /// Checks a frame without changing anything.
     fn check(&self, header: &FrameHeader, frame: &Self::Frame) -> Result<(), Rejection>;
     /// A new source (publisher restarted, or its run restarted): start from the prior.
@@ -105,9 +99,15 @@ pub struct StreamStatusView {
 }
 
 impl StreamStatus {
-    pub fn new(kind: StreamKind, stale_after: Duration, metrics: Arc<Metrics>) -> Self {
+    /// The status of `kind`, whose pipeline rejects with `reasons` (and the common ones).
+    pub fn new(
+        kind: StreamKind,
+        stale_after: Duration,
+        metrics: Arc<Metrics>,
+        reasons: &[&str],
+    ) -> Self {
         let label = [kind.name()];
-        for reason in REJECTION_REASONS {
+        for &reason in COMMON_REJECTION_REASONS.iter().chain(reasons) {
             metrics
                 .samples_rejected
                 .with_label_values(&[kind.name(), reason]);

@@ -4,6 +4,7 @@ mod common;
 
 use axum::body::{to_bytes, Body};
 use axum::http::{Request, StatusCode};
+use common::vehicle::{vehicle_config, VehicleHarness};
 use common::Harness;
 use railmon_service::{app, AppState, ServiceConfig};
 use serde_json::Value;
@@ -46,6 +47,38 @@ fn state_after(steps: usize) -> AppState {
     }
     harness.view();
     state
+}
+
+/// State with the vehicle stream enabled after `steps` simulated seconds of `fuel-cycles`
+/// (and 10 drive frames).
+fn vehicle_state_after(steps: usize) -> AppState {
+    let config = ServiceConfig {
+        vehicle: vehicle_config(),
+        ..ServiceConfig::default()
+    };
+    let state = AppState::new(config.clone()).unwrap();
+    let mut drives = Harness::with(state.drive.clone(), state.metrics.clone());
+    for _ in 0..10 {
+        drives.advance().unwrap();
+    }
+    drives.view();
+    let mut harness =
+        VehicleHarness::with(config.vehicle, state.vehicle.clone(), state.metrics.clone());
+    for _ in 0..steps {
+        harness.advance().unwrap();
+    }
+    harness.view();
+    state
+}
+
+/// The value of the series `name{labels}` in the metrics text.
+fn series(text: &str, name: &str) -> f64 {
+    let prefix = format!("{name} ");
+    text.lines()
+        .find_map(|l| l.strip_prefix(&prefix))
+        .unwrap_or_else(|| panic!("no {name} in metrics"))
+        .parse()
+        .unwrap()
 }
 
 fn assert_error(body: &Value, status: u16, code: &str) {
@@ -196,6 +229,9 @@ async fn probes_status_and_docs() {
         "/api/v1/drives",
         "/api/v1/drives/{id}/history",
         "/api/v1/status",
+        "/api/v1/vehicle",
+        "/api/v1/vehicle/history",
+        "/api/v1/vehicle/events",
         "/readyz",
     ] {
         assert!(
@@ -213,7 +249,7 @@ async fn probes_status_and_docs() {
 
 #[tokio::test]
 async fn every_metric_the_dashboard_queries_is_exported() {
-    let state = state_after(10);
+    let state = vehicle_state_after(10);
     let (_, _, metrics) = get(&state, "/metrics").await;
     let dashboard = std::fs::read_to_string(
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../dashboards/railmon.json"),
@@ -231,5 +267,148 @@ async fn every_metric_the_dashboard_queries_is_exported() {
             metrics.lines().any(|l| l.starts_with(name)),
             "the dashboard queries {name}, which /metrics does not export"
         );
+    }
+}
+
+#[tokio::test]
+async fn vehicle_reports_fuel_forecast_regime_and_metrics_in_base_units() {
+    let state = vehicle_state_after(400);
+    let (status, v) = get_json(&state, "/api/v1/vehicle").await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(
+        (v["samples"].as_u64(), v["initialising"].as_bool()),
+        (Some(400), Some(false))
+    );
+    assert_eq!(v["time_s"], 399.0);
+    for field in [
+        "fuel_rate_cm3_s",
+        "virtual_sensor_cm3_s",
+        "zero_step_cm3_s",
+        "one_step_forecast_cm3_s",
+        "cumulative_fuel_cm3",
+        "cumulative_virtual_fuel_cm3",
+        "forecast_error_cm3_s",
+        "forecast_rmse_cm3_s",
+        "speed_m_s",
+    ] {
+        assert!(
+            v[field].as_f64().is_some_and(f64::is_finite),
+            "{field}: {v}"
+        );
+    }
+    let forecast = v["forecast_cm3_s"].as_array().unwrap();
+    assert_eq!(
+        (forecast.len(), v["forecast_step_s"].as_f64()),
+        (10, Some(1.0))
+    );
+    let probabilities = v["regime_probabilities"].as_array().unwrap();
+    assert_eq!(probabilities.len(), 3);
+    let regime = v["regime"].as_u64().unwrap() as usize;
+    let best = probabilities[regime].as_f64().unwrap();
+    assert!(probabilities.iter().all(|p| p.as_f64().unwrap() <= best));
+
+    let (_, _, text) = get(&state, "/metrics").await;
+    let m3 = |cm3: &Value| cm3.as_f64().unwrap() * 1e-6;
+    for (kind, field) in [
+        ("measured", "fuel_rate_cm3_s"),
+        ("virtual_sensor", "virtual_sensor_cm3_s"),
+        ("one_step_forecast", "one_step_forecast_cm3_s"),
+    ] {
+        let name = format!("railmon_vehicle_fuel_rate_cubic_meters_per_second{{kind=\"{kind}\"}}");
+        assert_eq!(series(&text, &name), m3(&v[field]), "{name}");
+    }
+    for (h, f) in forecast.iter().enumerate() {
+        let name = format!(
+            "railmon_vehicle_fuel_forecast_cubic_meters_per_second{{horizon_s=\"{}\"}}",
+            h + 1
+        );
+        assert_eq!(series(&text, &name), m3(f), "{name}");
+    }
+    let name = "railmon_vehicle_fuel_consumed_cubic_meters{kind=\"measured\"}";
+    assert_eq!(series(&text, name), m3(&v["cumulative_fuel_cm3"]));
+    for (i, p) in probabilities.iter().enumerate() {
+        let name = format!("railmon_vehicle_regime_probability_ratio{{regime=\"{i}\"}}");
+        assert_eq!(series(&text, &name), p.as_f64().unwrap(), "{name}");
+    }
+    assert_eq!(
+        series(&text, "railmon_vehicle_regime_active"),
+        regime as f64
+    );
+    assert_eq!(
+        series(
+            &text,
+            "railmon_vehicle_fuel_forecast_error_cubic_meters_per_second"
+        ),
+        m3(&v["forecast_error_cm3_s"])
+    );
+    assert_eq!(
+        series(&text, "railmon_vehicle_regime_changes_total"),
+        v["regime_changes"].as_f64().unwrap()
+    );
+    // 400 samples, 150 of them initialisation: 250 honest 1-step forecasts scored.
+    assert_eq!(
+        series(
+            &text,
+            "railmon_vehicle_fuel_forecast_absolute_error_cubic_meters_per_second_count"
+        ),
+        250.0
+    );
+    for reason in ["not_finite", "unknown_category", "missing_channel"] {
+        let name = format!(
+            "railmon_stream_samples_rejected_total{{reason=\"{reason}\",stream=\"vehicle\"}}"
+        );
+        assert_eq!(series(&text, &name), 0.0, "{name}");
+    }
+}
+
+#[tokio::test]
+async fn vehicle_history_and_events() {
+    let state = vehicle_state_after(1500);
+    let (status, body) = get_json(&state, "/api/v1/vehicle/history?seconds=10").await;
+    assert_eq!(status, StatusCode::OK);
+    let points = body["points"].as_array().unwrap();
+    assert_eq!(points.len(), 11, "{body}");
+    assert_eq!(points[10]["time_s"], 1499.0);
+    assert_eq!(body["interval_s"], 1.0);
+    let (_, all) = get_json(&state, "/api/v1/vehicle/history").await;
+    assert_eq!(all["points"].as_array().unwrap().len(), 601);
+    let (_, current) = get_json(&state, "/api/v1/vehicle").await;
+    let (_, body) = get_json(&state, "/api/v1/vehicle/events").await;
+    let events = body["events"].as_array().unwrap();
+    assert_eq!(
+        events.len() as u64,
+        current["regime_changes"].as_u64().unwrap()
+    );
+    assert!(!events.is_empty());
+    assert_eq!(events[0]["kind"], "regime_changed");
+    assert_eq!(events.last().unwrap()["to_regime"], current["regime"]);
+    let first = events[0]["id"].as_u64().unwrap();
+    let (_, later) = get_json(&state, &format!("/api/v1/vehicle/events?after_id={first}")).await;
+    assert_eq!(later["events"].as_array().unwrap().len(), events.len() - 1);
+    for uri in [
+        "/api/v1/vehicle/history?seconds=0",
+        "/api/v1/vehicle/history?window=3",
+        "/api/v1/vehicle/events?after_id=x",
+        "/api/v1/vehicle/events?drive=1",
+    ] {
+        let (status, body) = get_json(&state, uri).await;
+        assert_eq!(status, StatusCode::BAD_REQUEST, "{uri}");
+        assert_error(&body, 400, "bad_query");
+    }
+    let (_, ready) = get_json(&state, "/readyz").await;
+    assert_eq!(ready["streams"][1]["stream"], "vehicle");
+}
+
+#[tokio::test]
+async fn a_disabled_vehicle_stream_is_a_json_404() {
+    let state = state_after(10);
+    for uri in [
+        "/api/v1/vehicle",
+        "/api/v1/vehicle/history",
+        "/api/v1/vehicle/events",
+    ] {
+        let (status, body) = get_json(&state, uri).await;
+        assert_eq!(status, StatusCode::NOT_FOUND, "{uri}");
+        assert_error(&body, 404, "stream_disabled");
     }
 }

@@ -86,14 +86,15 @@ fn throughput(steps: usize) {
     let service = Service::start(&bus, &[]);
     let mut replay = start_replay(
         &bus,
+        "drive",
         &["--scenario", path.to_str().unwrap(), "--speed", "max"],
     );
-    let first = service.wait_for_status(Duration::from_secs(30), "first frame", |s| {
+    let first = service.wait_for_status("drive", Duration::from_secs(30), "first frame", |s| {
         s["samples_received"].as_u64() > Some(0)
     });
     let t_first = Instant::now();
     let n = steps as u64;
-    let last = service.wait_for_status(Duration::from_secs(300), "all frames", |s| {
+    let last = service.wait_for_status("drive", Duration::from_secs(300), "all frames", |s| {
         s["estimator_steps"].as_u64().unwrap_or(0) + s["samples_rejected"].as_u64().unwrap_or(0)
             >= n - s["sequence_gaps"].as_u64().unwrap_or(0)
     });
@@ -122,6 +123,7 @@ fn real_time_and_http(seconds: f64) {
     let service = Service::start(&bus, &[]);
     let mut replay = start_replay(
         &bus,
+        "drive",
         &[
             "--scenario",
             path.to_str().unwrap(),
@@ -133,7 +135,7 @@ fn real_time_and_http(seconds: f64) {
     service.wait_for_readyz(200, Duration::from_secs(30));
     std::thread::sleep(Duration::from_secs_f64(seconds));
     let (p50, p99) = latency_us(&service);
-    let status = service.drive_status();
+    let status = service.status("drive");
     println!(
         "real time   --speed 1    {DRIVES} drives at 8 kHz, {seconds} s: publish->estimate p50 {p50:.0} us, p99 {p99:.0} us; gaps {}",
         status["sequence_gaps"]
@@ -151,7 +153,7 @@ fn real_time_and_http(seconds: f64) {
                     .map(|l| l.split_whitespace().collect::<Vec<_>>().join(" "))
                     .unwrap_or_default()
             };
-            let after = service.drive_status();
+            let after = service.status("drive");
             println!(
                 "http        wrk -t2 -c32 -d5s /api/v1/drives while ingesting at real time: {}; latency {}; {}; ingest gaps {}",
                 pick("Requests/sec"),

@@ -243,21 +243,27 @@ impl Service {
         serde_json::from_str(&body).unwrap_or_else(|e| panic!("GET {path}: {e}: {body}"))
     }
 
-    /// The drive stream's entry of `/api/v1/status`.
-    pub fn drive_status(&self) -> serde_json::Value {
-        self.get_json("/api/v1/status")["streams"][0].clone()
+    /// The entry of `stream` (`drive`, `vehicle`) in `/api/v1/status`.
+    pub fn status(&self, stream: &str) -> serde_json::Value {
+        let status = self.get_json("/api/v1/status");
+        status["streams"]
+            .as_array()
+            .and_then(|s| s.iter().find(|s| s["stream"] == stream))
+            .unwrap_or_else(|| panic!("no stream {stream} in {status}"))
+            .clone()
     }
 
-    /// Polls until `done(drive status)` or panics after `timeout`.
+    /// Polls until `done(status of stream)` or panics after `timeout`.
     pub fn wait_for_status(
         &self,
+        stream: &str,
         timeout: Duration,
         what: &str,
         done: impl Fn(&serde_json::Value) -> bool,
     ) -> serde_json::Value {
         let start = Instant::now();
         loop {
-            let status = self.drive_status();
+            let status = self.status(stream);
             if done(&status) {
                 return status;
             }
@@ -266,6 +272,30 @@ impl Service {
                 "timed out waiting for {what}: {status}"
             );
             std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// After `good` accepted frames, one rejected frame per entry of `reasons` (in order) was
+    /// sent on `stream`: waits for them and checks that each was counted under its reason, in
+    /// the status and in the metrics, and that none reached the estimator.
+    pub fn assert_rejections(&self, stream: &str, good: u64, reasons: &[&str]) {
+        let n = reasons.len() as u64;
+        let status = self.wait_for_status(stream, Duration::from_secs(5), "rejections", |s| {
+            s["samples_rejected"].as_u64() == Some(n)
+        });
+        assert_eq!(
+            status["samples_received"].as_u64(),
+            Some(good + n),
+            "{status}"
+        );
+        assert_eq!(status["estimator_steps"].as_u64(), Some(good), "{status}");
+        let last = reasons.last().copied().unwrap_or_default();
+        assert_eq!(status["last_rejection"]["reason"], last, "{status}");
+        for reason in reasons {
+            let series = format!(
+                "railmon_stream_samples_rejected_total{{reason=\"{reason}\",stream=\"{stream}\"}}"
+            );
+            assert_eq!(self.metric(&series), Some(1.0), "{series}");
         }
     }
 
@@ -292,10 +322,10 @@ impl Service {
     }
 }
 
-/// Starts `sensors-replay drive` on `bus` with `args`.
-pub fn start_replay(bus: &PrivateBus, args: &[&str]) -> Process {
+/// Starts `sensors-replay <stream>` on `bus` with `args`.
+pub fn start_replay(bus: &PrivateBus, stream: &str, args: &[&str]) -> Process {
     let child = Command::new(&binaries().replay)
-        .arg("drive")
+        .arg(stream)
         .args(args)
         .current_dir(workspace_root())
         .envs(bus.env())

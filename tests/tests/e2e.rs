@@ -44,7 +44,7 @@ fn seed_replay_reaches_the_service_complete_and_flags_drive_1() {
     let record = std::env::temp_dir().join(format!("railmon-e2e-record-{}.csv", bus.prefix));
     let record_arg = record.to_str().unwrap();
     let args = ["--scenario", SEED, "--speed", "10", "--record", record_arg];
-    let mut replay = start_replay(&bus, &args);
+    let mut replay = start_replay(&bus, "drive", &args);
     assert!(
         replay.wait(Duration::from_secs(60)).success(),
         "sensors-replay failed"
@@ -52,7 +52,7 @@ fn seed_replay_reaches_the_service_complete_and_flags_drive_1() {
 
     let scenario = seed();
     let n_steps = scenario.n_steps() as u64;
-    let status = service.wait_for_status(Duration::from_secs(10), "every frame", |s| {
+    let status = service.wait_for_status("drive", Duration::from_secs(10), "every frame", |s| {
         s["samples_received"].as_u64() == Some(n_steps)
     });
     assert_eq!(status["sequence_gaps"], 0, "{status}");
@@ -114,12 +114,12 @@ fn seed_replay_reaches_the_service_complete_and_flags_drive_1() {
 
     // Replaying the recording is a new source with the same data: the estimator restarts and
     // ends on exactly the same estimate (Rust prints floats so that they parse back exactly).
-    let mut replay = start_replay(&bus, &["--csv", record_arg, "--speed", "max"]);
+    let mut replay = start_replay(&bus, "drive", &["--csv", record_arg, "--speed", "max"]);
     assert!(
         replay.wait(Duration::from_secs(60)).success(),
         "CSV replay failed"
     );
-    let status = service.wait_for_status(Duration::from_secs(10), "the recording", |s| {
+    let status = service.wait_for_status("drive", Duration::from_secs(10), "the recording", |s| {
         s["samples_received"].as_u64() == Some(2 * n_steps)
     });
     assert_eq!(status["sequence_gaps"], 0, "{status}");
@@ -165,15 +165,23 @@ fn bad_command_lines_and_settings_fail_with_the_culprit_named() {
 fn killed_replay_makes_readyz_fail_within_a_second_and_a_new_one_recovers() {
     let bus = PrivateBus::new();
     let service = Service::start(&bus, &[("RAILMON_DRIVE__STALE_AFTER_MS", "300")]);
-    let mut replay = start_replay(&bus, &["--scenario", SEED, "--speed", "1", "--loop"]);
+    let mut replay = start_replay(
+        &bus,
+        "drive",
+        &["--scenario", SEED, "--speed", "1", "--loop"],
+    );
     service.wait_for_readyz(200, Duration::from_secs(20));
     replay.kill_hard();
     let stale_after = service.wait_for_readyz(503, Duration::from_secs(5));
     assert!(stale_after < Duration::from_secs(1), "{stale_after:?}");
 
-    let mut replay = start_replay(&bus, &["--scenario", SEED, "--speed", "1", "--loop"]);
+    let mut replay = start_replay(
+        &bus,
+        "drive",
+        &["--scenario", SEED, "--speed", "1", "--loop"],
+    );
     service.wait_for_readyz(200, Duration::from_secs(20));
-    let status = service.drive_status();
+    let status = service.status("drive");
     assert!(status["sources"].as_u64().unwrap() >= 2, "{status}");
     assert_eq!(status["sequence_gaps"], 0, "{status}");
     assert!(replay.terminate(Duration::from_secs(10)).success());
@@ -183,13 +191,17 @@ fn killed_replay_makes_readyz_fail_within_a_second_and_a_new_one_recovers() {
 fn sigkilled_service_restarts_and_the_running_replay_reconnects() {
     let bus = PrivateBus::new();
     let mut first = Service::start(&bus, &[]);
-    let mut replay = start_replay(&bus, &["--scenario", SEED, "--speed", "1", "--loop"]);
+    let mut replay = start_replay(
+        &bus,
+        "drive",
+        &["--scenario", SEED, "--speed", "1", "--loop"],
+    );
     first.wait_for_readyz(200, Duration::from_secs(20));
     first.process.kill_hard();
 
     let mut second = Service::start(&bus, &[]);
     second.wait_for_readyz(200, Duration::from_secs(20));
-    let status = second.wait_for_status(Duration::from_secs(5), "frames", |s| {
+    let status = second.wait_for_status("drive", Duration::from_secs(5), "frames", |s| {
         s["samples_received"].as_u64() > Some(100)
     });
     assert_eq!(status["samples_rejected"], 0, "{status}");
@@ -225,7 +237,7 @@ fn bad_frames_are_rejected_counted_and_leave_the_estimate_alone() {
         assert_eq!(publisher.send(&next_frame(), step * dt_ns).unwrap(), 1);
     }
     publisher.notify().unwrap();
-    service.wait_for_status(Duration::from_secs(5), "10 good frames", |s| {
+    service.wait_for_status("drive", Duration::from_secs(5), "10 good frames", |s| {
         s["estimator_steps"] == 10
     });
     let before = service.get_json("/api/v1/drives");
@@ -238,20 +250,6 @@ fn bad_frames_are_rejected_counted_and_leave_the_estimate_alone() {
     publisher.send(&too_many, 11 * dt_ns).unwrap();
     publisher.notify().unwrap();
 
-    let status = service.wait_for_status(Duration::from_secs(5), "2 rejections", |s| {
-        s["samples_rejected"] == 2
-    });
-    assert_eq!(status["samples_received"], 12, "{status}");
-    assert_eq!(status["estimator_steps"], 10, "{status}");
-    assert_eq!(
-        status["last_rejection"]["reason"], "too_many_drives",
-        "{status}"
-    );
-    for reason in ["not_finite", "too_many_drives"] {
-        let series = format!(
-            "railmon_stream_samples_rejected_total{{reason=\"{reason}\",stream=\"drive\"}}"
-        );
-        assert_eq!(service.metric(&series), Some(1.0), "{series}");
-    }
+    service.assert_rejections("drive", 10, &["not_finite", "too_many_drives"]);
     assert_eq!(service.get_json("/api/v1/drives"), before);
 }

@@ -1,6 +1,8 @@
 //! Feeds the drive pipeline with the seed scenario's simulated frames, without the bus.
 #![allow(dead_code)] // each test binary uses a different part
 
+pub mod vehicle;
+
 use std::path::Path;
 use std::sync::Arc;
 
@@ -40,8 +42,7 @@ pub struct Harness {
 
 impl Harness {
     pub fn new() -> Self {
-        let config = ServiceConfig::default().drive;
-        let shared = Arc::new(DriveShared::new(&config));
+        let shared = Arc::new(ServiceConfig::default().drive.outbox());
         Self::with(shared, Arc::new(Metrics::new().unwrap()))
     }
 

@@ -1,0 +1,134 @@
+//! The vehicle stream: a fuel scenario through `railmon_fuel::VehicleSimulator` (via
+//! `railmon_analyze::fuel::simulate_scenario`, which reads its drive cycles), or a recorded
+//! vehicle CSV (the railmon layout or an ANL Camry file as it ships), published as
+//! `VehicleFrame`s at the samples' own 1 Hz time stamps.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+use railmon_bus::VehicleFrame;
+use railmon_fuel::VehicleSample;
+use railmon_records::vehicle::{read_vehicle_csv, write_vehicle_csv, VehicleRow};
+
+use crate::replay::{publish, Source};
+use crate::ReplayArgs;
+
+#[derive(clap::Args, Debug)]
+pub struct VehicleArgs {
+    /// Fuel scenario (e.g. config/scenarios/fuel-cycles.toml): simulated vehicle, regime labels.
+    #[arg(long, conflicts_with = "csv", required_unless_present = "csv")]
+    scenario: Option<PathBuf>,
+    /// Vehicle CSV: `time_s,fuel_cm3_s,speed_m_s[,pedal_pct,...,gear,regime]` or an ANL Camry
+    /// dynamometer file (`Time[s],Eng_FuelFlow_Direct_DI[ccps],Dyno_Spd[mph]`).
+    #[arg(long)]
+    csv: Option<PathBuf>,
+    #[command(flatten)]
+    replay: ReplayArgs,
+}
+
+/// All rows of the run (1 Hz data: a day is 86,400 rows), replayed in order.
+struct VehicleSource {
+    rows: Vec<VehicleRow>,
+    samples: Vec<VehicleSample>,
+    /// Sample time of each row within the run, ns.
+    times_ns: Vec<u64>,
+    period_s: f64,
+    next: usize,
+    recorded: Option<(PathBuf, Vec<VehicleRow>)>,
+}
+
+impl VehicleSource {
+    fn open(args: &VehicleArgs) -> anyhow::Result<Self> {
+        let (label, rows) = match (&args.scenario, &args.csv) {
+            (Some(path), _) => {
+                let (_, rows) = railmon_analyze::fuel::simulate_scenario(path)
+                    .with_context(|| format!("cannot simulate scenario {}", path.display()))?;
+                (path.display().to_string(), rows)
+            }
+            (None, Some(path)) => (path.display().to_string(), read_vehicle_csv(path)?.1),
+            (None, None) => bail!("give --scenario FILE or --csv FILE"),
+        };
+        // The bus carries times since the run's start as unsigned ns.
+        let times_ns = rows
+            .iter()
+            .enumerate()
+            .map(|(k, r)| match r.time_s >= 0.0 {
+                true => Ok((r.time_s * 1e9).round() as u64),
+                false => bail!(
+                    "{label}: row {}: time_s {} is negative (the bus carries times >= 0)",
+                    k + 1,
+                    r.time_s
+                ),
+            })
+            .collect::<anyhow::Result<Vec<u64>>>()?;
+        let period_s = match rows.as_slice() {
+            [first, second, ..] => second.time_s - first.time_s,
+            _ => 1.0,
+        };
+        Ok(Self {
+            samples: railmon_analyze::fuel::samples_from_rows(&rows),
+            rows,
+            times_ns,
+            period_s,
+            next: 0,
+            recorded: args.replay.record.clone().map(|path| (path, Vec::new())),
+        })
+    }
+}
+
+impl Source for VehicleSource {
+    type Frame = VehicleFrame;
+
+    fn period_s(&self) -> f64 {
+        self.period_s
+    }
+
+    fn next(&mut self) -> anyhow::Result<Option<(VehicleFrame, u64)>> {
+        let Some(sample) = self.samples.get(self.next) else {
+            return Ok(None);
+        };
+        let frame = VehicleFrame::from_sample(sample);
+        let time_ns = self.times_ns[self.next];
+        self.next += 1;
+        Ok(Some((frame, time_ns)))
+    }
+
+    fn rewind(&mut self) -> anyhow::Result<()> {
+        self.next = 0;
+        Ok(())
+    }
+
+    fn record(&mut self, _sent: u64) -> anyhow::Result<()> {
+        if let Some((_, rows)) = self.recorded.as_mut() {
+            rows.push(self.rows[self.next - 1].clone());
+        }
+        Ok(())
+    }
+
+    fn finish_recording(&mut self) -> anyhow::Result<()> {
+        // Written at the end: the railmon layout takes its columns from the first row, and
+        // `--loop` runs repeat time stamps, which a single recording cannot hold.
+        if let Some((path, rows)) = self.recorded.take() {
+            let first_run = rows
+                .iter()
+                .enumerate()
+                .take_while(|(k, r)| *k == 0 || r.time_s > rows[k - 1].time_s)
+                .count();
+            write_vehicle_csv(&path, &rows[..first_run])?;
+        }
+        Ok(())
+    }
+
+    fn describe(&self) -> String {
+        let channels = self
+            .samples
+            .first()
+            .map_or(0, |s| VehicleFrame::from_sample(s).present.count_ones());
+        format!("{channels} vehicle channels")
+    }
+}
+
+pub fn run(args: VehicleArgs) -> anyhow::Result<()> {
+    let mut source = VehicleSource::open(&args)?;
+    publish(&mut source, &args.replay)
+}

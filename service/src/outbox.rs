@@ -1,0 +1,168 @@
+//! What every stream pipeline shares with the HTTP side, and the bookkeeping behind it: one
+//! piece for the drive and the vehicle streams (and the bogie stream when it joins).
+//!
+//! The ingest thread owns a [`Track`]: stream time that continues across sources, history
+//! decimation, history points and events waiting for the rings, event ids, and whether the
+//! newest estimate was published. [`Track::flush`] moves the pending items into the
+//! [`Outbox`]'s rings (never waiting for their locks) and says if a new snapshot is due.
+
+use arc_swap::ArcSwap;
+use railmon_bus::FrameHeader;
+
+use crate::ring::Ring;
+
+/// A stream's results as the HTTP handlers read them: the latest view (`arc-swap`), history
+/// points and events (bounded rings).
+pub struct Outbox<V, P, E> {
+    pub snapshot: ArcSwap<V>,
+    pub history: Ring<P>,
+    pub events: Ring<E>,
+}
+
+impl<V: Default, P: Clone, E: Clone> Outbox<V, P, E> {
+    pub fn new(history_capacity: usize, events_capacity: usize) -> Self {
+        Self {
+            snapshot: ArcSwap::from_pointee(V::default()),
+            history: Ring::new(history_capacity),
+            events: Ring::new(events_capacity),
+        }
+    }
+}
+
+/// The header's sample time in seconds. Division, not `* 1e-9`: whole seconds stay exact (a
+/// 1 Hz source's `t` comes back as `t`, so its time differences are exactly 1).
+pub fn run_time_s(header: &FrameHeader) -> f64 {
+    header.sample_time_ns as f64 / 1e9
+}
+
+/// When a frame was estimated: its header, stream time (continuous over sources) and run time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Stamp {
+    pub header: FrameHeader,
+    /// Stream time, s: continues where the previous source stopped.
+    pub time_s: f64,
+    /// Time within the run (the source's own clock), s.
+    pub run_time_s: f64,
+}
+
+/// The ingest thread's side of an [`Outbox`]. See the module documentation.
+#[derive(Clone, Debug)]
+pub struct Track<P, E> {
+    /// Nominal step of the stream: a new source starts one step after the last frame.
+    period_s: f64,
+    history_interval_s: f64,
+    run_offset_s: f64,
+    last_time_s: Option<f64>,
+    next_history_s: f64,
+    pending_history: Vec<P>,
+    pending_events: Vec<E>,
+    next_event_id: u64,
+    last: Option<Stamp>,
+    dirty: bool,
+}
+
+impl<P: Clone, E: Clone> Track<P, E> {
+    pub fn new(period_s: f64, history_interval_ms: u64) -> Self {
+        Self {
+            period_s,
+            history_interval_s: history_interval_ms as f64 * 1e-3,
+            run_offset_s: 0.0,
+            last_time_s: None,
+            next_history_s: 0.0,
+            pending_history: Vec::new(),
+            pending_events: Vec::new(),
+            next_event_id: 1,
+            last: None,
+            dirty: false,
+        }
+    }
+
+    /// A new source: its run time 0 comes one step after the last frame of the previous one.
+    pub fn restart(&mut self) {
+        self.run_offset_s = self.last_time_s.map_or(0.0, |t| t + self.period_s);
+        self.next_history_s = self.run_offset_s;
+    }
+
+    /// Stamps a frame the estimator accepted; marks the estimate as not yet published.
+    pub fn stamp(&mut self, header: &FrameHeader) -> Stamp {
+        let run_time_s = run_time_s(header);
+        let stamp = Stamp {
+            header: *header,
+            time_s: self.run_offset_s + run_time_s,
+            run_time_s,
+        };
+        self.last_time_s = Some(stamp.time_s);
+        self.last = Some(stamp);
+        self.dirty = true;
+        stamp
+    }
+
+    /// Whether a history point is due at `time_s` (one per history interval); if so, the
+    /// caller pushes one ([`Self::push_history`]).
+    pub fn history_due(&mut self, time_s: f64) -> bool {
+        let due = time_s >= self.next_history_s;
+        if due {
+            let interval_s = self.history_interval_s;
+            self.next_history_s = ((time_s / interval_s).floor() + 1.0) * interval_s;
+        }
+        due
+    }
+
+    pub fn push_history(&mut self, point: P) {
+        self.pending_history.push(point);
+    }
+
+    /// Queues the event `make(id)` with the next event id.
+    pub fn push_event(&mut self, make: impl FnOnce(u64) -> E) {
+        self.pending_events.push(make(self.next_event_id));
+        self.next_event_id += 1;
+    }
+
+    /// Moves pending history and events into `outbox`'s rings if their locks are free; returns
+    /// the stamp of the newest estimate if it has not been published yet (then publish it).
+    pub fn flush<V>(&mut self, outbox: &Outbox<V, P, E>) -> Option<Stamp> {
+        outbox.history.try_append(&mut self.pending_history);
+        outbox.events.try_append(&mut self.pending_events);
+        std::mem::take(&mut self.dirty)
+            .then_some(self.last)
+            .flatten()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn header(run: u32, sample_time_ns: u64) -> FrameHeader {
+        FrameHeader {
+            run,
+            sample_time_ns,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn stream_time_continues_across_sources_and_history_is_decimated() {
+        let outbox: Outbox<(), f64, u64> = Outbox::new(100, 10);
+        let mut track = Track::new(1.0, 2000);
+        track.restart();
+        for k in 0..5 {
+            let stamp = track.stamp(&header(0, k * 1_000_000_000));
+            if track.history_due(stamp.time_s) {
+                track.push_history(stamp.time_s);
+            }
+        }
+        track.push_event(|id| id * 10);
+        assert_eq!(track.flush(&outbox).unwrap().time_s, 4.0);
+        assert_eq!(track.flush(&outbox), None, "published once");
+        track.restart(); // the next source's run time 0 is stream time 5
+        let stamp = track.stamp(&header(1, 0));
+        assert_eq!((stamp.time_s, stamp.run_time_s), (5.0, 0.0));
+        assert!(track.history_due(stamp.time_s));
+        track.push_history(stamp.time_s);
+        track.push_event(|id| id * 10);
+        track.flush(&outbox);
+        assert_eq!(outbox.history.collect(|_| true), vec![0.0, 2.0, 4.0, 5.0]);
+        assert_eq!(outbox.events.collect(|_| true), vec![10, 20]);
+    }
+}

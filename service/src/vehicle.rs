@@ -1,0 +1,401 @@
+//! The vehicle stream: 1 Hz frames of a road vehicle's channels -> `railmon_fuel::FuelMonitor`
+//! -> fuel rate now, virtual fuel sensor, forecast over the horizon, driving regime and its
+//! probabilities, cumulative fuel, forecast error, regime-change events, history.
+//!
+//! Units: the estimator works in cm^3/s (the JSON fields say so: `_cm3_s`, `_cm3`); the
+//! Prometheus metrics are in base units, m^3/s and m^3.
+
+use std::sync::Arc;
+
+use prometheus::Gauge;
+use railmon_bus::{FrameHeader, VehicleFrame};
+use railmon_fuel::{FuelError, FuelMonitor, VehicleSample};
+use serde::Serialize;
+use utoipa::ToSchema;
+
+use crate::config::VehicleConfig;
+use crate::metrics::Metrics;
+use crate::outbox::{run_time_s, Outbox, Stamp, Track};
+use crate::stream::{Pipeline, Rejection};
+
+/// Cubic metres per cubic centimetre: the metrics are in base units.
+const M3_PER_CM3: f64 = 1e-6;
+
+/// `GET /api/v1/vehicle`: the latest estimate.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, ToSchema)]
+pub struct VehicleView {
+    /// Stream time, s: continuous over publisher restarts and runs; null before the first frame.
+    pub time_s: Option<f64>,
+    /// Run of the source and the time within it, s.
+    pub run: u32,
+    pub run_time_s: Option<f64>,
+    /// Sequence number of the last frame used.
+    pub sequence: Option<u64>,
+    /// Samples the estimator accepted from the current source.
+    pub samples: u64,
+    /// The estimator is still collecting its `init_samples` (no estimates yet).
+    pub initialising: bool,
+    /// Measured fuel flow now, cm^3/s.
+    pub fuel_rate_cm3_s: Option<f64>,
+    /// Measured speed now, m/s (if the source has it).
+    pub speed_m_s: Option<f64>,
+    /// Virtual fuel sensor: fuel now from the other channels now, cm^3/s.
+    pub virtual_sensor_cm3_s: Option<f64>,
+    /// The paper's 0-step estimate (has seen the fuel it estimates), cm^3/s.
+    pub zero_step_cm3_s: Option<f64>,
+    /// Honest 1-step forecast of this sample's fuel, made a step ago, cm^3/s.
+    pub one_step_forecast_cm3_s: Option<f64>,
+    /// Step between forecast points, s (the estimator's `sample_period_s`).
+    pub forecast_step_s: f64,
+    /// Fuel forecast for the next `forecast_horizon_steps` steps, cm^3/s (first: one step ahead).
+    pub forecast_cm3_s: Vec<f64>,
+    /// Most probable driving regime (mixture component, 0-based).
+    pub regime: Option<usize>,
+    /// Probability of each regime (index = regime).
+    pub regime_probabilities: Vec<f64>,
+    /// Measured fuel integrated since the source started, cm^3.
+    pub cumulative_fuel_cm3: f64,
+    /// Virtual sensor integrated since the estimator initialised, cm^3.
+    pub cumulative_virtual_fuel_cm3: Option<f64>,
+    /// Measured minus 1-step forecast on the last sample, cm^3/s.
+    pub forecast_error_cm3_s: Option<f64>,
+    /// Root mean square of the 1-step forecast error since the source started, cm^3/s.
+    pub forecast_rmse_cm3_s: Option<f64>,
+    /// Regime changes since the source started.
+    pub regime_changes: u64,
+}
+
+/// One point of the history ring.
+#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
+pub struct VehicleHistoryPoint {
+    pub time_s: f64,
+    pub run: u32,
+    pub run_time_s: f64,
+    pub fuel_rate_cm3_s: f64,
+    pub virtual_sensor_cm3_s: Option<f64>,
+    pub one_step_forecast_cm3_s: Option<f64>,
+    pub regime: Option<usize>,
+    pub regime_probabilities: Vec<f64>,
+    pub cumulative_fuel_cm3: f64,
+}
+
+/// The most probable regime changed.
+#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
+pub struct RegimeEventView {
+    /// Increasing id (restarts with the service).
+    pub id: u64,
+    /// `regime_changed`.
+    pub kind: String,
+    pub time_s: f64,
+    pub run: u32,
+    pub run_time_s: f64,
+    pub from_regime: usize,
+    pub to_regime: usize,
+    /// Probability of the new regime.
+    pub probability: f64,
+}
+
+/// What the ingest thread shares with the HTTP side.
+pub type VehicleShared = Outbox<VehicleView, VehicleHistoryPoint, RegimeEventView>;
+
+impl VehicleConfig {
+    /// The outbox of the vehicle stream, sized by this config.
+    pub fn outbox(&self) -> VehicleShared {
+        Outbox::new(self.history_capacity, self.events_capacity)
+    }
+}
+
+/// Label values of `railmon_vehicle_fuel_rate_cubic_meters_per_second{kind}`.
+const FUEL_RATE_KINDS: [&str; 4] = [
+    "measured",
+    "virtual_sensor",
+    "zero_step",
+    "one_step_forecast",
+];
+
+/// Gauges looked up once (label lookups lock), set once per batch.
+struct VehicleGauges {
+    /// In the order of [`FUEL_RATE_KINDS`].
+    fuel_rate: [Gauge; 4],
+    forecast: Vec<Gauge>,
+    consumed_measured: Gauge,
+    consumed_virtual: Gauge,
+    regime_probability: Vec<Gauge>,
+}
+
+impl VehicleGauges {
+    fn new(metrics: &Metrics, config: &VehicleConfig) -> Self {
+        let estimator = &config.estimator;
+        let step_s = estimator.sample_period_s;
+        Self {
+            fuel_rate: FUEL_RATE_KINDS.map(|k| metrics.vehicle_fuel_rate.with_label_values(&[k])),
+            forecast: (1..=estimator.forecast_horizon_steps)
+                .map(|h| {
+                    let horizon = format!("{}", h as f64 * step_s);
+                    metrics
+                        .vehicle_fuel_forecast
+                        .with_label_values(&[horizon.as_str()])
+                })
+                .collect(),
+            consumed_measured: metrics
+                .vehicle_fuel_consumed
+                .with_label_values(&["measured"]),
+            consumed_virtual: metrics
+                .vehicle_fuel_consumed
+                .with_label_values(&["virtual_sensor"]),
+            regime_probability: (0..estimator.components)
+                .map(|i| {
+                    let regime = i.to_string();
+                    metrics
+                        .vehicle_regime_probability
+                        .with_label_values(&[regime.as_str()])
+                })
+                .collect(),
+        }
+    }
+}
+
+/// Why the estimator refused a sample, as a metric label.
+fn rejection_of(e: FuelError) -> Rejection {
+    let reason = match &e {
+        FuelError::MissingChannel { .. } | FuelError::MissingGear { .. } => "missing_channel",
+        FuelError::NonFinite { .. } => "not_finite",
+        FuelError::OutOfRange { .. } => "out_of_range",
+        FuelError::UnknownCategory { .. } => "unknown_category",
+        FuelError::TimeNotIncreasing { .. } => "time_not_increasing",
+        _ => "estimator",
+    };
+    Rejection {
+        reason,
+        message: e.to_string(),
+    }
+}
+
+fn checked_sample(header: &FrameHeader, frame: &VehicleFrame) -> Result<VehicleSample, Rejection> {
+    frame
+        .checked_sample(run_time_s(header))
+        .map_err(|e| Rejection {
+            reason: e.reason(),
+            message: e.to_string(),
+        })
+}
+
+/// 1-step forecast error statistics of the current source.
+#[derive(Clone, Copy, Debug, Default)]
+struct ForecastErrors {
+    last_cm3_s: Option<f64>,
+    sum_squares: f64,
+    n: u64,
+}
+
+pub struct VehiclePipeline {
+    config: VehicleConfig,
+    shared: Arc<VehicleShared>,
+    metrics: Arc<Metrics>,
+    gauges: VehicleGauges,
+    monitor: Option<FuelMonitor>,
+    errors: ForecastErrors,
+    regime_changes: u64,
+    speed_m_s: Option<f64>,
+    track: Track<VehicleHistoryPoint, RegimeEventView>,
+}
+
+impl VehiclePipeline {
+    pub fn new(config: VehicleConfig, shared: Arc<VehicleShared>, metrics: Arc<Metrics>) -> Self {
+        let gauges = VehicleGauges::new(&metrics, &config);
+        metrics.vehicle_regime_active.set(-1);
+        metrics.vehicle_initialising.set(1);
+        let track = Track::new(config.estimator.sample_period_s, config.history_interval_ms);
+        Self {
+            config,
+            shared,
+            metrics,
+            gauges,
+            monitor: None,
+            errors: ForecastErrors::default(),
+            regime_changes: 0,
+            speed_m_s: None,
+            track,
+        }
+    }
+
+    /// The monitor of the current source (created on its first frame).
+    fn monitor(&mut self) -> Result<&mut FuelMonitor, Rejection> {
+        if self.monitor.is_none() {
+            self.monitor = Some(FuelMonitor::new(&self.config.estimator).map_err(rejection_of)?);
+        }
+        Ok(self.monitor.as_mut().expect("created above"))
+    }
+
+    /// Forecast error, regime-change event and history point of the estimate just made.
+    fn follow(&mut self, stamp: &Stamp, previous_regime: Option<usize>) {
+        let Some(monitor) = &self.monitor else { return };
+        let estimate = monitor.estimate();
+        if let Some(m) = &estimate.mixture {
+            let error = estimate.fuel_cm3_s - m.one_step_forecast_cm3_s;
+            if error.is_finite() {
+                self.errors.last_cm3_s = Some(error);
+                self.errors.sum_squares += error * error;
+                self.errors.n += 1;
+                self.metrics
+                    .vehicle_forecast_abs_error
+                    .observe(error.abs() * M3_PER_CM3);
+            }
+            if let (true, Some(from)) = (m.regime_changed, previous_regime) {
+                let to = m.active_regime;
+                let probability = m.regime_probabilities[to];
+                self.regime_changes += 1;
+                self.metrics.vehicle_regime_changes.inc();
+                tracing::info!(
+                    time_s = stamp.time_s,
+                    from,
+                    to,
+                    probability,
+                    "regime_changed"
+                );
+                self.track.push_event(|id| RegimeEventView {
+                    id,
+                    kind: "regime_changed".into(),
+                    time_s: stamp.time_s,
+                    run: stamp.header.run,
+                    run_time_s: stamp.run_time_s,
+                    from_regime: from,
+                    to_regime: to,
+                    probability,
+                });
+            }
+        }
+        if self.track.history_due(stamp.time_s) {
+            let m = estimate.mixture.as_ref();
+            self.track.push_history(VehicleHistoryPoint {
+                time_s: stamp.time_s,
+                run: stamp.header.run,
+                run_time_s: stamp.run_time_s,
+                fuel_rate_cm3_s: estimate.fuel_cm3_s,
+                virtual_sensor_cm3_s: m.map(|m| m.virtual_sensor_cm3_s),
+                one_step_forecast_cm3_s: m.map(|m| m.one_step_forecast_cm3_s),
+                regime: m.map(|m| m.active_regime),
+                regime_probabilities: m.map_or_else(Vec::new, |m| m.regime_probabilities.clone()),
+                cumulative_fuel_cm3: estimate.cumulative_fuel_cm3,
+            });
+        }
+    }
+
+    fn view(&self, stamp: &Stamp, monitor: &FuelMonitor) -> VehicleView {
+        let estimate = monitor.estimate();
+        let m = estimate.mixture.as_ref();
+        VehicleView {
+            time_s: Some(stamp.time_s),
+            run: stamp.header.run,
+            run_time_s: Some(stamp.run_time_s),
+            sequence: Some(stamp.header.sequence),
+            samples: estimate.samples,
+            initialising: monitor.mixture().is_none(),
+            fuel_rate_cm3_s: Some(estimate.fuel_cm3_s),
+            speed_m_s: self.speed_m_s,
+            virtual_sensor_cm3_s: m.map(|m| m.virtual_sensor_cm3_s),
+            zero_step_cm3_s: m.map(|m| m.zero_step_cm3_s),
+            one_step_forecast_cm3_s: m.map(|m| m.one_step_forecast_cm3_s),
+            forecast_step_s: self.config.estimator.sample_period_s,
+            forecast_cm3_s: m.map_or_else(Vec::new, |m| m.forecast_cm3_s.clone()),
+            regime: m.map(|m| m.active_regime),
+            regime_probabilities: m.map_or_else(Vec::new, |m| m.regime_probabilities.clone()),
+            cumulative_fuel_cm3: estimate.cumulative_fuel_cm3,
+            cumulative_virtual_fuel_cm3: m.map(|m| m.cumulative_virtual_fuel_cm3),
+            forecast_error_cm3_s: self.errors.last_cm3_s,
+            forecast_rmse_cm3_s: (self.errors.n > 0)
+                .then(|| (self.errors.sum_squares / self.errors.n as f64).sqrt()),
+            regime_changes: self.regime_changes,
+        }
+    }
+
+    /// Gauges from the view, so `/metrics` and the API agree (m^3/s = 1e-6 cm^3/s).
+    fn set_gauges(&self, view: &VehicleView) {
+        let g = &self.gauges;
+        let rates = [
+            view.fuel_rate_cm3_s,
+            view.virtual_sensor_cm3_s,
+            view.zero_step_cm3_s,
+            view.one_step_forecast_cm3_s,
+        ];
+        for (gauge, rate) in g.fuel_rate.iter().zip(rates) {
+            gauge.set(rate.map_or(f64::NAN, |r| r * M3_PER_CM3));
+        }
+        for (k, gauge) in g.forecast.iter().enumerate() {
+            let value = view.forecast_cm3_s.get(k).copied();
+            gauge.set(value.map_or(f64::NAN, |v| v * M3_PER_CM3));
+        }
+        g.consumed_measured
+            .set(view.cumulative_fuel_cm3 * M3_PER_CM3);
+        g.consumed_virtual.set(
+            view.cumulative_virtual_fuel_cm3
+                .map_or(f64::NAN, |v| v * M3_PER_CM3),
+        );
+        for (k, gauge) in g.regime_probability.iter().enumerate() {
+            gauge.set(
+                view.regime_probabilities
+                    .get(k)
+                    .copied()
+                    .unwrap_or(f64::NAN),
+            );
+        }
+        let metrics = &self.metrics;
+        metrics
+            .vehicle_regime_active
+            .set(view.regime.map_or(-1, |r| r as i64));
+        metrics.vehicle_forecast_error.set(
+            view.forecast_error_cm3_s
+                .map_or(f64::NAN, |e| e * M3_PER_CM3),
+        );
+        metrics
+            .vehicle_speed
+            .set(view.speed_m_s.unwrap_or(f64::NAN));
+        metrics
+            .vehicle_initialising
+            .set(i64::from(view.initialising));
+    }
+}
+
+impl Pipeline for VehiclePipeline {
+    type Frame = VehicleFrame;
+    const REJECTION_REASONS: &'static [&'static str] = &[
+        "unknown_channels",
+        "not_finite",
+        "missing_channel",
+        "out_of_range",
+        "unknown_category",
+        "time_not_increasing",
+    ];
+
+    fn check(&self, header: &FrameHeader, frame: &VehicleFrame) -> Result<(), Rejection> {
+        checked_sample(header, frame).map(|_| ())
+    }
+
+    fn restart(&mut self) {
+        self.monitor = None;
+        self.errors = ForecastErrors::default();
+        self.regime_changes = 0;
+        self.track.restart();
+    }
+
+    fn step(&mut self, header: &FrameHeader, frame: &VehicleFrame) -> Result<(), Rejection> {
+        let sample = checked_sample(header, frame)?;
+        let monitor = self.monitor()?;
+        let previous_regime = monitor.active_regime();
+        // `update` validates the whole sample first: on error the estimator is unchanged.
+        monitor.update(&sample).map_err(rejection_of)?;
+        self.speed_m_s = sample.speed_m_s;
+        let stamp = self.track.stamp(header);
+        self.follow(&stamp, previous_regime);
+        Ok(())
+    }
+
+    fn publish(&mut self) {
+        let (Some(stamp), Some(monitor)) = (self.track.flush(&self.shared), &self.monitor) else {
+            return;
+        };
+        let view = self.view(&stamp, monitor);
+        self.set_gauges(&view);
+        self.shared.snapshot.store(Arc::new(view));
+    }
+}
