@@ -17,7 +17,7 @@ pub mod plots;
 use std::path::{Path, PathBuf};
 
 use railmon_filter::stats::Summary;
-use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveMeasurement, DriveTruthRecord};
+use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveTruth};
 use railmon_records::{create_csv, RecordError};
 use railmon_slip::{
     AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveSample,
@@ -78,7 +78,7 @@ enum Source {
 /// One frame: samples of every drive and, when known, the truth.
 struct Frame {
     samples: Vec<DriveSample>,
-    truth: Option<Vec<DriveTruthRecord>>,
+    truth: Option<Vec<DriveTruth>>,
 }
 
 impl Source {
@@ -86,17 +86,7 @@ impl Source {
         match self {
             Source::Simulator(sim) => Ok(sim.step().map(|(samples, truth)| Frame {
                 samples: samples.to_vec(),
-                truth: Some(
-                    truth
-                        .iter()
-                        .map(|t| DriveTruthRecord {
-                            speed_rad_s: t.speed_rad_s,
-                            angle_rad: t.angle_rad,
-                            torque_nm: t.torque_nm,
-                            slipping: t.slipping,
-                        })
-                        .collect(),
-                ),
+                truth: Some(truth.to_vec()),
             })),
             Source::Recording(reader) => Ok(reader.next_frame()?.map(|f| Frame {
                 samples: f
@@ -299,17 +289,7 @@ fn analyse(
             }
         };
         if let Some(w) = record.as_mut() {
-            let drives: Vec<DriveMeasurement> = frame
-                .samples
-                .iter()
-                .map(|s| DriveMeasurement {
-                    u_alpha_v: s.u_alpha_v,
-                    u_beta_v: s.u_beta_v,
-                    i_alpha_a: s.i_alpha_a,
-                    i_beta_a: s.i_beta_a,
-                })
-                .collect();
-            w.write_frame(step as u64, &drives, frame.truth.as_deref())?;
+            w.write_frame(step as u64, &frame.samples, frame.truth.as_deref())?;
         }
         pipe.step(&frame.samples)
             .map_err(|source| AdhesionAnalysisError::Estimator {

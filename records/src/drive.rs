@@ -24,6 +24,9 @@ use std::fs::File;
 use std::io::{BufWriter, Read, Write};
 use std::path::Path;
 
+// The row types are the estimator's own: a recording holds exactly what the monitor consumes.
+pub use railmon_slip::{DriveSample, DriveTruth};
+
 use crate::{create_csv, Column, CsvTable, RecordError, Row};
 
 /// Columns every drive recording has, in order.
@@ -43,31 +46,13 @@ pub const DRIVE_TRUTH_COLUMNS: [&str; 4] = [
     "true_slipping",
 ];
 
-/// What one drive gives at one step.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct DriveMeasurement {
-    pub u_alpha_v: f64,
-    pub u_beta_v: f64,
-    pub i_alpha_a: f64,
-    pub i_beta_a: f64,
-}
-
-/// Ground truth of one drive at one step.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct DriveTruthRecord {
-    pub speed_rad_s: f64,
-    pub angle_rad: f64,
-    pub torque_nm: f64,
-    pub slipping: bool,
-}
-
 /// All drives at one step.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DriveFrame {
     pub step: u64,
-    pub drives: Vec<DriveMeasurement>,
+    pub drives: Vec<DriveSample>,
     /// Present when the file has the truth columns.
-    pub truth: Option<Vec<DriveTruthRecord>>,
+    pub truth: Option<Vec<DriveTruth>>,
 }
 
 struct Columns {
@@ -85,8 +70,8 @@ struct ParsedRow {
     line: u64,
     step: u64,
     drive: u64,
-    measurement: DriveMeasurement,
-    truth: Option<DriveTruthRecord>,
+    measurement: DriveSample,
+    truth: Option<DriveTruth>,
 }
 
 /// Streams frames out of a drive recording.
@@ -169,7 +154,7 @@ impl<R: Read> DriveCsvReader<R> {
             return Ok(None);
         };
         let truth = match &c.truth {
-            Some([speed, angle, torque, slipping]) => Some(DriveTruthRecord {
+            Some([speed, angle, torque, slipping]) => Some(DriveTruth {
                 speed_rad_s: row.f64(speed)?,
                 angle_rad: row.f64(angle)?,
                 torque_nm: row.f64(torque)?,
@@ -181,7 +166,7 @@ impl<R: Read> DriveCsvReader<R> {
             line: row.line(),
             step: row.u64(&c.step)?,
             drive: checked_drive(&row, &c.drive, self.n_drives)?,
-            measurement: DriveMeasurement {
+            measurement: DriveSample {
                 u_alpha_v: row.f64(&c.u_alpha)?,
                 u_beta_v: row.f64(&c.u_beta)?,
                 i_alpha_a: row.f64(&c.i_alpha)?,
@@ -323,8 +308,8 @@ impl<W: Write> DriveCsvWriter<W> {
     pub fn write_frame(
         &mut self,
         step: u64,
-        drives: &[DriveMeasurement],
-        truth: Option<&[DriveTruthRecord]>,
+        drives: &[DriveSample],
+        truth: Option<&[DriveTruth]>,
     ) -> Result<(), RecordError> {
         if self.with_truth && truth.is_none_or(|t| t.len() != drives.len()) {
             return Err(RecordError::file(
@@ -388,7 +373,7 @@ mod tests {
         assert_eq!(frames[1].step, 1);
         assert_eq!(
             frames[1].drives[1],
-            DriveMeasurement {
+            DriveSample {
                 u_alpha_v: 5.0,
                 u_beta_v: 6.0,
                 i_alpha_a: 7.0,
@@ -401,13 +386,13 @@ mod tests {
     #[test]
     fn round_trip_with_truth_is_exact() {
         let drives = [
-            DriveMeasurement {
+            DriveSample {
                 u_alpha_v: 0.1 + 0.2,
                 u_beta_v: -1e-17,
                 i_alpha_a: 1.0 / 3.0,
                 i_beta_a: 12345.678,
             },
-            DriveMeasurement {
+            DriveSample {
                 u_alpha_v: 2.0,
                 u_beta_v: 3.0,
                 i_alpha_a: 4.0,
@@ -415,13 +400,13 @@ mod tests {
             },
         ];
         let truth = [
-            DriveTruthRecord {
+            DriveTruth {
                 speed_rad_s: 200.1,
                 angle_rad: -3.1,
                 torque_nm: 10.0,
                 slipping: true,
             },
-            DriveTruthRecord {
+            DriveTruth {
                 speed_rad_s: 199.9,
                 angle_rad: 0.5,
                 torque_nm: 9.5,

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 use railmon_bus::{DriveChannels, DriveFrame, MAX_DRIVES};
-use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveMeasurement, DriveTruthRecord};
+use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveSample, DriveTruth};
 use railmon_slip::{AdhesionScenario, DriveSimulator};
 
 use crate::replay::{publish, Source};
@@ -31,8 +31,8 @@ pub struct DriveArgs {
 /// One step of every drive, with ground truth when the source has it.
 #[derive(Default)]
 struct Step {
-    drives: Vec<DriveMeasurement>,
-    truth: Option<Vec<DriveTruthRecord>>,
+    drives: Vec<DriveSample>,
+    truth: Option<Vec<DriveTruth>>,
 }
 
 enum DriveData {
@@ -108,23 +108,8 @@ impl DriveData {
                     return Ok(false);
                 };
                 step.drives.clear();
-                step.drives.extend(samples.iter().map(|s| DriveMeasurement {
-                    u_alpha_v: s.u_alpha_v,
-                    u_beta_v: s.u_beta_v,
-                    i_alpha_a: s.i_alpha_a,
-                    i_beta_a: s.i_beta_a,
-                }));
-                step.truth = Some(
-                    truth
-                        .iter()
-                        .map(|t| DriveTruthRecord {
-                            speed_rad_s: t.speed_rad_s,
-                            angle_rad: t.angle_rad,
-                            torque_nm: t.torque_nm,
-                            slipping: t.slipping,
-                        })
-                        .collect(),
-                );
+                step.drives.extend_from_slice(samples);
+                step.truth = Some(truth.to_vec());
                 Ok(true)
             }
             DriveData::Csv { reader, .. } => match reader.next_frame()? {
@@ -181,12 +166,7 @@ impl Source for DriveSource {
         }
         self.drives.clear();
         self.drives
-            .extend(self.step.drives.iter().map(|d| DriveChannels {
-                u_alpha_v: d.u_alpha_v,
-                u_beta_v: d.u_beta_v,
-                i_alpha_a: d.i_alpha_a,
-                i_beta_a: d.i_beta_a,
-            }));
+            .extend(self.step.drives.iter().map(DriveChannels::from));
         let frame = DriveFrame::new(self.dt_ns, &self.drives)?;
         let sample_time_ns = self.run_step * self.dt_ns;
         self.run_step += 1;
