@@ -80,7 +80,13 @@ fn main() {
             grid_points: 33,
         },
         Variant {
-            name: "steady, Taylor 10, grid 33 (default)",
+            name: "steady, Taylor 8, grid 33 (default)",
+            propagation: Propagation::SteadyState,
+            taylor_order: 8,
+            grid_points: 33,
+        },
+        Variant {
+            name: "steady, Taylor 10, grid 33",
             propagation: Propagation::SteadyState,
             taylor_order: 10,
             grid_points: 33,

@@ -102,7 +102,7 @@ impl Default for RbpfConfig {
             prior_ln_std: 0.5,
             ln_diffusion_per_sqrt_s: 0.002,
             regeneration_fraction: 0.01,
-            regeneration_weight: 1e-3,
+            regeneration_weight: 0.1,
             propagation: Propagation::SteadyState,
             kernel: KernelSchedule::AtResampling,
             taylor_order: 8,

@@ -5,6 +5,10 @@
 //! Source: Li, Goodall, Kadirkamanathan, "Parameter estimation of railway vehicle dynamic
 //! model using Rao-Blackwellised particle filter" (`../shared/seeds/001_68f01c1310f14ea5.txt`),
 //! with the corrections of `../shared/docs/seed-notes.md`.
+//!
+//! The service runs one [`DamperMonitor`] per bogie (`step` one validated [`BogieSample`] at
+//! a time); [`BogieSimulator`] gives samples and ground truth for a [`DamperScenario`].
+//! Design, results and measurements: `docs/damper.md`.
 
 pub mod config;
 pub mod ekf;

@@ -726,8 +726,8 @@ impl Rbpf {
             }
             // Regeneration, one coefficient at a time (the other is usually known to a fraction
             // of a percent: redrawing both would almost never land near the truth), uniform
-            // in log over the gain grid's range. A newcomer starts with a small weight: it
-            // does not move the estimate, yet takes over within tens of milliseconds when the
+            // in log over the gain grid's range. A newcomer starts with a reduced weight
+            // (`regeneration_weight`): it barely moves the estimate, yet takes over when the
             // data favour it by more than ln(1 / regeneration_weight) nats (a failed damper).
             for k in 0..2 {
                 if regen > 0.0 && self.rng.random::<f64>() < regen {
