@@ -23,7 +23,9 @@ pub fn log_sum_exp(a: &[f64]) -> f64 {
 /// (the log marginal likelihood increment when the weights were `ln w + ln p(y|.)`).
 pub fn normalize_log_weights(log_w: &mut [f64]) -> Result<f64, FilterError> {
     if log_w.iter().any(|v| v.is_nan()) {
-        return Err(FilterError::NonFinite { what: "log-weights" });
+        return Err(FilterError::NonFinite {
+            what: "log-weights",
+        });
     }
     let total = log_sum_exp(log_w);
     if !total.is_finite() {

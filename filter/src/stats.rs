@@ -74,7 +74,10 @@ mod tests {
     fn summary_matches_numpy() {
         // numpy: np.percentile([1,2,3,4,10], [25,50,75]) = [2, 3, 4]; std(ddof=1) = 3.5355339
         let s = Summary::of(&[4.0, 1.0, 10.0, 3.0, 2.0]).unwrap();
-        assert_eq!((s.min, s.q1, s.median, s.q3, s.max), (1.0, 2.0, 3.0, 4.0, 10.0));
+        assert_eq!(
+            (s.min, s.q1, s.median, s.q3, s.max),
+            (1.0, 2.0, 3.0, 4.0, 10.0)
+        );
         assert!((s.mean - 4.0).abs() < 1e-12);
         assert!((s.std - 3.535_533_905_932_737_6).abs() < 1e-12);
         assert_eq!(s.iqr, 2.0);
