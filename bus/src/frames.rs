@@ -279,6 +279,64 @@ impl VehicleFrame {
     }
 }
 
+/// One 1 kHz sample of one bogie's five inertial sensors (damper monitoring), in the order of
+/// the damper paper's eq. (4). A vehicle has several bogies: each publishes its own frames on
+/// the one `bogie` stream, told apart by `bogie_id`; the sample time is the header's.
+#[derive(Clone, Copy, Debug, Default, PartialEq, ZeroCopySend)]
+#[type_name("railmon::BogieFrame.v1")]
+#[repr(C)]
+pub struct BogieFrame {
+    /// Which bogie of the vehicle (the ids the service is configured with, `[bogie] bogies`).
+    pub bogie_id: u32,
+    /// Keeps the layout explicit (`#[repr(C)]` would pad here anyway); always 0.
+    pub reserved: u32,
+    pub wheelset1_accel_m_s2: f64,
+    pub wheelset2_accel_m_s2: f64,
+    pub bogie_accel_m_s2: f64,
+    pub bogie_yaw_rate_rad_s: f64,
+    pub body_accel_m_s2: f64,
+}
+
+impl Frame for BogieFrame {
+    const STREAM: StreamKind = StreamKind::Bogie;
+}
+
+impl BogieFrame {
+    pub fn from_sample(bogie_id: u32, s: &railmon_damper::BogieSample) -> Self {
+        BogieFrame {
+            bogie_id,
+            reserved: 0,
+            wheelset1_accel_m_s2: s.wheelset1_accel_m_s2,
+            wheelset2_accel_m_s2: s.wheelset2_accel_m_s2,
+            bogie_accel_m_s2: s.bogie_accel_m_s2,
+            bogie_yaw_rate_rad_s: s.bogie_yaw_rate_rad_s,
+            body_accel_m_s2: s.body_accel_m_s2,
+        }
+    }
+
+    /// The sample, after checking that every value is finite (which bogie ids are known is
+    /// the service's configuration).
+    pub fn checked_sample(&self) -> Result<railmon_damper::BogieSample, FrameError> {
+        check_finite(
+            || format!("bogie {}", self.bogie_id),
+            [
+                ("wheelset1_accel_m_s2", self.wheelset1_accel_m_s2),
+                ("wheelset2_accel_m_s2", self.wheelset2_accel_m_s2),
+                ("bogie_accel_m_s2", self.bogie_accel_m_s2),
+                ("bogie_yaw_rate_rad_s", self.bogie_yaw_rate_rad_s),
+                ("body_accel_m_s2", self.body_accel_m_s2),
+            ],
+        )?;
+        Ok(railmon_damper::BogieSample {
+            wheelset1_accel_m_s2: self.wheelset1_accel_m_s2,
+            wheelset2_accel_m_s2: self.wheelset2_accel_m_s2,
+            bogie_accel_m_s2: self.bogie_accel_m_s2,
+            bogie_yaw_rate_rad_s: self.bogie_yaw_rate_rad_s,
+            body_accel_m_s2: self.body_accel_m_s2,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -417,6 +475,28 @@ mod tests {
         assert_eq!(
             frame.checked_sample(0.0).unwrap_err().reason(),
             "unknown_channels"
+        );
+    }
+
+    #[test]
+    fn bogie_frame_round_trips_and_rejects_nan_naming_bogie_and_channel() {
+        let sample = railmon_damper::BogieSample {
+            wheelset1_accel_m_s2: 0.1,
+            wheelset2_accel_m_s2: -0.2,
+            bogie_accel_m_s2: 0.3,
+            bogie_yaw_rate_rad_s: -0.004,
+            body_accel_m_s2: 0.05,
+        };
+        let frame = BogieFrame::from_sample(3, &sample);
+        assert_eq!(std::mem::size_of::<BogieFrame>(), 48);
+        assert_eq!(frame.checked_sample().unwrap(), sample);
+        let mut bad = frame;
+        bad.bogie_yaw_rate_rad_s = f64::NAN;
+        let err = bad.checked_sample().unwrap_err();
+        assert_eq!(err.reason(), "not_finite");
+        assert!(
+            err.to_string().contains("bogie 3 bogie_yaw_rate_rad_s is NaN"),
+            "{err}"
         );
     }
 }

@@ -26,7 +26,7 @@ pub use clock::monotonic_ns;
 pub use config::{BusConfig, StreamConfig, StreamKind};
 pub use error::BusError;
 pub use frames::{
-    DriveChannels, DriveFrame, Frame, FrameError, FrameHeader, VehicleFrame, FRAME_LAYOUT_VERSION,
+    BogieFrame, DriveChannels, DriveFrame, Frame, FrameError, FrameHeader, VehicleFrame, FRAME_LAYOUT_VERSION,
     MAX_DRIVES,
 };
 pub use node::BusNode;

@@ -4,6 +4,7 @@
 //! It waits until a subscriber (the service) has connected before the first frame (iceoryx2
 //! drops frames sent before), and again whenever nobody takes a frame (service restarted).
 
+mod bogie;
 mod drive;
 mod pacing;
 mod replay;
@@ -28,11 +29,13 @@ struct Cli {
     stream: StreamCommand,
 }
 
-/// One subcommand per stream (bogie joins with its issue).
+/// One subcommand per stream.
 #[derive(Subcommand)]
 enum StreamCommand {
     /// Traction drives: voltages and currents of all drives per control step.
     Drive(drive::DriveArgs),
+    /// Bogies at 1 kHz: wheelset, bogie and body accelerations and the bogie's yaw rate.
+    Bogie(bogie::BogieArgs),
     /// Road vehicle at 1 Hz: fuel flow, speed, pedal, engine torque and speed, gear.
     Vehicle(vehicle::VehicleArgs),
 }
@@ -114,6 +117,7 @@ fn main() -> anyhow::Result<()> {
     install_stop_handlers();
     match Cli::parse().stream {
         StreamCommand::Drive(args) => drive::run(args),
+        StreamCommand::Bogie(args) => bogie::run(args),
         StreamCommand::Vehicle(args) => vehicle::run(args),
     }
 }

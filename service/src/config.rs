@@ -6,6 +6,7 @@ use std::net::SocketAddr;
 use std::path::Path;
 
 use railmon_bus::{settings, BusConfig, BusError, MAX_DRIVES};
+use railmon_damper::DamperMonitorConfig;
 use railmon_fuel::FuelMonitorConfig;
 use railmon_slip::SlipMonitorConfig;
 use serde::{Deserialize, Serialize};
@@ -32,7 +33,7 @@ pub struct ServiceConfig {
     pub bus: BusConfig,
     pub ingest: IngestConfig,
     pub drive: DriveConfig,
-    pub bogie: PendingStreamConfig,
+    pub bogie: BogieConfig,
     pub vehicle: VehicleConfig,
 }
 
@@ -174,11 +175,55 @@ impl Default for VehicleConfig {
     }
 }
 
-/// Streams whose estimators join in later issues (bogie: damper health).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+/// Most bogies one service monitors (a vehicle has two per car; a unit of eight cars 16).
+pub const MAX_BOGIES: usize = 16;
+
+/// `[bogie]`: the bogie stream (five inertial sensors per bogie at 1 kHz) -> one
+/// `railmon_damper::DamperMonitor` per configured bogie id.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct PendingStreamConfig {
+pub struct BogieConfig {
+    /// Off by default: only vehicles with bogie sensors publish this stream, and `/readyz`
+    /// requires every enabled stream to be fresh.
     pub enabled: bool,
+    /// The bogie ids frames may carry (at most [`MAX_BOGIES`], unique); others are rejected
+    /// (`unknown_bogie`).
+    pub bogies: Vec<u32>,
+    /// The stream is stale (and `/readyz` fails) when no frame came for this long; also the
+    /// most the estimates may fall behind the samples' clock before the stream is `lagging`.
+    pub stale_after_ms: u64,
+    /// One history point per bogie per this much stream time.
+    pub history_interval_ms: u64,
+    /// History points kept (the oldest are dropped).
+    pub history_capacity: usize,
+    /// Damper health events kept.
+    pub events_capacity: usize,
+    /// Hysteresis of the damper health flag: a damper is degraded when its health ratio
+    /// (estimate / nominal) falls below `degraded_below_ratio`, healthy again when it rises
+    /// above `recovered_above_ratio`; each change is an event.
+    pub degraded_below_ratio: f64,
+    pub recovered_above_ratio: f64,
+    /// The estimator (`railmon_damper::DamperMonitorConfig`); keys given override single
+    /// defaults (e.g. `RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES=100`). Each bogie's RBPF is
+    /// seeded with `rbpf.seed + bogie id`.
+    #[serde(skip_serializing)]
+    pub estimator: DamperMonitorConfig,
+}
+
+impl Default for BogieConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            bogies: vec![1, 2],
+            stale_after_ms: 500,
+            history_interval_ms: 100,
+            history_capacity: 72_000,
+            events_capacity: 1000,
+            degraded_below_ratio: 0.7,
+            recovered_above_ratio: 0.8,
+            estimator: DamperMonitorConfig::default(),
+        }
+    }
 }
 
 impl ServiceConfig {
@@ -238,12 +283,7 @@ impl ServiceConfig {
         }
         self.drive.validate()?;
         self.vehicle.validate()?;
-        if self.bogie.enabled {
-            return Err(invalid(
-                "bogie.enabled",
-                "the bogie stream has no estimator in this version; set false".into(),
-            ));
-        }
+        self.bogie.validate()?;
         Ok(())
     }
 
@@ -288,6 +328,44 @@ fn validate_stream_keys(
         }
     }
     Ok(())
+}
+
+impl BogieConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        validate_stream_keys(
+            "bogie",
+            self.stale_after_ms,
+            self.history_interval_ms,
+            self.history_capacity,
+            self.events_capacity,
+        )?;
+        let ids = &self.bogies;
+        if ids.is_empty() || ids.len() > MAX_BOGIES {
+            return Err(invalid(
+                "bogie.bogies",
+                format!("{} ids, expected 1..={MAX_BOGIES}", ids.len()),
+            ));
+        }
+        if let Some(id) = ids.iter().enumerate().find_map(|(k, id)| ids[..k].contains(id).then_some(id)) {
+            return Err(invalid("bogie.bogies", format!("bogie id {id} appears twice")));
+        }
+        let (below, above) = (self.degraded_below_ratio, self.recovered_above_ratio);
+        if !(below > 0.0 && below < 1.0) {
+            return Err(invalid(
+                "bogie.degraded_below_ratio",
+                format!("{below} is not in (0, 1)"),
+            ));
+        }
+        if !(above > below && above <= 1.0) {
+            return Err(invalid(
+                "bogie.recovered_above_ratio",
+                format!("{above} is not in (degraded_below_ratio = {below}, 1]"),
+            ));
+        }
+        self.estimator
+            .validate()
+            .map_err(|e| invalid("bogie.estimator", e.to_string()))
+    }
 }
 
 impl VehicleConfig {
@@ -479,8 +557,60 @@ mod tests {
     }
 
     #[test]
-    fn enabling_a_stream_without_estimator_is_rejected() {
-        assert!(error_of(&[("RAILMON_BOGIE__ENABLED", "true")]).contains("bogie.enabled"));
+    fn empty_bogie_list_is_rejected() {
+        assert!(error_of(&[("RAILMON_BOGIE__BOGIES", "[]")]).contains("bogie.bogies"));
+    }
+
+    #[test]
+    fn repeated_bogie_id_is_rejected() {
+        let err = error_of(&[("RAILMON_BOGIE__BOGIES", "[1, 2, 1]")]);
+        assert!(err.contains("bogie.bogies") && err.contains("twice"), "{err}");
+    }
+
+    #[test]
+    fn too_many_bogies_are_rejected() {
+        let ids: Vec<String> = (0..=MAX_BOGIES).map(|k| k.to_string()).collect();
+        let list = format!("[{}]", ids.join(","));
+        assert!(error_of(&[("RAILMON_BOGIE__BOGIES", list.as_str())]).contains("bogie.bogies"));
+    }
+
+    #[test]
+    fn degraded_ratio_of_one_is_rejected() {
+        assert!(error_of(&[("RAILMON_BOGIE__DEGRADED_BELOW_RATIO", "1.0")])
+            .contains("bogie.degraded_below_ratio"));
+    }
+
+    #[test]
+    fn recovered_ratio_not_above_degraded_is_rejected() {
+        assert!(error_of(&[("RAILMON_BOGIE__RECOVERED_ABOVE_RATIO", "0.7")])
+            .contains("bogie.recovered_above_ratio"));
+    }
+
+    #[test]
+    fn zero_bogie_history_interval_is_rejected() {
+        assert!(error_of(&[("RAILMON_BOGIE__HISTORY_INTERVAL_MS", "0")])
+            .contains("bogie.history_interval_ms"));
+    }
+
+    #[test]
+    fn bad_bogie_estimator_value_is_rejected() {
+        let err = error_of(&[("RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES", "1")]);
+        assert!(err.contains("bogie.estimator") && err.contains("particles"), "{err}");
+    }
+
+    #[test]
+    fn bogie_estimator_keys_override_single_defaults() {
+        let config = ServiceConfig::load(
+            None,
+            [
+                ("RAILMON_BOGIE__ENABLED".to_string(), "true".to_string()),
+                ("RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES".to_string(), "50".to_string()),
+            ],
+        )
+        .unwrap();
+        let mut expected = DamperMonitorConfig::default();
+        expected.rbpf.particles = 50;
+        assert_eq!(config.bogie.estimator, expected);
     }
 
     #[test]

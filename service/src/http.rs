@@ -12,6 +12,10 @@ use railmon_bus::monotonic_ns;
 use serde::Serialize;
 use utoipa::{OpenApi, ToSchema};
 
+use crate::bogie::{
+    BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, DamperEventView,
+    DamperView,
+};
 use crate::drive::{DriveView, DrivesView, SlipEventView};
 use crate::stream::{RejectionRecord, StreamStatusView};
 use crate::vehicle::{RegimeEventView, VehicleHistoryPoint, VehicleView};
@@ -27,7 +31,7 @@ pub struct ErrorBody {
 #[derive(Debug, Serialize, ToSchema)]
 pub struct ErrorDetail {
     pub status: u16,
-    /// Stable machine-readable code: `unknown_drive`, `stream_disabled`, `bad_query`, `bad_path`,
+    /// Stable machine-readable code: `unknown_drive`, `unknown_bogie`, `stream_disabled`, `bad_query`, `bad_path`,
     /// `not_found`, `internal`.
     pub code: String,
     pub message: String,
@@ -37,6 +41,8 @@ pub struct ErrorDetail {
 pub enum AppError {
     #[error("drive {id} is not known ({known} drives)")]
     UnknownDrive { id: String, known: usize },
+    #[error("bogie {id} is not known (bogies {known:?})")]
+    UnknownBogie { id: String, known: Vec<u32> },
     #[error("the {0} stream is not enabled ({0}.enabled = false)")]
     StreamDisabled(StreamKind),
     #[error("{0}")]
@@ -53,6 +59,7 @@ impl IntoResponse for AppError {
     fn into_response(self) -> Response {
         let (status, code) = match &self {
             AppError::UnknownDrive { .. } => (StatusCode::NOT_FOUND, "unknown_drive"),
+            AppError::UnknownBogie { .. } => (StatusCode::NOT_FOUND, "unknown_bogie"),
             AppError::StreamDisabled(_) => (StatusCode::NOT_FOUND, "stream_disabled"),
             AppError::BadQuery(_) => (StatusCode::BAD_REQUEST, "bad_query"),
             AppError::BadPath(_) => (StatusCode::BAD_REQUEST, "bad_path"),
@@ -78,7 +85,7 @@ impl IntoResponse for AppError {
 #[openapi(
     info(
         title = "railmon",
-        description = "Onboard condition monitoring: wheel slip of traction drives, fuel use and driving regime of road vehicles (the damper stream joins later)."
+        description = "Onboard condition monitoring: wheel slip of traction drives, fuel use and driving regime of road vehicles, damper health of bogies."
     ),
     paths(
         drives,
@@ -88,6 +95,10 @@ impl IntoResponse for AppError {
         vehicle,
         vehicle_history,
         vehicle_events,
+        bogies,
+        bogie,
+        bogie_history,
+        bogie_events,
         status,
         healthz,
         readyz,
@@ -106,6 +117,16 @@ impl IntoResponse for AppError {
         VehicleHistoryPoint,
         RegimeEventView,
         VehicleEventsView,
+        BogiesView,
+        BogieView,
+        DamperView,
+        BogieDetail,
+        BogieHistory,
+        BogieHistoryEntry,
+        BogieHistoryEntryAt,
+        BogieHistoryPoint,
+        DamperEventView,
+        BogieEventsView,
         StatusView,
         StreamStatusView,
         RejectionRecord,
@@ -128,6 +149,10 @@ pub fn app(state: AppState) -> Router {
         .route("/api/v1/vehicle", get(vehicle))
         .route("/api/v1/vehicle/history", get(vehicle_history))
         .route("/api/v1/vehicle/events", get(vehicle_events))
+        .route("/api/v1/bogies", get(bogies))
+        .route("/api/v1/bogies/events", get(bogie_events))
+        .route("/api/v1/bogies/{id}", get(bogie))
+        .route("/api/v1/bogies/{id}/history", get(bogie_history))
         .route("/api/v1/status", get(status))
         .route("/healthz", get(healthz))
         .route("/readyz", get(readyz))
@@ -379,6 +404,145 @@ async fn vehicle_events(
     let after_id = after_id(&query)?;
     Ok(Json(VehicleEventsView {
         events: outbox.events.collect(|e| e.id > after_id),
+    }))
+}
+
+/// The bogie stream's outbox, or `stream_disabled`.
+fn bogie_outbox(state: &AppState) -> Result<&BogieShared, AppError> {
+    match state.config.bogie.enabled {
+        true => Ok(&state.bogie),
+        false => Err(AppError::StreamDisabled(StreamKind::Bogie)),
+    }
+}
+
+/// The configured bogie `id`, or `unknown_bogie`.
+fn bogie_id(state: &AppState, id: &str) -> Result<u32, AppError> {
+    let known = &state.config.bogie.bogies;
+    id.parse::<u32>()
+        .ok()
+        .filter(|n| known.contains(n))
+        .ok_or_else(|| AppError::UnknownBogie {
+            id: id.to_string(),
+            known: known.clone(),
+        })
+}
+
+#[utoipa::path(get, path = "/api/v1/bogies",
+    responses((status = 200, body = BogiesView), (status = 404, body = ErrorBody)))]
+async fn bogies(State(state): State<AppState>) -> Result<Json<BogiesView>, AppError> {
+    Ok(Json(BogiesView::clone(&bogie_outbox(&state)?.snapshot.load())))
+}
+
+/// `GET /api/v1/bogies/{id}`: one bogie with the context of its estimate.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct BogieDetail {
+    pub time_s: Option<f64>,
+    pub run: u32,
+    pub run_time_s: Option<f64>,
+    pub sequence: Option<u64>,
+    pub particles: usize,
+    /// Null before the first frame.
+    pub bogie: Option<BogieView>,
+}
+
+#[utoipa::path(get, path = "/api/v1/bogies/{id}",
+    params(("id" = u32, Path, description = "Bogie id (as configured in bogie.bogies)")),
+    responses((status = 200, body = BogieDetail), (status = 404, body = ErrorBody)))]
+async fn bogie(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<BogieDetail>, AppError> {
+    let snapshot = bogie_outbox(&state)?.snapshot.load();
+    let id = bogie_id(&state, &id)?;
+    Ok(Json(BogieDetail {
+        time_s: snapshot.time_s,
+        run: snapshot.run,
+        run_time_s: snapshot.run_time_s,
+        sequence: snapshot.sequence,
+        particles: snapshot.particles,
+        bogie: snapshot.bogies.iter().find(|b| b.bogie == id).cloned(),
+    }))
+}
+
+/// `GET /api/v1/bogies/{id}/history?seconds=N`.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct BogieHistory {
+    pub bogie: u32,
+    pub seconds: f64,
+    /// Stream time between points, s (`bogie.history_interval_ms`).
+    pub interval_s: f64,
+    pub points: Vec<BogieHistoryEntryAt>,
+}
+
+/// One bogie's history entry at a time.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct BogieHistoryEntryAt {
+    pub time_s: f64,
+    pub run: u32,
+    pub run_time_s: f64,
+    #[serde(flatten)]
+    pub entry: BogieHistoryEntry,
+}
+
+#[utoipa::path(get, path = "/api/v1/bogies/{id}/history",
+    params(("id" = u32, Path, description = "Bogie id"),
+           ("seconds" = Option<f64>, Query, description = "Window of stream time, s (default 60, at most 86400)")),
+    responses((status = 200, body = BogieHistory), (status = 400, body = ErrorBody), (status = 404, body = ErrorBody)))]
+async fn bogie_history(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    Query(query): Query<HashMap<String, String>>,
+) -> Result<Json<BogieHistory>, AppError> {
+    let outbox = bogie_outbox(&state)?;
+    let seconds = history_seconds(&query, 60.0)?;
+    let id = bogie_id(&state, &id)?;
+    let points = outbox
+        .history
+        .recent(seconds, |p| p.time_s, |p| p.bogies.iter().any(|b| b.bogie == id))
+        .into_iter()
+        .filter_map(|p| {
+            let entry = p.bogies.iter().find(|b| b.bogie == id)?.clone();
+            Some(BogieHistoryEntryAt {
+                time_s: p.time_s,
+                run: p.run,
+                run_time_s: p.run_time_s,
+                entry,
+            })
+        })
+        .collect();
+    Ok(Json(BogieHistory {
+        bogie: id,
+        seconds,
+        interval_s: state.config.bogie.history_interval_ms as f64 * 1e-3,
+        points,
+    }))
+}
+
+/// `GET /api/v1/bogies/events`: damper degraded / recovered, oldest first.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct BogieEventsView {
+    pub events: Vec<DamperEventView>,
+}
+
+#[utoipa::path(get, path = "/api/v1/bogies/events",
+    params(("after_id" = Option<u64>, Query, description = "Only events with a larger id"),
+           ("bogie" = Option<u32>, Query, description = "Only this bogie")),
+    responses((status = 200, body = BogieEventsView), (status = 400, body = ErrorBody), (status = 404, body = ErrorBody)))]
+async fn bogie_events(
+    State(state): State<AppState>,
+    Query(query): Query<HashMap<String, String>>,
+) -> Result<Json<BogieEventsView>, AppError> {
+    let outbox = bogie_outbox(&state)?;
+    only_params(&query, &["after_id", "bogie"])?;
+    let after_id = after_id(&query)?;
+    let bogie = match query.get("bogie") {
+        Some(id) => Some(bogie_id(&state, id)?),
+        None => None,
+    };
+    Ok(Json(BogieEventsView {
+        events: outbox
+            .events
+            .collect(|e| e.id > after_id && bogie.is_none_or(|b| e.bogie == b)),
     }))
 }
 

@@ -3,11 +3,13 @@
 //! Data path, in one direction: an ingest thread per stream ([`stream::run_ingest`]) owns the
 //! iceoryx2 subscriber and the stream's [`stream::Pipeline`] (drives:
 //! [`drive::DrivePipeline`] over `railmon_slip::SlipMonitor`; vehicle:
-//! [`vehicle::VehiclePipeline`] over `railmon_fuel::FuelMonitor`) and publishes results through
+//! [`vehicle::VehiclePipeline`] over `railmon_fuel::FuelMonitor`; bogies:
+//! [`bogie::BogiePipeline`], one `railmon_damper::DamperMonitor` per bogie) and publishes results through
 //! atomics, `arc-swap` snapshots and non-blocking rings ([`outbox`]); the axum handlers
-//! ([`http::app`]) only read those. Adding the bogie stream means a `Pipeline` for its frame
-//! type, an outbox, and one more [`spawn_ingest`] call in [`start_ingest`].
+//! ([`http::app`]) only read those. A stream is a `Pipeline` for its frame type, an outbox,
+//! and one [`spawn_ingest`] call in [`start_ingest`].
 
+pub mod bogie;
 pub mod config;
 pub mod drive;
 pub mod http;
@@ -25,6 +27,7 @@ use std::time::{Duration, Instant};
 pub use config::ServiceConfig;
 pub use http::app;
 
+use bogie::{BogiePipeline, BogieShared};
 use drive::{DrivePipeline, DriveShared};
 use metrics::Metrics;
 use railmon_bus::{Frame, StreamKind};
@@ -40,6 +43,7 @@ pub struct AppInner {
     pub metrics: Arc<Metrics>,
     pub drive: Arc<DriveShared>,
     pub vehicle: Arc<VehicleShared>,
+    pub bogie: Arc<BogieShared>,
     /// The enabled streams (those `/readyz` requires).
     pub streams: Vec<Arc<StreamStatus>>,
     pub started: Instant,
@@ -57,6 +61,7 @@ impl AppState {
         let metrics = Arc::new(Metrics::new()?);
         let drive = Arc::new(config.drive.outbox());
         let vehicle = Arc::new(config.vehicle.outbox());
+        let bogie = Arc::new(config.bogie.outbox());
         let status = |kind, stale_after_ms, reasons| {
             Arc::new(StreamStatus::new(
                 kind,
@@ -73,6 +78,13 @@ impl AppState {
                 DrivePipeline::REJECTION_REASONS,
             ));
         }
+        if config.bogie.enabled {
+            streams.push(status(
+                StreamKind::Bogie,
+                config.bogie.stale_after_ms,
+                BogiePipeline::REJECTION_REASONS,
+            ));
+        }
         if config.vehicle.enabled {
             streams.push(status(
                 StreamKind::Vehicle,
@@ -85,6 +97,7 @@ impl AppState {
             metrics,
             drive,
             vehicle,
+            bogie,
             streams,
             started: Instant::now(),
         })))
@@ -114,6 +127,14 @@ pub fn start_ingest(
         let pipeline = VehiclePipeline::new(
             state.config.vehicle.clone(),
             state.vehicle.clone(),
+            state.metrics.clone(),
+        );
+        threads.push(spawn_ingest(state, pipeline, status, shutdown.clone())?);
+    }
+    if let Some(status) = state.stream(StreamKind::Bogie) {
+        let pipeline = BogiePipeline::new(
+            state.config.bogie.clone(),
+            state.bogie.clone(),
             state.metrics.clone(),
         );
         threads.push(spawn_ingest(state, pipeline, status, shutdown.clone())?);

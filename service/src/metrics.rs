@@ -28,6 +28,14 @@ pub struct Metrics {
     pub stream_fresh: IntGaugeVec,
     pub estimator_step: HistogramVec,
     pub publish_to_estimate: HistogramVec,
+    pub realtime_load: GaugeVec,
+    pub stream_lag: GaugeVec,
+    pub stream_lagging: IntGaugeVec,
+    pub bogie_damping: GaugeVec,
+    pub bogie_health: GaugeVec,
+    pub bogie_degraded: IntGaugeVec,
+    pub bogie_ess: GaugeVec,
+    pub bogie_events: IntCounterVec,
     pub slip_probability: GaugeVec,
     pub speed: GaugeVec,
     pub load_torque: GaugeVec,
@@ -110,6 +118,62 @@ impl Metrics {
                     "From the publisher's send to the estimate being ready (CLOCK_MONOTONIC).",
                 ),
                 stream,
+            )?,
+            realtime_load: GaugeVec::new(
+                opts(
+                    "stream_realtime_load_ratio",
+                    "Estimator time over the sample time it covered, last second of samples (above 1: cannot keep up).",
+                ),
+                stream,
+            )?,
+            stream_lag: GaugeVec::new(
+                opts(
+                    "stream_lag_seconds",
+                    "How far the estimates fall behind the samples' own clock (growth of wall minus sample time since the source's best).",
+                ),
+                stream,
+            )?,
+            stream_lagging: IntGaugeVec::new(
+                opts(
+                    "stream_lagging",
+                    "1 while the estimator does not keep up with real time (load above 1 or lag above the staleness limit).",
+                ),
+                stream,
+            )?,
+            bogie_damping: GaugeVec::new(
+                opts(
+                    "bogie_damping_newton_seconds_per_meter",
+                    "Estimated damping coefficient (RBPF posterior mean and 5%/95% quantiles).",
+                ),
+                &["bogie", "damper", "quantity"],
+            )?,
+            bogie_health: GaugeVec::new(
+                opts(
+                    "bogie_damper_health_ratio",
+                    "Damper health: posterior mean over nominal damping.",
+                ),
+                &["bogie", "damper"],
+            )?,
+            bogie_degraded: IntGaugeVec::new(
+                opts(
+                    "bogie_damper_degraded",
+                    "1 while the damper is flagged degraded (hysteresis on the health ratio).",
+                ),
+                &["bogie", "damper"],
+            )?,
+            bogie_ess: GaugeVec::new(
+                opts(
+                    "bogie_effective_sample_size",
+                    "Effective sample size of the bogie's particle filter (particles).",
+                ),
+                &["bogie"],
+            )?,
+            bogie_events: IntCounterVec::new(
+                opts(
+                    "bogie_damper_events_total",
+                    "Damper degraded / recovered events.",
+                ),
+                &["bogie", "damper", "kind"],
             )?,
             slip_probability: GaugeVec::new(
                 opts(
@@ -218,6 +282,14 @@ impl Metrics {
         r.register(Box::new(self.stream_fresh.clone()))?;
         r.register(Box::new(self.estimator_step.clone()))?;
         r.register(Box::new(self.publish_to_estimate.clone()))?;
+        r.register(Box::new(self.realtime_load.clone()))?;
+        r.register(Box::new(self.stream_lag.clone()))?;
+        r.register(Box::new(self.stream_lagging.clone()))?;
+        r.register(Box::new(self.bogie_damping.clone()))?;
+        r.register(Box::new(self.bogie_health.clone()))?;
+        r.register(Box::new(self.bogie_degraded.clone()))?;
+        r.register(Box::new(self.bogie_ess.clone()))?;
+        r.register(Box::new(self.bogie_events.clone()))?;
         r.register(Box::new(self.slip_probability.clone()))?;
         r.register(Box::new(self.speed.clone()))?;
         r.register(Box::new(self.load_torque.clone()))?;

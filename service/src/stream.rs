@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use arc_swap::ArcSwapOption;
 use iceoryx2::prelude::CallbackProgression;
-use prometheus::{Histogram, IntCounter};
+use prometheus::{Gauge, Histogram, IntCounter, IntGauge};
 use railmon_bus::{monotonic_ns, BusConfig, BusError, BusNode, Frame, FrameHeader, StreamKind};
 use serde::Serialize;
 use utoipa::ToSchema;
@@ -53,6 +53,9 @@ pub struct StreamStatus {
     rejected_total: AtomicU64,
     step: Histogram,
     latency: Histogram,
+    realtime_load: Gauge,
+    lag: Gauge,
+    lagging_gauge: IntGauge,
     metrics: Arc<Metrics>,
     last_received_ns: AtomicU64,
     last_step_ns: AtomicU64,
@@ -60,6 +63,10 @@ pub struct StreamStatus {
     last_rejection: ArcSwapOption<RejectionRecord>,
     last_error: ArcSwapOption<String>,
     running: AtomicBool,
+    /// `f64` bits of the last real-time load (NaN: none yet).
+    realtime_load_bits: AtomicU64,
+    lag_ns: AtomicU64,
+    lagging: AtomicBool,
 }
 
 #[derive(Clone, Debug, Serialize, ToSchema)]
@@ -95,6 +102,14 @@ pub struct StreamStatusView {
     pub estimator_step_mean_us: Option<f64>,
     pub estimator_step_last_us: Option<f64>,
     pub publish_to_estimate_mean_us: Option<f64>,
+    /// Estimator time over the sample time it covered, over the last second of samples
+    /// (all sources of the stream together); above 1 the estimator cannot keep up.
+    pub realtime_load: Option<f64>,
+    /// How far the estimates fall behind the samples' own clock, s: the growth of (wall
+    /// time - sample time) since its smallest value in the current source.
+    pub lag_s: f64,
+    /// The estimator does not keep up: `realtime_load` above 1 or `lag_s` above `stale_after_s`.
+    pub lagging: bool,
     pub last_error: Option<String>,
 }
 
@@ -120,6 +135,9 @@ impl StreamStatus {
             rejected_total: AtomicU64::new(0),
             step: metrics.estimator_step.with_label_values(&label),
             latency: metrics.publish_to_estimate.with_label_values(&label),
+            realtime_load: metrics.realtime_load.with_label_values(&label),
+            lag: metrics.stream_lag.with_label_values(&label),
+            lagging_gauge: metrics.stream_lagging.with_label_values(&label),
             metrics,
             last_received_ns: AtomicU64::new(0),
             last_step_ns: AtomicU64::new(0),
@@ -127,6 +145,30 @@ impl StreamStatus {
             last_rejection: ArcSwapOption::empty(),
             last_error: ArcSwapOption::empty(),
             running: AtomicBool::new(false),
+            realtime_load_bits: AtomicU64::new(f64::NAN.to_bits()),
+            lag_ns: AtomicU64::new(0),
+            lagging: AtomicBool::new(false),
+        }
+    }
+
+    /// Records how well the estimator keeps up (see [`RealTimeTracker`]); says so in the log
+    /// when that changes.
+    fn record_realtime(&self, lag_ns: u64, load: Option<f64>) {
+        self.lag_ns.store(lag_ns, Ordering::Relaxed);
+        self.lag.set(lag_ns as f64 * 1e-9);
+        if let Some(load) = load {
+            self.realtime_load_bits
+                .store(load.to_bits(), Ordering::Relaxed);
+            self.realtime_load.set(load);
+        }
+        let load = f64::from_bits(self.realtime_load_bits.load(Ordering::Relaxed));
+        let lagging = load > 1.0 || lag_ns as u128 > self.stale_after.as_nanos();
+        if self.lagging.swap(lagging, Ordering::Relaxed) != lagging {
+            self.lagging_gauge.set(i64::from(lagging));
+            match lagging {
+                true => tracing::warn!(stream = %self.kind, load, lag_s = lag_ns as f64 * 1e-9, "estimator cannot keep up with real time"),
+                false => tracing::info!(stream = %self.kind, load, "estimator keeps up with real time again"),
+            }
         }
     }
 
@@ -179,6 +221,12 @@ impl StreamStatus {
             estimator_step_last_us: (steps > 0)
                 .then(|| self.last_step_ns.load(Ordering::Relaxed) as f64 * 1e-3),
             publish_to_estimate_mean_us: mean_us(&self.latency),
+            realtime_load: Some(f64::from_bits(
+                self.realtime_load_bits.load(Ordering::Relaxed),
+            ))
+            .filter(|l| !l.is_nan()),
+            lag_s: self.lag_ns.load(Ordering::Relaxed) as f64 * 1e-9,
+            lagging: self.lagging.load(Ordering::Relaxed),
             last_error: self.last_error.load_full().map(|e| (*e).clone()),
         }
     }
@@ -240,10 +288,55 @@ impl SequenceTracker {
     }
 }
 
+/// Whether a stream's estimator keeps up with the samples' own clock. Two measures, both
+/// valid whether the source is paced (real time) or as fast as backpressure lets it go:
+/// - load: estimator time over the advance of the sample time, per window of one second of
+///   samples (several sources of one stream, e.g. the bogies, add their times);
+/// - lag: (wall time - sample time) now minus its smallest value since the source started.
+///   A source keeping up has a constant offset (its transport delay); an estimator falling
+///   behind makes it grow (frames wait in the buffer, then backpressure slows the publisher,
+///   whose samples then fall behind the wall clock).
+#[derive(Clone, Debug, Default)]
+pub struct RealTimeTracker {
+    baseline_ns: Option<i128>,
+    window_start_sample_ns: Option<u64>,
+    window_busy_ns: u64,
+}
+
+impl RealTimeTracker {
+    /// One second of sample time per load value.
+    const WINDOW_NS: u64 = 1_000_000_000;
+
+    pub fn restart(&mut self) {
+        *self = Self::default();
+    }
+
+    /// A frame of sample time `sample_time_ns` was estimated at `done_at_ns` (monotonic) in
+    /// `step_ns`; returns the lag (ns) and the load when a window closed.
+    pub fn observe(&mut self, sample_time_ns: u64, done_at_ns: u64, step_ns: u64) -> (u64, Option<f64>) {
+        let offset = i128::from(done_at_ns) - i128::from(sample_time_ns);
+        let baseline = *self.baseline_ns.get_or_insert(offset);
+        let baseline = baseline.min(offset);
+        self.baseline_ns = Some(baseline);
+        let lag_ns = u64::try_from(offset - baseline).unwrap_or(u64::MAX);
+        self.window_busy_ns += step_ns;
+        let start = *self.window_start_sample_ns.get_or_insert(sample_time_ns);
+        let advanced = sample_time_ns.saturating_sub(start);
+        let load = (advanced >= Self::WINDOW_NS).then(|| {
+            let load = self.window_busy_ns as f64 / advanced as f64;
+            self.window_start_sample_ns = Some(sample_time_ns);
+            self.window_busy_ns = 0;
+            load
+        });
+        (lag_ns, load)
+    }
+}
+
 /// Handles one received frame: count, check, track the sequence, step, time.
 fn handle_frame<P: Pipeline>(
     pipeline: &mut P,
     tracker: &mut SequenceTracker,
+    realtime: &mut RealTimeTracker,
     status: &StreamStatus,
     header: &FrameHeader,
     frame: &P::Frame,
@@ -269,6 +362,7 @@ fn handle_frame<P: Pipeline>(
             status.sources.fetch_add(1, Ordering::Relaxed);
             tracing::info!(stream = %status.kind, instance = header.publisher_instance, run = header.run, sequence = header.sequence, "new source: estimator restarts");
             pipeline.restart();
+            realtime.restart();
         }
         SequenceCheck::Gap { missing } => {
             status.gaps.inc_by(missing);
@@ -296,8 +390,11 @@ fn handle_frame<P: Pipeline>(
         Ok(()) => {
             status.step.observe(step_ns as f64 * 1e-9);
             status.last_step_ns.store(step_ns, Ordering::Relaxed);
-            let latency_ns = monotonic_ns().saturating_sub(header.published_at_ns);
+            let done_at_ns = monotonic_ns();
+            let latency_ns = done_at_ns.saturating_sub(header.published_at_ns);
             status.latency.observe(latency_ns as f64 * 1e-9);
+            let (lag_ns, load) = realtime.observe(header.sample_time_ns, done_at_ns, step_ns);
+            status.record_realtime(lag_ns, load);
         }
         Err(rejection) => status.reject(header, rejection),
     }
@@ -346,6 +443,7 @@ fn ingest_loop<P: Pipeline>(
     let cleanup_interval = Duration::from_millis(ingest.cleanup_interval_ms);
     let mut last_cleanup = Instant::now();
     let mut tracker = SequenceTracker::default();
+    let mut realtime = RealTimeTracker::default();
     while !shutdown.load(Ordering::Relaxed) {
         waitset
             .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, wake_interval)
@@ -362,6 +460,7 @@ fn ingest_loop<P: Pipeline>(
                 handle_frame(
                     pipeline,
                     &mut tracker,
+                    &mut realtime,
                     status,
                     rx.header,
                     rx.frame,
@@ -399,6 +498,27 @@ mod tests {
             sequence,
             ..Default::default()
         }
+    }
+
+    #[test]
+    fn realtime_tracker_sees_an_estimator_falling_behind() {
+        let mut t = RealTimeTracker::default();
+        // Keeping up: each 1 ms sample done 50 us after its time (+ a constant 7 s offset).
+        let mut load = None;
+        for k in 0..=1000u64 {
+            let (lag, l) = t.observe(k * 1_000_000, 7_000_000_000 + k * 1_000_000 + 50_000, 50_000);
+            assert_eq!(lag, 0);
+            load = l.or(load);
+        }
+        assert!((load.unwrap() - 0.05).abs() < 1e-3, "{load:?}");
+        // Falling behind: 2 ms per 1 ms sample -> the lag grows by 1 ms per sample.
+        t.restart();
+        let mut last = (0, None);
+        for k in 0..=1000u64 {
+            last = t.observe(k * 1_000_000, k * 2_000_000, 2_000_000);
+        }
+        assert_eq!(last.0, 1_000_000_000);
+        assert!((last.1.unwrap() - 2.0).abs() < 1e-2, "{last:?}");
     }
 
     #[test]

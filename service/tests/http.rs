@@ -250,6 +250,16 @@ async fn probes_status_and_docs() {
 #[tokio::test]
 async fn every_metric_the_dashboard_queries_is_exported() {
     let state = vehicle_state_after(10);
+    // The bogie gauges exist (at 0) from the pipeline's start, one per configured bogie.
+    let bogie = railmon_service::config::BogieConfig {
+        enabled: true,
+        ..Default::default()
+    };
+    let _bogies = railmon_service::bogie::BogiePipeline::new(
+        bogie,
+        state.bogie.clone(),
+        state.metrics.clone(),
+    );
     let (_, _, metrics) = get(&state, "/metrics").await;
     let dashboard = std::fs::read_to_string(
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../dashboards/railmon.json"),
