@@ -495,7 +495,8 @@ mod tests {
         let err = bad.checked_sample().unwrap_err();
         assert_eq!(err.reason(), "not_finite");
         assert!(
-            err.to_string().contains("bogie 3 bogie_yaw_rate_rad_s is NaN"),
+            err.to_string()
+                .contains("bogie 3 bogie_yaw_rate_rad_s is NaN"),
             "{err}"
         );
     }

@@ -26,8 +26,8 @@ pub use clock::monotonic_ns;
 pub use config::{BusConfig, StreamConfig, StreamKind};
 pub use error::BusError;
 pub use frames::{
-    BogieFrame, DriveChannels, DriveFrame, Frame, FrameError, FrameHeader, VehicleFrame, FRAME_LAYOUT_VERSION,
-    MAX_DRIVES,
+    BogieFrame, DriveChannels, DriveFrame, Frame, FrameError, FrameHeader, VehicleFrame,
+    FRAME_LAYOUT_VERSION, MAX_DRIVES,
 };
 pub use node::BusNode;
 pub use publisher::FramePublisher;

@@ -199,8 +199,9 @@ pub struct BogieConfig {
     /// Damper health events kept.
     pub events_capacity: usize,
     /// Hysteresis of the damper health flag: a damper is degraded when its health ratio
-    /// (estimate / nominal) falls below `degraded_below_ratio`, healthy again when it rises
-    /// above `recovered_above_ratio`; each change is an event.
+    /// (estimate / nominal) falls below `degraded_below_ratio` with its whole 90% interval,
+    /// healthy again when the whole interval rises above `recovered_above_ratio`; each change
+    /// is an event.
     pub degraded_below_ratio: f64,
     pub recovered_above_ratio: f64,
     /// The estimator (`railmon_damper::DamperMonitorConfig`); keys given override single
@@ -346,8 +347,15 @@ impl BogieConfig {
                 format!("{} ids, expected 1..={MAX_BOGIES}", ids.len()),
             ));
         }
-        if let Some(id) = ids.iter().enumerate().find_map(|(k, id)| ids[..k].contains(id).then_some(id)) {
-            return Err(invalid("bogie.bogies", format!("bogie id {id} appears twice")));
+        if let Some(id) = ids
+            .iter()
+            .enumerate()
+            .find_map(|(k, id)| ids[..k].contains(id).then_some(id))
+        {
+            return Err(invalid(
+                "bogie.bogies",
+                format!("bogie id {id} appears twice"),
+            ));
         }
         let (below, above) = (self.degraded_below_ratio, self.recovered_above_ratio);
         if !(below > 0.0 && below < 1.0) {
@@ -564,7 +572,10 @@ mod tests {
     #[test]
     fn repeated_bogie_id_is_rejected() {
         let err = error_of(&[("RAILMON_BOGIE__BOGIES", "[1, 2, 1]")]);
-        assert!(err.contains("bogie.bogies") && err.contains("twice"), "{err}");
+        assert!(
+            err.contains("bogie.bogies") && err.contains("twice"),
+            "{err}"
+        );
     }
 
     #[test]
@@ -595,7 +606,10 @@ mod tests {
     #[test]
     fn bad_bogie_estimator_value_is_rejected() {
         let err = error_of(&[("RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES", "1")]);
-        assert!(err.contains("bogie.estimator") && err.contains("particles"), "{err}");
+        assert!(
+            err.contains("bogie.estimator") && err.contains("particles"),
+            "{err}"
+        );
     }
 
     #[test]
@@ -604,7 +618,10 @@ mod tests {
             None,
             [
                 ("RAILMON_BOGIE__ENABLED".to_string(), "true".to_string()),
-                ("RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES".to_string(), "50".to_string()),
+                (
+                    "RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES".to_string(),
+                    "50".to_string(),
+                ),
             ],
         )
         .unwrap();

@@ -430,7 +430,9 @@ fn bogie_id(state: &AppState, id: &str) -> Result<u32, AppError> {
 #[utoipa::path(get, path = "/api/v1/bogies",
     responses((status = 200, body = BogiesView), (status = 404, body = ErrorBody)))]
 async fn bogies(State(state): State<AppState>) -> Result<Json<BogiesView>, AppError> {
-    Ok(Json(BogiesView::clone(&bogie_outbox(&state)?.snapshot.load())))
+    Ok(Json(BogiesView::clone(
+        &bogie_outbox(&state)?.snapshot.load(),
+    )))
 }
 
 /// `GET /api/v1/bogies/{id}`: one bogie with the context of its estimate.
@@ -498,7 +500,11 @@ async fn bogie_history(
     let id = bogie_id(&state, &id)?;
     let points = outbox
         .history
-        .recent(seconds, |p| p.time_s, |p| p.bogies.iter().any(|b| b.bogie == id))
+        .recent(
+            seconds,
+            |p| p.time_s,
+            |p| p.bogies.iter().any(|b| b.bogie == id),
+        )
         .into_iter()
         .filter_map(|p| {
             let entry = p.bogies.iter().find(|b| b.bogie == id)?.clone();

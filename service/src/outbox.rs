@@ -103,7 +103,15 @@ impl<P: Clone, E: Clone> Track<P, E> {
         let due = time_s >= self.next_history_s;
         if due {
             let interval_s = self.history_interval_s;
-            self.next_history_s = ((time_s / interval_s).floor() + 1.0) * interval_s;
+            let next = ((time_s / interval_s).floor() + 1.0) * interval_s;
+            // `time_s / interval_s` can round below a whole number (0.3 / 0.1 =
+            // 2.9999999999999996): the next point must still come after `time_s`, or frames
+            // of the same time (the bogies of one step) would each get a point.
+            self.next_history_s = if next > time_s {
+                next
+            } else {
+                next + interval_s
+            };
         }
         due
     }
@@ -139,6 +147,19 @@ mod tests {
             sample_time_ns,
             ..Default::default()
         }
+    }
+
+    #[test]
+    fn frames_of_the_same_time_get_one_history_point() {
+        let mut track: Track<f64, ()> = Track::new(0.001, 100);
+        let mut points = 0;
+        for k in 0..1000u64 {
+            for _bogie in 0..2 {
+                let stamp = track.stamp(&header(0, k * 1_000_000));
+                points += usize::from(track.history_due(stamp.time_s));
+            }
+        }
+        assert_eq!(points, 10);
     }
 
     #[test]

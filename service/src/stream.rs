@@ -166,8 +166,12 @@ impl StreamStatus {
         if self.lagging.swap(lagging, Ordering::Relaxed) != lagging {
             self.lagging_gauge.set(i64::from(lagging));
             match lagging {
-                true => tracing::warn!(stream = %self.kind, load, lag_s = lag_ns as f64 * 1e-9, "estimator cannot keep up with real time"),
-                false => tracing::info!(stream = %self.kind, load, "estimator keeps up with real time again"),
+                true => {
+                    tracing::warn!(stream = %self.kind, load, lag_s = lag_ns as f64 * 1e-9, "estimator cannot keep up with real time")
+                }
+                false => {
+                    tracing::info!(stream = %self.kind, load, "estimator keeps up with real time again")
+                }
             }
         }
     }
@@ -313,7 +317,12 @@ impl RealTimeTracker {
 
     /// A frame of sample time `sample_time_ns` was estimated at `done_at_ns` (monotonic) in
     /// `step_ns`; returns the lag (ns) and the load when a window closed.
-    pub fn observe(&mut self, sample_time_ns: u64, done_at_ns: u64, step_ns: u64) -> (u64, Option<f64>) {
+    pub fn observe(
+        &mut self,
+        sample_time_ns: u64,
+        done_at_ns: u64,
+        step_ns: u64,
+    ) -> (u64, Option<f64>) {
         let offset = i128::from(done_at_ns) - i128::from(sample_time_ns);
         let baseline = *self.baseline_ns.get_or_insert(offset);
         let baseline = baseline.min(offset);
@@ -506,7 +515,11 @@ mod tests {
         // Keeping up: each 1 ms sample done 50 us after its time (+ a constant 7 s offset).
         let mut load = None;
         for k in 0..=1000u64 {
-            let (lag, l) = t.observe(k * 1_000_000, 7_000_000_000 + k * 1_000_000 + 50_000, 50_000);
+            let (lag, l) = t.observe(
+                k * 1_000_000,
+                7_000_000_000 + k * 1_000_000 + 50_000,
+                50_000,
+            );
             assert_eq!(lag, 0);
             load = l.or(load);
         }

@@ -410,15 +410,57 @@ async fn vehicle_history_and_events() {
 }
 
 #[tokio::test]
-async fn a_disabled_vehicle_stream_is_a_json_404() {
+async fn disabled_vehicle_and_bogie_streams_are_json_404s() {
     let state = state_after(10);
     for uri in [
         "/api/v1/vehicle",
         "/api/v1/vehicle/history",
         "/api/v1/vehicle/events",
+        "/api/v1/bogies",
+        "/api/v1/bogies/1",
+        "/api/v1/bogies/1/history",
+        "/api/v1/bogies/events",
     ] {
         let (status, body) = get_json(&state, uri).await;
         assert_eq!(status, StatusCode::NOT_FOUND, "{uri}");
         assert_error(&body, 404, "stream_disabled");
     }
+}
+
+#[tokio::test]
+async fn unknown_bogies_and_bad_bogie_queries_are_json_errors() {
+    let config = ServiceConfig {
+        bogie: railmon_service::config::BogieConfig {
+            enabled: true,
+            ..Default::default()
+        },
+        ..ServiceConfig::default()
+    };
+    let state = AppState::new(config).unwrap();
+    for uri in [
+        "/api/v1/bogies/9",
+        "/api/v1/bogies/x/history",
+        "/api/v1/bogies/events?bogie=3",
+    ] {
+        let (status, body) = get_json(&state, uri).await;
+        assert_eq!(status, StatusCode::NOT_FOUND, "{uri}");
+        assert_error(&body, 404, "unknown_bogie");
+        assert!(
+            body["error"]["message"]
+                .as_str()
+                .unwrap()
+                .contains("[1, 2]"),
+            "{body}"
+        );
+    }
+    for uri in [
+        "/api/v1/bogies/1/history?seconds=-1",
+        "/api/v1/bogies/events?after=3",
+    ] {
+        let (status, body) = get_json(&state, uri).await;
+        assert_eq!(status, StatusCode::BAD_REQUEST, "{uri}");
+        assert_error(&body, 400, "bad_query");
+    }
+    let (status, _) = get_json(&state, "/api/v1/bogies/2").await;
+    assert_eq!(status, StatusCode::OK);
 }
