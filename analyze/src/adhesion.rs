@@ -14,7 +14,7 @@
 
 pub mod plots;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use railmon_filter::stats::Summary;
 use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveTruth};
@@ -24,29 +24,14 @@ use railmon_slip::{
     DriveSimulator, MultiMethodPipeline, SlipError, SlipMonitorConfig,
 };
 
-use crate::report::{create_out_dir, progress_bar, ReportError};
+use crate::report::{create_out_dir, progress_bar, ReportError, RunArgs};
 
 /// Run the drive EKFs and every adhesion-loss method (VB, VMP, k-means, median, temporal) over
 /// a scenario or a recorded drive CSV; write estimates, Table 1, detection scores and plots.
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
-    /// A recorded drive CSV (layout: docs/adhesion.md, `railmon_records::drive`).
-    #[arg(
-        long,
-        required_unless_present = "scenario",
-        conflicts_with = "scenario"
-    )]
-    pub input: Option<PathBuf>,
-    /// A simulator scenario (`config/scenarios/adhesion-*.toml`).
-    #[arg(long)]
-    pub scenario: Option<PathBuf>,
-    /// Estimator settings (TOML, the fields of `SlipMonitorConfig`). Default: the scenario's
-    /// `[monitor]` table, or the built-in setting (paper values) for recordings.
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Output directory (created if needed).
-    #[arg(long)]
-    pub out: PathBuf,
+    #[command(flatten)]
+    pub run: RunArgs,
     /// Skip the PNG plots (CSV reports only).
     #[arg(long)]
     pub no_plots: bool,
@@ -173,9 +158,9 @@ fn estimator_error(path: &Path) -> impl Fn(SlipError) -> AdhesionAnalysisError +
 
 /// Runs the analysis the arguments ask for and writes every report file.
 pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
-    create_out_dir(&args.out)?;
+    create_out_dir(&args.run.out)?;
     let (name, mut config, source, n_drives, n_steps_hint, record) =
-        match (&args.input, &args.scenario) {
+        match (&args.run.input, &args.run.scenario) {
             (Some(path), _) => {
                 let reader = DriveCsvReader::open(path, None)?;
                 let name = path.display().to_string();
@@ -192,7 +177,7 @@ pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
                 let scenario = AdhesionScenario::from_toml_str(&read_text(path)?)
                     .map_err(estimator_error(path))?;
                 let sim = DriveSimulator::new(&scenario).map_err(estimator_error(path))?;
-                let writer = DriveCsvWriter::create(&args.out.join("drives.csv"), true)?;
+                let writer = DriveCsvWriter::create(&args.run.out.join("drives.csv"), true)?;
                 let name = path.display().to_string();
                 let n = scenario.n_drives();
                 (
@@ -211,7 +196,7 @@ pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
                 ))
             }
         };
-    if let Some(path) = &args.config {
+    if let Some(path) = &args.run.config {
         config =
             SlipMonitorConfig::from_toml_str(&read_text(path)?).map_err(estimator_error(path))?;
     }
@@ -222,11 +207,11 @@ pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
         n_drives,
         n_steps_hint,
         record,
-        &args.out,
+        &args.run.out,
     )?;
-    let report = write_tables(&run, args.table1_skip_steps, &args.out)?;
+    let report = write_tables(&run, args.table1_skip_steps, &args.run.out)?;
     if !args.no_plots {
-        plots::write_all(&run, &report, &args.out)?;
+        plots::write_all(&run, &report, &args.run.out)?;
     }
     print_summary(&run, &report);
     Ok(report)
@@ -509,6 +494,7 @@ fn print_summary(run: &AdhesionRun, report: &AdhesionReport) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::PathBuf;
 
     const SEED: &str = include_str!("../../config/scenarios/adhesion-seed.toml");
 
@@ -536,10 +522,12 @@ mod tests {
         no_plots: bool,
     ) -> Args {
         Args {
-            input,
-            scenario,
-            config,
-            out,
+            run: RunArgs {
+                input,
+                scenario,
+                config,
+                out,
+            },
             no_plots,
             table1_skip_steps: 0,
         }

@@ -24,7 +24,7 @@
 //!
 //! Errors and settling times are evaluated on the `--csv-every` grid (10 ms by default).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use railmon_damper::{
@@ -34,28 +34,13 @@ use railmon_damper::{
 use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord};
 use railmon_records::{create_csv, RecordError};
 
-use crate::report::{create_out_dir, line_plot, progress_bar, Axes, ReportError, Series};
+use crate::report::{create_out_dir, line_plot, progress_bar, Axes, ReportError, RunArgs, Series};
 
 /// Arguments of `railmon analyze damper`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
-    /// A recorded bogie CSV (layout: docs/damper.md, `railmon_records::bogie`).
-    #[arg(
-        long,
-        required_unless_present = "scenario",
-        conflicts_with = "scenario"
-    )]
-    pub input: Option<PathBuf>,
-    /// A simulator scenario (`config/scenarios/damper-*.toml`).
-    #[arg(long)]
-    pub scenario: Option<PathBuf>,
-    /// Estimator settings (TOML, the fields of `DamperMonitorConfig`). Default: the
-    /// scenario's `[monitor]` table, or the built-in settings for recordings.
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Output directory (created if needed).
-    #[arg(long)]
-    pub out: PathBuf,
+    #[command(flatten)]
+    pub run: RunArgs,
     /// Number of particles (overrides the configuration).
     #[arg(long)]
     pub particles: Option<usize>,
@@ -198,46 +183,47 @@ impl Source {
 
 /// Runs the analysis the arguments ask for and writes every report file.
 pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
-    create_out_dir(&args.out)?;
-    let (name, mut config, source, n_steps, faults, record) = match (&args.input, &args.scenario) {
-        (Some(path), _) => {
-            let reader = BogieCsvReader::open(path)?;
-            let name = path.display().to_string();
-            (
-                name,
-                DamperMonitorConfig::default(),
-                Source::Recording(Box::new(reader)),
-                None,
-                vec![],
-                None,
-            )
-        }
-        (None, Some(path)) => {
-            let name = path.display().to_string();
-            let mut scenario =
-                DamperScenario::from_toml_str(&read_text(path)?).map_err(estimator_error(&name))?;
-            if let Some(d) = args.duration_s {
-                scenario.duration_s = d;
+    create_out_dir(&args.run.out)?;
+    let (name, mut config, source, n_steps, faults, record) =
+        match (&args.run.input, &args.run.scenario) {
+            (Some(path), _) => {
+                let reader = BogieCsvReader::open(path)?;
+                let name = path.display().to_string();
+                (
+                    name,
+                    DamperMonitorConfig::default(),
+                    Source::Recording(Box::new(reader)),
+                    None,
+                    vec![],
+                    None,
+                )
             }
-            let sim = BogieSimulator::new(&scenario).map_err(estimator_error(&name))?;
-            let writer = BogieCsvWriter::create(&args.out.join("bogie.csv"), true)?;
-            (
-                name,
-                scenario.monitor_config(),
-                Source::Simulator(Box::new(sim)),
-                Some(scenario.n_steps()),
-                scenario.faults.clone(),
-                Some(writer),
-            )
-        }
-        (None, None) => {
-            return Err(input_error(
-                Path::new("<arguments>"),
-                "give --input CSV or --scenario FILE",
-            ))
-        }
-    };
-    if let Some(path) = &args.config {
+            (None, Some(path)) => {
+                let name = path.display().to_string();
+                let mut scenario = DamperScenario::from_toml_str(&read_text(path)?)
+                    .map_err(estimator_error(&name))?;
+                if let Some(d) = args.duration_s {
+                    scenario.duration_s = d;
+                }
+                let sim = BogieSimulator::new(&scenario).map_err(estimator_error(&name))?;
+                let writer = BogieCsvWriter::create(&args.run.out.join("bogie.csv"), true)?;
+                (
+                    name,
+                    scenario.monitor_config(),
+                    Source::Simulator(Box::new(sim)),
+                    Some(scenario.n_steps()),
+                    scenario.faults.clone(),
+                    Some(writer),
+                )
+            }
+            (None, None) => {
+                return Err(input_error(
+                    Path::new("<arguments>"),
+                    "give --input CSV or --scenario FILE",
+                ))
+            }
+        };
+    if let Some(path) = &args.run.config {
         let file = path.display().to_string();
         config = DamperMonitorConfig::from_toml_str(&read_text(path)?)
             .map_err(estimator_error(&file))?;
@@ -260,25 +246,25 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
         max_steps,
         args.csv_every.max(1),
     )?;
-    write_estimates(&args.out.join("estimates.csv"), &trace)?;
+    write_estimates(&args.run.out.join("estimates.csv"), &trace)?;
     let has_truth = trace.iter().all(|p| p.truth.is_some()) && !trace.is_empty();
     let summary = if has_truth { summarise(&trace) } else { vec![] };
     if has_truth {
-        write_summary(&args.out.join("summary.csv"), &summary)?;
+        write_summary(&args.run.out.join("summary.csv"), &summary)?;
     }
     let fault_rows = if has_truth && !faults.is_empty() {
         let rows = fault_table(&trace, &faults);
-        write_faults(&args.out.join("faults.csv"), &rows)?;
+        write_faults(&args.run.out.join("faults.csv"), &rows)?;
         rows
     } else {
         vec![]
     };
     if !args.no_plots {
-        plots(&args.out, &trace)?;
+        plots(&args.run.out, &trace)?;
     }
     let mean_step_us = elapsed.as_secs_f64() * 1e6 / steps.max(1) as f64;
     write_table(
-        &args.out.join("timing.csv"),
+        &args.run.out.join("timing.csv"),
         &[
             "steps",
             "particles",

@@ -15,7 +15,7 @@ pub mod evaluate;
 mod plots;
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use railmon_fuel::{
     DriveCycle, FuelError, FuelMonitorConfig, VehicleSample, VehicleScenario, VehicleSimulator,
@@ -23,29 +23,14 @@ use railmon_fuel::{
 use railmon_records::vehicle::{read_drive_cycle, read_vehicle_csv, write_vehicle_csv, VehicleRow};
 use railmon_records::{create_csv, RecordError};
 
-use crate::report::{create_out_dir, progress_bar, ReportError};
+use crate::report::{create_out_dir, progress_bar, ReportError, RunArgs};
 pub use evaluate::{evaluate, Evaluation, PredictionRow, RegimeScore, ScoreRow};
 
 /// Arguments of `railmon analyze fuel`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
-    /// A vehicle recording: the railmon layout or an ANL Camry dynamometer file as shipped.
-    #[arg(
-        long,
-        required_unless_present = "scenario",
-        conflicts_with = "scenario"
-    )]
-    pub input: Option<PathBuf>,
-    /// A simulator scenario (`config/scenarios/fuel-*.toml`).
-    #[arg(long)]
-    pub scenario: Option<PathBuf>,
-    /// Estimator settings (TOML, the fields of `FuelMonitorConfig`). Default: the scenario's
-    /// `[monitor]` table, or the built-in setting for recordings.
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Output directory (created if needed).
-    #[arg(long)]
-    pub out: PathBuf,
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 /// Why an analysis failed.
@@ -196,7 +181,7 @@ pub fn simulate_scenario(path: &Path) -> Result<(FuelInput, Vec<VehicleRow>), Fu
 /// `railmon analyze fuel`.
 pub fn run(args: &Args) -> Result<Evaluation, FuelAnalysisError> {
     // Read everything first: a bad input leaves no half-written output directory.
-    let (mut input, simulated) = match (&args.input, &args.scenario) {
+    let (mut input, simulated) = match (&args.run.input, &args.run.scenario) {
         (Some(path), _) => (load_recording(path)?, None),
         (None, Some(path)) => {
             let (input, rows) = simulate_scenario(path)?;
@@ -209,14 +194,14 @@ pub fn run(args: &Args) -> Result<Evaluation, FuelAnalysisError> {
             })
         }
     };
-    if let Some(path) = &args.config {
+    if let Some(path) = &args.run.config {
         input.config = read_config(path)?;
     }
-    create_out_dir(&args.out)?;
+    create_out_dir(&args.run.out)?;
     if let Some(rows) = simulated {
-        write_vehicle_csv(&args.out.join("simulated.csv"), &rows)?;
+        write_vehicle_csv(&args.run.out.join("simulated.csv"), &rows)?;
     }
-    analyse(&input, &args.out)
+    analyse(&input, &args.run.out)
 }
 
 /// Evaluates `input` and writes the report files into `out`.

@@ -24,6 +24,30 @@ impl ReportError {
     }
 }
 
+/// What every `railmon analyze <domain>` command reads and where it writes. Each domain's
+/// `Args` flattens this and adds its own options.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct RunArgs {
+    /// A recorded CSV (layouts: docs/adhesion.md, docs/damper.md, docs/fuel.md; for fuel also an
+    /// ANL Camry dynamometer file as shipped).
+    #[arg(
+        long,
+        required_unless_present = "scenario",
+        conflicts_with = "scenario"
+    )]
+    pub input: Option<PathBuf>,
+    /// A simulator scenario (`config/scenarios/<domain>-*.toml`).
+    #[arg(long)]
+    pub scenario: Option<PathBuf>,
+    /// Estimator settings (TOML, the fields of the domain's monitor configuration). Default:
+    /// the scenario's `[monitor]` table, or the built-in settings for recordings.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Output directory (created if needed).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
 /// Creates `dir` (and parents) if needed.
 pub fn create_out_dir(dir: &Path) -> Result<(), ReportError> {
     std::fs::create_dir_all(dir)

@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use railmon_analyze::damper::{run, Args, DamperAnalysisError};
+use railmon_analyze::report::RunArgs;
 
 fn scenario(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../config/scenarios/{name}.toml"))
@@ -17,10 +18,12 @@ fn out_dir(tag: &str) -> PathBuf {
 
 fn args(out: &Path) -> Args {
     Args {
-        input: None,
-        scenario: None,
-        config: None,
-        out: out.to_owned(),
+        run: RunArgs {
+            input: None,
+            scenario: None,
+            config: None,
+            out: out.to_owned(),
+        },
         particles: Some(100),
         propagation: None,
         duration_s: Some(3.0),
@@ -33,7 +36,7 @@ fn args(out: &Path) -> Args {
 fn scenario_run_writes_reports_and_its_recording_replays_identically() {
     let out = out_dir("scenario");
     let mut a = args(&out);
-    a.scenario = Some(scenario("damper-seed"));
+    a.run.scenario = Some(scenario("damper-seed"));
     let report = run(&a).unwrap();
     assert_eq!(report.steps, 3000);
     assert_eq!(report.summary.len(), 4);
@@ -71,8 +74,8 @@ fn scenario_run_writes_reports_and_its_recording_replays_identically() {
     )
     .unwrap();
     let mut b = args(&replay);
-    b.input = Some(out.join("bogie.csv"));
-    b.config = Some(config);
+    b.run.input = Some(out.join("bogie.csv"));
+    b.run.config = Some(config);
     run(&b).unwrap();
     let replayed = std::fs::read_to_string(replay.join("estimates.csv")).unwrap();
     assert_eq!(replayed, estimates);
@@ -92,7 +95,7 @@ fn a_bad_recording_is_an_error_naming_file_line_and_field() {
     )
     .unwrap();
     let mut a = args(&out);
-    a.input = Some(input);
+    a.run.input = Some(input);
     a.duration_s = None;
     let err = run(&a).unwrap_err();
     assert!(matches!(err, DamperAnalysisError::Record(_)));

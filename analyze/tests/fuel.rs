@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use railmon_analyze::fuel::{evaluate, load_recording, run, simulate_scenario, Args, Evaluation};
+use railmon_analyze::report::RunArgs;
 
 fn shared_data() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
@@ -68,10 +69,12 @@ fn scenario_run_writes_every_report() {
     let scenario = small_scenario(&dir);
     let out = dir.join("out");
     let ev = run(&Args {
-        input: None,
-        scenario: Some(scenario.clone()),
-        config: None,
-        out: out.clone(),
+        run: RunArgs {
+            input: None,
+            scenario: Some(scenario.clone()),
+            config: None,
+            out: out.clone(),
+        },
     })
     .unwrap();
     assert_eq!(ev.samples, 500);
