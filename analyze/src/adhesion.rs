@@ -24,6 +24,7 @@ use railmon_slip::{
     DriveSimulator, MultiMethodPipeline, SlipError, SlipMonitorConfig,
 };
 
+use crate::report::AnalysisError;
 use crate::report::{create_out_dir, progress_bar, ReportError, RunArgs};
 
 /// Run the drive EKFs and every adhesion-loss method (VB, VMP, k-means, median, temporal) over
@@ -41,18 +42,8 @@ pub struct Args {
     pub table1_skip_steps: usize,
 }
 
-/// Why an analysis failed.
-#[derive(Debug, thiserror::Error)]
-pub enum AdhesionAnalysisError {
-    #[error(transparent)]
-    Record(#[from] RecordError),
-    #[error(transparent)]
-    Report(#[from] ReportError),
-    #[error("{file}: {source}")]
-    Estimator { file: String, source: SlipError },
-    #[error("{file}: {reason}")]
-    Input { file: String, reason: String },
-}
+/// Why `railmon analyze adhesion` failed.
+pub type AdhesionAnalysisError = AnalysisError<SlipError>;
 
 /// Where the frames come from.
 enum Source {

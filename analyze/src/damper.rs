@@ -34,7 +34,8 @@ use railmon_damper::{
 use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord};
 use railmon_records::{create_csv, RecordError};
 
-use crate::report::{create_out_dir, line_plot, progress_bar, Axes, ReportError, RunArgs, Series};
+use crate::report::AnalysisError;
+use crate::report::{create_out_dir, line_plot, progress_bar, Axes, RunArgs, Series};
 
 /// Arguments of `railmon analyze damper`.
 #[derive(clap::Args, Debug, Clone)]
@@ -66,22 +67,8 @@ fn parse_propagation(s: &str) -> Result<Propagation, String> {
     }
 }
 
-/// Why an analysis failed.
-#[derive(Debug, thiserror::Error)]
-pub enum DamperAnalysisError {
-    #[error(transparent)]
-    Record(#[from] RecordError),
-    #[error(transparent)]
-    Report(#[from] ReportError),
-    #[error("{file}: {reason}")]
-    Input { file: String, reason: String },
-    #[error("{file}: {source}")]
-    Estimator {
-        file: String,
-        #[source]
-        source: DamperError,
-    },
-}
+/// Why `railmon analyze damper` failed.
+pub type DamperAnalysisError = AnalysisError<DamperError>;
 
 fn input_error(path: &Path, reason: impl ToString) -> DamperAnalysisError {
     DamperAnalysisError::Input {

@@ -23,7 +23,8 @@ use railmon_fuel::{
 use railmon_records::vehicle::{read_drive_cycle, read_vehicle_csv, write_vehicle_csv, VehicleRow};
 use railmon_records::{create_csv, RecordError};
 
-use crate::report::{create_out_dir, progress_bar, ReportError, RunArgs};
+use crate::report::AnalysisError;
+use crate::report::{create_out_dir, progress_bar, RunArgs};
 pub use evaluate::{evaluate, Evaluation, PredictionRow, RegimeScore, ScoreRow};
 
 /// Arguments of `railmon analyze fuel`.
@@ -33,18 +34,8 @@ pub struct Args {
     pub run: RunArgs,
 }
 
-/// Why an analysis failed.
-#[derive(Debug, thiserror::Error)]
-pub enum FuelAnalysisError {
-    #[error(transparent)]
-    Record(#[from] RecordError),
-    #[error(transparent)]
-    Report(#[from] ReportError),
-    #[error("{file}: {source}")]
-    Estimator { file: String, source: FuelError },
-    #[error("{file}: {reason}")]
-    Input { file: String, reason: String },
-}
+/// Why `railmon analyze fuel` failed.
+pub type FuelAnalysisError = AnalysisError<FuelError>;
 
 /// Samples to analyse, with labels when simulated.
 pub struct FuelInput {

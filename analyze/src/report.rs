@@ -24,6 +24,24 @@ impl ReportError {
     }
 }
 
+/// Why an analysis failed: a bad input file, a report that could not be written, or the
+/// estimator (of type `E`) refusing a sample, each naming the file.
+#[derive(Debug, thiserror::Error)]
+pub enum AnalysisError<E: std::error::Error + 'static> {
+    #[error(transparent)]
+    Record(#[from] railmon_records::RecordError),
+    #[error(transparent)]
+    Report(#[from] ReportError),
+    #[error("{file}: {reason}")]
+    Input { file: String, reason: String },
+    #[error("{file}: {source}")]
+    Estimator {
+        file: String,
+        #[source]
+        source: E,
+    },
+}
+
 /// What every `railmon analyze <domain>` command reads and where it writes. Each domain's
 /// `Args` flattens this and adds its own options.
 #[derive(clap::Args, Debug, Clone, Default)]
