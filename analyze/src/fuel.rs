@@ -68,17 +68,7 @@ fn read_config(path: &Path) -> Result<FuelMonitorConfig, FuelAnalysisError> {
 
 /// A recording as monitor samples.
 pub fn samples_from_rows(rows: &[VehicleRow]) -> Vec<VehicleSample> {
-    rows.iter()
-        .map(|r| VehicleSample {
-            time_s: r.time_s,
-            fuel_cm3_s: r.fuel_cm3_s,
-            speed_m_s: r.speed_m_s,
-            pedal_pct: r.pedal_pct,
-            engine_torque_nm: r.engine_torque_nm,
-            engine_speed_rpm: r.engine_speed_rpm,
-            gear: r.gear,
-        })
-        .collect()
+    rows.iter().map(|r| r.sample).collect()
 }
 
 /// Reads a recording (labels from a `regime` column if it has one).
@@ -146,13 +136,7 @@ pub fn simulate_scenario(path: &Path) -> Result<(FuelInput, Vec<VehicleRow>), Fu
     let (mut samples, mut labels, mut rows) = (Vec::new(), Vec::new(), Vec::new());
     while let Some((s, truth)) = sim.step() {
         rows.push(VehicleRow {
-            time_s: s.time_s,
-            fuel_cm3_s: s.fuel_cm3_s,
-            speed_m_s: s.speed_m_s,
-            pedal_pct: s.pedal_pct,
-            engine_torque_nm: s.engine_torque_nm,
-            engine_speed_rpm: s.engine_speed_rpm,
-            gear: s.gear,
+            sample: s,
             regime: Some(names[truth.regime].clone()),
         });
         samples.push(s);

@@ -21,17 +21,14 @@ use crate::{create_csv, CsvTable, RecordError};
 /// m/s per mph (exact: 1 mph = 0.44704 m/s).
 pub const M_S_PER_MPH: f64 = 0.44704;
 
-/// One row of a vehicle recording; channels the source lacks are `None`.
+// The sample type is the estimator's own: a recording holds exactly what the monitor consumes.
+pub use railmon_fuel::VehicleSample;
+
+/// One row of a vehicle recording: the sample (channels the source lacks are `None`) and, for
+/// simulated data, the regime label written beside it.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct VehicleRow {
-    pub time_s: f64,
-    pub fuel_cm3_s: Option<f64>,
-    pub speed_m_s: Option<f64>,
-    pub pedal_pct: Option<f64>,
-    pub engine_torque_nm: Option<f64>,
-    pub engine_speed_rpm: Option<f64>,
-    pub gear: Option<i32>,
-    /// Regime label written beside simulated samples.
+    pub sample: VehicleSample,
     pub regime: Option<String>,
 }
 
@@ -135,13 +132,15 @@ fn read_vehicle_table<R: Read>(
             None => None,
         };
         rows.push(VehicleRow {
-            time_s,
-            fuel_cm3_s: opt(&fuel)?,
-            speed_m_s: opt(&speed)?.map(|v| v * speed_factor),
-            pedal_pct: opt(&pedal)?,
-            engine_torque_nm: opt(&torque)?,
-            engine_speed_rpm: opt(&rpm)?,
-            gear,
+            sample: VehicleSample {
+                time_s,
+                fuel_cm3_s: opt(&fuel)?,
+                speed_m_s: opt(&speed)?.map(|v| v * speed_factor),
+                pedal_pct: opt(&pedal)?,
+                engine_torque_nm: opt(&torque)?,
+                engine_speed_rpm: opt(&rpm)?,
+                gear,
+            },
             regime: regime.as_ref().map(|c| row.text(c).to_owned()),
         });
     }
@@ -159,12 +158,12 @@ pub fn write_vehicle_csv(path: &Path, rows: &[VehicleRow]) -> Result<(), RecordE
     let first = rows.first().cloned().unwrap_or_default();
     let present = [
         true,
-        first.fuel_cm3_s.is_some(),
-        first.speed_m_s.is_some(),
-        first.pedal_pct.is_some(),
-        first.engine_torque_nm.is_some(),
-        first.engine_speed_rpm.is_some(),
-        first.gear.is_some(),
+        first.sample.fuel_cm3_s.is_some(),
+        first.sample.speed_m_s.is_some(),
+        first.sample.pedal_pct.is_some(),
+        first.sample.engine_torque_nm.is_some(),
+        first.sample.engine_speed_rpm.is_some(),
+        first.sample.gear.is_some(),
         first.regime.is_some(),
     ];
     let header: Vec<&str> = RAILMON_COLUMNS
@@ -177,13 +176,13 @@ pub fn write_vehicle_csv(path: &Path, rows: &[VehicleRow]) -> Result<(), RecordE
     for r in rows {
         let num = |v: Option<f64>| v.map_or(String::new(), |x| x.to_string());
         let fields = [
-            r.time_s.to_string(),
-            num(r.fuel_cm3_s),
-            num(r.speed_m_s),
-            num(r.pedal_pct),
-            num(r.engine_torque_nm),
-            num(r.engine_speed_rpm),
-            r.gear.map_or(String::new(), |g| g.to_string()),
+            r.sample.time_s.to_string(),
+            num(r.sample.fuel_cm3_s),
+            num(r.sample.speed_m_s),
+            num(r.sample.pedal_pct),
+            num(r.sample.engine_torque_nm),
+            num(r.sample.engine_speed_rpm),
+            r.sample.gear.map_or(String::new(), |g| g.to_string()),
             r.regime.clone().unwrap_or_default(),
         ];
         let out: Vec<&String> = fields
@@ -263,13 +262,13 @@ mod tests {
         let rows = camry(text).unwrap();
         assert_eq!(rows.len(), 2);
         assert_eq!(
-            rows[0].time_s.to_bits(),
+            rows[0].sample.time_s.to_bits(),
             0f64.to_bits(),
             "-0.0 is read as +0.0"
         );
-        assert_eq!(rows[1].fuel_cm3_s, Some(1.158));
-        assert!((rows[1].speed_m_s.unwrap() - 4.4704).abs() < 1e-12);
-        assert_eq!(rows[0].pedal_pct, None);
+        assert_eq!(rows[1].sample.fuel_cm3_s, Some(1.158));
+        assert!((rows[1].sample.speed_m_s.unwrap() - 4.4704).abs() < 1e-12);
+        assert_eq!(rows[0].sample.pedal_pct, None);
     }
 
     #[test]
@@ -303,23 +302,27 @@ mod tests {
     fn railmon_layout_round_trips() {
         let rows = vec![
             VehicleRow {
-                time_s: 0.0,
-                fuel_cm3_s: Some(0.5),
-                speed_m_s: Some(3.0),
-                pedal_pct: Some(10.0),
-                engine_torque_nm: Some(-12.5),
-                engine_speed_rpm: Some(1500.0),
-                gear: Some(2),
+                sample: VehicleSample {
+                    time_s: 0.0,
+                    fuel_cm3_s: Some(0.5),
+                    speed_m_s: Some(3.0),
+                    pedal_pct: Some(10.0),
+                    engine_torque_nm: Some(-12.5),
+                    engine_speed_rpm: Some(1500.0),
+                    gear: Some(2),
+                },
                 regime: Some("city".into()),
             },
             VehicleRow {
-                time_s: 1.0,
-                fuel_cm3_s: Some(0.0),
-                speed_m_s: Some(3.5),
-                pedal_pct: Some(0.0),
-                engine_torque_nm: Some(-20.0),
-                engine_speed_rpm: Some(1600.0),
-                gear: Some(0),
+                sample: VehicleSample {
+                    time_s: 1.0,
+                    fuel_cm3_s: Some(0.0),
+                    speed_m_s: Some(3.5),
+                    pedal_pct: Some(0.0),
+                    engine_torque_nm: Some(-20.0),
+                    engine_speed_rpm: Some(1600.0),
+                    gear: Some(0),
+                },
                 regime: Some("city".into()),
             },
         ];
@@ -370,7 +373,7 @@ mod tests {
         ] {
             let (layout, rows) = read_vehicle_csv(&data.join("anl-camry-2018").join(file)).unwrap();
             assert_eq!((layout, rows.len()), (VehicleLayout::AnlCamry, n), "{file}");
-            assert!(rows.iter().all(|r| r.fuel_cm3_s.unwrap() >= 0.0));
+            assert!(rows.iter().all(|r| r.sample.fuel_cm3_s.unwrap() >= 0.0));
         }
         for (file, n) in [
             ("udds.csv", 1370),

@@ -52,17 +52,17 @@ impl VehicleSource {
         let times_ns = rows
             .iter()
             .enumerate()
-            .map(|(k, r)| match r.time_s >= 0.0 {
-                true => Ok((r.time_s * 1e9).round() as u64),
+            .map(|(k, r)| match r.sample.time_s >= 0.0 {
+                true => Ok((r.sample.time_s * 1e9).round() as u64),
                 false => bail!(
                     "{label}: row {}: time_s {} is negative (the bus carries times >= 0)",
                     k + 1,
-                    r.time_s
+                    r.sample.time_s
                 ),
             })
             .collect::<anyhow::Result<Vec<u64>>>()?;
         let period_s = match rows.as_slice() {
-            [first, second, ..] => second.time_s - first.time_s,
+            [first, second, ..] => second.sample.time_s - first.sample.time_s,
             _ => 1.0,
         };
         Ok(Self {
@@ -112,7 +112,7 @@ impl Source for VehicleSource {
             let first_run = rows
                 .iter()
                 .enumerate()
-                .take_while(|(k, r)| *k == 0 || r.time_s > rows[k - 1].time_s)
+                .take_while(|(k, r)| *k == 0 || r.sample.time_s > rows[k - 1].sample.time_s)
                 .count();
             write_vehicle_csv(&path, &rows[..first_run])?;
         }
