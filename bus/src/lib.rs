@@ -4,10 +4,11 @@
 //! frames with a [`FrameHeader`] user header (per-publisher sequence number and CLOCK_MONOTONIC
 //! timestamp); an event service of the same name wakes the subscriber's WaitSet. The iceoryx2 0.10
 //! traps this crate defends against (see `shared/docs/bus-notes.md`):
-//! - samples sent before the subscriber attaches are lost: [`FramePublisher::send_delivered`]
-//!   re-sends until a subscriber took the frame, and [`FrameSubscriber::attach`] connects early;
+//! - samples sent before the subscriber attaches are lost: [`FramePublisher::wait_for_subscriber`]
+//!   waits for a subscriber's hand-shake, and [`FrameSubscriber::attach`] connects early;
 //! - a SIGKILLed subscriber blocks a lossless publisher: the backpressure handler gives up on a
-//!   full subscriber after `backpressure_timeout_ms`;
+//!   full subscriber after `backpressure_timeout_ms`, and [`FramePublisher::resend`] sends the
+//!   frame again under its number once a live subscriber answers;
 //! - stale shared memory after a crash: [`BusNode::create`] cleans up dead nodes;
 //! - signals: nodes and WaitSets never install signal handlers (the binaries own SIGINT/SIGTERM);
 //! - ports are not `Send`: each thread creates its own [`BusNode`] and ports.

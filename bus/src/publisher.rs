@@ -138,10 +138,34 @@ impl<F: Frame> FramePublisher<F> {
         }
     }
 
-    /// Sends one frame; returns how many subscribers took it (0: nobody is subscribed, or a
-    /// subscriber was full for longer than the backpressure limit). Does not notify: call
+    /// Sends one frame under the next sequence number; returns how many subscribers took it (0:
+    /// nobody is subscribed, or a subscriber was full for longer than the backpressure limit).
+    /// A frame nobody took still used up its number, so a subscriber sees the loss as a gap
+    /// unless the caller re-sends it with [`Self::resend`]. Does not notify: call
     /// [`Self::notify`] after one frame or a batch.
     pub fn send(&mut self, frame: &F, sample_time_ns: u64) -> Result<usize, BusError> {
+        let sequence = self.sequence;
+        self.sequence += 1;
+        self.send_numbered(frame, sample_time_ns, sequence)
+    }
+
+    /// Sends `frame` again under the number the last [`Self::send`] gave it (stamped anew), for
+    /// a lossless source whose last frame reached no subscriber: a subscriber that stalled
+    /// longer than the backpressure limit then misses nothing and counts no gap.
+    pub fn resend(&mut self, frame: &F, sample_time_ns: u64) -> Result<usize, BusError> {
+        let sequence = self.sequence.checked_sub(1).ok_or_else(|| BusError::ipc(
+            format!("resend on `{}`", self.stream.service_name),
+            "nothing was sent yet",
+        ))?;
+        self.send_numbered(frame, sample_time_ns, sequence)
+    }
+
+    fn send_numbered(
+        &mut self,
+        frame: &F,
+        sample_time_ns: u64,
+        sequence: u64,
+    ) -> Result<usize, BusError> {
         let mut sample = self
             .publisher
             .loan_uninit()
@@ -150,11 +174,10 @@ impl<F: Frame> FramePublisher<F> {
             layout_version: FRAME_LAYOUT_VERSION,
             run: self.run,
             publisher_instance: self.instance,
-            sequence: self.sequence,
+            sequence,
             published_at_ns: monotonic_ns(),
             sample_time_ns,
         };
-        self.sequence += 1;
         sample
             .write_payload(*frame)
             .send()

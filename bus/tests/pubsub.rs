@@ -120,6 +120,44 @@ fn a_subscriber_that_never_reads_delays_each_send_by_at_most_the_time_limit() {
 }
 
 #[test]
+fn a_frame_resent_after_a_stall_arrives_under_its_own_number() {
+    let (config, _cleanup) = private_bus(2, 20);
+    let node = BusNode::create(&config, "both").unwrap();
+    let slow = node.subscriber::<DriveFrame>().unwrap();
+    let mut publisher = node.publisher::<DriveFrame>().unwrap();
+    slow.attach().unwrap();
+    assert_eq!(publisher.send(&frame(0), 0).unwrap(), 1);
+    assert_eq!(publisher.send(&frame(1), 1).unwrap(), 1);
+    // The buffer (2) is full and nobody reads for longer than the 20 ms limit: frame 2 is
+    // dropped for the subscriber, and its number is used up.
+    assert_eq!(publisher.send(&frame(2), 2).unwrap(), 0);
+    assert_eq!(publisher.next_sequence(), 3);
+    let mut sequences = Vec::new();
+    let mut read = |sequences: &mut Vec<u64>| {
+        slow.drain(usize::MAX, |r| {
+            assert_eq!(r.frame.drives[0].u_alpha_v, r.header.sequence as f64);
+            sequences.push(r.header.sequence)
+        })
+        .unwrap()
+    };
+    read(&mut sequences);
+    // Once the subscriber reads again, the same frame goes under the same number: no gap.
+    assert_eq!(publisher.resend(&frame(2), 2).unwrap(), 1);
+    assert_eq!(publisher.send(&frame(3), 3).unwrap(), 1);
+    read(&mut sequences);
+    assert_eq!(sequences, [0, 1, 2, 3]);
+}
+
+#[test]
+fn resending_before_any_send_is_an_error() {
+    let (config, _cleanup) = private_bus(2, 20);
+    let node = BusNode::create(&config, "early").unwrap();
+    let mut publisher = node.publisher::<DriveFrame>().unwrap();
+    let err = publisher.resend(&frame(0), 0).unwrap_err().to_string();
+    assert!(err.contains("nothing was sent yet"), "{err}");
+}
+
+#[test]
 fn waiting_for_a_subscriber_times_out_with_the_service_name() {
     let (config, _cleanup) = private_bus(2, 20);
     let node = BusNode::create(&config, "lonely").unwrap();
