@@ -32,7 +32,7 @@ use railmon_damper::{
     DamperMonitorConfig, DamperScenario, FaultKind, Propagation,
 };
 use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord};
-use railmon_records::{create_csv, RecordError};
+use railmon_records::{write_csv_table, RecordError};
 
 use crate::report::AnalysisError;
 use crate::report::{create_out_dir, line_plot, progress_bar, Axes, RunArgs, Series};
@@ -250,7 +250,7 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
         plots(&args.run.out, &trace)?;
     }
     let mean_step_us = elapsed.as_secs_f64() * 1e6 / steps.max(1) as f64;
-    write_table(
+    write_csv_table(
         &args.run.out.join("timing.csv"),
         &[
             "steps",
@@ -453,26 +453,7 @@ fn opt(v: Option<f64>) -> String {
     v.map_or_else(String::new, |x| format!("{x:.6}"))
 }
 
-/// Writes a CSV file: the header, then the rows.
-fn write_table<S: AsRef<str>>(
-    path: &Path,
-    header: &[S],
-    rows: impl IntoIterator<Item = Vec<String>>,
-) -> Result<(), DamperAnalysisError> {
-    let err =
-        |e: csv::Error| RecordError::file(&path.display().to_string(), format!("write error: {e}"));
-    let mut w = create_csv(path)?;
-    w.write_record(header.iter().map(|h| h.as_ref()))
-        .map_err(err)?;
-    for row in rows {
-        w.write_record(&row).map_err(err)?;
-    }
-    w.flush()
-        .map_err(|e| RecordError::file(&path.display().to_string(), format!("write error: {e}")))?;
-    Ok(())
-}
-
-fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), DamperAnalysisError> {
+fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), RecordError> {
     let mut header = vec!["time_s".to_owned()];
     for d in DamperId::ALL {
         let n = d.name();
@@ -515,10 +496,10 @@ fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), DamperAnalys
         row.push(format!("{:.1}", p.estimate.effective_sample_size));
         row
     });
-    write_table(path, &header, rows)
+    write_csv_table(path, &header, rows)
 }
 
-fn write_summary(path: &Path, rows: &[SummaryRow]) -> Result<(), DamperAnalysisError> {
+fn write_summary(path: &Path, rows: &[SummaryRow]) -> Result<(), RecordError> {
     let header = [
         "method",
         "damper",
@@ -529,7 +510,7 @@ fn write_summary(path: &Path, rows: &[SummaryRow]) -> Result<(), DamperAnalysisE
         "settle_s",
         "covered_end",
     ];
-    write_table(
+    write_csv_table(
         path,
         &header,
         rows.iter().map(|r| {
@@ -547,7 +528,7 @@ fn write_summary(path: &Path, rows: &[SummaryRow]) -> Result<(), DamperAnalysisE
     )
 }
 
-fn write_faults(path: &Path, rows: &[FaultRow]) -> Result<(), DamperAnalysisError> {
+fn write_faults(path: &Path, rows: &[FaultRow]) -> Result<(), RecordError> {
     let header = [
         "method",
         "damper",
@@ -558,7 +539,7 @@ fn write_faults(path: &Path, rows: &[FaultRow]) -> Result<(), DamperAnalysisErro
         "error_10s_after",
         "settle_after_s",
     ];
-    write_table(
+    write_csv_table(
         path,
         &header,
         rows.iter().map(|r| {

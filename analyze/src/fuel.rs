@@ -21,7 +21,7 @@ use railmon_fuel::{
     DriveCycle, FuelError, FuelMonitorConfig, VehicleSample, VehicleScenario, VehicleSimulator,
 };
 use railmon_records::vehicle::{read_drive_cycle, read_vehicle_csv, write_vehicle_csv, VehicleRow};
-use railmon_records::{create_csv, RecordError};
+use railmon_records::{write_csv_table, RecordError};
 
 use crate::report::AnalysisError;
 use crate::report::{create_out_dir, progress_bar, RunArgs};
@@ -204,16 +204,11 @@ pub fn analyse(input: &FuelInput, out: &Path) -> Result<Evaluation, FuelAnalysis
     Ok(evaluation)
 }
 
-fn csv_err(path: &Path) -> impl Fn(csv::Error) -> RecordError + '_ {
-    move |e| RecordError::file(&path.display().to_string(), format!("write error: {e}"))
-}
-
 fn write_predictions(
     path: &Path,
     ev: &Evaluation,
     labels: Option<&[String]>,
 ) -> Result<(), RecordError> {
-    let mut w = create_csv(path)?;
     let mut header: Vec<String> = [
         "time_s",
         "fuel_cm3_s",
@@ -231,8 +226,7 @@ fn write_predictions(
     if labels.is_some() {
         header.push("label".into());
     }
-    w.write_record(&header).map_err(csv_err(path))?;
-    for r in &ev.rows {
+    let rows = ev.rows.iter().map(|r| {
         let mut f: Vec<String> = [
             r.time_s,
             r.fuel_cm3_s,
@@ -251,32 +245,25 @@ fn write_predictions(
         if let (Some(names), Some(l)) = (labels, r.label) {
             f.push(names[l].clone());
         }
-        w.write_record(&f).map_err(csv_err(path))?;
-    }
-    w.flush()
-        .map_err(|e| RecordError::file(&path.display().to_string(), e.to_string()))
+        f
+    });
+    write_csv_table(path, &header, rows)
 }
 
 fn write_summary(path: &Path, scores: &[ScoreRow]) -> Result<(), RecordError> {
-    let mut w = create_csv(path)?;
-    w.write_record(["method", "horizon_s", "rmse", "mae", "n"])
-        .map_err(csv_err(path))?;
-    for s in scores {
-        w.write_record([
+    let rows = scores.iter().map(|s| {
+        vec![
             s.method.to_string(),
             s.horizon_s.to_string(),
             format!("{:.6}", s.rmse),
             format!("{:.6}", s.mae),
             s.n.to_string(),
-        ])
-        .map_err(csv_err(path))?;
-    }
-    w.flush()
-        .map_err(|e| RecordError::file(&path.display().to_string(), e.to_string()))
+        ]
+    });
+    write_csv_table(path, &["method", "horizon_s", "rmse", "mae", "n"], rows)
 }
 
 fn write_regimes(path: &Path, score: &RegimeScore, names: &[String]) -> Result<(), RecordError> {
-    let mut w = create_csv(path)?;
     let mut header = vec![
         "component".to_string(),
         "matched_label".into(),
@@ -285,8 +272,7 @@ fn write_regimes(path: &Path, score: &RegimeScore, names: &[String]) -> Result<(
         "accuracy".into(),
     ];
     header.extend(names.iter().map(|n| format!("n_{n}")));
-    w.write_record(&header).map_err(csv_err(path))?;
-    for (c, row) in score.confusion.iter().enumerate() {
+    let per_component = score.confusion.iter().enumerate().map(|(c, row)| {
         let n: usize = row.iter().sum();
         let correct = row[score.matched_label[c]];
         let mut f = vec![
@@ -297,9 +283,9 @@ fn write_regimes(path: &Path, score: &RegimeScore, names: &[String]) -> Result<(
             format!("{:.4}", correct as f64 / n.max(1) as f64),
         ];
         f.extend(row.iter().map(|v| v.to_string()));
-        w.write_record(&f).map_err(csv_err(path))?;
-    }
-    let mut f = vec![
+        f
+    });
+    let mut all = vec![
         "all".to_string(),
         if score.one_to_one {
             "one_to_one"
@@ -311,8 +297,6 @@ fn write_regimes(path: &Path, score: &RegimeScore, names: &[String]) -> Result<(
         score.correct.to_string(),
         format!("{:.4}", score.accuracy()),
     ];
-    f.extend(names.iter().map(|_| String::new()));
-    w.write_record(&f).map_err(csv_err(path))?;
-    w.flush()
-        .map_err(|e| RecordError::file(&path.display().to_string(), e.to_string()))
+    all.extend(names.iter().map(|_| String::new()));
+    write_csv_table(path, &header, per_component.chain([all]))
 }

@@ -293,6 +293,24 @@ pub fn create_csv(path: &Path) -> Result<csv::Writer<BufWriter<File>>, RecordErr
     Ok(csv::Writer::from_writer(BufWriter::new(file)))
 }
 
+/// Writes a whole CSV file: the header, then the rows; errors name the file.
+pub fn write_csv_table<S: AsRef<str>>(
+    path: &Path,
+    header: &[S],
+    rows: impl IntoIterator<Item = Vec<String>>,
+) -> Result<(), RecordError> {
+    let err = |e: &dyn std::fmt::Display| {
+        RecordError::file(&path.display().to_string(), format!("write error: {e}"))
+    };
+    let mut w = create_csv(path)?;
+    w.write_record(header.iter().map(|h| h.as_ref()))
+        .map_err(|e| err(&e))?;
+    for row in rows {
+        w.write_record(&row).map_err(|e| err(&e))?;
+    }
+    w.flush().map_err(|e| err(&e))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
