@@ -1,21 +1,33 @@
-//! Bogie recordings (issue 4): the five lateral sensors of one bogie at 1 kHz, what the
-//! bogie simulator writes and `railmon analyze damper --input` reads.
+//! Bogie recordings (issue 4): the five lateral sensors of one or more bogies at 1 kHz, what
+//! `sensors-replay bogie --record` and the bogie simulator write and `railmon analyze damper
+//! --input` reads.
 //!
-//! One row per sample, in time order:
+//! One row per sample of one bogie, in time order:
 //!
 //! ```text
-//! time_s,wheelset1_accel_m_s2,wheelset2_accel_m_s2,bogie_accel_m_s2,bogie_yaw_rate_rad_s,body_accel_m_s2[,true_csy_ns_per_m,true_csay_ns_per_m]
-//! 0.001,0.213,-0.112,0.051,0.0031,0.0127,16000,160000
+//! time_s[,bogie],wheelset1_accel_m_s2,wheelset2_accel_m_s2,bogie_accel_m_s2,bogie_yaw_rate_rad_s,body_accel_m_s2[,true_csy_ns_per_m,true_csay_ns_per_m]
+//! 0.001,1,0.213,-0.112,0.051,0.0031,0.0127,16000,160000
+//! 0.001,2,0.198,-0.087,0.047,0.0029,0.0131,16000,160000
 //! ```
 //!
-//! - `time_s`: time of the sample (s); strictly increasing.
+//! - `time_s`: time of the sample (s); never decreases from one row to the next, and strictly
+//!   increases from one row of a bogie to the next row of the same bogie.
+//! - `bogie` (optional): the bogie's id (1, 2, ...), so one file holds all bogies of a vehicle,
+//!   interleaved as they were published. A file without it (the layout before several bogies
+//!   were recorded, or `railmon analyze damper`'s own) holds bogie 1 only.
 //! - the five sensors in the paper's order (eq. 4): lateral accelerations of the leading and
 //!   trailing wheelsets, of the bogie frame, the bogie yaw rate, the lateral acceleration of
 //!   the body above the bogie.
 //! - Optional truth (simulated data): both damper coefficients (N s/m), both or neither.
 //!
-//! A NaN, an infinity, an empty field, a missing column, a time that does not increase or a
-//! truncated last line is an error naming file, line, field and value.
+//! A NaN, an infinity, an empty field, a missing column, a bogie id that is not a positive
+//! integer, a time that does not increase or a truncated last line is an error naming file,
+//! line, field and value.
+//!
+//! One estimator runs on one bogie: [`BogieCsvReader::next_record`] reads a file of one bogie
+//! (a row of a second bogie is an error, never silently mixed in) or, after
+//! [`BogieCsvReader::only_bogie`], the rows of the chosen bogie;
+//! [`BogieCsvReader::next_bogie_record`] reads every row with its bogie id.
 
 use std::fs::File;
 use std::io::{BufWriter, Read};
@@ -34,6 +46,10 @@ pub const BOGIE_COLUMNS: [&str; 6] = [
 ];
 /// Truth columns of simulated recordings.
 pub const BOGIE_TRUTH_COLUMNS: [&str; 2] = ["true_csy_ns_per_m", "true_csay_ns_per_m"];
+/// The optional bogie id column (written after `time_s`).
+pub const BOGIE_ID_COLUMN: &str = "bogie";
+/// The bogie a file without a [`BOGIE_ID_COLUMN`] holds.
+pub const DEFAULT_BOGIE_ID: u32 = 1;
 
 /// One row.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -49,9 +65,16 @@ pub struct BogieRecord {
 pub struct BogieCsvReader<R: Read> {
     table: CsvTable<R>,
     time: Column,
+    bogie: Option<Column>,
     sensors: [Column; 5],
     truth: Option<[Column; 2]>,
-    last_time_s: Option<f64>,
+    /// Time of the previous row, whichever bogie it was.
+    previous_time_s: Option<f64>,
+    /// Every bogie read so far, in order of first appearance, with its last time.
+    last_time_s: Vec<(u32, f64)>,
+    /// [`Self::only_bogie`]'s choice, and how many of its rows were returned.
+    selected: Option<u32>,
+    selected_rows: u64,
 }
 
 impl BogieCsvReader<File> {
@@ -77,6 +100,7 @@ impl<R: Read> BogieCsvReader<R> {
         };
         Ok(BogieCsvReader {
             time: table.column(BOGIE_COLUMNS[0])?,
+            bogie: table.optional_column(BOGIE_ID_COLUMN),
             sensors: [
                 table.column(BOGIE_COLUMNS[1])?,
                 table.column(BOGIE_COLUMNS[2])?,
@@ -86,31 +110,125 @@ impl<R: Read> BogieCsvReader<R> {
             ],
             truth,
             table,
-            last_time_s: None,
+            previous_time_s: None,
+            last_time_s: Vec::new(),
+            selected: None,
+            selected_rows: 0,
         })
+    }
+
+    /// Reads only the rows of bogie `id` (1 for a file without a `bogie` column); the other
+    /// rows are still checked. A file without a row of `id` is an error at its end.
+    pub fn only_bogie(mut self, id: u32) -> Self {
+        self.selected = Some(id);
+        self
     }
 
     pub fn has_truth(&self) -> bool {
         self.truth.is_some()
     }
 
+    /// Whether the file names the bogie of each row (else it holds [`DEFAULT_BOGIE_ID`] only).
+    pub fn has_bogie_column(&self) -> bool {
+        self.bogie.is_some()
+    }
+
     pub fn file(&self) -> &str {
         self.table.file()
     }
 
-    /// The next row, `Ok(None)` at the end of the file.
+    /// The next row of the one bogie being read, `Ok(None)` at the end of the file: the bogie
+    /// chosen by [`Self::only_bogie`], else the file's only bogie (a row of a second bogie is
+    /// an error: one estimator must not see two bogies' samples).
     pub fn next_record(&mut self) -> Result<Option<BogieRecord>, RecordError> {
+        Ok(self.next_row(true)?.map(|(_, record)| record))
+    }
+
+    /// The next row (of the bogie chosen by [`Self::only_bogie`], if any) with its bogie id,
+    /// `Ok(None)` at the end of the file.
+    pub fn next_bogie_record(&mut self) -> Result<Option<(u32, BogieRecord)>, RecordError> {
+        self.next_row(false)
+    }
+
+    fn next_row(&mut self, one_bogie: bool) -> Result<Option<(u32, BogieRecord)>, RecordError> {
+        loop {
+            let Some((id, record)) = self.read_row(one_bogie && self.selected.is_none())? else {
+                return match self.selected {
+                    Some(id) if self.selected_rows == 0 => Err(RecordError::file(
+                        self.table.file(),
+                        format!("no row of bogie {id} (bogies in the file: {})", self.ids()),
+                    )),
+                    _ => Ok(None),
+                };
+            };
+            if self.selected.is_none_or(|s| s == id) {
+                self.selected_rows += 1;
+                return Ok(Some((id, record)));
+            }
+        }
+    }
+
+    /// The ids read so far, for errors.
+    fn ids(&self) -> String {
+        let ids: Vec<String> = self
+            .last_time_s
+            .iter()
+            .map(|(id, _)| id.to_string())
+            .collect();
+        match ids.is_empty() {
+            true => "none".to_owned(),
+            false => ids.join(", "),
+        }
+    }
+
+    /// Reads and checks the next row, whichever bogie; `one_bogie`: a second bogie is an error.
+    fn read_row(&mut self, one_bogie: bool) -> Result<Option<(u32, BogieRecord)>, RecordError> {
         let Some(row) = self.table.next_row()? else {
             return Ok(None);
         };
+        let id = match &self.bogie {
+            Some(column) => {
+                let id = row
+                    .u64(column)
+                    .ok()
+                    .and_then(|id| u32::try_from(id).ok())
+                    .filter(|id| *id >= 1)
+                    .ok_or_else(|| {
+                        row.error(
+                            column,
+                            format!("not a bogie id (an integer 1..={})", u32::MAX),
+                        )
+                    })?;
+                let other = self
+                    .last_time_s
+                    .first()
+                    .filter(|(f, _)| one_bogie && *f != id);
+                if let Some((first, _)) = other {
+                    return Err(row.error(
+                        column,
+                        format!("a second bogie (the first rows are bogie {first}): choose one"),
+                    ));
+                }
+                id
+            }
+            None => DEFAULT_BOGIE_ID,
+        };
         let time_s = row.f64(&self.time)?;
-        if let Some(last) = self.last_time_s {
+        let last_of_bogie = self.last_time_s.iter().position(|(b, _)| *b == id);
+        if let Some(k) = last_of_bogie {
+            let last = self.last_time_s[k].1;
             if time_s <= last {
                 return Err(row.error(
                     &self.time,
-                    format!("time must increase (previous row: {last})"),
+                    format!("time must increase (previous row of bogie {id}: {last})"),
                 ));
             }
+        }
+        if let Some(previous) = self.previous_time_s.filter(|p| time_s < *p) {
+            return Err(row.error(
+                &self.time,
+                format!("time goes back (previous row: {previous})"),
+            ));
         }
         let mut sensors = [0.0; 5];
         for (v, c) in sensors.iter_mut().zip(&self.sensors) {
@@ -123,12 +241,20 @@ impl<R: Read> BogieCsvReader<R> {
             ]),
             None => None,
         };
-        self.last_time_s = Some(time_s);
-        Ok(Some(BogieRecord {
-            time_s,
-            sensors,
-            truth_ns_per_m,
-        }))
+        // State changes only once the whole row is good.
+        self.previous_time_s = Some(time_s);
+        match last_of_bogie {
+            Some(k) => self.last_time_s[k].1 = time_s,
+            None => self.last_time_s.push((id, time_s)),
+        }
+        Ok(Some((
+            id,
+            BogieRecord {
+                time_s,
+                sensors,
+                truth_ns_per_m,
+            },
+        )))
     }
 }
 
@@ -137,13 +263,32 @@ pub struct BogieCsvWriter {
     writer: csv::Writer<BufWriter<File>>,
     file: String,
     with_truth: bool,
+    bogie_column: bool,
 }
 
 impl BogieCsvWriter {
+    /// A recording of one bogie (no `bogie` column: it is bogie 1 to a reader).
     pub fn create(path: &Path, with_truth: bool) -> Result<Self, RecordError> {
+        Self::create_layout(path, with_truth, false)
+    }
+
+    /// A recording of any number of bogies, each row with its bogie id
+    /// ([`Self::write_bogie`]).
+    pub fn create_with_bogie_ids(path: &Path, with_truth: bool) -> Result<Self, RecordError> {
+        Self::create_layout(path, with_truth, true)
+    }
+
+    fn create_layout(
+        path: &Path,
+        with_truth: bool,
+        bogie_column: bool,
+    ) -> Result<Self, RecordError> {
         let mut writer = create_csv(path)?;
         let file = path.display().to_string();
         let mut header: Vec<&str> = BOGIE_COLUMNS.to_vec();
+        if bogie_column {
+            header.insert(1, BOGIE_ID_COLUMN);
+        }
         if with_truth {
             header.extend(BOGIE_TRUTH_COLUMNS);
         }
@@ -154,12 +299,29 @@ impl BogieCsvWriter {
             writer,
             file,
             with_truth,
+            bogie_column,
         })
     }
 
+    /// A row of bogie [`DEFAULT_BOGIE_ID`].
     pub fn write(&mut self, record: &BogieRecord) -> Result<(), RecordError> {
-        let mut fields: Vec<String> = Vec::with_capacity(8);
+        self.write_bogie(DEFAULT_BOGIE_ID, record)
+    }
+
+    /// A row of bogie `id` (any id with [`Self::create_with_bogie_ids`], else only bogie 1).
+    pub fn write_bogie(&mut self, id: u32, record: &BogieRecord) -> Result<(), RecordError> {
+        let mut fields: Vec<String> = Vec::with_capacity(9);
         fields.push(record.time_s.to_string());
+        match self.bogie_column {
+            true => fields.push(id.to_string()),
+            false if id != DEFAULT_BOGIE_ID => {
+                return Err(RecordError::file(
+                    &self.file,
+                    format!("bogie {id}: a recording without a bogie column holds bogie {DEFAULT_BOGIE_ID} only"),
+                ))
+            }
+            false => {}
+        }
         fields.extend(record.sensors.iter().map(|v| v.to_string()));
         if self.with_truth {
             let t = record.truth_ns_per_m.ok_or_else(|| {
@@ -262,6 +424,154 @@ mod tests {
                 .value
                 .as_deref(),
             Some("inf")
+        );
+    }
+
+    fn record(time_s: f64, k: f64) -> BogieRecord {
+        BogieRecord {
+            time_s,
+            sensors: [0.1 * k, -0.2 * k, 1e-17 * k, 0.004, 1.0 / (3.0 + k)],
+            truth_ns_per_m: Some([16e3, 160e3 * (1.0 - 0.01 * k)]),
+        }
+    }
+
+    /// Every row of a file with its bogie id.
+    fn read_bogies(path: &Path) -> Vec<(u32, BogieRecord)> {
+        let mut r = BogieCsvReader::open(path).unwrap();
+        let mut out = vec![];
+        while let Some(rec) = r.next_bogie_record().unwrap() {
+            out.push(rec);
+        }
+        out
+    }
+
+    #[test]
+    fn two_bogies_round_trip_and_one_bogie_is_read_at_a_time() {
+        let dir = std::env::temp_dir().join(format!("railmon-bogies-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("bogies.csv");
+        // Interleaved as the replay publishes them: both bogies at each time.
+        let rows: Vec<(u32, BogieRecord)> = (1..=3)
+            .flat_map(|k| [1, 2].map(|id| (id, record(1e-3 * k as f64, (k * id) as f64))))
+            .collect();
+        let mut w = BogieCsvWriter::create_with_bogie_ids(&path, true).unwrap();
+        for (id, r) in &rows {
+            w.write_bogie(*id, r).unwrap();
+        }
+        w.finish().unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(
+            text.starts_with("time_s,bogie,wheelset1_accel_m_s2,"),
+            "{text}"
+        );
+        assert_eq!(read_bogies(&path), rows);
+
+        for id in [1, 2] {
+            let mut r = BogieCsvReader::open(&path).unwrap().only_bogie(id);
+            assert!(r.has_bogie_column() && r.has_truth());
+            for (_, want) in rows.iter().filter(|(b, _)| *b == id) {
+                assert_eq!(r.next_record().unwrap().as_ref(), Some(want));
+            }
+            assert_eq!(r.next_record().unwrap(), None);
+        }
+        // Without a choice, the second bogie's first row is an error, not a mixed-in sample.
+        let mut r = BogieCsvReader::open(&path).unwrap();
+        assert_eq!(r.next_record().unwrap(), Some(rows[0].1));
+        let err = r.next_record().unwrap_err();
+        assert_eq!(
+            (err.line, err.field.as_deref(), err.value.as_deref()),
+            (Some(3), Some("bogie"), Some("2"))
+        );
+        let err = BogieCsvReader::open(&path)
+            .unwrap()
+            .only_bogie(3)
+            .next_record()
+            .unwrap_err();
+        assert!(
+            err.reason
+                .contains("no row of bogie 3 (bogies in the file: 1, 2)"),
+            "{err}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_file_without_a_bogie_column_is_bogie_1() {
+        let text = format!("{HEADER}\n0.001,1,2,3,4,5\n0.002,6,7,8,9,10\n");
+        let mut r = BogieCsvReader::from_reader("old.csv", text.as_bytes()).unwrap();
+        assert!(!r.has_bogie_column() && !r.has_truth());
+        let (id, first) = r.next_bogie_record().unwrap().unwrap();
+        assert_eq!(
+            (id, first.time_s, first.sensors),
+            (1, 0.001, [1.0, 2.0, 3.0, 4.0, 5.0])
+        );
+        assert_eq!(r.next_bogie_record().unwrap().map(|(id, _)| id), Some(1));
+        assert_eq!(r.next_bogie_record().unwrap(), None);
+
+        let mut r = BogieCsvReader::from_reader("old.csv", text.as_bytes())
+            .unwrap()
+            .only_bogie(1);
+        assert_eq!(r.next_record().unwrap().map(|r| r.time_s), Some(0.001));
+        let mut r = BogieCsvReader::from_reader("old.csv", text.as_bytes())
+            .unwrap()
+            .only_bogie(2);
+        let err = r.next_record().unwrap_err();
+        assert!(
+            err.to_string()
+                .starts_with("old.csv: no row of bogie 2 (bogies in the file: 1)"),
+            "{err}"
+        );
+
+        // A one-bogie writer writes this layout, and only bogie 1.
+        let dir = std::env::temp_dir().join(format!("railmon-bogie1-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("b.csv");
+        let mut w = BogieCsvWriter::create(&path, true).unwrap();
+        w.write(&record(0.001, 1.0)).unwrap();
+        let err = w.write_bogie(2, &record(0.002, 1.0)).unwrap_err();
+        assert!(err.reason.contains("bogie 2"), "{err}");
+        w.write_bogie(1, &record(0.002, 2.0)).unwrap();
+        w.finish().unwrap();
+        assert_eq!(
+            read_bogies(&path),
+            vec![(1, record(0.001, 1.0)), (1, record(0.002, 2.0))]
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn bad_bogie_ids_and_times_name_line_field_and_value() {
+        const IDS: &str = "time_s,bogie,wheelset1_accel_m_s2,wheelset2_accel_m_s2,bogie_accel_m_s2,bogie_yaw_rate_rad_s,body_accel_m_s2";
+        let all = |rows: &str| -> Result<Vec<(u32, BogieRecord)>, RecordError> {
+            let text = format!("{IDS}\n0.001,1,1,2,3,4,5\n{rows}");
+            let mut r = BogieCsvReader::from_reader("b.csv", text.as_bytes())?;
+            let mut out = vec![];
+            while let Some(rec) = r.next_bogie_record()? {
+                out.push(rec);
+            }
+            Ok(out)
+        };
+        for bad in ["0", "-1", "1.5", "x", "", "4294967296"] {
+            let err = all(&format!("0.001,{bad},1,2,3,4,5\n")).unwrap_err();
+            assert_eq!(
+                (err.line, err.field.as_deref(), err.value.as_deref()),
+                (Some(3), Some("bogie"), Some(bad)),
+                "{bad}: {err}"
+            );
+        }
+        // Same time on two bogies is fine; the same bogie twice at one time, or a row
+        // earlier than the previous one, is not.
+        assert_eq!(
+            all("0.001,2,1,2,3,4,5\n0.002,1,1,2,3,4,5\n").unwrap().len(),
+            3
+        );
+        let err = all("0.001,1,1,2,3,4,5\n").unwrap_err();
+        assert_eq!((err.line, err.field.as_deref()), (Some(3), Some("time_s")));
+        assert!(err.reason.contains("bogie 1"), "{err}");
+        let err = all("0.002,2,1,2,3,4,5\n0.0015,1,1,2,3,4,5\n").unwrap_err();
+        assert_eq!(
+            (err.line, err.field.as_deref(), err.value.as_deref()),
+            (Some(4), Some("time_s"), Some("0.0015"))
         );
     }
 }

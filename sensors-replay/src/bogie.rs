@@ -1,14 +1,16 @@
 //! The bogie stream: a damper scenario through `railmon_damper::BogieSimulator` (one
 //! simulator per bogie, seeded `scenario seed + k`), or a recorded bogie CSV
-//! (`records/src/bogie.rs`, one bogie), published as `BogieFrame`s at 1 kHz by the samples'
-//! own time stamps. All bogies go through this one publisher, interleaved per step.
+//! (`records/src/bogie.rs`: with a `bogie` column, every bogie in it; without, one bogie),
+//! published as `BogieFrame`s at 1 kHz by the samples' own time stamps. All bogies go through
+//! this one publisher, interleaved per step; `--record` writes every frame with its bogie id.
 
+use std::collections::VecDeque;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 use railmon_bus::BogieFrame;
 use railmon_damper::{BogieSample, BogieSimulator, DamperScenario};
-use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord};
+use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord, DEFAULT_BOGIE_ID};
 
 use crate::replay::{publish, Source};
 use crate::ReplayArgs;
@@ -18,15 +20,16 @@ pub struct BogieArgs {
     /// Damper scenario (e.g. config/scenarios/damper-fault.toml): simulated bogies with truth.
     #[arg(long, conflicts_with = "csv", required_unless_present = "csv")]
     scenario: Option<PathBuf>,
-    /// Bogie CSV: `time_s,wheelset1_accel_m_s2,...,body_accel_m_s2[,true_csy_ns_per_m,true_csay_ns_per_m]`.
+    /// Bogie CSV: `time_s[,bogie],wheelset1_accel_m_s2,...,body_accel_m_s2[,true_csy_ns_per_m,true_csay_ns_per_m]`
+    /// (every bogie of its `bogie` column; without one, one bogie).
     #[arg(long)]
     csv: Option<PathBuf>,
     /// Bogies to simulate (ids `--bogie-id`, `--bogie-id + 1`, ...; scenario only).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
     bogies: u32,
-    /// Id of the first (or only) bogie.
-    #[arg(long, default_value_t = 1)]
-    bogie_id: u32,
+    /// Id of the first (or only) bogie [default: 1]; a CSV with a `bogie` column names its own.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    bogie_id: Option<u32>,
     /// Simulate only this much of the scenario, s (scenario only).
     #[arg(long)]
     duration_s: Option<f64>,
@@ -49,14 +52,16 @@ enum Samples {
 
 struct BogieSource {
     samples: Samples,
+    /// Id of the first simulated bogie, or of a CSV without a `bogie` column.
     first_id: u32,
     n_bogies: u32,
     dt_s: f64,
-    /// Bogie of the next frame within the step (0-based) and the step's records.
-    next_bogie: usize,
-    step: Vec<BogieRecord>,
-    /// The record `next` returned last.
+    /// The current step's records not sent yet (simulated bogies, in id order).
+    pending: VecDeque<(u32, BogieRecord)>,
+    /// The record `next` returned last, with its bogie id.
     last: Option<(u32, BogieRecord)>,
+    /// Every bogie id sent, for the summary.
+    ids_sent: Vec<u32>,
     writer: Option<BogieCsvWriter>,
 }
 
@@ -92,9 +97,15 @@ impl BogieSource {
             }
             (None, Some(path)) => {
                 if args.bogies != 1 {
-                    bail!("--bogies applies to --scenario only (a CSV holds one bogie)");
+                    bail!("--bogies applies to --scenario only (a CSV names its bogies)");
                 }
                 let reader = BogieCsvReader::open(path)?;
+                if reader.has_bogie_column() && args.bogie_id.is_some() {
+                    bail!(
+                        "--bogie-id: {} names the bogie of every row (column `bogie`)",
+                        path.display()
+                    );
+                }
                 let with_truth = reader.has_truth();
                 let samples = Samples::Recorded {
                     path: path.clone(),
@@ -105,38 +116,51 @@ impl BogieSource {
             (None, None) => bail!("give --scenario FILE or --csv FILE"),
         };
         let writer = match &args.replay.record {
-            Some(path) => Some(BogieCsvWriter::create(path, with_truth)?),
+            Some(path) => Some(BogieCsvWriter::create_with_bogie_ids(path, with_truth)?),
             None => None,
         };
         Ok(Self {
             samples,
-            first_id: args.bogie_id,
+            first_id: args.bogie_id.unwrap_or(DEFAULT_BOGIE_ID),
             n_bogies,
             dt_s,
-            next_bogie: 0,
-            step: Vec::new(),
+            pending: VecDeque::new(),
             last: None,
+            ids_sent: Vec::new(),
             writer,
         })
     }
 
-    /// The next step's record of every bogie; empty at the end of the run.
-    fn next_step(&mut self) -> anyhow::Result<Vec<BogieRecord>> {
+    /// The next record and its bogie id; `None` at the end of the run.
+    fn next_record(&mut self) -> anyhow::Result<Option<(u32, BogieRecord)>> {
         match &mut self.samples {
-            Samples::Simulated { simulators, .. } => Ok(simulators
-                .iter_mut()
-                .map_while(|s| {
-                    s.step().map(|(y, truth)| BogieRecord {
-                        time_s: truth.time_s,
-                        sensors: y.to_vector().into(),
-                        truth_ns_per_m: Some([
-                            truth.dampers.csy_ns_per_m,
-                            truth.dampers.csay_ns_per_m,
-                        ]),
-                    })
-                })
-                .collect()),
-            Samples::Recorded { reader, .. } => Ok(reader.next_record()?.into_iter().collect()),
+            Samples::Simulated { simulators, .. } => {
+                if self.pending.is_empty() {
+                    for (k, s) in (self.first_id..).zip(simulators.iter_mut()) {
+                        // The simulators share the scenario's duration: they end together.
+                        let Some((y, truth)) = s.step() else {
+                            self.pending.clear();
+                            return Ok(None);
+                        };
+                        let record = BogieRecord {
+                            time_s: truth.time_s,
+                            sensors: y.to_vector().into(),
+                            truth_ns_per_m: Some([
+                                truth.dampers.csy_ns_per_m,
+                                truth.dampers.csay_ns_per_m,
+                            ]),
+                        };
+                        self.pending.push_back((k, record));
+                    }
+                }
+                Ok(self.pending.pop_front())
+            }
+            Samples::Recorded { reader, .. } => {
+                let file_ids = reader.has_bogie_column();
+                Ok(reader
+                    .next_bogie_record()?
+                    .map(|(id, record)| (if file_ids { id } else { self.first_id }, record)))
+            }
         }
     }
 }
@@ -149,21 +173,17 @@ impl Source for BogieSource {
     }
 
     fn next(&mut self) -> anyhow::Result<Option<(BogieFrame, u64)>> {
-        if self.next_bogie >= self.step.len() {
-            self.step = self.next_step()?;
-            self.next_bogie = 0;
-            if self.step.len() < self.n_bogies as usize {
-                return Ok(None);
-            }
-        }
-        let record = self.step[self.next_bogie];
-        let id = self.first_id + self.next_bogie as u32;
-        self.next_bogie += 1;
+        let Some((id, record)) = self.next_record()? else {
+            return Ok(None);
+        };
         if record.time_s < 0.0 {
             bail!(
                 "bogie {id}: time_s {} is negative (the bus carries times >= 0)",
                 record.time_s
             );
+        }
+        if !self.ids_sent.contains(&id) {
+            self.ids_sent.push(id);
         }
         let sample = BogieSample::from_vector(&record.sensors.into());
         self.last = Some((id, record));
@@ -184,20 +204,14 @@ impl Source for BogieSource {
                 path: path.clone(),
             },
         };
-        self.step.clear();
-        self.next_bogie = 0;
-        // A recording holds one run of the first bogie.
-        if let Some(writer) = self.writer.take() {
-            writer.finish()?;
-        }
+        self.pending.clear();
         Ok(())
     }
 
-    fn record(&mut self, _sent: u64) -> anyhow::Result<()> {
+    fn record(&mut self, _sent: u64, run_offset_s: f64) -> anyhow::Result<()> {
         if let (Some(writer), Some((id, record))) = (self.writer.as_mut(), &self.last) {
-            if *id == self.first_id {
-                writer.write(record)?;
-            }
+            let time_s = record.time_s + run_offset_s;
+            writer.write_bogie(*id, &BogieRecord { time_s, ..*record })?;
         }
         Ok(())
     }
@@ -210,11 +224,123 @@ impl Source for BogieSource {
     }
 
     fn describe(&self) -> String {
-        format!("1 of {} bogies", self.n_bogies)
+        format!("1 of {} bogie(s)", self.ids_sent.len())
     }
 }
 
 pub fn run(args: BogieArgs) -> anyhow::Result<()> {
     let mut source = BogieSource::open(&args)?;
     publish(&mut source, &args.replay)
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+    use crate::replay::replay_offline;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        bogie: BogieArgs,
+    }
+
+    fn source(args: &[&str]) -> anyhow::Result<BogieSource> {
+        let cli = Cli::try_parse_from(std::iter::once("bogie").chain(args.iter().copied()))?;
+        BogieSource::open(&cli.bogie)
+    }
+
+    fn temp_dir(name: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("sensors-replay-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    const SCENARIO: &str = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../config/scenarios/damper-fault.toml"
+    );
+
+    #[test]
+    fn every_bogie_and_every_run_is_recorded_and_replays_as_sent() {
+        let dir = temp_dir("bogies");
+        let record = dir.join("bogies.csv");
+        let record_arg = record.to_str().unwrap();
+        let args = [
+            "--scenario",
+            SCENARIO,
+            "--bogies",
+            "2",
+            "--bogie-id",
+            "3",
+            "--duration-s",
+            "0.005",
+            "--record",
+            record_arg,
+        ];
+        let sent = replay_offline(&mut source(&args).unwrap(), 2).unwrap();
+        // 2 runs of 5 steps of bogies 3 and 4, interleaved; the second run repeats the first
+        // (same seeds); its time 0 is one period (1 ms) after the first run's last sample.
+        assert_eq!(sent.len(), 2 * 5 * 2);
+        let ids: Vec<u32> = sent.iter().map(|(f, _)| f.bogie_id).collect();
+        assert_eq!(ids, [3, 4].repeat(10));
+        assert_ne!(sent[0].0, sent[1].0, "two bogies, two simulators");
+        assert_eq!((sent[10].0, sent[11].0), (sent[0].0, sent[1].0));
+        assert_eq!(sent[10].1, sent[9].1 + 1_000_000 + sent[0].1);
+        assert_eq!(sent[0].1, sent[1].1);
+
+        // The recording holds every frame sent, with its bogie id, on the replay's clock.
+        let mut reader = BogieCsvReader::open(&record).unwrap();
+        assert!(reader.has_bogie_column() && reader.has_truth());
+        for (frame, time_ns) in &sent {
+            let (id, r) = reader.next_bogie_record().unwrap().unwrap();
+            let sample = BogieSample::from_vector(&r.sensors.into());
+            assert_eq!(BogieFrame::from_sample(id, &sample), *frame);
+            assert_eq!((r.time_s * 1e9).round() as u64, *time_ns);
+        }
+        assert_eq!(reader.next_bogie_record().unwrap(), None);
+
+        // Replaying the recording sends the same frames at the same times.
+        let mut replayed = source(&["--csv", record_arg]).unwrap();
+        assert_eq!(replay_offline(&mut replayed, 1).unwrap(), sent);
+        let err = source(&["--csv", record_arg, "--bogie-id", "2"])
+            .err()
+            .unwrap();
+        assert!(err.to_string().contains("column `bogie`"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_csv_without_bogie_column_is_one_bogie_of_the_given_id() {
+        let dir = temp_dir("one-bogie");
+        let old = dir.join("old.csv");
+        let mut w = BogieCsvWriter::create(&old, false).unwrap();
+        for k in 1..=3 {
+            let record = BogieRecord {
+                time_s: 1e-3 * f64::from(k),
+                sensors: [0.1, 0.2, 0.3, 0.004, f64::from(k)],
+                truth_ns_per_m: None,
+            };
+            w.write(&record).unwrap();
+        }
+        w.finish().unwrap();
+        let args = |id: &'static str| ["--csv", old.to_str().unwrap(), "--bogie-id", id];
+        let sent = replay_offline(&mut source(&args("2")).unwrap(), 1).unwrap();
+        let got: Vec<(u32, f64, u64)> = sent
+            .iter()
+            .map(|(f, t)| (f.bogie_id, f.body_accel_m_s2, *t))
+            .collect();
+        assert_eq!(
+            got,
+            [
+                (2, 1.0, 1_000_000),
+                (2, 2.0, 2_000_000),
+                (2, 3.0, 3_000_000)
+            ]
+        );
+        assert!(source(&args("0")).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -178,7 +178,8 @@ impl Source for DriveSource {
         self.source.rewind()
     }
 
-    fn record(&mut self, sent: u64) -> anyhow::Result<()> {
+    /// The drive layout numbers steps rather than timing them: `sent` continues across runs.
+    fn record(&mut self, sent: u64, _run_offset_s: f64) -> anyhow::Result<()> {
         if let Some(recorder) = self.recorder.as_mut() {
             recorder.write_frame(sent, &self.step.drives, self.step.truth.as_deref())?;
         }

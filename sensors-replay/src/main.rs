@@ -49,8 +49,8 @@ pub struct ReplayArgs {
     /// Start again from the beginning at the end (the service restarts its estimator).
     #[arg(long = "loop")]
     pub repeat: bool,
-    /// Also write every frame sent to this CSV file (the stream's recording format; vehicle:
-    /// the first run, written at the end).
+    /// Also write every frame sent to this CSV file (the stream's recording format, every
+    /// bogie, every `--loop` run with times continuing; vehicle: written at the end).
     #[arg(long)]
     pub record: Option<PathBuf>,
     /// Config file whose `[bus]` section names prefix, root path and services (default: the

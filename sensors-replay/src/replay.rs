@@ -3,7 +3,7 @@
 
 use std::time::{Duration, Instant};
 
-use railmon_bus::{BusNode, Frame, FramePublisher};
+use railmon_bus::{BusError, BusNode, Frame, FramePublisher};
 
 use crate::pacing::{Pacer, Speed};
 use crate::{load_bus_config, stop_requested, ReplayArgs};
@@ -18,25 +18,34 @@ pub trait Source {
     fn next(&mut self) -> anyhow::Result<Option<(Self::Frame, u64)>>;
     /// Back to the first sample (for `--loop`).
     fn rewind(&mut self) -> anyhow::Result<()>;
-    /// Writes the frame `next` returned last to the `--record` file (number `sent`).
-    fn record(&mut self, sent: u64) -> anyhow::Result<()>;
+    /// Writes the frame `next` returned last to the `--record` file: frame number `sent`
+    /// (all runs), of the run that started `run_offset_s` after the first one. Every stream
+    /// records every run, its times shifted by that offset, so a `--loop` recording keeps
+    /// the replay's continuous clock.
+    fn record(&mut self, sent: u64, run_offset_s: f64) -> anyhow::Result<()>;
     /// Completes the `--record` file.
     fn finish_recording(&mut self) -> anyhow::Result<()>;
     /// What one frame holds, for the summary line (`3 drives`).
     fn describe(&self) -> String;
 }
 
+/// Waits until a subscriber answers; false when SIGINT/SIGTERM came first (a normal end).
 fn wait_for_subscriber<F: Frame>(
     publisher: &FramePublisher<F>,
     args: &ReplayArgs,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<bool> {
     eprintln!(
         "sensors-replay: waiting for a subscriber on `{}`",
         publisher.service_name()
     );
-    publisher.wait_for_subscriber(args.wait_timeout(), &stop_requested)?;
-    eprintln!("sensors-replay: subscriber connected");
-    Ok(())
+    match publisher.wait_for_subscriber(args.wait_timeout(), &stop_requested) {
+        Ok(()) => {
+            eprintln!("sensors-replay: subscriber connected");
+            Ok(true)
+        }
+        Err(BusError::Stopped { .. }) => Ok(false),
+        Err(e) => Err(e.into()),
+    }
 }
 
 /// Publishes `source` on its stream as `args` say, until its end (or forever with `--loop`,
@@ -46,7 +55,7 @@ pub fn publish<S: Source>(source: &mut S, args: &ReplayArgs) -> anyhow::Result<(
     let stream = <S::Frame as Frame>::STREAM;
     let node = BusNode::create(&bus, &format!("sensors-replay-{stream}"))?;
     let mut publisher = node.publisher::<S::Frame>()?;
-    wait_for_subscriber(&publisher, args)?;
+    let connected = wait_for_subscriber(&publisher, args)?;
     let mut pacer = Pacer::new(args.speed);
     let notify_every = if pacer.is_paced() {
         1
@@ -56,9 +65,9 @@ pub fn publish<S: Source>(source: &mut S, args: &ReplayArgs) -> anyhow::Result<(
     let period_ns = (source.period_s() * 1e9).round() as u64;
     // Time of the run's start and of the last frame on the replay's own clock, for pacing.
     let (mut run_offset_ns, mut last_ns) = (0u64, 0u64);
-    let (mut sent, mut undelivered, mut runs) = (0u64, 0u64, 1u64);
+    let (mut sent, mut resent, mut runs) = (0u64, 0u64, 1u64);
     let start = Instant::now();
-    while !stop_requested() && args.max_frames.is_none_or(|max| sent < max) {
+    'frames: while connected && !stop_requested() && args.max_frames.is_none_or(|max| sent < max) {
         let Some((frame, sample_time_ns)) = source.next()? else {
             if !args.repeat {
                 break;
@@ -71,17 +80,27 @@ pub fn publish<S: Source>(source: &mut S, args: &ReplayArgs) -> anyhow::Result<(
         };
         last_ns = run_offset_ns + sample_time_ns;
         pacer.wait_until(Duration::from_nanos(last_ns));
-        let recipients = publisher.send(&frame, sample_time_ns)?;
-        if recipients == 0 || sent.is_multiple_of(notify_every) {
+        if stop_requested() {
+            break; // during the wait: the service may be stopping too
+        }
+        let mut recipients = publisher.send(&frame, sample_time_ns)?;
+        // No subscriber took the frame: none is connected, or it stayed full for longer than
+        // the backpressure limit (stalled, or killed). Once a live subscriber answers the
+        // hand-shake, the same frame goes again under the same number: nothing is lost.
+        while recipients == 0 {
+            publisher.notify()?;
+            eprintln!("sensors-replay: frame {sent} reached no subscriber; re-sending it");
+            if !wait_for_subscriber(&publisher, args)? {
+                break 'frames;
+            }
+            pacer.reset(Duration::from_nanos(last_ns));
+            recipients = publisher.resend(&frame, sample_time_ns)?;
+            resent += 1;
+        }
+        if sent.is_multiple_of(notify_every) {
             publisher.notify()?;
         }
-        if recipients == 0 {
-            undelivered += 1;
-            eprintln!("sensors-replay: frame {sent} reached no subscriber");
-            wait_for_subscriber(&publisher, args)?;
-            pacer.reset(Duration::from_nanos(last_ns));
-        }
-        source.record(sent)?;
+        source.record(sent, run_offset_ns as f64 / 1e9)?;
         sent += 1;
     }
     publisher.notify()?;
@@ -92,9 +111,36 @@ pub fn publish<S: Source>(source: &mut S, args: &ReplayArgs) -> anyhow::Result<(
         Speed::Times(x) => format!("{x}x"),
     };
     eprintln!(
-        "sensors-replay: sent {sent} frames ({}, {runs} run(s)) in {elapsed_s:.3} s = {:.0} frames/s at speed {speed}; undelivered {undelivered}",
+        "sensors-replay: sent {sent} frames ({}, {runs} run(s)) in {elapsed_s:.3} s = {:.0} frames/s at speed {speed}; re-sent {resent}",
         source.describe(),
         sent as f64 / elapsed_s.max(1e-9),
     );
     Ok(())
+}
+
+/// What [`publish`] sends and records, without a bus: `runs` runs of `source` (the clock of
+/// each run starting one period after the previous run's last frame), each frame with its time
+/// on the replay's clock, ns. For the sources' tests.
+#[cfg(test)]
+pub fn replay_offline<S: Source>(
+    source: &mut S,
+    runs: u64,
+) -> anyhow::Result<Vec<(S::Frame, u64)>> {
+    let period_ns = (source.period_s() * 1e9).round() as u64;
+    let (mut run_offset_ns, mut last_ns, mut sent) = (0u64, 0u64, 0u64);
+    let mut frames = Vec::new();
+    for run in 0..runs {
+        if run > 0 {
+            source.rewind()?;
+            run_offset_ns = last_ns + period_ns;
+        }
+        while let Some((frame, sample_time_ns)) = source.next()? {
+            last_ns = run_offset_ns + sample_time_ns;
+            source.record(sent, run_offset_ns as f64 / 1e9)?;
+            frames.push((frame, last_ns));
+            sent += 1;
+        }
+    }
+    source.finish_recording()?;
+    Ok(frames)
 }

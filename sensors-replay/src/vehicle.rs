@@ -98,23 +98,21 @@ impl Source for VehicleSource {
         Ok(())
     }
 
-    fn record(&mut self, _sent: u64) -> anyhow::Result<()> {
+    fn record(&mut self, _sent: u64, run_offset_s: f64) -> anyhow::Result<()> {
         if let Some((_, rows)) = self.recorded.as_mut() {
-            rows.push(self.rows[self.next - 1].clone());
+            let mut row = self.rows[self.next - 1].clone();
+            row.sample.time_s += run_offset_s;
+            rows.push(row);
         }
         Ok(())
     }
 
     fn finish_recording(&mut self) -> anyhow::Result<()> {
-        // Written at the end: the railmon layout takes its columns from the first row, and
-        // `--loop` runs repeat time stamps, which a single recording cannot hold.
+        // Written at the end (`write_vehicle_csv` takes the columns from the first row), so
+        // a `--loop` recording holds every row sent in memory until then (1 Hz: ~100 bytes a
+        // sample, ~9 MB a day at real time).
         if let Some((path, rows)) = self.recorded.take() {
-            let first_run = rows
-                .iter()
-                .enumerate()
-                .take_while(|(k, r)| *k == 0 || r.sample.time_s > rows[k - 1].sample.time_s)
-                .count();
-            write_vehicle_csv(&path, &rows[..first_run])?;
+            write_vehicle_csv(&path, &rows)?;
         }
         Ok(())
     }
@@ -131,4 +129,50 @@ impl Source for VehicleSource {
 pub fn run(args: VehicleArgs) -> anyhow::Result<()> {
     let mut source = VehicleSource::open(&args)?;
     publish(&mut source, &args.replay)
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+    use railmon_records::vehicle::read_vehicle_csv;
+
+    use super::*;
+    use crate::replay::replay_offline;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        vehicle: VehicleArgs,
+    }
+
+    #[test]
+    fn every_run_is_recorded_on_a_continuing_clock_and_replays_as_sent() {
+        let dir =
+            std::env::temp_dir().join(format!("sensors-replay-vehicle-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (input, record) = (dir.join("in.csv"), dir.join("record.csv"));
+        std::fs::write(&input, "time_s,fuel_cm3_s,speed_m_s,gear,regime\n10,0.5,3,1,eco\n11,0.75,4,2,eco\n12,1.5,6,2,sporty\n").unwrap();
+        let open = |args: &[&str]| {
+            let cli = Cli::try_parse_from(std::iter::once("vehicle").chain(args.iter().copied()));
+            VehicleSource::open(&cli.unwrap().vehicle).unwrap()
+        };
+        let (input_arg, record_arg) = (input.to_str().unwrap(), record.to_str().unwrap());
+        let sent =
+            replay_offline(&mut open(&["--csv", input_arg, "--record", record_arg]), 2).unwrap();
+        let times: Vec<u64> = sent.iter().map(|(_, t)| t / 1_000_000_000).collect();
+        // The second run's time 0 is one period (1 s) after the first run's last sample.
+        assert_eq!(times, [10, 11, 12, 23, 24, 25]);
+
+        let (_, input_rows) = read_vehicle_csv(&input).unwrap();
+        let (_, recorded) = read_vehicle_csv(&record).unwrap();
+        assert_eq!(recorded.len(), 6);
+        for (k, row) in recorded.iter().enumerate() {
+            let mut want = input_rows[k % 3].clone();
+            want.sample.time_s = times[k] as f64;
+            assert_eq!(*row, want);
+        }
+        let replayed = replay_offline(&mut open(&["--csv", record_arg]), 1).unwrap();
+        assert_eq!(replayed, sent);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

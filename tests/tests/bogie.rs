@@ -31,9 +31,9 @@ fn monitor(id: u32) -> DamperMonitor {
     DamperMonitor::new(&config, config.rbpf.seed + u64::from(id)).unwrap()
 }
 
-/// The library's estimate for bogie 1 after every sample of `record`.
+/// The library's estimate for bogie 1 after every sample of `record` (bogie 1's rows of it).
 fn reference(record: &Path) -> DamperEstimate {
-    let mut reader = BogieCsvReader::open(record).unwrap();
+    let mut reader = BogieCsvReader::open(record).unwrap().only_bogie(1);
     let mut monitor = monitor(1);
     while let Some(r) = reader.next_record().unwrap() {
         monitor
