@@ -219,6 +219,7 @@ fn write_predictions(
         "single_regression_virtual_sensor_cm3_s",
         "persistence_cm3_s",
         "active_regime",
+        "regime",
     ]
     .map(String::from)
     .to_vec();
@@ -241,6 +242,7 @@ fn write_predictions(
         .map(|v| format!("{v:.6}"))
         .collect();
         f.push(r.active_regime.to_string());
+        f.push(r.regime.to_string());
         f.extend(r.regime_probabilities.iter().map(|p| format!("{p:.6}")));
         if let (Some(names), Some(l)) = (labels, r.label) {
             f.push(names[l].clone());
@@ -298,5 +300,14 @@ fn write_regimes(path: &Path, score: &RegimeScore, names: &[String]) -> Result<(
         format!("{:.4}", score.accuracy()),
     ];
     all.extend(names.iter().map(|_| String::new()));
-    write_csv_table(path, &header, per_component.chain([all]))
+    // The reported regime (confirmed over `regime_confirm_samples`), same matching.
+    let mut confirmed = vec![
+        "all_confirmed".to_string(),
+        all[1].clone(),
+        score.n.to_string(),
+        score.confirmed_correct.to_string(),
+        format!("{:.4}", score.confirmed_accuracy()),
+    ];
+    confirmed.extend(names.iter().map(|_| String::new()));
+    write_csv_table(path, &header, per_component.chain([all, confirmed]))
 }

@@ -103,12 +103,10 @@ fn scenario_run_writes_every_report() {
         assert!(summary.contains(method), "{method} missing from\n{summary}");
     }
     let regimes = std::fs::read_to_string(out.join("regimes.csv")).unwrap();
+    let last_two: Vec<&str> = regimes.lines().rev().take(2).collect();
     assert!(
-        regimes
-            .lines()
-            .last()
-            .unwrap()
-            .starts_with("all,one_to_one,400,"),
+        last_two[1].starts_with("all,one_to_one,400,")
+            && last_two[0].starts_with("all_confirmed,one_to_one,400,"),
         "{regimes}"
     );
     // The simulated samples read back as a labelled recording and give the same evaluation.

@@ -41,7 +41,10 @@ pub struct MixtureEstimate {
     pub regime_probabilities: Vec<f64>,
     /// `argmax_i w_{i;t}`: the point estimate of the pointer.
     pub active_regime: usize,
-    /// The active regime differs from the previous sample's (false on the first estimate): the
+    /// The reported driving regime: the active regime once it has been active for
+    /// `regime_confirm_samples` samples in a row (the first estimate's active regime at start).
+    pub regime: usize,
+    /// `regime` differs from the previous sample's (false on the first estimate): the
     /// regime-change event of a live service.
     pub regime_changed: bool,
     /// Fuel integrated from the virtual sensor since initialisation, cm^3.
@@ -138,6 +141,8 @@ pub struct FuelMonitor {
     mixture: Option<Mixture>,
     /// Forecast path made at the previous step.
     pending_forecast: Vec<f64>,
+    /// The active regime and for how many samples in a row it has been active.
+    active_streak: (usize, usize),
     estimate: FuelEstimate,
 }
 
@@ -190,6 +195,7 @@ impl FuelMonitor {
             past: Past::default(),
             mixture: None,
             pending_forecast: Vec::new(),
+            active_streak: (0, 0),
             estimate: FuelEstimate::default(),
         })
     }
@@ -432,7 +438,15 @@ impl FuelMonitor {
         let one_step = self.pending_forecast.first().copied().unwrap_or(f64::NAN);
         self.pending_forecast = self.forecast_path();
         let previous = self.estimate.mixture.as_ref();
-        let regime_changed = previous.is_some_and(|e| e.active_regime != active);
+        self.active_streak = match self.active_streak {
+            (regime, n) if regime == active => (regime, n + 1),
+            _ => (active, 1),
+        };
+        let regime = match previous {
+            Some(e) if self.active_streak.1 < self.config.regime_confirm_samples => e.regime,
+            _ => active,
+        };
+        let regime_changed = previous.is_some_and(|e| e.regime != regime);
         let cumulative_virtual =
             previous.map_or(0.0, |e| e.cumulative_virtual_fuel_cm3) + virtual_sensor * dt;
         Ok(MixtureEstimate {
@@ -442,6 +456,7 @@ impl FuelMonitor {
             forecast_cm3_s: self.pending_forecast.clone(),
             regime_probabilities,
             active_regime: active,
+            regime,
             regime_changed,
             cumulative_virtual_fuel_cm3: cumulative_virtual,
         })
@@ -481,5 +496,10 @@ impl FuelMonitor {
     /// Index of the most probable component now (`None` before initialisation).
     pub fn active_regime(&self) -> Option<usize> {
         self.mixture.as_ref().map(|m| argmax(m.log_weights()))
+    }
+
+    /// The reported (confirmed) regime of the last estimate (`None` before the first).
+    pub fn regime(&self) -> Option<usize> {
+        self.estimate.mixture.as_ref().map(|m| m.regime)
     }
 }

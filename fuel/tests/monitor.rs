@@ -126,6 +126,11 @@ rejects!(rejects_zero_noise_floor, "min_noise_variance", |c| c
 rejects!(rejects_zero_horizon, "forecast_horizon_steps", |c| c
     .forecast_horizon_steps =
     0);
+rejects!(
+    rejects_zero_regime_confirmation,
+    "regime_confirm_samples",
+    |c| c.regime_confirm_samples = 0
+);
 rejects!(rejects_zero_sample_period, "sample_period_s", |c| c
     .sample_period_s =
     0.0);
@@ -366,12 +371,21 @@ fn paper_setting_separates_fuel_cut_off_from_driving() {
     assert!(se_mix < 0.8 * se_one, "mixture {se_mix} vs single {se_one}");
 }
 
-#[test]
-fn regime_changes_are_flagged_once_per_change() {
-    let (mut monitor, _) = run(&FuelMonitorConfig::paper(), 160, 12);
+/// Runs the synthetic drive from t = 160 to 1000 and checks every estimate's reported regime
+/// and change flag against the rule written out here: the reported regime follows the active
+/// (most probable) one once that has been active for `confirm` samples in a row. Returns the
+/// changes of the active and of the reported regime.
+fn check_regime_confirmation(confirm: usize) -> (usize, usize) {
+    let config = FuelMonitorConfig {
+        regime_confirm_samples: confirm,
+        ..FuelMonitorConfig::paper()
+    };
+    let (mut monitor, _) = run(&config, 160, 12);
     let mut rng = ChaCha8Rng::seed_from_u64(13);
-    let mut previous = monitor.estimate().mixture.as_ref().map(|m| m.active_regime);
-    let mut changes = 0;
+    let first = monitor.estimate().mixture.clone().unwrap();
+    let (mut reported, mut active) = (first.regime, first.active_regime);
+    let mut streak = 1;
+    let (mut active_changes, mut reported_changes) = (0, 0);
     for t in 160..1000 {
         let e = monitor
             .update(&sample(t, &mut rng))
@@ -379,10 +393,28 @@ fn regime_changes_are_flagged_once_per_change() {
             .mixture
             .clone()
             .unwrap();
-        let expected = previous.is_some_and(|p| p != e.active_regime);
-        assert_eq!(e.regime_changed, expected, "t = {t}");
-        changes += usize::from(e.regime_changed);
-        previous = Some(e.active_regime);
+        if e.active_regime == active {
+            streak += 1;
+        } else {
+            (active, streak) = (e.active_regime, 1);
+            active_changes += 1;
+        }
+        let expected = if streak >= confirm { active } else { reported };
+        assert_eq!(e.regime, expected, "t = {t}");
+        assert_eq!(e.regime_changed, expected != reported, "t = {t}");
+        reported_changes += usize::from(e.regime_changed);
+        reported = expected;
     }
-    assert!(changes > 0, "the synthetic drive switches regime");
+    (active_changes, reported_changes)
+}
+
+#[test]
+fn regime_changes_are_flagged_once_per_confirmed_change() {
+    // Unconfirmed (1 sample): the reported regime is the pointer estimate itself.
+    let (active, reported) = check_regime_confirmation(1);
+    assert!(active > 0, "the synthetic drive switches regime");
+    assert_eq!(reported, active);
+    // Confirmed over 5 samples: fewer changes, each still flagged once.
+    let (active, reported) = check_regime_confirmation(5);
+    assert!(reported > 0 && reported < active, "{reported} of {active}");
 }

@@ -49,8 +49,11 @@ pub struct VehicleView {
     pub forecast_step_s: f64,
     /// Fuel forecast for the next `forecast_horizon_steps` steps, cm^3/s (first: one step ahead).
     pub forecast_cm3_s: Vec<f64>,
-    /// Most probable driving regime (mixture component, 0-based).
+    /// Driving regime (mixture component, 0-based): the most probable one once it has been
+    /// the most probable for `regime_confirm_samples` samples in a row.
     pub regime: Option<usize>,
+    /// The most probable regime on this sample (the paper's pointer estimate; flickers).
+    pub most_probable_regime: Option<usize>,
     /// Probability of each regime (index = regime).
     pub regime_probabilities: Vec<f64>,
     /// Measured fuel integrated since the source started, cm^3.
@@ -79,7 +82,7 @@ pub struct VehicleHistoryPoint {
     pub cumulative_fuel_cm3: f64,
 }
 
-/// The most probable regime changed.
+/// The (confirmed) driving regime changed.
 #[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
 pub struct RegimeEventView {
     /// Increasing id (restarts with the service).
@@ -242,7 +245,7 @@ impl VehiclePipeline {
                     .observe(error.abs() * M3_PER_CM3);
             }
             if let (true, Some(from)) = (m.regime_changed, previous_regime) {
-                let to = m.active_regime;
+                let to = m.regime;
                 let probability = m.regime_probabilities[to];
                 self.regime_changes += 1;
                 self.metrics.vehicle_regime_changes.inc();
@@ -274,7 +277,7 @@ impl VehiclePipeline {
                 fuel_rate_cm3_s: estimate.fuel_cm3_s,
                 virtual_sensor_cm3_s: m.map(|m| m.virtual_sensor_cm3_s),
                 one_step_forecast_cm3_s: m.map(|m| m.one_step_forecast_cm3_s),
-                regime: m.map(|m| m.active_regime),
+                regime: m.map(|m| m.regime),
                 regime_probabilities: m.map_or_else(Vec::new, |m| m.regime_probabilities.clone()),
                 cumulative_fuel_cm3: estimate.cumulative_fuel_cm3,
             });
@@ -298,7 +301,8 @@ impl VehiclePipeline {
             one_step_forecast_cm3_s: m.map(|m| m.one_step_forecast_cm3_s),
             forecast_step_s: self.config.estimator.sample_period_s,
             forecast_cm3_s: m.map_or_else(Vec::new, |m| m.forecast_cm3_s.clone()),
-            regime: m.map(|m| m.active_regime),
+            regime: m.map(|m| m.regime),
+            most_probable_regime: m.map(|m| m.active_regime),
             regime_probabilities: m.map_or_else(Vec::new, |m| m.regime_probabilities.clone()),
             cumulative_fuel_cm3: estimate.cumulative_fuel_cm3,
             cumulative_virtual_fuel_cm3: m.map(|m| m.cumulative_virtual_fuel_cm3),
@@ -381,7 +385,7 @@ impl Pipeline for VehiclePipeline {
     fn step(&mut self, header: &FrameHeader, frame: &VehicleFrame) -> Result<(), Rejection> {
         let sample = checked_sample(header, frame)?;
         let monitor = self.monitor()?;
-        let previous_regime = monitor.active_regime();
+        let previous_regime = monitor.regime();
         // `update` validates the whole sample first: on error the estimator is unchanged.
         monitor.update(&sample).map_err(rejection_of)?;
         self.speed_m_s = sample.speed_m_s;

@@ -44,7 +44,8 @@ fn pipeline_reproduces_the_library_and_reports_regime_changes() {
                 assert_eq!(view.zero_step_cm3_s, Some(m.zero_step_cm3_s));
                 assert_eq!(view.forecast_cm3_s, m.forecast_cm3_s);
                 assert_eq!(view.forecast_cm3_s.len(), 10);
-                assert_eq!(view.regime, Some(m.active_regime));
+                assert_eq!(view.regime, Some(m.regime));
+                assert_eq!(view.most_probable_regime, Some(m.active_regime));
                 assert_eq!(view.regime_probabilities, m.regime_probabilities);
                 let total: f64 = view.regime_probabilities.iter().sum();
                 assert!((total - 1.0).abs() < 1e-9, "{total}");

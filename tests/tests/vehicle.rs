@@ -96,7 +96,11 @@ fn fuel_cycles_replay_reaches_the_service_complete_and_equal_to_the_library() {
     );
     assert_eq!(f64s(&v["forecast_cm3_s"]), m.forecast_cm3_s);
     assert_eq!(f64s(&v["regime_probabilities"]), m.regime_probabilities);
-    assert_eq!(v["regime"].as_u64(), Some(m.active_regime as u64));
+    assert_eq!(v["regime"].as_u64(), Some(m.regime as u64));
+    assert_eq!(
+        v["most_probable_regime"].as_u64(),
+        Some(m.active_regime as u64)
+    );
     assert_eq!(v["regime_changes"].as_u64(), Some(changes));
     assert!(changes > 0);
     let events = service.get_json("/api/v1/vehicle/events");

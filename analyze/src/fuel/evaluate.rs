@@ -22,6 +22,8 @@ pub struct PredictionRow {
     pub persistence_cm3_s: f64,
     pub regime_probabilities: Vec<f64>,
     pub active_regime: usize,
+    /// The reported regime (active for `regime_confirm_samples` in a row).
+    pub regime: usize,
     pub label: Option<usize>,
     pub speed_m_s: Option<f64>,
     pub engine_speed_rpm: Option<f64>,
@@ -49,12 +51,19 @@ pub struct RegimeScore {
     /// majority label (when the numbers of components and labels differ).
     pub one_to_one: bool,
     pub correct: usize,
+    /// Samples whose reported (confirmed) regime's matched label is right.
+    pub confirmed_correct: usize,
     pub n: usize,
 }
 
 impl RegimeScore {
     pub fn accuracy(&self) -> f64 {
         self.correct as f64 / self.n.max(1) as f64
+    }
+
+    /// Accuracy of the reported regime, under the active regime's matching.
+    pub fn confirmed_accuracy(&self) -> f64 {
+        self.confirmed_correct as f64 / self.n.max(1) as f64
     }
 }
 
@@ -152,6 +161,7 @@ pub fn evaluate(
                 persistence_cm3_s: previous_fuel.unwrap_or(fuel),
                 regime_probabilities: a.regime_probabilities.clone(),
                 active_regime: a.active_regime,
+                regime: a.regime,
                 label: labels.map(|(l, _)| l[t]),
                 speed_m_s: sample.speed_m_s,
                 engine_speed_rpm: sample.engine_speed_rpm,
@@ -204,11 +214,16 @@ pub fn score_regimes(rows: &[PredictionRow], components: usize, n_labels: usize)
         .enumerate()
         .map(|(c, &l)| confusion[c][l])
         .sum();
+    let confirmed_correct = rows
+        .iter()
+        .filter(|r| r.label == Some(matched_label[r.regime]))
+        .count();
     RegimeScore {
         confusion,
         matched_label,
         one_to_one,
         correct,
+        confirmed_correct,
         n,
     }
 }
@@ -272,6 +287,7 @@ mod tests {
             persistence_cm3_s: 0.0,
             regime_probabilities: vec![],
             active_regime: active,
+            regime: active,
             label: Some(label),
             speed_m_s: None,
             engine_speed_rpm: None,
