@@ -93,6 +93,10 @@ mod tests {
                 "damper-spectral",
                 include_str!("../../config/scenarios/damper-spectral.toml"),
             ),
+            (
+                "damper-spectral-high",
+                include_str!("../../config/scenarios/damper-spectral-high.toml"),
+            ),
         ] {
             let s = DamperScenario::from_toml_str(text).unwrap();
             assert_eq!(s.name, name);
