@@ -51,6 +51,10 @@ pub struct Args {
     /// Run only the first seconds of the scenario or recording.
     #[arg(long)]
     pub duration_s: Option<f64>,
+    /// With `--input`: the bogie whose rows are analysed (a recording of several bogies holds
+    /// them interleaved; a file without a `bogie` column is bogie 1).
+    #[arg(long, default_value_t = 1)]
+    pub bogie: u32,
     /// Write a row of `estimates.csv` (and a plot point) every this many steps.
     #[arg(long, default_value_t = 10)]
     pub csv_every: usize,
@@ -174,7 +178,7 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
     let (name, mut config, source, n_steps, faults, record) =
         match (&args.run.input, &args.run.scenario) {
             (Some(path), _) => {
-                let reader = BogieCsvReader::open(path)?;
+                let reader = BogieCsvReader::open(path)?.only_bogie(args.bogie);
                 let name = path.display().to_string();
                 (
                     name,

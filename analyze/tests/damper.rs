@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use railmon_analyze::damper::{run, Args, DamperAnalysisError};
 use railmon_analyze::report::RunArgs;
+use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter};
 
 fn scenario(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../config/scenarios/{name}.toml"))
@@ -27,6 +28,7 @@ fn args(out: &Path) -> Args {
         particles: Some(100),
         propagation: None,
         duration_s: Some(3.0),
+        bogie: 1,
         csv_every: 10,
         no_plots: false,
     }
@@ -79,6 +81,24 @@ fn scenario_run_writes_reports_and_its_recording_replays_identically() {
     run(&b).unwrap();
     let replayed = std::fs::read_to_string(replay.join("estimates.csv")).unwrap();
     assert_eq!(replayed, estimates);
+
+    // The same rows as bogie 2 of a two-bogie recording (bogie 1: other, halved, signals),
+    // analysed with `--bogie 2`, give the same estimates again.
+    let two = replay.join("two-bogies.csv");
+    let mut reader = BogieCsvReader::open(&out.join("bogie.csv")).unwrap();
+    let mut writer = BogieCsvWriter::create_with_bogie_ids(&two, reader.has_truth()).unwrap();
+    while let Some(record) = reader.next_record().unwrap() {
+        let mut other = record;
+        other.sensors = other.sensors.map(|x| 0.5 * x);
+        writer.write_bogie(1, &other).unwrap();
+        writer.write_bogie(2, &record).unwrap();
+    }
+    writer.finish().unwrap();
+    b.run.input = Some(two);
+    b.bogie = 2;
+    run(&b).unwrap();
+    let bogie_2 = std::fs::read_to_string(replay.join("estimates.csv")).unwrap();
+    assert_eq!(bogie_2, estimates);
     std::fs::remove_dir_all(&out).unwrap();
     std::fs::remove_dir_all(&replay).unwrap();
 }
