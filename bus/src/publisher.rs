@@ -65,7 +65,7 @@ impl<F: Frame> FramePublisher<F> {
             .set_backpressure_handler(give_up_after_limit)
             .create()
             .map_err(|e| BusError::ipc(format!("create publisher on `{name}`"), e))?;
-        let instance = (u64::from(std::process::id()) << 32) ^ (monotonic_ns() & 0xffff_ffff);
+        let instance = new_instance_id();
         Ok(Self {
             stream,
             frames: services.frames,
@@ -153,10 +153,12 @@ impl<F: Frame> FramePublisher<F> {
     /// a lossless source whose last frame reached no subscriber: a subscriber that stalled
     /// longer than the backpressure limit then misses nothing and counts no gap.
     pub fn resend(&mut self, frame: &F, sample_time_ns: u64) -> Result<usize, BusError> {
-        let sequence = self.sequence.checked_sub(1).ok_or_else(|| BusError::ipc(
-            format!("resend on `{}`", self.stream.service_name),
-            "nothing was sent yet",
-        ))?;
+        let sequence = self.sequence.checked_sub(1).ok_or_else(|| {
+            BusError::ipc(
+                format!("resend on `{}`", self.stream.service_name),
+                "nothing was sent yet",
+            )
+        })?;
         self.send_numbered(frame, sample_time_ns, sequence)
     }
 
@@ -191,4 +193,12 @@ impl<F: Frame> FramePublisher<F> {
             .map(|_| ())
             .map_err(|e| BusError::ipc(format!("notify on `{}`", self.stream.service_name), e))
     }
+}
+
+/// An id that tells publishers apart, also across containers where every process is PID 1
+/// (the pid alone, or pid and clock bits, would then rest on the clock): std's hasher keyed
+/// from the OS's randomness, over the pid and the clock.
+fn new_instance_id() -> u64 {
+    use std::hash::BuildHasher;
+    std::collections::hash_map::RandomState::new().hash_one((std::process::id(), monotonic_ns()))
 }

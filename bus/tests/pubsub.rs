@@ -133,7 +133,7 @@ fn a_frame_resent_after_a_stall_arrives_under_its_own_number() {
     assert_eq!(publisher.send(&frame(2), 2).unwrap(), 0);
     assert_eq!(publisher.next_sequence(), 3);
     let mut sequences = Vec::new();
-    let mut read = |sequences: &mut Vec<u64>| {
+    let read = |sequences: &mut Vec<u64>| {
         slow.drain(usize::MAX, |r| {
             assert_eq!(r.frame.drives[0].u_alpha_v, r.header.sequence as f64);
             sequences.push(r.header.sequence)
