@@ -19,3 +19,12 @@ impl BusError {
         }
     }
 }
+
+impl From<railmon_settings::SettingsError> for BusError {
+    fn from(e: railmon_settings::SettingsError) -> Self {
+        BusError::Config {
+            key: e.key,
+            reason: e.reason,
+        }
+    }
+}

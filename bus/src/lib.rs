@@ -20,7 +20,6 @@ pub mod frames;
 mod node;
 pub use node::iceoryx2_config;
 mod publisher;
-pub mod settings;
 mod subscriber;
 
 pub use clock::monotonic_ns;

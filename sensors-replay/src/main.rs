@@ -16,7 +16,8 @@ use std::time::Duration;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use railmon_bus::{settings, BusConfig};
+use railmon_bus::BusConfig;
+use railmon_settings as settings;
 
 #[derive(Parser)]
 #[command(

@@ -5,9 +5,10 @@
 use std::net::SocketAddr;
 use std::path::Path;
 
-use railmon_bus::{settings, BusConfig, BusError, MAX_DRIVES};
+use railmon_bus::{BusConfig, BusError, MAX_DRIVES};
 use railmon_damper::DamperMonitorConfig;
 use railmon_fuel::FuelMonitorConfig;
+use railmon_settings as settings;
 use railmon_slip::SlipMonitorConfig;
 use serde::{Deserialize, Serialize};
 
@@ -17,6 +18,12 @@ pub enum ConfigError {
     Read { file: String, reason: String },
     #[error("{0}")]
     Invalid(#[from] BusError),
+}
+
+impl From<settings::SettingsError> for ConfigError {
+    fn from(e: settings::SettingsError) -> Self {
+        ConfigError::Invalid(e.into())
+    }
 }
 
 fn invalid(key: &str, reason: String) -> ConfigError {
@@ -131,18 +138,6 @@ fn default_estimator() -> SlipMonitorConfig {
         .expect("the seed scenario's [monitor] section is a valid SlipMonitorConfig")
 }
 
-/// `overlay` on top of `base`, key by key through nested tables.
-fn merge_tables(base: &mut toml::Table, overlay: toml::Table) {
-    for (key, value) in overlay {
-        match (base.get_mut(&key), value) {
-            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge_tables(b, o),
-            (_, value) => {
-                base.insert(key, value);
-            }
-        }
-    }
-}
-
 /// `[vehicle]`: the road-vehicle stream (fuel flow, speed, ... at 1 Hz) -> `railmon_fuel::FuelMonitor`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -249,7 +244,7 @@ impl ServiceConfig {
         if let Some(toml::Value::Table(drive)) = table.get_mut("drive") {
             if let Some(toml::Value::Table(given)) = drive.remove("estimator") {
                 let mut estimator = seed_monitor_table();
-                merge_tables(&mut estimator, given);
+                settings::merge_tables(&mut estimator, given);
                 drive.insert("estimator".into(), toml::Value::Table(estimator));
             }
         }
