@@ -18,8 +18,7 @@
 # (--ipc=container:<service>, or --ipc=host), the same iceoryx2 root path (the volume on
 # /tmp/iceoryx2) and the same uid (files are created 0600): this image's user 10001.
 # `sensors-replay vehicle --scenario config/scenarios/fuel-cycles.toml` reads the drive cycles
-# at ../shared/data/drive-cycles relative to the repo, i.e. /opt/shared/data/drive-cycles here:
-# mount them (-v "$PWD/../shared/data/drive-cycles:/opt/shared/data/drive-cycles:ro").
+# at data/drive-cycles (copied into the image with their licence).
 
 # A registry-less machine passes a locally imported Debian bookworm (scripts/docker-image).
 ARG BASE_IMAGE=debian:bookworm-slim
@@ -43,6 +42,7 @@ RUN apt-get update \
 WORKDIR /opt/railmon
 COPY ${BIN_DIR}/railmon ${BIN_DIR}/sensors-replay /usr/local/bin/
 COPY config ./config
+COPY data ./data
 USER railmon
 EXPOSE 8787
 # Read by `railmon serve` and `sensors-replay` (clap `env = "RAILMON_CONFIG"`), like --config.

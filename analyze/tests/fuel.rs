@@ -6,7 +6,7 @@ use railmon_analyze::fuel::{evaluate, load_recording, run, simulate_scenario, Ar
 use railmon_analyze::report::RunArgs;
 
 fn shared_data() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../data")
 }
 
 fn rmse(ev: &Evaluation, method: &str, horizon: usize) -> f64 {

@@ -362,10 +362,10 @@ mod tests {
         assert_eq!(e.line, Some(3));
     }
 
-    /// The real files, as they ship (`../shared/data`, see its README).
+    /// The real files, as they ship (`data/`, see its README).
     #[test]
     fn reads_the_shipped_files() {
-        let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
+        let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data");
         for (file, n) in [
             ("61811011.csv", 3378),
             ("61811013.csv", 1575),
