@@ -1,16 +1,18 @@
 //! `railmon serve` settings: embedded defaults < `config/railmon.toml` (or `--config FILE`) <
-//! environment (`RAILMON_<SECTION>__<KEY>`, see [`railmon_bus::settings`]). Every key is
-//! documented in `config/railmon.toml`, whose values are the defaults (a test checks it).
+//! environment (`RAILMON_<SECTION>__<KEY>`, see [`railmon_settings`]). Every key is documented
+//! in `config/railmon.toml`, whose values are the defaults (a test checks it). Each stream's
+//! section is defined next to its pipeline (`drive::DriveConfig`, ...).
 
 use std::net::SocketAddr;
 use std::path::Path;
 
-use railmon_bus::{BusConfig, BusError, MAX_DRIVES};
-use railmon_damper::DamperMonitorConfig;
-use railmon_fuel::FuelMonitorConfig;
+use railmon_bus::{BusConfig, BusError};
 use railmon_settings as settings;
-use railmon_slip::SlipMonitorConfig;
 use serde::{Deserialize, Serialize};
+
+pub use crate::bogie::{BogieConfig, MAX_BOGIES};
+pub use crate::drive::DriveConfig;
+pub use crate::vehicle::VehicleConfig;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -26,7 +28,7 @@ impl From<settings::SettingsError> for ConfigError {
     }
 }
 
-fn invalid(key: &str, reason: String) -> ConfigError {
+pub(crate) fn invalid(key: &str, reason: String) -> ConfigError {
     ConfigError::Invalid(BusError::Config {
         key: key.into(),
         reason,
@@ -80,148 +82,6 @@ impl Default for IngestConfig {
     }
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct DriveConfig {
-    pub enabled: bool,
-    /// The stream is stale (and `/readyz` fails) when no frame came for this long.
-    pub stale_after_ms: u64,
-    /// Frames with more drives are rejected (at most the frame capacity, 32).
-    pub max_drives: usize,
-    /// Hysteresis of the slipping flag: on when the slip probability reaches `slip_on_ratio`,
-    /// off when it falls to `slip_off_ratio`.
-    pub slip_on_ratio: f64,
-    pub slip_off_ratio: f64,
-    /// One history point per this much stream time.
-    pub history_interval_ms: u64,
-    /// History points kept (the oldest are dropped).
-    pub history_capacity: usize,
-    /// Slip events kept.
-    pub events_capacity: usize,
-    /// The estimator (`railmon_slip::SlipMonitorConfig`).
-    pub estimator: SlipMonitorConfig,
-}
-
-impl Default for DriveConfig {
-    fn default() -> Self {
-        Self {
-            enabled: true,
-            stale_after_ms: 500,
-            max_drives: MAX_DRIVES,
-            slip_on_ratio: 0.8,
-            slip_off_ratio: 0.2,
-            history_interval_ms: 10,
-            history_capacity: 60_000,
-            events_capacity: 1000,
-            estimator: default_estimator(),
-        }
-    }
-}
-
-/// The estimator settings validated on the paper's experiment: the `[monitor]` section of
-/// `config/scenarios/adhesion-seed.toml`, embedded at build time. `[drive.estimator]` in the
-/// config file (or RAILMON_DRIVE__ESTIMATOR__... variables) override single keys of it.
-const SEED_SCENARIO_TOML: &str = include_str!("../../config/scenarios/adhesion-seed.toml");
-
-fn seed_monitor_table() -> toml::Table {
-    let mut seed: toml::Table = SEED_SCENARIO_TOML
-        .parse()
-        .expect("config/scenarios/adhesion-seed.toml is valid TOML (checked by the slip tests)");
-    match seed.remove("monitor") {
-        Some(toml::Value::Table(monitor)) => monitor,
-        _ => toml::Table::new(),
-    }
-}
-
-fn default_estimator() -> SlipMonitorConfig {
-    SlipMonitorConfig::deserialize(toml::Value::Table(seed_monitor_table()))
-        .expect("the seed scenario's [monitor] section is a valid SlipMonitorConfig")
-}
-
-/// `[vehicle]`: the road-vehicle stream (fuel flow, speed, ... at 1 Hz) -> `railmon_fuel::FuelMonitor`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct VehicleConfig {
-    /// Off by default: only vehicles with a fuel meter publish this stream, and `/readyz`
-    /// requires every enabled stream to be fresh.
-    pub enabled: bool,
-    /// The stream is stale (and `/readyz` fails) when no frame came for this long.
-    pub stale_after_ms: u64,
-    /// One history point per this much stream time.
-    pub history_interval_ms: u64,
-    /// History points kept (the oldest are dropped).
-    pub history_capacity: usize,
-    /// Regime-change events kept.
-    pub events_capacity: usize,
-    /// The estimator (`railmon_fuel::FuelMonitorConfig`); keys given override single defaults.
-    pub estimator: FuelMonitorConfig,
-}
-
-impl Default for VehicleConfig {
-    fn default() -> Self {
-        Self {
-            enabled: false,
-            stale_after_ms: 3000,
-            history_interval_ms: 1000,
-            history_capacity: 86_400,
-            events_capacity: 1000,
-            estimator: FuelMonitorConfig::default(),
-        }
-    }
-}
-
-/// Most bogies one service monitors (a vehicle has two per car; a unit of eight cars 16).
-pub const MAX_BOGIES: usize = 16;
-
-/// `[bogie]`: the bogie stream (five inertial sensors per bogie at 1 kHz) -> one
-/// `railmon_damper::DamperMonitor` per configured bogie id.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct BogieConfig {
-    /// Off by default: only vehicles with bogie sensors publish this stream, and `/readyz`
-    /// requires every enabled stream to be fresh.
-    pub enabled: bool,
-    /// The bogie ids frames may carry (at most [`MAX_BOGIES`], unique); others are rejected
-    /// (`unknown_bogie`).
-    pub bogies: Vec<u32>,
-    /// The stream is stale (and `/readyz` fails) when no frame came for this long; also the
-    /// most the estimates may fall behind the samples' clock before the stream is `lagging`.
-    pub stale_after_ms: u64,
-    /// One history point per bogie per this much stream time.
-    pub history_interval_ms: u64,
-    /// History points kept (the oldest are dropped).
-    pub history_capacity: usize,
-    /// Damper health events kept.
-    pub events_capacity: usize,
-    /// Hysteresis of the damper health flag: a damper is degraded when its health ratio
-    /// (estimate / nominal) falls below `degraded_below_ratio` with its whole 90% interval,
-    /// healthy again when the whole interval rises above `recovered_above_ratio`; each change
-    /// is an event.
-    pub degraded_below_ratio: f64,
-    pub recovered_above_ratio: f64,
-    /// The estimator (`railmon_damper::DamperMonitorConfig`); keys given override single
-    /// defaults (e.g. `RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES=100`). Each bogie's RBPF is
-    /// seeded with `rbpf.seed + bogie id`.
-    #[serde(skip_serializing)]
-    pub estimator: DamperMonitorConfig,
-}
-
-impl Default for BogieConfig {
-    fn default() -> Self {
-        Self {
-            enabled: false,
-            bogies: vec![1, 2],
-            stale_after_ms: 500,
-            history_interval_ms: 100,
-            history_capacity: 72_000,
-            events_capacity: 1000,
-            degraded_below_ratio: 0.7,
-            recovered_above_ratio: 0.8,
-            estimator: DamperMonitorConfig::default(),
-        }
-    }
-}
-
 impl ServiceConfig {
     /// Reads `file` (or only the defaults), applies the environment, validates.
     pub fn load(
@@ -243,7 +103,7 @@ impl ServiceConfig {
         // lay the given keys over them before deserialising.
         if let Some(toml::Value::Table(drive)) = table.get_mut("drive") {
             if let Some(toml::Value::Table(given)) = drive.remove("estimator") {
-                let mut estimator = seed_monitor_table();
+                let mut estimator = crate::drive::config::seed_monitor_table();
                 settings::merge_tables(&mut estimator, given);
                 drive.insert("estimator".into(), toml::Value::Table(estimator));
             }
@@ -294,7 +154,7 @@ impl ServiceConfig {
 }
 
 /// The keys every stream section has: staleness, history and event ring sizes.
-fn validate_stream_keys(
+pub(crate) fn validate_stream_keys(
     section: &str,
     stale_after_ms: u64,
     history_interval_ms: u64,
@@ -326,105 +186,11 @@ fn validate_stream_keys(
     Ok(())
 }
 
-impl BogieConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        validate_stream_keys(
-            "bogie",
-            self.stale_after_ms,
-            self.history_interval_ms,
-            self.history_capacity,
-            self.events_capacity,
-        )?;
-        let ids = &self.bogies;
-        if ids.is_empty() || ids.len() > MAX_BOGIES {
-            return Err(invalid(
-                "bogie.bogies",
-                format!("{} ids, expected 1..={MAX_BOGIES}", ids.len()),
-            ));
-        }
-        if let Some(id) = ids
-            .iter()
-            .enumerate()
-            .find_map(|(k, id)| ids[..k].contains(id).then_some(id))
-        {
-            return Err(invalid(
-                "bogie.bogies",
-                format!("bogie id {id} appears twice"),
-            ));
-        }
-        let (below, above) = (self.degraded_below_ratio, self.recovered_above_ratio);
-        if !(below > 0.0 && below < 1.0) {
-            return Err(invalid(
-                "bogie.degraded_below_ratio",
-                format!("{below} is not in (0, 1)"),
-            ));
-        }
-        if !(above > below && above <= 1.0) {
-            return Err(invalid(
-                "bogie.recovered_above_ratio",
-                format!("{above} is not in (degraded_below_ratio = {below}, 1]"),
-            ));
-        }
-        self.estimator
-            .validate()
-            .map_err(|e| invalid("bogie.estimator", e.to_string()))
-    }
-}
-
-impl VehicleConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        validate_stream_keys(
-            "vehicle",
-            self.stale_after_ms,
-            self.history_interval_ms,
-            self.history_capacity,
-            self.events_capacity,
-        )?;
-        self.estimator
-            .validate()
-            .map_err(|e| invalid("vehicle.estimator", e.to_string()))
-    }
-}
-
-impl DriveConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        validate_stream_keys(
-            "drive",
-            self.stale_after_ms,
-            self.history_interval_ms,
-            self.history_capacity,
-            self.events_capacity,
-        )?;
-        if !(1..=MAX_DRIVES).contains(&self.max_drives) {
-            return Err(invalid(
-                "drive.max_drives",
-                format!("{} is not in 1..={MAX_DRIVES}", self.max_drives),
-            ));
-        }
-        if !(self.slip_on_ratio > 0.0 && self.slip_on_ratio <= 1.0) {
-            return Err(invalid(
-                "drive.slip_on_ratio",
-                format!("{} is not in (0, 1]", self.slip_on_ratio),
-            ));
-        }
-        if !(self.slip_off_ratio >= 0.0 && self.slip_off_ratio < self.slip_on_ratio) {
-            return Err(invalid(
-                "drive.slip_off_ratio",
-                format!(
-                    "{} is not in [0, slip_on_ratio = {})",
-                    self.slip_off_ratio, self.slip_on_ratio
-                ),
-            ));
-        }
-        self.estimator
-            .validate()
-            .map_err(|e| invalid("drive.estimator", e.to_string()))
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use railmon_damper::DamperMonitorConfig;
+    use railmon_fuel::FuelMonitorConfig;
 
     fn load_with(vars: &[(&str, &str)]) -> Result<ServiceConfig, ConfigError> {
         let env = vars.iter().map(|(k, v)| (k.to_string(), v.to_string()));
@@ -468,7 +234,7 @@ mod tests {
             "0.02",
         )])
         .unwrap();
-        let mut expected = default_estimator();
+        let mut expected = crate::drive::config::default_estimator();
         expected.ekf.measurement_noise_a2 = 0.02;
         assert_eq!(config.drive.estimator, expected);
     }

@@ -1,22 +1,23 @@
 //! `railmon serve`: bus -> estimators -> HTTP API and Prometheus metrics.
 //!
-//! Data path, in one direction: an ingest thread per stream ([`stream::run_ingest`]) owns the
-//! iceoryx2 subscriber and the stream's [`stream::Pipeline`] (drives:
+//! Data path, in one direction: an ingest thread per stream ([`ingest::run_ingest`]) owns the
+//! iceoryx2 subscriber and the stream's [`ingest::Pipeline`] (drives:
 //! [`drive::DrivePipeline`] over `railmon_slip::SlipMonitor`; vehicle:
 //! [`vehicle::VehiclePipeline`] over `railmon_fuel::FuelMonitor`; bogies:
 //! [`bogie::BogiePipeline`], one `railmon_damper::DamperMonitor` per bogie) and publishes results through
 //! atomics, `arc-swap` snapshots and non-blocking rings ([`outbox`]); the axum handlers
-//! ([`http::app`]) only read those. A stream is a `Pipeline` for its frame type, an outbox,
-//! and one [`spawn_ingest`] call in [`start_ingest`].
+//! ([`http::app`]) only read those. A stream is a folder (`drive/`, `bogie/`, `vehicle/`):
+//! its config section, its view (JSON), its `Pipeline`, its routes and its metric families;
+//! here it takes an outbox and one [`spawn_ingest`] call in [`start_ingest`].
 
 pub mod bogie;
 pub mod config;
 pub mod drive;
 pub mod http;
+pub mod ingest;
 pub mod metrics;
 pub mod outbox;
 pub mod ring;
-pub mod stream;
 pub mod vehicle;
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -29,9 +30,9 @@ pub use http::app;
 
 use bogie::{BogiePipeline, BogieShared};
 use drive::{DrivePipeline, DriveShared};
+use ingest::{Pipeline, StreamStatus};
 use metrics::Metrics;
 use railmon_bus::{Frame, StreamKind};
-use stream::{Pipeline, StreamStatus};
 use vehicle::{VehiclePipeline, VehicleShared};
 
 /// Everything the HTTP handlers read; cheap to clone.
@@ -156,7 +157,7 @@ pub fn spawn_ingest<P: Pipeline + Send + 'static>(
         .spawn(move || {
             // A bus failure (e.g. /dev/shm full) is recorded in the status and retried: the
             // HTTP side stays up and /readyz says the stream is not fresh.
-            while let Err(e) = stream::run_ingest(
+            while let Err(e) = ingest::run_ingest(
                 &config.bus,
                 &config.ingest,
                 &mut pipeline,

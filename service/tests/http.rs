@@ -163,8 +163,8 @@ async fn bad_queries_are_json_400s() {
         "/api/v1/drives/1/history?seconds=NaN",
         "/api/v1/drives/1/history?seconds=1e9",
         "/api/v1/drives/1/history?secs=1",
-        "/api/v1/events?drive=0",
-        "/api/v1/events?after_id=-3",
+        "/api/v1/drives/events?drive=0",
+        "/api/v1/drives/events?after_id=-3",
     ] {
         let (status, body) = get_json(&state, uri).await;
         assert_eq!(status, StatusCode::BAD_REQUEST, "{uri}");
@@ -196,14 +196,14 @@ async fn history_returns_the_window_of_stream_time() {
 #[tokio::test]
 async fn events_filter_by_drive_and_id() {
     let state = state_after(2000);
-    let (_, body) = get_json(&state, "/api/v1/events").await;
+    let (_, body) = get_json(&state, "/api/v1/drives/events").await;
     let events = body["events"].as_array().unwrap();
     assert_eq!(events[0]["kind"], "slip_started");
     assert_eq!(events[0]["drive"], 1);
-    let (_, none) = get_json(&state, "/api/v1/events?drive=2").await;
+    let (_, none) = get_json(&state, "/api/v1/drives/events?drive=2").await;
     assert!(none["events"].as_array().unwrap().is_empty());
     let first = events[0]["id"].as_u64().unwrap();
-    let (_, later) = get_json(&state, &format!("/api/v1/events?after_id={first}")).await;
+    let (_, later) = get_json(&state, &format!("/api/v1/drives/events?after_id={first}")).await;
     assert_eq!(later["events"].as_array().unwrap().len(), events.len() - 1);
 }
 
@@ -410,8 +410,26 @@ async fn vehicle_history_and_events() {
 }
 
 #[tokio::test]
-async fn disabled_vehicle_and_bogie_streams_are_json_404s() {
+async fn disabled_streams_are_json_404s_alike() {
     let state = state_after(10);
+    let no_drives = AppState::new(ServiceConfig {
+        drive: railmon_service::config::DriveConfig {
+            enabled: false,
+            ..Default::default()
+        },
+        ..ServiceConfig::default()
+    })
+    .unwrap();
+    for uri in [
+        "/api/v1/drives",
+        "/api/v1/drives/1",
+        "/api/v1/drives/1/history",
+        "/api/v1/drives/events",
+    ] {
+        let (status, body) = get_json(&no_drives, uri).await;
+        assert_eq!(status, StatusCode::NOT_FOUND, "{uri}");
+        assert_error(&body, 404, "stream_disabled");
+    }
     for uri in [
         "/api/v1/vehicle",
         "/api/v1/vehicle/history",

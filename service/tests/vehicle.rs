@@ -6,7 +6,7 @@ mod common;
 use common::vehicle::{fuel_cycles, vehicle_config, vehicle_header, VehicleHarness};
 use railmon_bus::VehicleFrame;
 use railmon_fuel::{CategoricalConfig, FuelMonitor, FuelMonitorConfig, VehicleSample};
-use railmon_service::stream::Pipeline;
+use railmon_service::ingest::Pipeline;
 
 #[test]
 fn pipeline_reproduces_the_library_and_reports_regime_changes() {

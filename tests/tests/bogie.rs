@@ -44,9 +44,9 @@ fn reference(record: &Path) -> DamperEstimate {
 }
 
 fn assert_damper(view: &Value, want: &railmon_damper::DamperPosterior) {
-    assert_eq!(view["mean_ns_per_m"].as_f64(), Some(want.mean_ns_per_m));
-    assert_eq!(view["q05_ns_per_m"].as_f64(), Some(want.q05_ns_per_m));
-    assert_eq!(view["q95_ns_per_m"].as_f64(), Some(want.q95_ns_per_m));
+    assert_eq!(view["mean_n_s_per_m"].as_f64(), Some(want.mean_ns_per_m));
+    assert_eq!(view["q05_n_s_per_m"].as_f64(), Some(want.q05_ns_per_m));
+    assert_eq!(view["q95_n_s_per_m"].as_f64(), Some(want.q95_ns_per_m));
     assert_eq!(view["health_ratio"].as_f64(), Some(want.health_ratio));
 }
 

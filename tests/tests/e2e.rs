@@ -87,7 +87,7 @@ fn seed_replay_reaches_the_service_complete_and_flags_drive_1() {
             "{series}"
         );
         let series = format!(
-            "railmon_drive_load_torque_newton_metres{{drive=\"{}\"}}",
+            "railmon_drive_load_torque_newton_meters{{drive=\"{}\"}}",
             d["id"]
         );
         assert_eq!(
@@ -100,7 +100,7 @@ fn seed_replay_reaches_the_service_complete_and_flags_drive_1() {
     assert_eq!(service.metric(received), Some(n_steps as f64));
     let gaps = "railmon_stream_sequence_gaps_total{stream=\"drive\"}";
     assert_eq!(service.metric(gaps), Some(0.0));
-    let events = service.get_json("/api/v1/events?drive=1");
+    let events = service.get_json("/api/v1/drives/events?drive=1");
     assert_eq!(events["events"][0]["kind"], "slip_started", "{events}");
 
     // --record wrote every frame sent, with the simulator's truth.

@@ -8,8 +8,8 @@ use std::sync::Arc;
 
 use railmon_bus::{DriveChannels, DriveFrame, FrameHeader, FRAME_LAYOUT_VERSION};
 use railmon_service::drive::{DrivePipeline, DriveShared, DrivesView};
+use railmon_service::ingest::Pipeline;
 use railmon_service::metrics::Metrics;
-use railmon_service::stream::Pipeline;
 use railmon_service::ServiceConfig;
 use railmon_slip::{AdhesionScenario, DriveSample, DriveSimulator};
 
@@ -67,8 +67,8 @@ impl Harness {
         let samples = samples.to_vec();
         let frame = frame_of(&samples, self.dt_ns);
         let header = header(self.step, self.dt_ns);
-        self.pipeline.check(&header, &frame).unwrap();
-        self.pipeline.step(&header, &frame).unwrap();
+        let input = self.pipeline.check(&header, &frame).unwrap();
+        self.pipeline.step(&header, input).unwrap();
         self.step += 1;
         Some(samples)
     }

@@ -6,8 +6,8 @@ use std::sync::{Arc, OnceLock};
 use railmon_bus::{FrameHeader, VehicleFrame, FRAME_LAYOUT_VERSION};
 use railmon_fuel::VehicleSample;
 use railmon_service::config::VehicleConfig;
+use railmon_service::ingest::{Pipeline, Rejection};
 use railmon_service::metrics::Metrics;
-use railmon_service::stream::{Pipeline, Rejection};
 use railmon_service::vehicle::{VehiclePipeline, VehicleShared, VehicleView};
 
 /// The simulated samples of `config/scenarios/fuel-cycles.toml` (all channels and the gear).
@@ -67,8 +67,8 @@ impl VehicleHarness {
     pub fn offer(&mut self, sample: &VehicleSample) -> Result<(), Rejection> {
         let frame = VehicleFrame::from_sample(sample);
         let header = vehicle_header(self.step as u64, sample.time_s);
-        self.pipeline.check(&header, &frame)?;
-        self.pipeline.step(&header, &frame)?;
+        let input = self.pipeline.check(&header, &frame)?;
+        self.pipeline.step(&header, input)?;
         self.step += 1;
         Ok(())
     }

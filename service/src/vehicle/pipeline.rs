@@ -1,112 +1,20 @@
-//! The vehicle stream: 1 Hz frames of a road vehicle's channels -> `railmon_fuel::FuelMonitor`
-//! -> fuel rate now, virtual fuel sensor, forecast over the horizon, driving regime and its
-//! probabilities, cumulative fuel, forecast error, regime-change events, history.
-//!
-//! Units: the estimator works in cm^3/s (the JSON fields say so: `_cm3_s`, `_cm3`); the
-//! Prometheus metrics are in base units, m^3/s and m^3.
+//! The ingest side of the vehicle stream: checked frames -> `FuelMonitor` update -> forecast
+//! error, regime-change events -> history, snapshot and gauges once per batch.
 
 use std::sync::Arc;
 
 use prometheus::Gauge;
 use railmon_bus::{FrameHeader, VehicleFrame};
 use railmon_fuel::{FuelError, FuelMonitor, VehicleSample};
-use serde::Serialize;
-use utoipa::ToSchema;
 
-use crate::config::VehicleConfig;
+use super::view::{RegimeEventView, VehicleHistoryPoint, VehicleShared, VehicleView};
+use super::VehicleConfig;
+use crate::ingest::{Pipeline, Rejection};
 use crate::metrics::Metrics;
-use crate::outbox::{run_time_s, Outbox, Stamp, Track};
-use crate::stream::{Pipeline, Rejection};
+use crate::outbox::{run_time_s, Stamp, Track};
 
 /// Cubic metres per cubic centimetre: the metrics are in base units.
 const M3_PER_CM3: f64 = 1e-6;
-
-/// `GET /api/v1/vehicle`: the latest estimate.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, ToSchema)]
-pub struct VehicleView {
-    /// Stream time, s: continuous over publisher restarts and runs; null before the first frame.
-    pub time_s: Option<f64>,
-    /// Run of the source and the time within it, s.
-    pub run: u32,
-    pub run_time_s: Option<f64>,
-    /// Sequence number of the last frame used.
-    pub sequence: Option<u64>,
-    /// Samples the estimator accepted from the current source.
-    pub samples: u64,
-    /// The estimator is still collecting its `init_samples` (no estimates yet).
-    pub initialising: bool,
-    /// Measured fuel flow now, cm^3/s.
-    pub fuel_rate_cm3_s: Option<f64>,
-    /// Measured speed now, m/s (if the source has it).
-    pub speed_m_s: Option<f64>,
-    /// Virtual fuel sensor: fuel now from the other channels now, cm^3/s.
-    pub virtual_sensor_cm3_s: Option<f64>,
-    /// The paper's 0-step estimate (has seen the fuel it estimates), cm^3/s.
-    pub zero_step_cm3_s: Option<f64>,
-    /// Honest 1-step forecast of this sample's fuel, made a step ago, cm^3/s.
-    pub one_step_forecast_cm3_s: Option<f64>,
-    /// Step between forecast points, s (the estimator's `sample_period_s`).
-    pub forecast_step_s: f64,
-    /// Fuel forecast for the next `forecast_horizon_steps` steps, cm^3/s (first: one step ahead).
-    pub forecast_cm3_s: Vec<f64>,
-    /// Driving regime (mixture component, 0-based): the most probable one once it has been
-    /// the most probable for `regime_confirm_samples` samples in a row.
-    pub regime: Option<usize>,
-    /// The most probable regime on this sample (the paper's pointer estimate; flickers).
-    pub most_probable_regime: Option<usize>,
-    /// Probability of each regime (index = regime).
-    pub regime_probabilities: Vec<f64>,
-    /// Measured fuel integrated since the source started, cm^3.
-    pub cumulative_fuel_cm3: f64,
-    /// Virtual sensor integrated since the estimator initialised, cm^3.
-    pub cumulative_virtual_fuel_cm3: Option<f64>,
-    /// Measured minus 1-step forecast on the last sample, cm^3/s.
-    pub forecast_error_cm3_s: Option<f64>,
-    /// Root mean square of the 1-step forecast error since the source started, cm^3/s.
-    pub forecast_rmse_cm3_s: Option<f64>,
-    /// Regime changes since the source started.
-    pub regime_changes: u64,
-}
-
-/// One point of the history ring.
-#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
-pub struct VehicleHistoryPoint {
-    pub time_s: f64,
-    pub run: u32,
-    pub run_time_s: f64,
-    pub fuel_rate_cm3_s: f64,
-    pub virtual_sensor_cm3_s: Option<f64>,
-    pub one_step_forecast_cm3_s: Option<f64>,
-    pub regime: Option<usize>,
-    pub regime_probabilities: Vec<f64>,
-    pub cumulative_fuel_cm3: f64,
-}
-
-/// The (confirmed) driving regime changed.
-#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
-pub struct RegimeEventView {
-    /// Increasing id (restarts with the service).
-    pub id: u64,
-    /// `regime_changed`.
-    pub kind: String,
-    pub time_s: f64,
-    pub run: u32,
-    pub run_time_s: f64,
-    pub from_regime: usize,
-    pub to_regime: usize,
-    /// Probability of the new regime.
-    pub probability: f64,
-}
-
-/// What the ingest thread shares with the HTTP side.
-pub type VehicleShared = Outbox<VehicleView, VehicleHistoryPoint, RegimeEventView>;
-
-impl VehicleConfig {
-    /// The outbox of the vehicle stream, sized by this config.
-    pub fn outbox(&self) -> VehicleShared {
-        Outbox::new(self.history_capacity, self.events_capacity)
-    }
-}
 
 /// Label values of `railmon_vehicle_fuel_rate_cubic_meters_per_second{kind}`.
 const FUEL_RATE_KINDS: [&str; 4] = [
@@ -131,26 +39,30 @@ impl VehicleGauges {
         let estimator = &config.estimator;
         let step_s = estimator.sample_period_s;
         Self {
-            fuel_rate: FUEL_RATE_KINDS.map(|k| metrics.vehicle_fuel_rate.with_label_values(&[k])),
+            fuel_rate: FUEL_RATE_KINDS.map(|k| metrics.vehicle.fuel_rate.with_label_values(&[k])),
             forecast: (1..=estimator.forecast_horizon_steps)
                 .map(|h| {
                     let horizon = format!("{}", h as f64 * step_s);
                     metrics
-                        .vehicle_fuel_forecast
+                        .vehicle
+                        .fuel_forecast
                         .with_label_values(&[horizon.as_str()])
                 })
                 .collect(),
             consumed_measured: metrics
-                .vehicle_fuel_consumed
+                .vehicle
+                .fuel_consumed
                 .with_label_values(&["measured"]),
             consumed_virtual: metrics
-                .vehicle_fuel_consumed
+                .vehicle
+                .fuel_consumed
                 .with_label_values(&["virtual_sensor"]),
             regime_probability: (0..estimator.components)
                 .map(|i| {
                     let regime = i.to_string();
                     metrics
-                        .vehicle_regime_probability
+                        .vehicle
+                        .regime_probability
                         .with_label_values(&[regime.as_str()])
                 })
                 .collect(),
@@ -172,15 +84,6 @@ fn rejection_of(e: FuelError) -> Rejection {
         reason,
         message: e.to_string(),
     }
-}
-
-fn checked_sample(header: &FrameHeader, frame: &VehicleFrame) -> Result<VehicleSample, Rejection> {
-    frame
-        .checked_sample(run_time_s(header))
-        .map_err(|e| Rejection {
-            reason: e.reason(),
-            message: e.to_string(),
-        })
 }
 
 /// 1-step forecast error statistics of the current source.
@@ -206,8 +109,8 @@ pub struct VehiclePipeline {
 impl VehiclePipeline {
     pub fn new(config: VehicleConfig, shared: Arc<VehicleShared>, metrics: Arc<Metrics>) -> Self {
         let gauges = VehicleGauges::new(&metrics, &config);
-        metrics.vehicle_regime_active.set(-1);
-        metrics.vehicle_initialising.set(1);
+        metrics.vehicle.regime_active.set(-1);
+        metrics.vehicle.initialising.set(1);
         let track = Track::new(config.estimator.sample_period_s, config.history_interval_ms);
         Self {
             config,
@@ -241,14 +144,15 @@ impl VehiclePipeline {
                 self.errors.sum_squares += error * error;
                 self.errors.n += 1;
                 self.metrics
-                    .vehicle_forecast_abs_error
+                    .vehicle
+                    .forecast_abs_error
                     .observe(error.abs() * M3_PER_CM3);
             }
             if let (true, Some(from)) = (m.regime_changed, previous_regime) {
                 let to = m.regime;
                 let probability = m.regime_probabilities[to];
                 self.regime_changes += 1;
-                self.metrics.vehicle_regime_changes.inc();
+                self.metrics.vehicle.regime_changes.inc();
                 tracing::info!(
                     time_s = stamp.time_s,
                     from,
@@ -345,23 +249,28 @@ impl VehiclePipeline {
         }
         let metrics = &self.metrics;
         metrics
-            .vehicle_regime_active
+            .vehicle
+            .regime_active
             .set(view.regime.map_or(-1, |r| r as i64));
-        metrics.vehicle_forecast_error.set(
+        metrics.vehicle.forecast_error.set(
             view.forecast_error_cm3_s
                 .map_or(f64::NAN, |e| e * M3_PER_CM3),
         );
         metrics
-            .vehicle_speed
+            .vehicle
+            .speed
             .set(view.speed_m_s.unwrap_or(f64::NAN));
         metrics
-            .vehicle_initialising
+            .vehicle
+            .initialising
             .set(i64::from(view.initialising));
     }
 }
 
 impl Pipeline for VehiclePipeline {
     type Frame = VehicleFrame;
+    /// Known channel bits, every present value finite.
+    type Checked = VehicleSample;
     const REJECTION_REASONS: &'static [&'static str] = &[
         "unknown_channels",
         "not_finite",
@@ -371,8 +280,14 @@ impl Pipeline for VehiclePipeline {
         "time_not_increasing",
     ];
 
-    fn check(&self, header: &FrameHeader, frame: &VehicleFrame) -> Result<(), Rejection> {
-        checked_sample(header, frame).map(|_| ())
+    fn check(
+        &self,
+        header: &FrameHeader,
+        frame: &VehicleFrame,
+    ) -> Result<VehicleSample, Rejection> {
+        frame
+            .checked_sample(run_time_s(header))
+            .map_err(|e| Rejection::new(e.reason(), e.to_string()))
     }
 
     fn restart(&mut self) {
@@ -382,8 +297,7 @@ impl Pipeline for VehiclePipeline {
         self.track.restart();
     }
 
-    fn step(&mut self, header: &FrameHeader, frame: &VehicleFrame) -> Result<(), Rejection> {
-        let sample = checked_sample(header, frame)?;
+    fn step(&mut self, header: &FrameHeader, sample: VehicleSample) -> Result<(), Rejection> {
         let monitor = self.monitor()?;
         let previous_regime = monitor.regime();
         // `update` validates the whole sample first: on error the estimator is unchanged.

@@ -1,11 +1,8 @@
-//! The bogie stream: 1 kHz frames of each bogie's five inertial sensors -> one
-//! `railmon_damper::DamperMonitor` (RBPF + EKF baseline) per configured bogie id -> damping of
-//! the secondary lateral (`csy`) and anti-yaw (`csay`) dampers with their 90% intervals, health
-//! ratios, effective sample size, degraded / recovered events (hysteresis), history.
+//! The ingest side of the bogie stream: checked frames -> the bogie's `DamperMonitor` step ->
+//! health flags and events -> history, snapshot and gauges once per batch.
 //!
 //! All bogies of a vehicle come from one publisher (frames interleaved, each with its bogie
-//! id): a new publisher or run restarts every bogie's monitor. Units: N s/m throughout (base
-//! units, so the JSON and the metrics carry the same numbers).
+//! id): a new publisher or run restarts every bogie's monitor.
 
 use std::sync::Arc;
 
@@ -13,109 +10,15 @@ use prometheus::{Gauge, IntCounter, IntGauge};
 use railmon_bus::{BogieFrame, FrameHeader};
 use railmon_damper::gain_table::GainTable;
 use railmon_damper::{BogieSample, DamperError, DamperMonitor, DamperPosterior, Propagation, Rbpf};
-use serde::Serialize;
-use utoipa::ToSchema;
 
-use crate::config::BogieConfig;
+use super::view::{
+    BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, DamperEventView,
+    DamperView, DAMPERS,
+};
+use super::BogieConfig;
+use crate::ingest::{Pipeline, Rejection};
 use crate::metrics::Metrics;
-use crate::outbox::{Outbox, Stamp, Track};
-use crate::stream::{Pipeline, Rejection};
-
-/// The two monitored dampers, as API fields and metric labels.
-pub const DAMPERS: [&str; 2] = ["csy", "csay"];
-
-/// One damper of one bogie.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, ToSchema)]
-pub struct DamperView {
-    /// Healthy (design) damping, N s/m.
-    pub nominal_ns_per_m: f64,
-    /// RBPF posterior mean and its 5% / 95% quantiles, N s/m.
-    pub mean_ns_per_m: f64,
-    pub q05_ns_per_m: f64,
-    pub q95_ns_per_m: f64,
-    /// Mean over nominal.
-    pub health_ratio: f64,
-    /// Flagged degraded: set when the whole 90% interval (its 95% quantile) falls below
-    /// `degraded_below_ratio` x nominal, cleared when it (its 5% quantile) rises above
-    /// `recovered_above_ratio` x nominal.
-    pub degraded: bool,
-    /// The EKF baseline's estimate, N s/m (null when disabled or after it diverged).
-    pub ekf_ns_per_m: Option<f64>,
-}
-
-/// One bogie's latest estimate.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, ToSchema)]
-pub struct BogieView {
-    pub bogie: u32,
-    /// Samples its monitor accepted from the current source (0: prior only).
-    pub samples: u64,
-    /// Stream time and run time of its last sample, s.
-    pub time_s: Option<f64>,
-    pub run_time_s: Option<f64>,
-    pub csy: DamperView,
-    pub csay: DamperView,
-    /// Effective sample size of its particle filter (particles).
-    pub effective_sample_size: f64,
-}
-
-/// `GET /api/v1/bogies`: every configured bogie.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, ToSchema)]
-pub struct BogiesView {
-    /// Stream time of the newest frame used, s; null before the first.
-    pub time_s: Option<f64>,
-    pub run: u32,
-    pub run_time_s: Option<f64>,
-    pub sequence: Option<u64>,
-    /// Particles per bogie.
-    pub particles: usize,
-    pub bogies: Vec<BogieView>,
-}
-
-/// One bogie in a history point.
-#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
-pub struct BogieHistoryEntry {
-    pub bogie: u32,
-    pub csy_ns_per_m: f64,
-    pub csay_ns_per_m: f64,
-    pub csy_health_ratio: f64,
-    pub csay_health_ratio: f64,
-    pub effective_sample_size: f64,
-}
-
-/// One point of the history ring: every bogie with samples at that time.
-#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
-pub struct BogieHistoryPoint {
-    pub time_s: f64,
-    pub run: u32,
-    pub run_time_s: f64,
-    pub bogies: Vec<BogieHistoryEntry>,
-}
-
-/// A damper's health flag changed.
-#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
-pub struct DamperEventView {
-    /// Increasing id (restarts with the service).
-    pub id: u64,
-    /// `damper_degraded` or `damper_recovered`.
-    pub kind: String,
-    pub bogie: u32,
-    /// `csy` or `csay`.
-    pub damper: String,
-    pub time_s: f64,
-    pub run: u32,
-    pub run_time_s: f64,
-    pub health_ratio: f64,
-}
-
-/// What the ingest thread shares with the HTTP side.
-pub type BogieShared = Outbox<BogiesView, BogieHistoryPoint, DamperEventView>;
-
-impl BogieConfig {
-    /// The outbox of the bogie stream, sized by this config.
-    pub fn outbox(&self) -> BogieShared {
-        Outbox::new(self.history_capacity, self.events_capacity)
-    }
-}
+use crate::outbox::{Stamp, Track};
 
 /// Gauges of one damper of one bogie, looked up once.
 struct DamperGauges {
@@ -145,14 +48,16 @@ impl BogieSlot {
             DamperGauges {
                 damping: ["mean", "q05", "q95"].map(|q| {
                     metrics
-                        .bogie_damping
+                        .bogie
+                        .damping
                         .with_label_values(&[bogie.as_str(), damper, q])
                 }),
-                health: metrics.bogie_health.with_label_values(&labels),
-                degraded: metrics.bogie_degraded.with_label_values(&labels),
+                health: metrics.bogie.health.with_label_values(&labels),
+                degraded: metrics.bogie.degraded.with_label_values(&labels),
                 events: ["degraded", "recovered"].map(|kind| {
                     metrics
-                        .bogie_events
+                        .bogie
+                        .events
                         .with_label_values(&[bogie.as_str(), damper, kind])
                 }),
             }
@@ -163,7 +68,10 @@ impl BogieSlot {
             degraded: [false; 2],
             last_stamp: None,
             dampers,
-            ess: metrics.bogie_ess.with_label_values(&[bogie.as_str()]),
+            ess: metrics
+                .bogie
+                .effective_sample_size
+                .with_label_values(&[bogie.as_str()]),
         }
     }
 }
@@ -309,8 +217,8 @@ impl BogiePipeline {
                     let e = s.monitor.as_ref()?.estimate();
                     Some(BogieHistoryEntry {
                         bogie: s.id,
-                        csy_ns_per_m: e.csy.mean_ns_per_m,
-                        csay_ns_per_m: e.csay.mean_ns_per_m,
+                        csy_n_s_per_m: e.csy.mean_ns_per_m,
+                        csay_n_s_per_m: e.csay.mean_ns_per_m,
                         csy_health_ratio: e.csy.health_ratio,
                         csay_health_ratio: e.csay.health_ratio,
                         effective_sample_size: e.effective_sample_size,
@@ -347,13 +255,13 @@ impl BogiePipeline {
                         health_ratio: f64::NAN,
                     });
                     DamperView {
-                        nominal_ns_per_m: nominals[d],
-                        mean_ns_per_m: p.mean_ns_per_m,
-                        q05_ns_per_m: p.q05_ns_per_m,
-                        q95_ns_per_m: p.q95_ns_per_m,
+                        nominal_n_s_per_m: nominals[d],
+                        mean_n_s_per_m: p.mean_ns_per_m,
+                        q05_n_s_per_m: p.q05_ns_per_m,
+                        q95_n_s_per_m: p.q95_ns_per_m,
                         health_ratio: p.health_ratio,
                         degraded: s.degraded[d],
-                        ekf_ns_per_m: ekf,
+                        ekf_n_s_per_m: ekf,
                     }
                 };
                 BogieView {
@@ -381,7 +289,7 @@ impl BogiePipeline {
     fn set_gauges(&self, view: &BogiesView) {
         for (slot, b) in self.slots.iter().zip(&view.bogies) {
             for (g, d) in slot.dampers.iter().zip([&b.csy, &b.csay]) {
-                let values = [d.mean_ns_per_m, d.q05_ns_per_m, d.q95_ns_per_m];
+                let values = [d.mean_n_s_per_m, d.q05_n_s_per_m, d.q95_n_s_per_m];
                 for (gauge, v) in g.damping.iter().zip(values) {
                     gauge.set(v);
                 }
@@ -393,20 +301,27 @@ impl BogiePipeline {
     }
 }
 
-fn checked_sample(frame: &BogieFrame) -> Result<BogieSample, Rejection> {
-    frame.checked_sample().map_err(|e| Rejection {
-        reason: e.reason(),
-        message: e.to_string(),
-    })
+/// A checked bogie frame: the configured bogie's slot and its validated sample.
+pub struct CheckedBogieSample {
+    slot: usize,
+    sample: BogieSample,
 }
 
 impl Pipeline for BogiePipeline {
     type Frame = BogieFrame;
+    type Checked = CheckedBogieSample;
     const REJECTION_REASONS: &'static [&'static str] = &["not_finite", "unknown_bogie"];
 
-    fn check(&self, _header: &FrameHeader, frame: &BogieFrame) -> Result<(), Rejection> {
-        checked_sample(frame)?;
-        self.slot_of(frame).map(|_| ())
+    fn check(
+        &self,
+        _header: &FrameHeader,
+        frame: &BogieFrame,
+    ) -> Result<CheckedBogieSample, Rejection> {
+        let sample = frame
+            .checked_sample()
+            .map_err(|e| Rejection::new(e.reason(), e.to_string()))?;
+        let slot = self.slot_of(frame)?;
+        Ok(CheckedBogieSample { slot, sample })
     }
 
     fn restart(&mut self) {
@@ -418,9 +333,8 @@ impl Pipeline for BogiePipeline {
         self.track.restart();
     }
 
-    fn step(&mut self, header: &FrameHeader, frame: &BogieFrame) -> Result<(), Rejection> {
-        let sample = checked_sample(frame)?;
-        let k = self.slot_of(frame)?;
+    fn step(&mut self, header: &FrameHeader, input: CheckedBogieSample) -> Result<(), Rejection> {
+        let CheckedBogieSample { slot: k, sample } = input;
         // `step` validates the sample first: on error the monitor is unchanged.
         self.monitor(k)?.step(&sample).map_err(rejection_of)?;
         let stamp = self.track.stamp(header);

@@ -1,100 +1,37 @@
-//! The drive stream: frames of all traction drives -> `railmon_slip::SlipMonitor` -> per-drive
-//! slip probability, speed, load torque, slipping flag with hysteresis, slip events, history.
+//! The ingest side of the drive stream: checked frames -> `SlipMonitor` step -> slipping flags
+//! and events -> history, snapshot and gauges once per batch.
 
 use std::sync::Arc;
 
 use prometheus::{Gauge, IntGauge};
 use railmon_bus::{DriveFrame, FrameHeader};
 use railmon_slip::{DriveSample, SlipMonitor};
-use serde::Serialize;
-use utoipa::ToSchema;
 
-use crate::config::DriveConfig;
+use super::view::{DriveShared, DriveView, DrivesView, HistoryPoint, SlipEventView};
+use super::DriveConfig;
+use crate::ingest::{Pipeline, Rejection};
 use crate::metrics::Metrics;
-use crate::outbox::{Outbox, Stamp, Track};
-use crate::stream::{Pipeline, Rejection};
-
-/// One drive's latest estimate.
-#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
-pub struct DriveView {
-    /// Drive number, 1-based.
-    pub id: usize,
-    /// Probability that the drive has lost adhesion, 0..1.
-    pub slip_probability: f64,
-    /// Estimated electrical speed, rad/s.
-    pub speed_rad_s: f64,
-    /// Estimated load torque, N m.
-    pub load_torque_nm: f64,
-    /// Slipping flag with hysteresis (on at `slip_on_ratio`, off at `slip_off_ratio`).
-    pub slipping: bool,
-}
-
-/// `GET /api/v1/drives`: the latest estimate of every drive.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, ToSchema)]
-pub struct DrivesView {
-    /// Adhesion method (`vb`, `vmp`, `kmeans`, `median`, `temporal`); null before the first frame.
-    pub method: Option<String>,
-    /// Global load torque `M_z^(G)` over all drives, N m.
-    pub global_torque_nm: Option<f64>,
-    /// Stream time, s: continuous over publisher restarts and runs.
-    pub time_s: Option<f64>,
-    /// Run of the source (a replay with `--loop` counts up) and the time within it, s.
-    pub run: u32,
-    pub run_time_s: Option<f64>,
-    /// Sequence number of the last frame used.
-    pub sequence: Option<u64>,
-    pub drives: Vec<DriveView>,
-}
-
-/// One point of the history ring (all drives).
-#[derive(Clone, Debug, PartialEq)]
-pub struct HistoryPoint {
-    pub time_s: f64,
-    pub run: u32,
-    pub run_time_s: f64,
-    pub drives: Vec<DriveView>,
-}
-
-/// A slip started or ended (hysteresis crossing).
-#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
-pub struct SlipEventView {
-    /// Increasing id (restarts with the service).
-    pub id: u64,
-    /// `slip_started` or `slip_ended`.
-    pub kind: String,
-    pub drive: usize,
-    pub time_s: f64,
-    pub run: u32,
-    pub run_time_s: f64,
-    pub slip_probability: f64,
-}
-
-/// What the ingest thread shares with the HTTP side.
-pub type DriveShared = Outbox<DrivesView, HistoryPoint, SlipEventView>;
-
-impl DriveConfig {
-    /// The outbox of the drive stream, sized by this config.
-    pub fn outbox(&self) -> DriveShared {
-        Outbox::new(self.history_capacity, self.events_capacity)
-    }
-}
+use crate::outbox::{Stamp, Track};
 
 struct DriveGauges {
     slip_probability: Gauge,
-    speed: Gauge,
+    electrical_speed: Gauge,
+    mechanical_speed: Gauge,
     load_torque: Gauge,
     slipping: IntGauge,
 }
 
 impl DriveGauges {
     fn new(metrics: &Metrics, id: usize) -> Self {
-        let label = [id.to_string()];
-        let label = [label[0].as_str()];
+        let id = id.to_string();
+        let label = [id.as_str()];
+        let m = &metrics.drive;
         Self {
-            slip_probability: metrics.slip_probability.with_label_values(&label),
-            speed: metrics.speed.with_label_values(&label),
-            load_torque: metrics.load_torque.with_label_values(&label),
-            slipping: metrics.slipping.with_label_values(&label),
+            slip_probability: m.slip_probability.with_label_values(&label),
+            electrical_speed: m.electrical_speed.with_label_values(&label),
+            mechanical_speed: m.mechanical_speed.with_label_values(&label),
+            load_torque: m.load_torque.with_label_values(&label),
+            slipping: m.slipping.with_label_values(&label),
         }
     }
 }
@@ -104,7 +41,6 @@ pub struct DrivePipeline {
     shared: Arc<DriveShared>,
     metrics: Arc<Metrics>,
     monitor: Option<SlipMonitor>,
-    samples: Vec<DriveSample>,
     slipping: Vec<bool>,
     gauges: Vec<DriveGauges>,
     track: Track<HistoryPoint, SlipEventView>,
@@ -118,7 +54,6 @@ impl DrivePipeline {
             shared,
             metrics,
             monitor: None,
-            samples: Vec::new(),
             slipping: Vec::new(),
             gauges: Vec::new(),
             track,
@@ -129,6 +64,7 @@ impl DrivePipeline {
         let Some(monitor) = &self.monitor else {
             return Vec::new();
         };
+        let pole_pairs = self.config.estimator.motor.pole_pairs;
         monitor
             .last()
             .drives
@@ -138,7 +74,8 @@ impl DrivePipeline {
             .map(|(k, (d, &slipping))| DriveView {
                 id: k + 1,
                 slip_probability: d.slip_probability,
-                speed_rad_s: d.speed_rad_s,
+                electrical_speed_rad_s: d.speed_rad_s,
+                mechanical_speed_rad_s: d.speed_rad_s / pole_pairs,
                 load_torque_nm: d.torque_nm,
                 slipping,
             })
@@ -160,6 +97,7 @@ impl DrivePipeline {
             for kind in ["slip_started", "slip_ended"] {
                 let id = id.to_string();
                 self.metrics
+                    .drive
                     .slip_events
                     .with_label_values(&[id.as_str(), kind]);
             }
@@ -180,6 +118,7 @@ impl DrivePipeline {
             self.slipping[k] = kind == "slip_started";
             let id = (k + 1).to_string();
             self.metrics
+                .drive
                 .slip_events
                 .with_label_values(&[id.as_str(), kind])
                 .inc();
@@ -204,6 +143,8 @@ impl DrivePipeline {
 
 impl Pipeline for DrivePipeline {
     type Frame = DriveFrame;
+    /// One sample per drive, every value finite, the configured step.
+    type Checked = Vec<DriveSample>;
     const REJECTION_REASONS: &'static [&'static str] = &[
         "too_many_drives",
         "no_drives",
@@ -212,25 +153,38 @@ impl Pipeline for DrivePipeline {
         "drive_count_changed",
     ];
 
-    fn check(&self, _header: &FrameHeader, frame: &DriveFrame) -> Result<(), Rejection> {
-        frame
+    fn check(
+        &self,
+        _header: &FrameHeader,
+        frame: &DriveFrame,
+    ) -> Result<Vec<DriveSample>, Rejection> {
+        let drives = frame
             .checked_drives(self.config.max_drives)
-            .map_err(|e| Rejection {
-                reason: e.reason(),
-                message: e.to_string(),
-            })?;
+            .map_err(|e| Rejection::new(e.reason(), e.to_string()))?;
         // The EKF's model is discretised with the configured step: other data would be misread.
         let expected_ns = self.config.estimator.dt_s * 1e9;
         if (frame.dt_ns as f64 - expected_ns).abs() > 0.01 * expected_ns {
-            return Err(Rejection {
-                reason: "dt_mismatch",
-                message: format!(
+            return Err(Rejection::new(
+                "dt_mismatch",
+                format!(
                     "frame step {} ns, estimator configured for {expected_ns} ns (drive.estimator.dt_s)",
                     frame.dt_ns
                 ),
-            });
+            ));
         }
-        Ok(())
+        if let Some(m) = &self.monitor {
+            if m.n_drives() != drives.len() {
+                return Err(Rejection::new(
+                    "drive_count_changed",
+                    format!(
+                        "{} drives, the source started with {}",
+                        drives.len(),
+                        m.n_drives()
+                    ),
+                ));
+            }
+        }
+        Ok(drives.iter().map(DriveSample::from).collect())
     }
 
     fn restart(&mut self) {
@@ -238,34 +192,14 @@ impl Pipeline for DrivePipeline {
         self.track.restart();
     }
 
-    fn step(&mut self, header: &FrameHeader, frame: &DriveFrame) -> Result<(), Rejection> {
-        let drives = frame
-            .checked_drives(self.config.max_drives)
-            .map_err(|e| Rejection {
-                reason: e.reason(),
-                message: e.to_string(),
-            })?;
-        match &self.monitor {
-            Some(m) if m.n_drives() != drives.len() => {
-                return Err(Rejection {
-                    reason: "drive_count_changed",
-                    message: format!(
-                        "{} drives, the source started with {}",
-                        drives.len(),
-                        m.n_drives()
-                    ),
-                })
-            }
-            Some(_) => {}
-            None => self.start_monitor(drives.len())?,
+    fn step(&mut self, header: &FrameHeader, samples: Vec<DriveSample>) -> Result<(), Rejection> {
+        if self.monitor.is_none() {
+            self.start_monitor(samples.len())?;
         }
-        self.samples.clear();
-        self.samples.extend(drives.iter().map(DriveSample::from));
         let monitor = self.monitor.as_mut().expect("started above");
-        monitor.step(&self.samples).map_err(|e| Rejection {
-            reason: "estimator",
-            message: e.to_string(),
-        })?;
+        monitor
+            .step(&samples)
+            .map_err(|e| Rejection::new("estimator", e.to_string()))?;
         let stamp = self.track.stamp(header);
         self.update_slipping(&stamp);
         if self.track.history_due(stamp.time_s) {
@@ -297,11 +231,15 @@ impl Pipeline for DrivePipeline {
         // Gauges and the JSON snapshot come from the same estimate: /metrics and the API agree.
         for (gauges, drive) in self.gauges.iter().zip(&view.drives) {
             gauges.slip_probability.set(drive.slip_probability);
-            gauges.speed.set(drive.speed_rad_s);
+            gauges.electrical_speed.set(drive.electrical_speed_rad_s);
+            gauges.mechanical_speed.set(drive.mechanical_speed_rad_s);
             gauges.load_torque.set(drive.load_torque_nm);
             gauges.slipping.set(i64::from(drive.slipping));
         }
-        self.metrics.global_torque.set(estimate.global_torque_nm);
+        self.metrics
+            .drive
+            .global_torque
+            .set(estimate.global_torque_nm);
         self.shared.snapshot.store(Arc::new(view));
     }
 }

@@ -1,0 +1,104 @@
+//! `[bogie]`: the bogie stream (five inertial sensors per bogie at 1 kHz) -> one
+//! `railmon_damper::DamperMonitor` per configured bogie.
+
+use railmon_damper::DamperMonitorConfig;
+use serde::{Deserialize, Serialize};
+
+use crate::config::{invalid, validate_stream_keys, ConfigError};
+
+/// Most bogies one service monitors (a vehicle has two per car; a unit of eight cars 16).
+pub const MAX_BOGIES: usize = 16;
+
+/// `[bogie]`: the bogie stream (five inertial sensors per bogie at 1 kHz) -> one
+/// `railmon_damper::DamperMonitor` per configured bogie id.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BogieConfig {
+    /// Off by default: only vehicles with bogie sensors publish this stream, and `/readyz`
+    /// requires every enabled stream to be fresh.
+    pub enabled: bool,
+    /// The bogie ids frames may carry (at most [`MAX_BOGIES`], unique); others are rejected
+    /// (`unknown_bogie`).
+    pub bogies: Vec<u32>,
+    /// The stream is stale (and `/readyz` fails) when no frame came for this long; also the
+    /// most the estimates may fall behind the samples' clock before the stream is `lagging`.
+    pub stale_after_ms: u64,
+    /// One history point per bogie per this much stream time.
+    pub history_interval_ms: u64,
+    /// History points kept (the oldest are dropped).
+    pub history_capacity: usize,
+    /// Damper health events kept.
+    pub events_capacity: usize,
+    /// Hysteresis of the damper health flag: a damper is degraded when its health ratio
+    /// (estimate / nominal) falls below `degraded_below_ratio` with its whole 90% interval,
+    /// healthy again when the whole interval rises above `recovered_above_ratio`; each change
+    /// is an event.
+    pub degraded_below_ratio: f64,
+    pub recovered_above_ratio: f64,
+    /// The estimator (`railmon_damper::DamperMonitorConfig`); keys given override single
+    /// defaults (e.g. `RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES=100`). Each bogie's RBPF is
+    /// seeded with `rbpf.seed + bogie id`.
+    #[serde(skip_serializing)]
+    pub estimator: DamperMonitorConfig,
+}
+
+impl Default for BogieConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            bogies: vec![1, 2],
+            stale_after_ms: 500,
+            history_interval_ms: 100,
+            history_capacity: 72_000,
+            events_capacity: 1000,
+            degraded_below_ratio: 0.7,
+            recovered_above_ratio: 0.8,
+            estimator: DamperMonitorConfig::default(),
+        }
+    }
+}
+
+impl BogieConfig {
+    pub(crate) fn validate(&self) -> Result<(), ConfigError> {
+        validate_stream_keys(
+            "bogie",
+            self.stale_after_ms,
+            self.history_interval_ms,
+            self.history_capacity,
+            self.events_capacity,
+        )?;
+        let ids = &self.bogies;
+        if ids.is_empty() || ids.len() > MAX_BOGIES {
+            return Err(invalid(
+                "bogie.bogies",
+                format!("{} ids, expected 1..={MAX_BOGIES}", ids.len()),
+            ));
+        }
+        if let Some(id) = ids
+            .iter()
+            .enumerate()
+            .find_map(|(k, id)| ids[..k].contains(id).then_some(id))
+        {
+            return Err(invalid(
+                "bogie.bogies",
+                format!("bogie id {id} appears twice"),
+            ));
+        }
+        let (below, above) = (self.degraded_below_ratio, self.recovered_above_ratio);
+        if !(below > 0.0 && below < 1.0) {
+            return Err(invalid(
+                "bogie.degraded_below_ratio",
+                format!("{below} is not in (0, 1)"),
+            ));
+        }
+        if !(above > below && above <= 1.0) {
+            return Err(invalid(
+                "bogie.recovered_above_ratio",
+                format!("{above} is not in (degraded_below_ratio = {below}, 1]"),
+            ));
+        }
+        self.estimator
+            .validate()
+            .map_err(|e| invalid("bogie.estimator", e.to_string()))
+    }
+}

@@ -1,0 +1,96 @@
+//! What the bogie stream shows: the JSON of `/api/v1/bogies...` and its history and events.
+//! Damping in N s/m throughout (base units, so the JSON and the metrics carry the same numbers).
+
+use serde::Serialize;
+use utoipa::ToSchema;
+
+use crate::outbox::Outbox;
+
+/// The two monitored dampers, as API fields and metric labels.
+pub const DAMPERS: [&str; 2] = ["csy", "csay"];
+
+/// One damper of one bogie.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, ToSchema)]
+pub struct DamperView {
+    /// Healthy (design) damping, N s/m.
+    pub nominal_n_s_per_m: f64,
+    /// RBPF posterior mean and its 5% / 95% quantiles, N s/m.
+    pub mean_n_s_per_m: f64,
+    pub q05_n_s_per_m: f64,
+    pub q95_n_s_per_m: f64,
+    /// Mean over nominal.
+    pub health_ratio: f64,
+    /// Flagged degraded: set when the whole 90% interval (its 95% quantile) falls below
+    /// `degraded_below_ratio` x nominal, cleared when it (its 5% quantile) rises above
+    /// `recovered_above_ratio` x nominal.
+    pub degraded: bool,
+    /// The EKF baseline's estimate, N s/m (null when disabled or after it diverged).
+    pub ekf_n_s_per_m: Option<f64>,
+}
+
+/// One bogie's latest estimate.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, ToSchema)]
+pub struct BogieView {
+    pub bogie: u32,
+    /// Samples its monitor accepted from the current source (0: prior only).
+    pub samples: u64,
+    /// Stream time and run time of its last sample, s.
+    pub time_s: Option<f64>,
+    pub run_time_s: Option<f64>,
+    pub csy: DamperView,
+    pub csay: DamperView,
+    /// Effective sample size of its particle filter (particles).
+    pub effective_sample_size: f64,
+}
+
+/// `GET /api/v1/bogies`: every configured bogie.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, ToSchema)]
+pub struct BogiesView {
+    /// Stream time of the newest frame used, s; null before the first.
+    pub time_s: Option<f64>,
+    pub run: u32,
+    pub run_time_s: Option<f64>,
+    pub sequence: Option<u64>,
+    /// Particles per bogie.
+    pub particles: usize,
+    pub bogies: Vec<BogieView>,
+}
+
+/// One bogie in a history point.
+#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
+pub struct BogieHistoryEntry {
+    pub bogie: u32,
+    pub csy_n_s_per_m: f64,
+    pub csay_n_s_per_m: f64,
+    pub csy_health_ratio: f64,
+    pub csay_health_ratio: f64,
+    pub effective_sample_size: f64,
+}
+
+/// One point of the history ring: every bogie with samples at that time.
+#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
+pub struct BogieHistoryPoint {
+    pub time_s: f64,
+    pub run: u32,
+    pub run_time_s: f64,
+    pub bogies: Vec<BogieHistoryEntry>,
+}
+
+/// A damper's health flag changed.
+#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
+pub struct DamperEventView {
+    /// Increasing id (restarts with the service).
+    pub id: u64,
+    /// `damper_degraded` or `damper_recovered`.
+    pub kind: String,
+    pub bogie: u32,
+    /// `csy` or `csay`.
+    pub damper: String,
+    pub time_s: f64,
+    pub run: u32,
+    pub run_time_s: f64,
+    pub health_ratio: f64,
+}
+
+/// What the ingest thread shares with the HTTP side.
+pub type BogieShared = Outbox<BogiesView, BogieHistoryPoint, DamperEventView>;

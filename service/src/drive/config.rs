@@ -1,0 +1,102 @@
+//! `[drive]`: the traction-drive stream (voltages and currents of every drive at 8 kHz) ->
+//! `railmon_slip::SlipMonitor`.
+
+use railmon_bus::MAX_DRIVES;
+use railmon_slip::SlipMonitorConfig;
+use serde::{Deserialize, Serialize};
+
+use crate::config::{invalid, validate_stream_keys, ConfigError};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DriveConfig {
+    pub enabled: bool,
+    /// The stream is stale (and `/readyz` fails) when no frame came for this long.
+    pub stale_after_ms: u64,
+    /// Frames with more drives are rejected (at most the frame capacity, 32).
+    pub max_drives: usize,
+    /// Hysteresis of the slipping flag: on when the slip probability reaches `slip_on_ratio`,
+    /// off when it falls to `slip_off_ratio`.
+    pub slip_on_ratio: f64,
+    pub slip_off_ratio: f64,
+    /// One history point per this much stream time.
+    pub history_interval_ms: u64,
+    /// History points kept (the oldest are dropped).
+    pub history_capacity: usize,
+    /// Slip events kept.
+    pub events_capacity: usize,
+    /// The estimator (`railmon_slip::SlipMonitorConfig`).
+    pub estimator: SlipMonitorConfig,
+}
+
+impl Default for DriveConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            stale_after_ms: 500,
+            max_drives: MAX_DRIVES,
+            slip_on_ratio: 0.8,
+            slip_off_ratio: 0.2,
+            history_interval_ms: 10,
+            history_capacity: 60_000,
+            events_capacity: 1000,
+            estimator: default_estimator(),
+        }
+    }
+}
+
+/// The estimator settings validated on the paper's experiment: the `[monitor]` section of
+/// `config/scenarios/adhesion-seed.toml`, embedded at build time. `[drive.estimator]` in the
+/// config file (or RAILMON_DRIVE__ESTIMATOR__... variables) override single keys of it.
+const SEED_SCENARIO_TOML: &str = include_str!("../../../config/scenarios/adhesion-seed.toml");
+
+pub(crate) fn seed_monitor_table() -> toml::Table {
+    let mut seed: toml::Table = SEED_SCENARIO_TOML
+        .parse()
+        .expect("config/scenarios/adhesion-seed.toml is valid TOML (checked by the slip tests)");
+    match seed.remove("monitor") {
+        Some(toml::Value::Table(monitor)) => monitor,
+        _ => toml::Table::new(),
+    }
+}
+
+pub(crate) fn default_estimator() -> SlipMonitorConfig {
+    SlipMonitorConfig::deserialize(toml::Value::Table(seed_monitor_table()))
+        .expect("the seed scenario's [monitor] section is a valid SlipMonitorConfig")
+}
+
+impl DriveConfig {
+    pub(crate) fn validate(&self) -> Result<(), ConfigError> {
+        validate_stream_keys(
+            "drive",
+            self.stale_after_ms,
+            self.history_interval_ms,
+            self.history_capacity,
+            self.events_capacity,
+        )?;
+        if !(1..=MAX_DRIVES).contains(&self.max_drives) {
+            return Err(invalid(
+                "drive.max_drives",
+                format!("{} is not in 1..={MAX_DRIVES}", self.max_drives),
+            ));
+        }
+        if !(self.slip_on_ratio > 0.0 && self.slip_on_ratio <= 1.0) {
+            return Err(invalid(
+                "drive.slip_on_ratio",
+                format!("{} is not in (0, 1]", self.slip_on_ratio),
+            ));
+        }
+        if !(self.slip_off_ratio >= 0.0 && self.slip_off_ratio < self.slip_on_ratio) {
+            return Err(invalid(
+                "drive.slip_off_ratio",
+                format!(
+                    "{} is not in [0, slip_on_ratio = {})",
+                    self.slip_off_ratio, self.slip_on_ratio
+                ),
+            ));
+        }
+        self.estimator
+            .validate()
+            .map_err(|e| invalid("drive.estimator", e.to_string()))
+    }
+}

@@ -1,0 +1,82 @@
+//! The HTTP API (axum): versioned JSON under `/api/v1`, one router per stream (its view, its
+//! history, its events) beside the service's own endpoints (status, probes, metrics, OpenAPI +
+//! Swagger UI). Handlers only read atomics, `arc-swap` snapshots and the history/event rings.
+
+mod error;
+mod query;
+mod system;
+
+use axum::routing::get;
+use axum::Router;
+use railmon_bus::StreamKind;
+use utoipa::OpenApi;
+
+pub use error::{AppError, ErrorBody, ErrorDetail};
+pub use query::{ApiPath, ApiQuery, HistoryQuery, MAX_HISTORY_SECONDS};
+
+use crate::AppState;
+
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "railmon",
+        description = "Onboard condition monitoring of a rail vehicle: wheel slip of traction drives, damper health of bogies, fuel use and driving regime."
+    ),
+    paths(
+        system::status,
+        system::healthz,
+        system::readyz,
+        system::metrics
+    ),
+    components(schemas(
+        system::StatusView,
+        crate::ingest::StreamStatusView,
+        crate::ingest::RejectionRecord,
+        system::Readiness,
+        system::StreamReadiness,
+        system::Health,
+        ErrorBody,
+        ErrorDetail
+    )),
+    tags(
+        (name = "drives", description = "Wheel slip of the traction drives"),
+        (name = "bogies", description = "Damper health of the bogies"),
+        (name = "vehicle", description = "Fuel use and driving regime"),
+        (name = "service", description = "Status, probes and metrics of the service")
+    )
+)]
+struct ServiceApi;
+
+/// The OpenAPI document: the service's endpoints and every stream's.
+pub fn api_doc() -> utoipa::openapi::OpenApi {
+    ServiceApi::openapi()
+        .merge_from(crate::drive::DriveApi::openapi())
+        .merge_from(crate::bogie::BogieApi::openapi())
+        .merge_from(crate::vehicle::VehicleApi::openapi())
+}
+
+/// The router; `state` carries everything the handlers read.
+pub fn app(state: AppState) -> Router {
+    Router::new()
+        .merge(crate::drive::routes())
+        .merge(crate::bogie::routes())
+        .merge(crate::vehicle::routes())
+        .route("/api/v1/status", get(system::status))
+        .route("/healthz", get(system::healthz))
+        .route("/readyz", get(system::readyz))
+        .route("/metrics", get(system::metrics))
+        .route("/openapi.json", get(system::openapi))
+        .route("/docs", get(system::swagger_index))
+        .route("/docs/", get(system::swagger_index))
+        .route("/docs/{asset}", get(system::swagger_asset))
+        .fallback(|uri: axum::http::Uri| async move { AppError::NotFound(uri.path().to_string()) })
+        .with_state(state)
+}
+
+/// `Ok(())` if `kind` is enabled, else the `stream_disabled` error every stream's endpoints give.
+pub fn require_stream(state: &AppState, kind: StreamKind) -> Result<(), AppError> {
+    match state.stream(kind) {
+        Some(_) => Ok(()),
+        None => Err(AppError::StreamDisabled(kind)),
+    }
+}

@@ -1,0 +1,190 @@
+//! One ingest thread per stream: bus subscriber -> checks -> estimator step -> published
+//! results. The thread owns the iceoryx2 ports (they are not `Send`) and the estimator; the
+//! HTTP side reads only atomics and `arc-swap` snapshots ([`status`], `crate::outbox`), so the
+//! hot path takes no lock.
+
+mod realtime;
+mod sequence;
+mod status;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use iceoryx2::prelude::CallbackProgression;
+use railmon_bus::{monotonic_ns, BusConfig, BusError, BusNode, Frame, FrameHeader};
+
+pub use realtime::RealTimeTracker;
+pub use sequence::{SequenceCheck, SequenceTracker};
+pub use status::{RejectionRecord, StreamStatus, StreamStatusView, COMMON_REJECTION_REASONS};
+
+use crate::config::IngestConfig;
+
+/// Why a frame was not used.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Rejection {
+    /// Short label (`not_finite`, `too_many_drives`, ...), the metric's `reason`.
+    pub reason: &'static str,
+    pub message: String,
+}
+
+impl Rejection {
+    pub fn new(reason: &'static str, message: impl Into<String>) -> Self {
+        Self {
+            reason,
+            message: message.into(),
+        }
+    }
+}
+
+/// A stream's estimator, as the ingest loop drives it: `check` turns a frame into the input the
+/// estimator takes (or says why not) without changing anything, `step` consumes that input.
+pub trait Pipeline {
+    type Frame: Frame;
+    /// A frame after every check: what `step` consumes.
+    type Checked;
+    /// The reasons this pipeline's `check` and `step` reject with (besides the common ones).
+    const REJECTION_REASONS: &'static [&'static str];
+    /// Checks a frame without changing anything.
+    fn check(&self, header: &FrameHeader, frame: &Self::Frame) -> Result<Self::Checked, Rejection>;
+    /// A new source (publisher restarted, or its run restarted): start from the prior.
+    fn restart(&mut self);
+    /// Steps the estimator with a checked frame; on error nothing changed.
+    fn step(&mut self, header: &FrameHeader, input: Self::Checked) -> Result<(), Rejection>;
+    /// Makes the latest results visible (HTTP snapshot, gauges); called once per batch.
+    fn publish(&mut self);
+}
+
+/// Handles one received frame: count, check the header, follow the sequence, check the frame,
+/// step, time. The sequence is followed before the frame's content is judged, so a rejected
+/// frame is counted once, as a rejection, and never again as a gap.
+fn handle_frame<P: Pipeline>(
+    pipeline: &mut P,
+    tracker: &mut SequenceTracker,
+    realtime: &mut RealTimeTracker,
+    status: &StreamStatus,
+    header: &FrameHeader,
+    frame: &P::Frame,
+    received_at_ns: u64,
+) {
+    status.record_received(received_at_ns);
+    if let Err(e) = header.check() {
+        return status.reject(header, Rejection::new(e.reason(), e.to_string()));
+    }
+    match tracker.check(header) {
+        SequenceCheck::InOrder => {}
+        SequenceCheck::NewSource => {
+            status.record_new_source();
+            tracing::info!(stream = %status.kind, instance = header.publisher_instance, run = header.run, sequence = header.sequence, "new source: estimator restarts");
+            pipeline.restart();
+            realtime.restart();
+        }
+        SequenceCheck::Gap { missing } => {
+            status.record_gap(missing);
+            tracing::warn!(stream = %status.kind, missing, sequence = header.sequence, "frames lost");
+        }
+        SequenceCheck::Stale { last } => {
+            let message = format!("sequence {} is not after {last}", header.sequence);
+            return status.reject(header, Rejection::new("out_of_order", message));
+        }
+    }
+    tracker.accept(header);
+    let input = match pipeline.check(header, frame) {
+        Ok(input) => input,
+        Err(rejection) => return status.reject(header, rejection),
+    };
+    let start = Instant::now();
+    let stepped = pipeline.step(header, input);
+    let step_ns = start.elapsed().as_nanos() as u64;
+    match stepped {
+        Ok(()) => {
+            let done_at_ns = monotonic_ns();
+            status.record_step(step_ns, done_at_ns.saturating_sub(header.published_at_ns));
+            let (lag_ns, load) = realtime.observe(header.sample_time_ns, done_at_ns, step_ns);
+            status.record_realtime(lag_ns, load);
+        }
+        Err(rejection) => status.reject(header, rejection),
+    }
+}
+
+/// The ingest loop of one stream; returns when `shutdown` is set (or on a bus error, which is
+/// also recorded in the status). Ports are dropped on return, releasing iceoryx2 resources.
+pub fn run_ingest<P: Pipeline>(
+    bus: &BusConfig,
+    ingest: &IngestConfig,
+    pipeline: &mut P,
+    status: &StreamStatus,
+    shutdown: &AtomicBool,
+) -> Result<(), BusError> {
+    let result = ingest_loop(bus, ingest, pipeline, status, shutdown);
+    status.record_stopped(result.as_ref().err());
+    result
+}
+
+fn ingest_loop<P: Pipeline>(
+    bus: &BusConfig,
+    ingest: &IngestConfig,
+    pipeline: &mut P,
+    status: &StreamStatus,
+    shutdown: &AtomicBool,
+) -> Result<(), BusError> {
+    let kind = <P::Frame as Frame>::STREAM;
+    let node = BusNode::create(bus, &format!("railmon-serve-{kind}"))?;
+    if node.cleaned_at_start() > 0 {
+        tracing::info!(stream = %kind, dead_nodes = node.cleaned_at_start(), "cleaned up stale bus resources");
+    }
+    let subscriber = node.subscriber::<P::Frame>()?;
+    let waitset = node.waitset()?;
+    let _wake_on_frames = waitset
+        .attach_notification(subscriber.listener())
+        .map_err(|e| BusError::Ipc {
+            what: "attach listener to WaitSet".into(),
+            detail: format!("{e:?}"),
+        })?;
+    status.record_running();
+    tracing::info!(stream = %kind, service = subscriber.service_name(), "ingesting");
+    let wake_interval = Duration::from_millis(ingest.wake_interval_ms);
+    let cleanup_interval = Duration::from_millis(ingest.cleanup_interval_ms);
+    let mut last_cleanup = Instant::now();
+    let mut tracker = SequenceTracker::default();
+    let mut realtime = RealTimeTracker::default();
+    while !shutdown.load(Ordering::Relaxed) {
+        waitset
+            .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, wake_interval)
+            .map_err(|e| BusError::Ipc {
+                what: "wait on WaitSet".into(),
+                detail: format!("{e:?}"),
+            })?;
+        let wakeups = subscriber.take_wakeups()?;
+        if wakeups.publisher_died > 0 {
+            tracing::info!(stream = %kind, "a publisher died");
+        }
+        loop {
+            let handled = subscriber.drain(ingest.max_batch, |rx| {
+                handle_frame(
+                    pipeline,
+                    &mut tracker,
+                    &mut realtime,
+                    status,
+                    rx.header,
+                    rx.frame,
+                    rx.received_at_ns,
+                )
+            })?;
+            if handled > 0 {
+                pipeline.publish();
+            }
+            if handled < ingest.max_batch || shutdown.load(Ordering::Relaxed) {
+                break;
+            }
+        }
+        if last_cleanup.elapsed() >= cleanup_interval {
+            let cleaned = node.cleanup_dead_nodes();
+            if cleaned > 0 {
+                tracing::info!(stream = %kind, dead_nodes = cleaned, "cleaned up dead bus peers");
+            }
+            last_cleanup = Instant::now();
+        }
+    }
+    tracing::info!(stream = %kind, "ingest stopped");
+    Ok(())
+}

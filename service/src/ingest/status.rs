@@ -1,0 +1,261 @@
+//! What the HTTP side sees of one stream: counters, timings, freshness, the last rejection.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use arc_swap::ArcSwapOption;
+use prometheus::{Gauge, Histogram, IntCounter, IntGauge};
+use railmon_bus::{monotonic_ns, FrameHeader, StreamKind};
+use serde::Serialize;
+use utoipa::ToSchema;
+
+use super::Rejection;
+use crate::metrics::Metrics;
+
+/// The rejection reasons of every stream (header layout, sequence, estimator failure); each
+/// [`super::Pipeline`] adds its own. All are exported from the start, so each series exists (at 0):
+/// Prometheus queries on a counter that appears only with its first increment miss that increment.
+pub const COMMON_REJECTION_REASONS: [&str; 3] = ["layout_version", "estimator", "out_of_order"];
+
+/// Counters and timings of one stream, shared with the HTTP side.
+pub struct StreamStatus {
+    pub kind: StreamKind,
+    pub stale_after: Duration,
+    received: IntCounter,
+    gaps: IntCounter,
+    rejected_total: AtomicU64,
+    step: Histogram,
+    latency: Histogram,
+    realtime_load: Gauge,
+    lag: Gauge,
+    lagging_gauge: IntGauge,
+    metrics: Arc<Metrics>,
+    last_received_ns: AtomicU64,
+    last_step_ns: AtomicU64,
+    sources: AtomicU64,
+    last_rejection: ArcSwapOption<RejectionRecord>,
+    last_error: ArcSwapOption<String>,
+    running: AtomicBool,
+    /// `f64` bits of the last real-time load (NaN: none yet).
+    realtime_load_bits: AtomicU64,
+    lag_ns: AtomicU64,
+    lagging: AtomicBool,
+}
+
+#[derive(Clone, Debug, Serialize, ToSchema)]
+pub struct RejectionRecord {
+    /// Short label, as in the metric `railmon_stream_samples_rejected_total{reason}`.
+    pub reason: String,
+    pub message: String,
+    /// Sequence number of the rejected frame in its publisher.
+    pub sequence: u64,
+    #[serde(skip)]
+    pub at_ns: u64,
+}
+
+/// `GET /api/v1/status`, one entry per stream.
+#[derive(Clone, Debug, Serialize, ToSchema)]
+pub struct StreamStatusView {
+    pub stream: String,
+    /// The ingest thread is running (false after a bus error; see `last_error`).
+    pub ingesting: bool,
+    /// A frame came within `stale_after_s`.
+    pub fresh: bool,
+    pub stale_after_s: f64,
+    /// Seconds since the last frame; null before the first.
+    pub last_sample_age_s: Option<f64>,
+    pub samples_received: u64,
+    /// Frames missing from publishers' sequences.
+    pub sequence_gaps: u64,
+    pub samples_rejected: u64,
+    pub last_rejection: Option<RejectionRecord>,
+    /// Publisher lifetimes or runs seen (each restarts the estimator).
+    pub sources: u64,
+    pub estimator_steps: u64,
+    pub estimator_step_mean_us: Option<f64>,
+    pub estimator_step_last_us: Option<f64>,
+    pub publish_to_estimate_mean_us: Option<f64>,
+    /// Estimator time over the sample time it covered, over the last second of samples
+    /// (all sources of the stream together); above 1 the estimator cannot keep up.
+    pub realtime_load: Option<f64>,
+    /// How far the estimates fall behind the samples' own clock, s: the growth of (wall
+    /// time - sample time) since its smallest value in the current source.
+    pub lag_s: f64,
+    /// The estimator does not keep up: `realtime_load` above 1 or `lag_s` above `stale_after_s`.
+    pub lagging: bool,
+    pub last_error: Option<String>,
+}
+
+impl StreamStatus {
+    /// The status of `kind`, whose pipeline rejects with `reasons` (and the common ones).
+    pub fn new(
+        kind: StreamKind,
+        stale_after: Duration,
+        metrics: Arc<Metrics>,
+        reasons: &[&str],
+    ) -> Self {
+        let label = [kind.name()];
+        for &reason in COMMON_REJECTION_REASONS.iter().chain(reasons) {
+            metrics
+                .stream
+                .samples_rejected
+                .with_label_values(&[kind.name(), reason]);
+        }
+        Self {
+            kind,
+            stale_after,
+            received: metrics.stream.samples_received.with_label_values(&label),
+            gaps: metrics.stream.sequence_gaps.with_label_values(&label),
+            rejected_total: AtomicU64::new(0),
+            step: metrics.stream.estimator_step.with_label_values(&label),
+            latency: metrics.stream.publish_to_estimate.with_label_values(&label),
+            realtime_load: metrics.stream.realtime_load.with_label_values(&label),
+            lag: metrics.stream.lag.with_label_values(&label),
+            lagging_gauge: metrics.stream.lagging.with_label_values(&label),
+            metrics,
+            last_received_ns: AtomicU64::new(0),
+            last_step_ns: AtomicU64::new(0),
+            sources: AtomicU64::new(0),
+            last_rejection: ArcSwapOption::empty(),
+            last_error: ArcSwapOption::empty(),
+            running: AtomicBool::new(false),
+            realtime_load_bits: AtomicU64::new(f64::NAN.to_bits()),
+            lag_ns: AtomicU64::new(0),
+            lagging: AtomicBool::new(false),
+        }
+    }
+
+    /// Records how well the estimator keeps up (see [`RealTimeTracker`]); says so in the log
+    /// when that changes.
+    pub(super) fn record_realtime(&self, lag_ns: u64, load: Option<f64>) {
+        self.lag_ns.store(lag_ns, Ordering::Relaxed);
+        self.lag.set(lag_ns as f64 * 1e-9);
+        if let Some(load) = load {
+            self.realtime_load_bits
+                .store(load.to_bits(), Ordering::Relaxed);
+            self.realtime_load.set(load);
+        }
+        let load = f64::from_bits(self.realtime_load_bits.load(Ordering::Relaxed));
+        let lagging = load > 1.0 || lag_ns as u128 > self.stale_after.as_nanos();
+        if self.lagging.swap(lagging, Ordering::Relaxed) != lagging {
+            self.lagging_gauge.set(i64::from(lagging));
+            match lagging {
+                true => {
+                    tracing::warn!(stream = %self.kind, load, lag_s = lag_ns as f64 * 1e-9, "estimator cannot keep up with real time")
+                }
+                false => {
+                    tracing::info!(stream = %self.kind, load, "estimator keeps up with real time again")
+                }
+            }
+        }
+    }
+
+    /// Seconds since the last frame (None before the first).
+    pub fn last_sample_age_s(&self, now_ns: u64) -> Option<f64> {
+        match self.last_received_ns.load(Ordering::Relaxed) {
+            0 => None,
+            t => Some(now_ns.saturating_sub(t) as f64 * 1e-9),
+        }
+    }
+
+    pub fn is_fresh(&self, now_ns: u64) -> bool {
+        self.last_sample_age_s(now_ns)
+            .is_some_and(|age| age <= self.stale_after.as_secs_f64())
+    }
+
+    /// Updates the scrape-time gauges (age, freshness).
+    pub fn refresh_gauges(&self, now_ns: u64) {
+        let label = [self.kind.name()];
+        let age = self.last_sample_age_s(now_ns).unwrap_or(-1.0);
+        self.metrics
+            .stream
+            .last_sample_age
+            .with_label_values(&label)
+            .set(age);
+        self.metrics
+            .stream
+            .fresh
+            .with_label_values(&label)
+            .set(i64::from(self.is_fresh(now_ns)));
+    }
+
+    pub fn view(&self, now_ns: u64) -> StreamStatusView {
+        let mean_us = |h: &Histogram| {
+            let n = h.get_sample_count();
+            (n > 0).then(|| h.get_sample_sum() / n as f64 * 1e6)
+        };
+        let steps = self.step.get_sample_count();
+        StreamStatusView {
+            stream: self.kind.name().into(),
+            ingesting: self.running.load(Ordering::Relaxed),
+            fresh: self.is_fresh(now_ns),
+            stale_after_s: self.stale_after.as_secs_f64(),
+            last_sample_age_s: self.last_sample_age_s(now_ns),
+            samples_received: self.received.get(),
+            sequence_gaps: self.gaps.get(),
+            samples_rejected: self.rejected_total.load(Ordering::Relaxed),
+            last_rejection: self.last_rejection.load_full().map(|r| (*r).clone()),
+            sources: self.sources.load(Ordering::Relaxed),
+            estimator_steps: steps,
+            estimator_step_mean_us: mean_us(&self.step),
+            estimator_step_last_us: (steps > 0)
+                .then(|| self.last_step_ns.load(Ordering::Relaxed) as f64 * 1e-3),
+            publish_to_estimate_mean_us: mean_us(&self.latency),
+            realtime_load: Some(f64::from_bits(
+                self.realtime_load_bits.load(Ordering::Relaxed),
+            ))
+            .filter(|l| !l.is_nan()),
+            lag_s: self.lag_ns.load(Ordering::Relaxed) as f64 * 1e-9,
+            lagging: self.lagging.load(Ordering::Relaxed),
+            last_error: self.last_error.load_full().map(|e| (*e).clone()),
+        }
+    }
+
+    pub(super) fn record_received(&self, received_at_ns: u64) {
+        self.received.inc();
+        self.last_received_ns
+            .store(received_at_ns, Ordering::Relaxed);
+    }
+
+    pub(super) fn record_new_source(&self) {
+        self.sources.fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub(super) fn record_gap(&self, missing: u64) {
+        self.gaps.inc_by(missing);
+    }
+
+    pub(super) fn record_step(&self, step_ns: u64, latency_ns: u64) {
+        self.step.observe(step_ns as f64 * 1e-9);
+        self.last_step_ns.store(step_ns, Ordering::Relaxed);
+        self.latency.observe(latency_ns as f64 * 1e-9);
+    }
+
+    pub(super) fn record_running(&self) {
+        self.running.store(true, Ordering::Relaxed);
+    }
+
+    pub(super) fn record_stopped(&self, error: Option<&railmon_bus::BusError>) {
+        self.running.store(false, Ordering::Relaxed);
+        if let Some(e) = error {
+            self.last_error.store(Some(Arc::new(e.to_string())));
+        }
+    }
+
+    pub(super) fn reject(&self, header: &FrameHeader, rejection: Rejection) {
+        self.rejected_total.fetch_add(1, Ordering::Relaxed);
+        self.metrics
+            .stream
+            .samples_rejected
+            .with_label_values(&[self.kind.name(), rejection.reason])
+            .inc();
+        tracing::warn!(stream = %self.kind, sequence = header.sequence, reason = rejection.reason, "frame rejected: {}", rejection.message);
+        self.last_rejection.store(Some(Arc::new(RejectionRecord {
+            reason: rejection.reason.into(),
+            message: rejection.message,
+            sequence: header.sequence,
+            at_ns: monotonic_ns(),
+        })));
+    }
+}

@@ -1,0 +1,54 @@
+//! `[vehicle]`: the vehicle stream (fuel flow, speed and the other channels at 1 Hz) ->
+//! `railmon_fuel::FuelMonitor`.
+
+use railmon_fuel::FuelMonitorConfig;
+use serde::{Deserialize, Serialize};
+
+use crate::config::{invalid, validate_stream_keys, ConfigError};
+
+/// `[vehicle]`: the road-vehicle stream (fuel flow, speed, ... at 1 Hz) -> `railmon_fuel::FuelMonitor`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VehicleConfig {
+    /// Off by default: only vehicles with a fuel meter publish this stream, and `/readyz`
+    /// requires every enabled stream to be fresh.
+    pub enabled: bool,
+    /// The stream is stale (and `/readyz` fails) when no frame came for this long.
+    pub stale_after_ms: u64,
+    /// One history point per this much stream time.
+    pub history_interval_ms: u64,
+    /// History points kept (the oldest are dropped).
+    pub history_capacity: usize,
+    /// Regime-change events kept.
+    pub events_capacity: usize,
+    /// The estimator (`railmon_fuel::FuelMonitorConfig`); keys given override single defaults.
+    pub estimator: FuelMonitorConfig,
+}
+
+impl Default for VehicleConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            stale_after_ms: 3000,
+            history_interval_ms: 1000,
+            history_capacity: 86_400,
+            events_capacity: 1000,
+            estimator: FuelMonitorConfig::default(),
+        }
+    }
+}
+
+impl VehicleConfig {
+    pub(crate) fn validate(&self) -> Result<(), ConfigError> {
+        validate_stream_keys(
+            "vehicle",
+            self.stale_after_ms,
+            self.history_interval_ms,
+            self.history_capacity,
+            self.events_capacity,
+        )?;
+        self.estimator
+            .validate()
+            .map_err(|e| invalid("vehicle.estimator", e.to_string()))
+    }
+}

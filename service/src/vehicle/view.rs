@@ -1,0 +1,88 @@
+//! What the vehicle stream shows: the JSON of `/api/v1/vehicle...` and its history and events.
+//! Units: the estimator works in cm^3/s (the JSON fields say so: `_cm3_s`, `_cm3`); the
+//! Prometheus metrics are in base units, m^3/s and m^3.
+
+use serde::Serialize;
+use utoipa::ToSchema;
+
+use crate::outbox::Outbox;
+
+/// `GET /api/v1/vehicle`: the latest estimate.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, ToSchema)]
+pub struct VehicleView {
+    /// Stream time, s: continuous over publisher restarts and runs; null before the first frame.
+    pub time_s: Option<f64>,
+    /// Run of the source and the time within it, s.
+    pub run: u32,
+    pub run_time_s: Option<f64>,
+    /// Sequence number of the last frame used.
+    pub sequence: Option<u64>,
+    /// Samples the estimator accepted from the current source.
+    pub samples: u64,
+    /// The estimator is still collecting its `init_samples` (no estimates yet).
+    pub initialising: bool,
+    /// Measured fuel flow now, cm^3/s.
+    pub fuel_rate_cm3_s: Option<f64>,
+    /// Measured speed now, m/s (if the source has it).
+    pub speed_m_s: Option<f64>,
+    /// Virtual fuel sensor: fuel now from the other channels now, cm^3/s.
+    pub virtual_sensor_cm3_s: Option<f64>,
+    /// The paper's 0-step estimate (has seen the fuel it estimates), cm^3/s.
+    pub zero_step_cm3_s: Option<f64>,
+    /// Honest 1-step forecast of this sample's fuel, made a step ago, cm^3/s.
+    pub one_step_forecast_cm3_s: Option<f64>,
+    /// Step between forecast points, s (the estimator's `sample_period_s`).
+    pub forecast_step_s: f64,
+    /// Fuel forecast for the next `forecast_horizon_steps` steps, cm^3/s (first: one step ahead).
+    pub forecast_cm3_s: Vec<f64>,
+    /// Driving regime (mixture component, 0-based): the most probable one once it has been
+    /// the most probable for `regime_confirm_samples` samples in a row.
+    pub regime: Option<usize>,
+    /// The most probable regime on this sample (the paper's pointer estimate; flickers).
+    pub most_probable_regime: Option<usize>,
+    /// Probability of each regime (index = regime).
+    pub regime_probabilities: Vec<f64>,
+    /// Measured fuel integrated since the source started, cm^3.
+    pub cumulative_fuel_cm3: f64,
+    /// Virtual sensor integrated since the estimator initialised, cm^3.
+    pub cumulative_virtual_fuel_cm3: Option<f64>,
+    /// Measured minus 1-step forecast on the last sample, cm^3/s.
+    pub forecast_error_cm3_s: Option<f64>,
+    /// Root mean square of the 1-step forecast error since the source started, cm^3/s.
+    pub forecast_rmse_cm3_s: Option<f64>,
+    /// Regime changes since the source started.
+    pub regime_changes: u64,
+}
+
+/// One point of the history ring.
+#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
+pub struct VehicleHistoryPoint {
+    pub time_s: f64,
+    pub run: u32,
+    pub run_time_s: f64,
+    pub fuel_rate_cm3_s: f64,
+    pub virtual_sensor_cm3_s: Option<f64>,
+    pub one_step_forecast_cm3_s: Option<f64>,
+    pub regime: Option<usize>,
+    pub regime_probabilities: Vec<f64>,
+    pub cumulative_fuel_cm3: f64,
+}
+
+/// The (confirmed) driving regime changed.
+#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
+pub struct RegimeEventView {
+    /// Increasing id (restarts with the service).
+    pub id: u64,
+    /// `regime_changed`.
+    pub kind: String,
+    pub time_s: f64,
+    pub run: u32,
+    pub run_time_s: f64,
+    pub from_regime: usize,
+    pub to_regime: usize,
+    /// Probability of the new regime.
+    pub probability: f64,
+}
+
+/// What the ingest thread shares with the HTTP side.
+pub type VehicleShared = Outbox<VehicleView, VehicleHistoryPoint, RegimeEventView>;
