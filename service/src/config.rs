@@ -51,13 +51,66 @@ pub struct ServiceConfig {
 pub struct HttpConfig {
     /// Address and port of the HTTP API; port 0 picks a free one (see `--addr-file`).
     pub listen: String,
+    /// A client must send a request's headers within this long; also how long an idle
+    /// keep-alive connection is kept (10,000 half-open connections once held 266 MB).
+    pub header_timeout_ms: u64,
+    /// Longest time one request may take; then it is answered 503 `timeout`.
+    pub request_timeout_ms: u64,
+    /// Open connections at most; further ones are closed at once (and counted).
+    pub max_connections: usize,
+    /// On SIGTERM, open requests get this long to finish before their connections are cut.
+    pub shutdown_deadline_ms: u64,
+    /// Longer request targets are answered 414, larger header sections 431 (JSON bodies).
+    pub max_uri_bytes: usize,
+    pub max_header_bytes: usize,
 }
 
 impl Default for HttpConfig {
     fn default() -> Self {
         Self {
             listen: "127.0.0.1:8787".into(),
+            header_timeout_ms: 10_000,
+            request_timeout_ms: 10_000,
+            max_connections: 256,
+            shutdown_deadline_ms: 5_000,
+            max_uri_bytes: 8 * 1024,
+            max_header_bytes: 16 * 1024,
         }
+    }
+}
+
+impl HttpConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        for (key, value) in [
+            ("header_timeout_ms", self.header_timeout_ms),
+            ("request_timeout_ms", self.request_timeout_ms),
+            ("shutdown_deadline_ms", self.shutdown_deadline_ms),
+        ] {
+            if !(1..=600_000).contains(&value) {
+                return Err(invalid(
+                    &format!("http.{key}"),
+                    format!("{value} is not in 1..=600000"),
+                ));
+            }
+        }
+        if !(1..=65_536).contains(&self.max_connections) {
+            return Err(invalid(
+                "http.max_connections",
+                format!("{} is not in 1..=65536", self.max_connections),
+            ));
+        }
+        for (key, value) in [
+            ("max_uri_bytes", self.max_uri_bytes),
+            ("max_header_bytes", self.max_header_bytes),
+        ] {
+            if !(256..=262_144).contains(&value) {
+                return Err(invalid(
+                    &format!("http.{key}"),
+                    format!("{value} is not in 256..=262144"),
+                ));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -117,6 +170,7 @@ impl ServiceConfig {
     /// Checks every value; the error names the key.
     pub fn validate(&self) -> Result<(), ConfigError> {
         self.listen_addr()?;
+        self.http.validate()?;
         self.bus.validate()?;
         let i = &self.ingest;
         if !(1..=10_000).contains(&i.wake_interval_ms) {

@@ -47,6 +47,8 @@ pub struct AppInner {
     pub bogie: Arc<BogieShared>,
     /// The enabled streams (those `/readyz` requires).
     pub streams: Vec<Arc<StreamStatus>>,
+    /// Connections the HTTP server refused or cut.
+    pub http: Arc<http::server::HttpCounters>,
     pub started: Instant,
 }
 
@@ -100,6 +102,7 @@ impl AppState {
             vehicle,
             bogie,
             streams,
+            http: Arc::default(),
             started: Instant::now(),
         })))
     }

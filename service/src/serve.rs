@@ -56,10 +56,11 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
             std::fs::write(file, bound.to_string())
                 .with_context(|| format!("writing {}", file.display()))?;
         }
-        axum::serve(listener, app(state))
-            .with_graceful_shutdown(termination())
-            .await
-            .context("HTTP server")
+        let http = state.config.http.clone();
+        let counters = state.http.clone();
+        railmon_service::http::server::serve(listener, app(state), &http, counters, termination())
+            .await;
+        anyhow::Ok(())
     });
     // Stop the ingest threads even if serving failed; they drop their iceoryx2 ports on exit.
     shutdown.store(true, Ordering::Relaxed);

@@ -482,3 +482,41 @@ async fn unknown_bogies_and_bad_bogie_queries_are_json_errors() {
     let (status, _) = get_json(&state, "/api/v1/bogies/2").await;
     assert_eq!(status, StatusCode::OK);
 }
+
+#[tokio::test]
+async fn wrong_method_long_target_and_large_headers_are_json_errors() {
+    let state = state_after(10);
+    let send = |request: Request<Body>| {
+        let state = state.clone();
+        async move {
+            let response = app(state).oneshot(request).await.unwrap();
+            let status = response.status();
+            let body = to_bytes(response.into_body(), 1 << 20).await.unwrap();
+            (status, serde_json::from_slice::<Value>(&body).unwrap())
+        }
+    };
+    let (status, body) = send(Request::post("/api/v1/drives").body(Body::empty()).unwrap()).await;
+    assert_eq!(status, StatusCode::METHOD_NOT_ALLOWED);
+    assert_error(&body, 405, "method_not_allowed");
+    let long = format!("/api/v1/drives?x={}", "a".repeat(9000));
+    let (status, body) = send(Request::get(long).body(Body::empty()).unwrap()).await;
+    assert_eq!(status, StatusCode::URI_TOO_LONG);
+    assert_error(&body, 414, "uri_too_long");
+    let (status, body) = send(
+        Request::get("/healthz")
+            .header("x-big", "b".repeat(20_000))
+            .body(Body::empty())
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(status, StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE);
+    assert_error(&body, 431, "headers_too_large");
+    let (status, body) = send(
+        Request::get("/api/v1/drives/%FF/history")
+            .body(Body::empty())
+            .unwrap(),
+    )
+    .await;
+    assert!(status.is_client_error(), "{status}");
+    assert!(body["error"]["code"].is_string(), "{body}");
+}

@@ -311,6 +311,12 @@ impl Pipeline for BogiePipeline {
     type Frame = BogieFrame;
     type Checked = CheckedBogieSample;
     const REJECTION_REASONS: &'static [&'static str] = &["not_finite", "unknown_bogie"];
+    /// The bogies of one step share its time.
+    const REPEATED_TIMES: bool = true;
+
+    fn sample_period_ns(&self) -> u64 {
+        (self.config.estimator.dt_s * 1e9).round() as u64
+    }
 
     fn check(
         &self,

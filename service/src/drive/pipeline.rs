@@ -153,6 +153,10 @@ impl Pipeline for DrivePipeline {
         "drive_count_changed",
     ];
 
+    fn sample_period_ns(&self) -> u64 {
+        (self.config.estimator.dt_s * 1e9).round() as u64
+    }
+
     fn check(
         &self,
         _header: &FrameHeader,

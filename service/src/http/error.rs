@@ -18,7 +18,8 @@ pub struct ErrorBody {
 pub struct ErrorDetail {
     pub status: u16,
     /// Stable machine-readable code: `unknown_drive`, `unknown_bogie`, `stream_disabled`,
-    /// `bad_query`, `bad_path`, `not_found`, `internal`.
+    /// `bad_query`, `bad_path`, `not_found`, `method_not_allowed`, `uri_too_long`,
+    /// `headers_too_large`, `timeout`, `internal`.
     pub code: String,
     pub message: String,
 }
@@ -37,6 +38,14 @@ pub enum AppError {
     BadPath(String),
     #[error("no such resource: {0}")]
     NotFound(String),
+    #[error("method {0} is not allowed here (the API is read-only: GET)")]
+    MethodNotAllowed(String),
+    #[error("request target of {bytes} bytes, at most {max}")]
+    UriTooLong { bytes: usize, max: usize },
+    #[error("request headers of {bytes} bytes, at most {max}")]
+    HeadersTooLarge { bytes: usize, max: usize },
+    #[error("the request took longer than {0:?}")]
+    Timeout(std::time::Duration),
     /// The detail is logged by the caller; the client gets a short message.
     #[error("internal error")]
     Internal,
@@ -51,6 +60,13 @@ impl AppError {
             AppError::BadQuery(_) => (StatusCode::BAD_REQUEST, "bad_query"),
             AppError::BadPath(_) => (StatusCode::BAD_REQUEST, "bad_path"),
             AppError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
+            AppError::MethodNotAllowed(_) => (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed"),
+            AppError::UriTooLong { .. } => (StatusCode::URI_TOO_LONG, "uri_too_long"),
+            AppError::HeadersTooLarge { .. } => (
+                StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE,
+                "headers_too_large",
+            ),
+            AppError::Timeout(_) => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
             AppError::Internal => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
         }
     }

@@ -4,6 +4,7 @@
 
 mod error;
 mod query;
+pub mod server;
 mod system;
 
 use axum::routing::get;
@@ -32,6 +33,7 @@ use crate::AppState;
         system::StatusView,
         crate::ingest::StreamStatusView,
         crate::ingest::RejectionRecord,
+        crate::ingest::ReadinessReason,
         system::Readiness,
         system::StreamReadiness,
         system::Health,
@@ -70,6 +72,13 @@ pub fn app(state: AppState) -> Router {
         .route("/docs/", get(system::swagger_index))
         .route("/docs/{asset}", get(system::swagger_asset))
         .fallback(|uri: axum::http::Uri| async move { AppError::NotFound(uri.path().to_string()) })
+        .method_not_allowed_fallback(|method: axum::http::Method| async move {
+            AppError::MethodNotAllowed(method.to_string())
+        })
+        .layer(axum::middleware::from_fn_with_state(
+            std::sync::Arc::new(state.config.http.clone()),
+            server::limits,
+        ))
         .with_state(state)
 }
 

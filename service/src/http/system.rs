@@ -9,7 +9,7 @@ use serde::Serialize;
 use utoipa::ToSchema;
 
 use super::AppError;
-use crate::ingest::StreamStatusView;
+use crate::ingest::{ReadinessReason, StreamStatusView};
 use crate::AppState;
 
 /// `GET /api/v1/status`.
@@ -18,6 +18,8 @@ pub struct StatusView {
     pub uptime_s: f64,
     pub version: String,
     pub streams: Vec<StreamStatusView>,
+    /// Connections refused because `http.max_connections` were open.
+    pub http_connections_refused: u64,
 }
 
 /// Every enabled stream: freshness, counters, rejections, timings, whether it keeps up.
@@ -29,6 +31,10 @@ pub async fn status(State(state): State<AppState>) -> Json<StatusView> {
         uptime_s: state.started.elapsed().as_secs_f64(),
         version: env!("CARGO_PKG_VERSION").into(),
         streams: state.streams.iter().map(|s| s.view(now)).collect(),
+        http_connections_refused: state
+            .http
+            .connections_refused
+            .load(std::sync::atomic::Ordering::Relaxed),
     })
 }
 
@@ -49,6 +55,10 @@ pub async fn healthz() -> Json<Health> {
 #[derive(Debug, Serialize, ToSchema)]
 pub struct StreamReadiness {
     pub stream: String,
+    /// Estimates are being produced from this stream's data now.
+    pub ready: bool,
+    /// Why not (`stale`, `rejecting`, `lagging`, `competing_sources`, ...), or `ready`.
+    pub readiness: ReadinessReason,
     pub fresh: bool,
     pub last_sample_age_s: Option<f64>,
     pub stale_after_s: f64,
@@ -60,7 +70,8 @@ pub struct Readiness {
     pub streams: Vec<StreamReadiness>,
 }
 
-/// Readiness: 200 while every configured stream delivered within its staleness limit, else 503.
+/// Readiness: 200 while estimates are being produced from every enabled stream's data (recent
+/// frames, estimated, keeping up, one source), else 503 with each stream's reason.
 #[utoipa::path(get, path = "/readyz", tag = "service",
     responses((status = 200, description = "Every enabled stream is fresh", body = Readiness),
               (status = 503, description = "A stream is not fresh", body = Readiness)))]
@@ -71,12 +82,14 @@ pub async fn readyz(State(state): State<AppState>) -> (StatusCode, Json<Readines
         .iter()
         .map(|s| StreamReadiness {
             stream: s.kind.name().into(),
+            ready: s.readiness(now) == ReadinessReason::Ready,
+            readiness: s.readiness(now),
             fresh: s.is_fresh(now),
             last_sample_age_s: s.last_sample_age_s(now),
             stale_after_s: s.stale_after.as_secs_f64(),
         })
         .collect();
-    let ready = !streams.is_empty() && streams.iter().all(|s| s.fresh);
+    let ready = !streams.is_empty() && streams.iter().all(|s| s.ready);
     let code = if ready {
         StatusCode::OK
     } else {

@@ -3,6 +3,7 @@
 //! HTTP side reads only atomics and `arc-swap` snapshots ([`status`], `crate::outbox`), so the
 //! hot path takes no lock.
 
+mod clock;
 mod realtime;
 mod sequence;
 mod status;
@@ -13,9 +14,12 @@ use std::time::{Duration, Instant};
 use iceoryx2::prelude::CallbackProgression;
 use railmon_bus::{monotonic_ns, BusConfig, BusError, BusNode, Frame, FrameHeader};
 
+pub use clock::{ClockCheck, SampleClock, PERIOD_TOLERANCE};
 pub use realtime::RealTimeTracker;
 pub use sequence::{SequenceCheck, SequenceTracker};
-pub use status::{RejectionRecord, StreamStatus, StreamStatusView, COMMON_REJECTION_REASONS};
+pub use status::{
+    ReadinessReason, RejectionRecord, StreamStatus, StreamStatusView, COMMON_REJECTION_REASONS,
+};
 
 use crate::config::IngestConfig;
 
@@ -44,6 +48,10 @@ pub trait Pipeline {
     type Checked;
     /// The reasons this pipeline's `check` and `step` reject with (besides the common ones).
     const REJECTION_REASONS: &'static [&'static str];
+    /// Several frames of one source may carry the same sample time (the bogies of one step).
+    const REPEATED_TIMES: bool = false;
+    /// The period the estimator is configured for: sample times advance by whole multiples.
+    fn sample_period_ns(&self) -> u64;
     /// Checks a frame without changing anything.
     fn check(&self, header: &FrameHeader, frame: &Self::Frame) -> Result<Self::Checked, Rejection>;
     /// A new source (publisher restarted, or its run restarted): start from the prior.
@@ -54,13 +62,28 @@ pub trait Pipeline {
     fn publish(&mut self);
 }
 
-/// Handles one received frame: count, check the header, follow the sequence, check the frame,
-/// step, time. The sequence is followed before the frame's content is judged, so a rejected
-/// frame is counted once, as a rejection, and never again as a gap.
+/// What the ingest loop keeps about the current source of a stream.
+struct SourceTracking {
+    sequence: SequenceTracker,
+    clock: SampleClock,
+    realtime: RealTimeTracker,
+}
+
+impl SourceTracking {
+    fn restart<P: Pipeline>(&mut self, pipeline: &mut P) {
+        pipeline.restart();
+        self.clock.restart();
+        self.realtime.restart();
+    }
+}
+
+/// Handles one received frame: count, check the header, follow the source and its sequence,
+/// check the sample time and the frame, step, time. The sequence is followed before the
+/// frame's content is judged, so a rejected frame is counted once, as a rejection, and never
+/// again as a gap.
 fn handle_frame<P: Pipeline>(
     pipeline: &mut P,
-    tracker: &mut SequenceTracker,
-    realtime: &mut RealTimeTracker,
+    source: &mut SourceTracking,
     status: &StreamStatus,
     header: &FrameHeader,
     frame: &P::Frame,
@@ -70,13 +93,12 @@ fn handle_frame<P: Pipeline>(
     if let Err(e) = header.check() {
         return status.reject(header, Rejection::new(e.reason(), e.to_string()));
     }
-    match tracker.check(header) {
+    match source.sequence.check(header, received_at_ns) {
         SequenceCheck::InOrder => {}
         SequenceCheck::NewSource => {
             status.record_new_source();
             tracing::info!(stream = %status.kind, instance = header.publisher_instance, run = header.run, sequence = header.sequence, "new source: estimator restarts");
-            pipeline.restart();
-            realtime.restart();
+            source.restart(pipeline);
         }
         SequenceCheck::Gap { missing } => {
             status.record_gap(missing);
@@ -86,8 +108,28 @@ fn handle_frame<P: Pipeline>(
             let message = format!("sequence {} is not after {last}", header.sequence);
             return status.reject(header, Rejection::new("out_of_order", message));
         }
+        SequenceCheck::Competing { current } => {
+            status.record_competing(received_at_ns);
+            let message = format!(
+                "publisher {:#x} sends while publisher {current:#x} is alive: one source at a time",
+                header.publisher_instance
+            );
+            return status.reject(header, Rejection::new("second_source", message));
+        }
     }
-    tracker.accept(header);
+    source.sequence.accept(header, received_at_ns);
+    match source.clock.check(header.sample_time_ns) {
+        ClockCheck::Ok => {}
+        ClockCheck::NewTimeline => {
+            status.record_new_source();
+            tracing::info!(stream = %status.kind, sample_time_s = header.sample_time_ns as f64 * 1e-9, "the source's clock jumped: estimator restarts");
+            source.restart(pipeline);
+        }
+        ClockCheck::Reject(rejection) => {
+            source.clock.refused(header.sample_time_ns, &rejection);
+            return status.reject(header, rejection);
+        }
+    }
     let input = match pipeline.check(header, frame) {
         Ok(input) => input,
         Err(rejection) => return status.reject(header, rejection),
@@ -97,9 +139,17 @@ fn handle_frame<P: Pipeline>(
     let step_ns = start.elapsed().as_nanos() as u64;
     match stepped {
         Ok(()) => {
+            source.clock.accept(header.sample_time_ns);
             let done_at_ns = monotonic_ns();
-            status.record_step(step_ns, done_at_ns.saturating_sub(header.published_at_ns));
-            let (lag_ns, load) = realtime.observe(header.sample_time_ns, done_at_ns, step_ns);
+            status.record_step(
+                step_ns,
+                done_at_ns,
+                done_at_ns.saturating_sub(header.published_at_ns),
+            );
+            let (lag_ns, load) =
+                source
+                    .realtime
+                    .observe(header.sample_time_ns, done_at_ns, step_ns);
             status.record_realtime(lag_ns, load);
         }
         Err(rejection) => status.reject(header, rejection),
@@ -145,8 +195,14 @@ fn ingest_loop<P: Pipeline>(
     let wake_interval = Duration::from_millis(ingest.wake_interval_ms);
     let cleanup_interval = Duration::from_millis(ingest.cleanup_interval_ms);
     let mut last_cleanup = Instant::now();
-    let mut tracker = SequenceTracker::default();
-    let mut realtime = RealTimeTracker::default();
+    // Another publisher may take over once the current one is silent for the staleness limit;
+    // a sample-time advance beyond it is a jump.
+    let stale_ns = status.stale_after.as_nanos() as u64;
+    let mut source = SourceTracking {
+        sequence: SequenceTracker::new(stale_ns),
+        clock: SampleClock::new(pipeline.sample_period_ns(), P::REPEATED_TIMES, stale_ns),
+        realtime: RealTimeTracker::default(),
+    };
     while !shutdown.load(Ordering::Relaxed) {
         waitset
             .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, wake_interval)
@@ -157,13 +213,13 @@ fn ingest_loop<P: Pipeline>(
         let wakeups = subscriber.take_wakeups()?;
         if wakeups.publisher_died > 0 {
             tracing::info!(stream = %kind, "a publisher died");
+            source.sequence.publisher_died();
         }
         loop {
             let handled = subscriber.drain(ingest.max_batch, |rx| {
                 handle_frame(
                     pipeline,
-                    &mut tracker,
-                    &mut realtime,
+                    &mut source,
                     status,
                     rx.header,
                     rx.frame,

@@ -16,7 +16,39 @@ use crate::metrics::Metrics;
 /// The rejection reasons of every stream (header layout, sequence, estimator failure); each
 /// [`super::Pipeline`] adds its own. All are exported from the start, so each series exists (at 0):
 /// Prometheus queries on a counter that appears only with its first increment miss that increment.
-pub const COMMON_REJECTION_REASONS: [&str; 3] = ["layout_version", "estimator", "out_of_order"];
+pub const COMMON_REJECTION_REASONS: [&str; 8] = [
+    "layout_version",
+    "estimator",
+    "out_of_order",
+    "second_source",
+    "time_backwards",
+    "time_repeated",
+    "time_jump",
+    "period_mismatch",
+];
+
+/// At most one log line per rejection reason per this long; the rest are counted and the
+/// count is logged with the next line (a stream of bad frames at 8 kHz logged 1.5 MB/s).
+const REJECTION_LOG_INTERVAL_NS: u64 = 1_000_000_000;
+
+/// Whether a stream's estimates are being produced from its data now, and if not, why.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ReadinessReason {
+    Ready,
+    /// The ingest thread is not running (a bus error: see `last_error`).
+    NotIngesting,
+    /// No frame yet.
+    NoData,
+    /// No frame within the staleness limit.
+    Stale,
+    /// Frames arrive but none was estimated within the staleness limit (all rejected).
+    Rejecting,
+    /// The estimator does not keep up with real time.
+    Lagging,
+    /// A second publisher sent within the staleness limit while the current one is alive.
+    CompetingSources,
+}
 
 /// Counters and timings of one stream, shared with the HTTP side.
 pub struct StreamStatus {
@@ -32,6 +64,14 @@ pub struct StreamStatus {
     lagging_gauge: IntGauge,
     metrics: Arc<Metrics>,
     last_received_ns: AtomicU64,
+    /// Monotonic time of the last frame the estimator used.
+    last_estimated_ns: AtomicU64,
+    /// Monotonic time a competing publisher was last refused.
+    last_competing_ns: AtomicU64,
+    /// Rate limiting of rejection log lines: when the last line was written, and how many
+    /// rejections were not logged since.
+    last_rejection_log_ns: AtomicU64,
+    rejections_not_logged: AtomicU64,
     last_step_ns: AtomicU64,
     sources: AtomicU64,
     last_rejection: ArcSwapOption<RejectionRecord>,
@@ -60,6 +100,10 @@ pub struct StreamStatusView {
     pub stream: String,
     /// The ingest thread is running (false after a bus error; see `last_error`).
     pub ingesting: bool,
+    /// Estimates are being produced from this stream's data now (what `/readyz` requires).
+    pub ready: bool,
+    /// Why not, or `ready`.
+    pub readiness: ReadinessReason,
     /// A frame came within `stale_after_s`.
     pub fresh: bool,
     pub stale_after_s: f64,
@@ -115,6 +159,10 @@ impl StreamStatus {
             lagging_gauge: metrics.stream.lagging.with_label_values(&label),
             metrics,
             last_received_ns: AtomicU64::new(0),
+            last_estimated_ns: AtomicU64::new(0),
+            last_competing_ns: AtomicU64::new(0),
+            last_rejection_log_ns: AtomicU64::new(0),
+            rejections_not_logged: AtomicU64::new(0),
             last_step_ns: AtomicU64::new(0),
             sources: AtomicU64::new(0),
             last_rejection: ArcSwapOption::empty(),
@@ -164,6 +212,27 @@ impl StreamStatus {
             .is_some_and(|age| age <= self.stale_after.as_secs_f64())
     }
 
+    /// Whether estimates are being produced from this stream's data now, and if not, why.
+    pub fn readiness(&self, now_ns: u64) -> ReadinessReason {
+        let within =
+            |t: u64| t > 0 && now_ns.saturating_sub(t) <= self.stale_after.as_nanos() as u64;
+        if !self.running.load(Ordering::Relaxed) {
+            ReadinessReason::NotIngesting
+        } else if self.last_received_ns.load(Ordering::Relaxed) == 0 {
+            ReadinessReason::NoData
+        } else if !self.is_fresh(now_ns) {
+            ReadinessReason::Stale
+        } else if !within(self.last_estimated_ns.load(Ordering::Relaxed)) {
+            ReadinessReason::Rejecting
+        } else if self.lagging.load(Ordering::Relaxed) {
+            ReadinessReason::Lagging
+        } else if within(self.last_competing_ns.load(Ordering::Relaxed)) {
+            ReadinessReason::CompetingSources
+        } else {
+            ReadinessReason::Ready
+        }
+    }
+
     /// Updates the scrape-time gauges (age, freshness).
     pub fn refresh_gauges(&self, now_ns: u64) {
         let label = [self.kind.name()];
@@ -186,8 +255,11 @@ impl StreamStatus {
             (n > 0).then(|| h.get_sample_sum() / n as f64 * 1e6)
         };
         let steps = self.step.get_sample_count();
+        let readiness = self.readiness(now_ns);
         StreamStatusView {
             stream: self.kind.name().into(),
+            ready: readiness == ReadinessReason::Ready,
+            readiness,
             ingesting: self.running.load(Ordering::Relaxed),
             fresh: self.is_fresh(now_ns),
             stale_after_s: self.stale_after.as_secs_f64(),
@@ -226,7 +298,12 @@ impl StreamStatus {
         self.gaps.inc_by(missing);
     }
 
-    pub(super) fn record_step(&self, step_ns: u64, latency_ns: u64) {
+    pub(super) fn record_competing(&self, now_ns: u64) {
+        self.last_competing_ns.store(now_ns, Ordering::Relaxed);
+    }
+
+    pub(super) fn record_step(&self, step_ns: u64, done_at_ns: u64, latency_ns: u64) {
+        self.last_estimated_ns.store(done_at_ns, Ordering::Relaxed);
         self.step.observe(step_ns as f64 * 1e-9);
         self.last_step_ns.store(step_ns, Ordering::Relaxed);
         self.latency.observe(latency_ns as f64 * 1e-9);
@@ -250,7 +327,15 @@ impl StreamStatus {
             .samples_rejected
             .with_label_values(&[self.kind.name(), rejection.reason])
             .inc();
-        tracing::warn!(stream = %self.kind, sequence = header.sequence, reason = rejection.reason, "frame rejected: {}", rejection.message);
+        let now = monotonic_ns();
+        let last_log = self.last_rejection_log_ns.load(Ordering::Relaxed);
+        if last_log == 0 || now.saturating_sub(last_log) >= REJECTION_LOG_INTERVAL_NS {
+            self.last_rejection_log_ns.store(now, Ordering::Relaxed);
+            let not_logged = self.rejections_not_logged.swap(0, Ordering::Relaxed);
+            tracing::warn!(stream = %self.kind, sequence = header.sequence, reason = rejection.reason, not_logged, "frame rejected: {} ({not_logged} more rejections since the last line)", rejection.message);
+        } else {
+            self.rejections_not_logged.fetch_add(1, Ordering::Relaxed);
+        }
         self.last_rejection.store(Some(Arc::new(RejectionRecord {
             reason: rejection.reason.into(),
             message: rejection.message,

@@ -280,6 +280,10 @@ impl Pipeline for VehiclePipeline {
         "time_not_increasing",
     ];
 
+    fn sample_period_ns(&self) -> u64 {
+        (self.config.estimator.sample_period_s * 1e9).round() as u64
+    }
+
     fn check(
         &self,
         header: &FrameHeader,

@@ -1,0 +1,198 @@
+//! The samples' own clock: time stamps of a source must advance by whole multiples of the
+//! stream's configured period. Data at another rate (100 Hz bogie data for a 1 kHz model),
+//! in other units (ms for s), going backwards or jumping far ahead would otherwise be
+//! estimated as if it were right.
+
+use super::Rejection;
+
+/// What a frame's sample time says.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ClockCheck {
+    Ok,
+    /// The source's clock jumped and the frames after the jump agree with each other: a new
+    /// timeline, which the estimator starts afresh.
+    NewTimeline,
+    Reject(Rejection),
+}
+
+/// Follows one source's sample times. See the module documentation.
+#[derive(Clone, Debug)]
+pub struct SampleClock {
+    period_ns: u64,
+    /// Frames may repeat a time (the bogies of one step).
+    repeats_allowed: bool,
+    /// A larger advance is a jump (the frame is refused unless the next one confirms it).
+    max_advance_ns: u64,
+    last_ns: Option<u64>,
+    /// The time of a refused jump: if the next frame continues from it, the jump was real.
+    jumped_to_ns: Option<u64>,
+}
+
+/// How far a time difference may be from a whole number of periods, as a share of a period.
+pub const PERIOD_TOLERANCE: f64 = 0.01;
+
+impl SampleClock {
+    pub fn new(period_ns: u64, repeats_allowed: bool, max_advance_ns: u64) -> Self {
+        Self {
+            period_ns: period_ns.max(1),
+            repeats_allowed,
+            max_advance_ns: max_advance_ns.max(period_ns),
+            last_ns: None,
+            jumped_to_ns: None,
+        }
+    }
+
+    pub fn restart(&mut self) {
+        self.last_ns = None;
+        self.jumped_to_ns = None;
+    }
+
+    /// Whether `from -> to` is a regular advance (whole periods, within the limit).
+    fn regular(&self, from: u64, to: u64) -> Result<(), Rejection> {
+        let period_s = self.period_ns as f64 * 1e-9;
+        if to < from {
+            return Err(Rejection::new(
+                "time_backwards",
+                format!(
+                    "sample time {:.6} s is before the previous {:.6} s",
+                    to as f64 * 1e-9,
+                    from as f64 * 1e-9
+                ),
+            ));
+        }
+        let advance = to - from;
+        if advance == 0 {
+            return match self.repeats_allowed {
+                true => Ok(()),
+                false => Err(Rejection::new(
+                    "time_repeated",
+                    format!("sample time {:.6} s repeated", to as f64 * 1e-9),
+                )),
+            };
+        }
+        if advance > self.max_advance_ns {
+            return Err(Rejection::new(
+                "time_jump",
+                format!(
+                    "sample time jumps {:.6} s ahead (at most {:.3} s between samples)",
+                    advance as f64 * 1e-9,
+                    self.max_advance_ns as f64 * 1e-9
+                ),
+            ));
+        }
+        let periods = advance as f64 / self.period_ns as f64;
+        if periods.round() < 1.0 || (periods - periods.round()).abs() > PERIOD_TOLERANCE {
+            return Err(Rejection::new(
+                "period_mismatch",
+                format!(
+                    "samples {:.6} s apart, not a multiple of the configured period {period_s:.6} s",
+                    advance as f64 * 1e-9
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Judges a frame's sample time; `accept` it if the frame is then used.
+    pub fn check(&self, sample_time_ns: u64) -> ClockCheck {
+        let Some(last) = self.last_ns else {
+            return ClockCheck::Ok;
+        };
+        match self.regular(last, sample_time_ns) {
+            Ok(()) => ClockCheck::Ok,
+            Err(rejection) => match self.jumped_to_ns {
+                Some(jumped)
+                    if self.regular(jumped, sample_time_ns).is_ok() && sample_time_ns > jumped =>
+                {
+                    ClockCheck::NewTimeline
+                }
+                _ => ClockCheck::Reject(rejection),
+            },
+        }
+    }
+
+    /// The frame at `sample_time_ns` was used.
+    pub fn accept(&mut self, sample_time_ns: u64) {
+        self.last_ns = Some(sample_time_ns);
+        self.jumped_to_ns = None;
+    }
+
+    /// The frame at `sample_time_ns` was refused for `rejection`: after a jump (ahead or
+    /// back), remember where to, in case the source really moved there. Data at another rate
+    /// (`period_mismatch`) never starts a new timeline: it stays refused.
+    pub fn refused(&mut self, sample_time_ns: u64, rejection: &Rejection) {
+        if matches!(rejection.reason, "time_jump" | "time_backwards") {
+            self.jumped_to_ns = Some(sample_time_ns);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MS: u64 = 1_000_000;
+
+    fn reason(check: ClockCheck) -> &'static str {
+        match check {
+            ClockCheck::Reject(r) => r.reason,
+            other => panic!("expected a rejection, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn whole_periods_pass_other_rates_and_backwards_time_do_not() {
+        let mut c = SampleClock::new(MS, false, 500 * MS);
+        assert_eq!(c.check(7 * MS), ClockCheck::Ok);
+        c.accept(7 * MS);
+        assert_eq!(c.check(8 * MS), ClockCheck::Ok);
+        assert_eq!(
+            c.check(10 * MS),
+            ClockCheck::Ok,
+            "two samples lost at the source"
+        );
+        assert_eq!(reason(c.check(7 * MS + MS / 2)), "period_mismatch");
+        assert_eq!(reason(c.check(6 * MS)), "time_backwards");
+        assert_eq!(reason(c.check(7 * MS)), "time_repeated");
+        let mut hundred_hz = SampleClock::new(MS, false, 500 * MS);
+        hundred_hz.accept(0);
+        assert_eq!(
+            reason(hundred_hz.check(10 * MS + MS / 3)),
+            "period_mismatch"
+        );
+    }
+
+    #[test]
+    fn an_outlier_is_refused_and_a_confirmed_jump_is_a_new_timeline() {
+        let mut c = SampleClock::new(MS, true, 500 * MS);
+        c.accept(0);
+        assert_eq!(
+            c.check(0),
+            ClockCheck::Ok,
+            "bogies of one step share a time"
+        );
+        // One absurd stamp, then the old timeline goes on: only the outlier is refused.
+        let outlier = c.check(u64::MAX);
+        assert_eq!(reason(outlier.clone()), "time_jump");
+        if let ClockCheck::Reject(r) = &outlier {
+            c.refused(u64::MAX, r);
+        }
+        assert_eq!(c.check(MS), ClockCheck::Ok);
+        c.accept(MS);
+        // A real jump: the next frame continues from the new time.
+        let ClockCheck::Reject(jump) = c.check(3_600_000 * MS) else {
+            panic!("a jump of an hour passed")
+        };
+        assert_eq!(jump.reason, "time_jump");
+        c.refused(3_600_000 * MS, &jump);
+        assert_eq!(c.check(3_600_001 * MS), ClockCheck::NewTimeline);
+        // A source at another rate stays refused, however consistent its own stamps.
+        let mut off = SampleClock::new(MS, false, 500 * MS);
+        off.accept(0);
+        let ClockCheck::Reject(half) = off.check(MS / 2) else {
+            panic!("half a period passed")
+        };
+        off.refused(MS / 2, &half);
+        assert_eq!(reason(off.check(MS / 2 + MS)), "period_mismatch");
+    }
+}
