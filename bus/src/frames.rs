@@ -7,7 +7,7 @@ use iceoryx2::prelude::ZeroCopySend;
 use crate::StreamKind;
 
 /// Bumped whenever a payload layout changes (also part of every type name).
-pub const FRAME_LAYOUT_VERSION: u32 = 1;
+pub const FRAME_LAYOUT_VERSION: u32 = 2;
 
 /// Capacity of a [`DriveFrame`]: the most drives one vehicle publishes in one frame.
 pub const MAX_DRIVES: usize = 32;
@@ -15,7 +15,7 @@ pub const MAX_DRIVES: usize = 32;
 /// User header of every frame. iceoryx2's own sample header has no sequence number, so the
 /// publisher numbers its frames here; the subscriber counts gaps per `publisher_instance`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ZeroCopySend)]
-#[type_name("railmon::FrameHeader.v1")]
+#[type_name("railmon::FrameHeader.v2")]
 #[repr(C)]
 pub struct FrameHeader {
     /// [`FRAME_LAYOUT_VERSION`] of the publisher.
@@ -32,6 +32,9 @@ pub struct FrameHeader {
     pub published_at_ns: u64,
     /// Time of the measurement since the start of its run, ns.
     pub sample_time_ns: u64,
+    /// When the measurement was taken, UTC, ns since the Unix epoch (0: unknown). A replay of a
+    /// recording maps the file's time onto a start time it is given (default: when it starts).
+    pub acquired_utc_ns: i64,
 }
 
 /// A payload type bound to its stream.

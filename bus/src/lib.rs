@@ -18,6 +18,7 @@ pub mod config;
 mod error;
 pub mod frames;
 mod node;
+pub mod utc;
 pub use node::iceoryx2_config;
 mod publisher;
 mod subscriber;
@@ -30,7 +31,7 @@ pub use frames::{
     FRAME_LAYOUT_VERSION, MAX_DRIVES,
 };
 pub use node::BusNode;
-pub use publisher::FramePublisher;
+pub use publisher::{utc_now_ns, FramePublisher};
 pub use subscriber::{FrameSubscriber, ReceivedFrame, Wakeups};
 
 /// The WaitSet type the subscriber side attaches listeners to.

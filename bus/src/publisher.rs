@@ -22,6 +22,8 @@ pub struct FramePublisher<F: Frame> {
     instance: u64,
     run: u32,
     sequence: u64,
+    /// UTC (ns since the epoch) of sample time 0 of the current run.
+    utc_origin_ns: i64,
 }
 
 impl<F: Frame> std::fmt::Debug for FramePublisher<F> {
@@ -75,6 +77,7 @@ impl<F: Frame> FramePublisher<F> {
             instance,
             run: 0,
             sequence: 0,
+            utc_origin_ns: utc_now_ns(),
         })
     }
 
@@ -95,6 +98,12 @@ impl<F: Frame> FramePublisher<F> {
     /// Marks the following frames as a new run of the source (estimators restart from their prior).
     pub fn start_new_run(&mut self) {
         self.run = self.run.wrapping_add(1);
+    }
+
+    /// The UTC time (ns since the Unix epoch) of sample time 0 of the current run: frames
+    /// carry `acquired_utc_ns = origin + sample_time_ns`. Default: when the publisher was made.
+    pub fn set_utc_origin_ns(&mut self, origin_ns: i64) {
+        self.utc_origin_ns = origin_ns;
     }
 
     /// Waits until a subscriber has connected to this publisher: iceoryx2 queues frames for a
@@ -179,6 +188,7 @@ impl<F: Frame> FramePublisher<F> {
             sequence,
             published_at_ns: monotonic_ns(),
             sample_time_ns,
+            acquired_utc_ns: self.utc_origin_ns.saturating_add_unsigned(sample_time_ns),
         };
         sample
             .write_payload(*frame)
@@ -193,6 +203,13 @@ impl<F: Frame> FramePublisher<F> {
             .map(|_| ())
             .map_err(|e| BusError::ipc(format!("notify on `{}`", self.stream.service_name), e))
     }
+}
+
+/// The wall clock now, ns since the Unix epoch (UTC).
+pub fn utc_now_ns() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
 }
 
 /// An id that tells publishers apart, also across containers where every process is PID 1

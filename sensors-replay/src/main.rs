@@ -67,6 +67,11 @@ pub struct ReplayArgs {
     /// Stop after this many frames (all runs together).
     #[arg(long)]
     pub max_frames: Option<u64>,
+    /// UTC time of the first sample (RFC 3339, e.g. 2026-11-22T08:00:00Z): frames carry
+    /// it plus their time on the replay's clock as their acquisition time. Default: when the
+    /// replay starts.
+    #[arg(long, value_parser = railmon_bus::utc::parse_rfc3339)]
+    pub start_utc: Option<i64>,
 }
 
 impl ReplayArgs {

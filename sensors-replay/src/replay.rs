@@ -56,6 +56,9 @@ pub fn publish<S: Source>(source: &mut S, args: &ReplayArgs) -> anyhow::Result<(
     let node = BusNode::create(&bus, &format!("sensors-replay-{stream}"))?;
     let mut publisher = node.publisher::<S::Frame>()?;
     let connected = wait_for_subscriber(&publisher, args)?;
+    // Acquisition times: the given start (or now) plus the time on the replay's own clock.
+    let utc_start_ns = args.start_utc.unwrap_or_else(railmon_bus::utc_now_ns);
+    publisher.set_utc_origin_ns(utc_start_ns);
     let mut pacer = Pacer::new(args.speed);
     let notify_every = if pacer.is_paced() {
         1
@@ -75,6 +78,7 @@ pub fn publish<S: Source>(source: &mut S, args: &ReplayArgs) -> anyhow::Result<(
             source.rewind()?;
             publisher.start_new_run();
             run_offset_ns = last_ns + period_ns;
+            publisher.set_utc_origin_ns(utc_start_ns.saturating_add_unsigned(run_offset_ns));
             runs += 1;
             continue;
         };

@@ -38,12 +38,77 @@ pub(crate) fn invalid(key: &str, reason: String) -> ConfigError {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ServiceConfig {
+    pub identity: IdentityConfig,
     pub http: HttpConfig,
     pub bus: BusConfig,
     pub ingest: IngestConfig,
     pub drive: DriveConfig,
     pub bogie: BogieConfig,
     pub vehicle: VehicleConfig,
+}
+
+/// `[identity]`: which vehicle this service monitors, in every API answer, event and metric.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IdentityConfig {
+    /// The vehicle's id in the fleet (letters, digits, `.`, `_`, `-`; at most 64); empty: the
+    /// host name.
+    pub vehicle_id: String,
+    /// The fleet it belongs to (same characters; may stay empty).
+    pub fleet: String,
+}
+
+impl IdentityConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        for (key, value) in [("vehicle_id", &self.vehicle_id), ("fleet", &self.fleet)] {
+            let ok = value.len() <= 64
+                && value
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'));
+            if !ok {
+                return Err(invalid(
+                    &format!("identity.{key}"),
+                    format!("`{value}`: use at most 64 letters, digits, `.`, `_` or `-`"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The identity in force: `vehicle_id` or, when empty, the host name.
+    pub fn resolve(&self) -> Identity {
+        let vehicle_id = match self.vehicle_id.is_empty() {
+            false => self.vehicle_id.clone(),
+            true => host_name().unwrap_or_else(|| "unknown".into()),
+        };
+        Identity {
+            vehicle_id,
+            fleet: self.fleet.clone(),
+        }
+    }
+}
+
+/// The vehicle a service monitors, as it appears in answers, events and metric labels.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct Identity {
+    pub vehicle_id: String,
+    pub fleet: String,
+}
+
+fn host_name() -> Option<String> {
+    let name = std::fs::read_to_string("/proc/sys/kernel/hostname").ok()?;
+    let name: String = name
+        .trim()
+        .chars()
+        .map(
+            |c| match c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
+                true => c,
+                false => '_',
+            },
+        )
+        .take(64)
+        .collect();
+    (!name.is_empty()).then_some(name)
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -170,6 +235,7 @@ impl ServiceConfig {
     /// Checks every value; the error names the key.
     pub fn validate(&self) -> Result<(), ConfigError> {
         self.listen_addr()?;
+        self.identity.validate()?;
         self.http.validate()?;
         self.bus.validate()?;
         let i = &self.ingest;

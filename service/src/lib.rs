@@ -41,6 +41,8 @@ pub struct AppState(Arc<AppInner>);
 
 pub struct AppInner {
     pub config: ServiceConfig,
+    /// The vehicle, as every answer, event and metric names it.
+    pub identity: config::Identity,
     pub metrics: Arc<Metrics>,
     pub drive: Arc<DriveShared>,
     pub vehicle: Arc<VehicleShared>,
@@ -61,7 +63,8 @@ impl std::ops::Deref for AppState {
 
 impl AppState {
     pub fn new(config: ServiceConfig) -> Result<Self, prometheus::Error> {
-        let metrics = Arc::new(Metrics::new()?);
+        let identity = config.identity.resolve();
+        let metrics = Arc::new(Metrics::with_identity(&identity)?);
         let drive = Arc::new(config.drive.outbox());
         let vehicle = Arc::new(config.vehicle.outbox());
         let bogie = Arc::new(config.bogie.outbox());
@@ -97,6 +100,7 @@ impl AppState {
         }
         Ok(Self(Arc::new(AppInner {
             config,
+            identity,
             metrics,
             drive,
             vehicle,

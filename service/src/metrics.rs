@@ -196,8 +196,27 @@ pub struct Metrics {
 }
 
 impl Metrics {
+    /// The families without identity labels (tests).
     pub fn new() -> Result<Self, prometheus::Error> {
-        let registry = Registry::new();
+        Self::with_labels(std::collections::HashMap::new())
+    }
+
+    /// Every series labelled with the vehicle's identity (`vehicle_id`, and `fleet` when set):
+    /// a fleet Prometheus scraping many services selects a vehicle without per-vehicle scrape
+    /// configuration (docs/service.md argues the choice).
+    pub fn with_identity(identity: &crate::config::Identity) -> Result<Self, prometheus::Error> {
+        let mut labels = std::collections::HashMap::new();
+        labels.insert("vehicle_id".to_string(), identity.vehicle_id.clone());
+        if !identity.fleet.is_empty() {
+            labels.insert("fleet".to_string(), identity.fleet.clone());
+        }
+        Self::with_labels(labels)
+    }
+
+    fn with_labels(
+        labels: std::collections::HashMap<String, String>,
+    ) -> Result<Self, prometheus::Error> {
+        let registry = Registry::new_custom(None, Some(labels))?;
         let f = Families {
             registry: &registry,
         };

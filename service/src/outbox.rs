@@ -43,6 +43,16 @@ pub struct Stamp {
     pub time_s: f64,
     /// Time within the run (the source's own clock), s.
     pub run_time_s: f64,
+    /// When the sample was acquired, UTC ns since the epoch (the header's, or the service's
+    /// clock at receipt when the publisher did not say).
+    pub utc_ns: i64,
+}
+
+impl Stamp {
+    /// The acquisition time as RFC 3339 UTC.
+    pub fn time_utc(&self) -> String {
+        railmon_bus::utc::format_rfc3339(self.utc_ns)
+    }
 }
 
 /// The ingest thread's side of an [`Outbox`]. See the module documentation.
@@ -90,6 +100,10 @@ impl<P: Clone, E: Clone> Track<P, E> {
             header: *header,
             time_s: self.run_offset_s + run_time_s,
             run_time_s,
+            utc_ns: match header.acquired_utc_ns {
+                0 => railmon_bus::utc_now_ns(),
+                t => t,
+            },
         };
         self.last_time_s = Some(stamp.time_s);
         self.last = Some(stamp);

@@ -71,11 +71,36 @@ fn vehicle_state_after(steps: usize) -> AppState {
     state
 }
 
+/// A metrics text line without the identity labels every series carries (`vehicle_id`,
+/// `fleet`), so that tests name series by their own labels.
+fn without_identity_labels(line: &str) -> String {
+    let (Some(open), Some(close)) = (line.find('{'), line.find('}')) else {
+        return line.to_string();
+    };
+    let kept: Vec<&str> = line[open + 1..close]
+        .split(',')
+        .filter(|l| !l.starts_with("vehicle_id=") && !l.starts_with("fleet="))
+        .collect();
+    match kept.is_empty() {
+        true => format!("{}{}", &line[..open], &line[close + 1..]),
+        false => format!(
+            "{}{{{}}}{}",
+            &line[..open],
+            kept.join(","),
+            &line[close + 1..]
+        ),
+    }
+}
+
 /// The value of the series `name{labels}` in the metrics text.
 fn series(text: &str, name: &str) -> f64 {
     let prefix = format!("{name} ");
     text.lines()
-        .find_map(|l| l.strip_prefix(&prefix))
+        .find_map(|l| {
+            without_identity_labels(l)
+                .strip_prefix(&prefix)
+                .map(str::to_string)
+        })
         .unwrap_or_else(|| panic!("no {name} in metrics"))
         .parse()
         .unwrap()
@@ -126,14 +151,56 @@ async fn metrics_carry_the_same_numbers_as_the_api() {
         );
         let value: f64 = text
             .lines()
-            .find_map(|l| l.strip_prefix(&line))
+            .find_map(|l| {
+                without_identity_labels(l)
+                    .strip_prefix(&line)
+                    .map(str::to_string)
+            })
             .unwrap_or_else(|| panic!("no {line} in metrics"))
             .parse()
             .unwrap();
         assert_eq!(value, d["slip_probability"].as_f64().unwrap());
     }
     assert!(text.contains("railmon_process_resident_memory_bytes"));
-    assert!(text.contains("railmon_stream_samples_received_total{stream=\"drive\"}"));
+    assert!(text.lines().any(|l| without_identity_labels(l)
+        .starts_with("railmon_stream_samples_received_total{stream=\"drive\"} ")));
+}
+
+#[tokio::test]
+async fn every_answer_and_series_names_the_vehicle() {
+    let mut config = ServiceConfig::default();
+    config.identity.vehicle_id = "unit-4711".into();
+    config.identity.fleet = "north".into();
+    let state = AppState::new(config).unwrap();
+    for uri in [
+        "/api/v1/drives",
+        "/api/v1/status",
+        "/readyz",
+        "/api/v1/drives/9",
+    ] {
+        let (_, body) = get_json(&state, uri).await;
+        assert_eq!(body["vehicle_id"], "unit-4711", "{uri}: {body}");
+        assert_eq!(body["fleet"], "north", "{uri}: {body}");
+    }
+    let (_, _, text) = get(&state, "/metrics").await;
+    let series: Vec<&str> = text.lines().filter(|l| !l.starts_with('#')).collect();
+    assert!(!series.is_empty());
+    for line in series {
+        assert!(
+            line.contains("vehicle_id=\"unit-4711\"") && line.contains("fleet=\"north\""),
+            "{line}"
+        );
+    }
+    let bad = ServiceConfig::load(
+        None,
+        [(
+            "RAILMON_IDENTITY__VEHICLE_ID".to_string(),
+            "unit 4711/x".to_string(),
+        )],
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(bad.contains("identity.vehicle_id"), "{bad}");
 }
 
 #[tokio::test]

@@ -315,10 +315,37 @@ impl Service {
     }
 
     /// The value of a metric line (`name{labels}`) in `/metrics`.
+    /// The value of `series` (name and its own labels; the identity labels are ignored).
     pub fn metric(&self, series: &str) -> Option<f64> {
         let (_, text) = self.get("/metrics");
-        text.lines()
-            .find_map(|l| l.strip_prefix(series)?.strip_prefix(' ')?.parse().ok())
+        text.lines().find_map(|l| {
+            without_identity_labels(l)
+                .strip_prefix(series)?
+                .strip_prefix(' ')?
+                .parse()
+                .ok()
+        })
+    }
+}
+
+/// A metrics text line without the identity labels every series carries (`vehicle_id`,
+/// `fleet`), so that tests name series by their own labels.
+pub fn without_identity_labels(line: &str) -> String {
+    let (Some(open), Some(close)) = (line.find('{'), line.find('}')) else {
+        return line.to_string();
+    };
+    let kept: Vec<&str> = line[open + 1..close]
+        .split(',')
+        .filter(|l| !l.starts_with("vehicle_id=") && !l.starts_with("fleet="))
+        .collect();
+    match kept.is_empty() {
+        true => format!("{}{}", &line[..open], &line[close + 1..]),
+        false => format!(
+            "{}{{{}}}{}",
+            &line[..open],
+            kept.join(","),
+            &line[close + 1..]
+        ),
     }
 }
 

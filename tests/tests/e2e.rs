@@ -43,7 +43,16 @@ fn seed_replay_reaches_the_service_complete_and_flags_drive_1() {
     let mut service = Service::start(&bus, &[("RAILMON_DRIVE__HISTORY_INTERVAL_MS", "1")]);
     let record = std::env::temp_dir().join(format!("railmon-e2e-record-{}.csv", bus.prefix));
     let record_arg = record.to_str().unwrap();
-    let args = ["--scenario", SEED, "--speed", "10", "--record", record_arg];
+    let args = [
+        "--scenario",
+        SEED,
+        "--speed",
+        "10",
+        "--record",
+        record_arg,
+        "--start-utc",
+        "2026-01-01T06:00:00Z",
+    ];
     let mut replay = start_replay(&bus, "drive", &args);
     assert!(
         replay.wait(Duration::from_secs(60)).success(),
@@ -101,7 +110,16 @@ fn seed_replay_reaches_the_service_complete_and_flags_drive_1() {
     let gaps = "railmon_stream_sequence_gaps_total{stream=\"drive\"}";
     assert_eq!(service.metric(gaps), Some(0.0));
     let events = service.get_json("/api/v1/drives/events?drive=1");
-    assert_eq!(events["events"][0]["kind"], "slip_started", "{events}");
+    let first = &events["events"][0];
+    assert_eq!(first["kind"], "slip_started", "{events}");
+    // Acquisition time in UTC: the replay's start plus the sample's time (slip from ~60 ms).
+    let utc = first["time_utc"].as_str().unwrap();
+    assert!(utc.starts_with("2026-01-01T06:00:00.0"), "{utc}");
+    let millis: f64 = utc[20..23].parse().unwrap();
+    assert!(
+        (millis * 1e-3 - first["time_s"].as_f64().unwrap()).abs() < 2e-3,
+        "{first}"
+    );
 
     // --record wrote every frame sent, with the simulator's truth.
     let mut reader = DriveCsvReader::open(&record, Some(scenario.n_drives())).unwrap();

@@ -203,6 +203,7 @@ impl BogiePipeline {
                 kind: kind.into(),
                 bogie,
                 damper: DAMPERS[d].into(),
+                time_utc: stamp.time_utc(),
                 time_s: stamp.time_s,
                 run: stamp.header.run,
                 run_time_s: stamp.run_time_s,
@@ -277,6 +278,7 @@ impl BogiePipeline {
             .collect();
         BogiesView {
             time_s: stamp.map(|s| s.time_s),
+            time_utc: stamp.map(Stamp::time_utc),
             run: stamp.map_or(0, |s| s.header.run),
             run_time_s: stamp.map(|s| s.run_time_s),
             sequence: stamp.map(|s| s.header.sequence),

@@ -48,6 +48,8 @@ pub struct BogieView {
 pub struct BogiesView {
     /// Stream time of the newest frame used, s; null before the first.
     pub time_s: Option<f64>,
+    /// When that frame's sample was acquired, RFC 3339 UTC.
+    pub time_utc: Option<String>,
     pub run: u32,
     pub run_time_s: Option<f64>,
     pub sequence: Option<u64>,
@@ -86,6 +88,8 @@ pub struct DamperEventView {
     pub bogie: u32,
     /// `csy` or `csay`.
     pub damper: String,
+    /// When the sample that raised it was acquired, RFC 3339 UTC.
+    pub time_utc: String,
     pub time_s: f64,
     pub run: u32,
     pub run_time_s: f64,

@@ -31,6 +31,8 @@ pub struct DrivesView {
     pub global_torque_nm: Option<f64>,
     /// Stream time, s: continuous over publisher restarts and runs.
     pub time_s: Option<f64>,
+    /// When the newest sample used was acquired, RFC 3339 UTC.
+    pub time_utc: Option<String>,
     /// Run of the source (a replay with `--loop` counts up) and the time within it, s.
     pub run: u32,
     pub run_time_s: Option<f64>,
@@ -56,6 +58,8 @@ pub struct SlipEventView {
     /// `slip_started` or `slip_ended`.
     pub kind: String,
     pub drive: usize,
+    /// When the sample that raised it was acquired, RFC 3339 UTC.
+    pub time_utc: String,
     pub time_s: f64,
     pub run: u32,
     pub run_time_s: f64,

@@ -76,10 +76,57 @@ pub fn app(state: AppState) -> Router {
             AppError::MethodNotAllowed(method.to_string())
         })
         .layer(axum::middleware::from_fn_with_state(
+            std::sync::Arc::new(state.identity.clone()),
+            identify,
+        ))
+        .layer(axum::middleware::from_fn_with_state(
             std::sync::Arc::new(state.config.http.clone()),
             server::limits,
         ))
         .with_state(state)
+}
+
+/// Names the vehicle in every answer: `vehicle_id` and `fleet` first in every JSON object body
+/// (estimates, history, events, status, errors alike), and as `railmon-vehicle-id` /
+/// `railmon-fleet` headers on every response.
+async fn identify(
+    axum::extract::State(identity): axum::extract::State<std::sync::Arc<crate::config::Identity>>,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    use axum::http::header::{HeaderValue, CONTENT_LENGTH, CONTENT_TYPE};
+    let response = next.run(request).await;
+    let (mut parts, body) = response.into_parts();
+    let json = parts
+        .headers
+        .get(CONTENT_TYPE)
+        .is_some_and(|v| v.as_bytes().starts_with(b"application/json"));
+    let body = match json {
+        false => body,
+        true => match axum::body::to_bytes(body, usize::MAX).await {
+            Ok(bytes) => match serde_json::from_slice::<serde_json::Value>(&bytes) {
+                Ok(serde_json::Value::Object(fields)) => {
+                    let mut named = serde_json::Map::with_capacity(fields.len() + 2);
+                    named.insert("vehicle_id".into(), identity.vehicle_id.clone().into());
+                    named.insert("fleet".into(), identity.fleet.clone().into());
+                    named.extend(fields);
+                    parts.headers.remove(CONTENT_LENGTH);
+                    axum::body::Body::from(serde_json::Value::Object(named).to_string())
+                }
+                _ => axum::body::Body::from(bytes),
+            },
+            Err(_) => axum::body::Body::empty(),
+        },
+    };
+    for (name, value) in [
+        ("railmon-vehicle-id", &identity.vehicle_id),
+        ("railmon-fleet", &identity.fleet),
+    ] {
+        if let Ok(value) = HeaderValue::from_str(value) {
+            parts.headers.insert(name, value);
+        }
+    }
+    axum::response::Response::from_parts(parts, body)
 }
 
 /// `Ok(())` if `kind` is enabled, else the `stream_disabled` error every stream's endpoints give.

@@ -215,6 +215,11 @@ fn ingest_loop<P: Pipeline>(
             tracing::info!(stream = %kind, "a publisher died");
             source.sequence.publisher_died();
         }
+        // A publisher that ended cleanly sends no death notice: with one publisher left on the
+        // service, a frame from a new instance is a successor, not a competitor.
+        if subscriber.publisher_count() <= 1 {
+            source.sequence.publisher_died();
+        }
         loop {
             let handled = subscriber.drain(ingest.max_batch, |rx| {
                 handle_frame(

@@ -163,6 +163,7 @@ impl VehiclePipeline {
                 self.track.push_event(|id| RegimeEventView {
                     id,
                     kind: "regime_changed".into(),
+                    time_utc: stamp.time_utc(),
                     time_s: stamp.time_s,
                     run: stamp.header.run,
                     run_time_s: stamp.run_time_s,
@@ -193,6 +194,7 @@ impl VehiclePipeline {
         let m = estimate.mixture.as_ref();
         VehicleView {
             time_s: Some(stamp.time_s),
+            time_utc: Some(stamp.time_utc()),
             run: stamp.header.run,
             run_time_s: Some(stamp.run_time_s),
             sequence: Some(stamp.header.sequence),

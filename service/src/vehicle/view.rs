@@ -12,6 +12,8 @@ use crate::outbox::Outbox;
 pub struct VehicleView {
     /// Stream time, s: continuous over publisher restarts and runs; null before the first frame.
     pub time_s: Option<f64>,
+    /// When the newest sample used was acquired, RFC 3339 UTC.
+    pub time_utc: Option<String>,
     /// Run of the source and the time within it, s.
     pub run: u32,
     pub run_time_s: Option<f64>,
@@ -75,6 +77,8 @@ pub struct RegimeEventView {
     pub id: u64,
     /// `regime_changed`.
     pub kind: String,
+    /// When the sample that raised it was acquired, RFC 3339 UTC.
+    pub time_utc: String,
     pub time_s: f64,
     pub run: u32,
     pub run_time_s: f64,
