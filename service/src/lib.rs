@@ -18,6 +18,7 @@ pub mod ingest;
 pub mod metrics;
 pub mod outbox;
 pub mod ring;
+pub mod store;
 pub mod vehicle;
 
 use std::sync::atomic::{AtomicBool, Ordering};
