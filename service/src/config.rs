@@ -39,6 +39,7 @@ pub(crate) fn invalid(key: &str, reason: String) -> ConfigError {
 #[serde(deny_unknown_fields, default)]
 pub struct ServiceConfig {
     pub identity: IdentityConfig,
+    pub storage: crate::store::StorageConfig,
     pub http: HttpConfig,
     pub bus: BusConfig,
     pub ingest: IngestConfig,
@@ -236,6 +237,7 @@ impl ServiceConfig {
     pub fn validate(&self) -> Result<(), ConfigError> {
         self.listen_addr()?;
         self.identity.validate()?;
+        self.storage.validate()?;
         self.http.validate()?;
         self.bus.validate()?;
         let i = &self.ingest;
@@ -279,7 +281,6 @@ pub(crate) fn validate_stream_keys(
     stale_after_ms: u64,
     history_interval_ms: u64,
     history_capacity: usize,
-    events_capacity: usize,
 ) -> Result<(), ConfigError> {
     for (key, value) in [
         ("stale_after_ms", stale_after_ms),
@@ -292,16 +293,11 @@ pub(crate) fn validate_stream_keys(
             ));
         }
     }
-    for (key, value) in [
-        ("history_capacity", history_capacity),
-        ("events_capacity", events_capacity),
-    ] {
-        if !(1..=1_000_000).contains(&value) {
-            return Err(invalid(
-                &format!("{section}.{key}"),
-                format!("{value} is not in 1..=1000000"),
-            ));
-        }
+    if !(1..=1_000_000).contains(&history_capacity) {
+        return Err(invalid(
+            &format!("{section}.history_capacity"),
+            format!("{history_capacity} is not in 1..=1000000"),
+        ));
     }
     Ok(())
 }
@@ -434,13 +430,6 @@ mod tests {
     }
 
     #[test]
-    fn zero_events_capacity_is_rejected() {
-        assert!(
-            error_of(&[("RAILMON_DRIVE__EVENTS_CAPACITY", "0")]).contains("drive.events_capacity")
-        );
-    }
-
-    #[test]
     fn bad_estimator_value_is_rejected() {
         assert!(error_of(&[("RAILMON_DRIVE__ESTIMATOR__DT_S", "-1.0")]).contains("drive.estimator"));
     }
@@ -542,12 +531,6 @@ mod tests {
     fn zero_vehicle_history_capacity_is_rejected() {
         assert!(error_of(&[("RAILMON_VEHICLE__HISTORY_CAPACITY", "0")])
             .contains("vehicle.history_capacity"));
-    }
-
-    #[test]
-    fn zero_vehicle_events_capacity_is_rejected() {
-        assert!(error_of(&[("RAILMON_VEHICLE__EVENTS_CAPACITY", "0")])
-            .contains("vehicle.events_capacity"));
     }
 
     #[test]

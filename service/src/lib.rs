@@ -52,7 +52,19 @@ pub struct AppInner {
     pub streams: Vec<Arc<StreamStatus>>,
     /// Connections the HTTP server refused or cut.
     pub http: Arc<http::server::HttpCounters>,
+    /// Events of every stream and the active alarms (SQLite under `storage.data_dir`).
+    pub store: Arc<store::EventStore>,
+    store_writer: std::sync::Mutex<Option<JoinHandle<()>>>,
     pub started: Instant,
+}
+
+/// Why the service could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    #[error("metrics registry: {0}")]
+    Metrics(#[from] prometheus::Error),
+    #[error(transparent)]
+    Store(#[from] store::StoreError),
 }
 
 impl std::ops::Deref for AppState {
@@ -63,12 +75,14 @@ impl std::ops::Deref for AppState {
 }
 
 impl AppState {
-    pub fn new(config: ServiceConfig) -> Result<Self, prometheus::Error> {
+    /// Opens the event store and sets up every enabled stream's status and outbox.
+    pub fn new(config: ServiceConfig) -> Result<Self, StartError> {
         let identity = config.identity.resolve();
         let metrics = Arc::new(Metrics::with_identity(&identity)?);
-        let drive = Arc::new(config.drive.outbox());
-        let vehicle = Arc::new(config.vehicle.outbox());
-        let bogie = Arc::new(config.bogie.outbox());
+        let (store, store_writer) = store::EventStore::open(&config.storage, &identity)?;
+        let drive = Arc::new(config.drive.outbox(store.clone()));
+        let vehicle = Arc::new(config.vehicle.outbox(store.clone()));
+        let bogie = Arc::new(config.bogie.outbox(store.clone()));
         let status = |kind, stale_after_ms, reasons| {
             Arc::new(StreamStatus::new(
                 kind,
@@ -108,8 +122,26 @@ impl AppState {
             bogie,
             streams,
             http: Arc::default(),
+            store,
+            store_writer: std::sync::Mutex::new(Some(store_writer)),
             started: Instant::now(),
         })))
+    }
+
+    /// Writes every event still queued and stops the store's writer thread (at shutdown, after
+    /// the ingest threads stopped).
+    pub fn close_store(&self) {
+        self.store.close();
+        let writer = self
+            .store_writer
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .take();
+        if let Some(writer) = writer {
+            if writer.join().is_err() {
+                tracing::error!("the event store's writer thread panicked");
+            }
+        }
     }
 
     /// The status of `kind`, if that stream is enabled.
@@ -124,11 +156,20 @@ pub fn start_ingest(
     shutdown: Arc<AtomicBool>,
 ) -> std::io::Result<Vec<JoinHandle<()>>> {
     let mut threads = Vec::new();
+    // Alarms active when the service last stopped stay active until an estimate clears them.
+    let restored = state.store.active_alarms().unwrap_or_else(|e| {
+        tracing::error!("cannot read the active alarms: {e}");
+        Vec::new()
+    });
+    if !restored.is_empty() {
+        tracing::info!(alarms = restored.len(), "active alarms restored");
+    }
     if let Some(status) = state.stream(StreamKind::Drive) {
         let pipeline = DrivePipeline::new(
             state.config.drive.clone(),
             state.drive.clone(),
             state.metrics.clone(),
+            &restored,
         );
         threads.push(spawn_ingest(state, pipeline, status, shutdown.clone())?);
     }
@@ -145,6 +186,7 @@ pub fn start_ingest(
             state.config.bogie.clone(),
             state.bogie.clone(),
             state.metrics.clone(),
+            &restored,
         );
         threads.push(spawn_ingest(state, pipeline, status, shutdown.clone())?);
     }

@@ -1,30 +1,35 @@
 //! What every stream pipeline shares with the HTTP side, and the bookkeeping behind it: one
-//! piece for the drive and the vehicle streams (and the bogie stream when it joins).
+//! piece for all three streams.
 //!
 //! The ingest thread owns a [`Track`]: stream time that continues across sources, history
-//! decimation, history points and events waiting for the rings, event ids, and whether the
-//! newest estimate was published. [`Track::flush`] moves the pending items into the
-//! [`Outbox`]'s rings (never waiting for their locks) and says if a new snapshot is due.
+//! decimation, history points and events waiting to be handed on, and whether the newest
+//! estimate was published. [`Track::flush`] moves history into the [`Outbox`]'s ring (never
+//! waiting for its lock), sends events to the event store (never waiting for the disk) and
+//! says if a new snapshot is due.
+
+use std::sync::Arc;
 
 use arc_swap::ArcSwap;
-use railmon_bus::FrameHeader;
+use railmon_bus::{FrameHeader, StreamKind};
+use serde::Serialize;
 
 use crate::ring::Ring;
+use crate::store::{EventStore, NewEvent};
 
-/// A stream's results as the HTTP handlers read them: the latest view (`arc-swap`), history
-/// points and events (bounded rings).
-pub struct Outbox<V, P, E> {
+/// A stream's results as the HTTP handlers read them: the latest view (`arc-swap`) and history
+/// points (a bounded ring); its events are in the shared [`EventStore`].
+pub struct Outbox<V, P> {
     pub snapshot: ArcSwap<V>,
     pub history: Ring<P>,
-    pub events: Ring<E>,
+    pub store: Arc<EventStore>,
 }
 
-impl<V: Default, P: Clone, E: Clone> Outbox<V, P, E> {
-    pub fn new(history_capacity: usize, events_capacity: usize) -> Self {
+impl<V: Default, P: Clone> Outbox<V, P> {
+    pub fn new(history_capacity: usize, store: Arc<EventStore>) -> Self {
         Self {
             snapshot: ArcSwap::from_pointee(V::default()),
             history: Ring::new(history_capacity),
-            events: Ring::new(events_capacity),
+            store,
         }
     }
 }
@@ -57,7 +62,8 @@ impl Stamp {
 
 /// The ingest thread's side of an [`Outbox`]. See the module documentation.
 #[derive(Clone, Debug)]
-pub struct Track<P, E> {
+pub struct Track<P> {
+    stream: StreamKind,
     /// Nominal step of the stream: a new source starts one step after the last frame.
     period_s: f64,
     history_interval_s: f64,
@@ -65,15 +71,15 @@ pub struct Track<P, E> {
     last_time_s: Option<f64>,
     next_history_s: f64,
     pending_history: Vec<P>,
-    pending_events: Vec<E>,
-    next_event_id: u64,
+    pending_events: Vec<NewEvent>,
     last: Option<Stamp>,
     dirty: bool,
 }
 
-impl<P: Clone, E: Clone> Track<P, E> {
-    pub fn new(period_s: f64, history_interval_ms: u64) -> Self {
+impl<P: Clone> Track<P> {
+    pub fn new(stream: StreamKind, period_s: f64, history_interval_ms: u64) -> Self {
         Self {
+            stream,
             period_s,
             history_interval_s: history_interval_ms as f64 * 1e-3,
             run_offset_s: 0.0,
@@ -81,7 +87,6 @@ impl<P: Clone, E: Clone> Track<P, E> {
             next_history_s: 0.0,
             pending_history: Vec::new(),
             pending_events: Vec::new(),
-            next_event_id: 1,
             last: None,
             dirty: false,
         }
@@ -134,17 +139,45 @@ impl<P: Clone, E: Clone> Track<P, E> {
         self.pending_history.push(point);
     }
 
-    /// Queues the event `make(id)` with the next event id.
-    pub fn push_event(&mut self, make: impl FnOnce(u64) -> E) {
-        self.pending_events.push(make(self.next_event_id));
-        self.next_event_id += 1;
+    /// Queues an event of this stream raised by the sample of `stamp`: its `kind`, `subject`
+    /// (`1` for drive 1, `2/csay`, ...), the stream's own fields (`detail`, a struct that
+    /// serialises to a JSON object) and the alarm it raises or clears.
+    pub fn push_event(
+        &mut self,
+        stamp: &Stamp,
+        kind: &str,
+        subject: String,
+        detail: &impl Serialize,
+        alarm: Option<(&str, bool)>,
+    ) {
+        let detail = match serde_json::to_value(detail) {
+            Ok(serde_json::Value::Object(map)) => map,
+            other => {
+                tracing::error!(kind, "event detail is not a JSON object: {other:?}");
+                serde_json::Map::new()
+            }
+        };
+        self.pending_events.push(NewEvent {
+            stream: self.stream,
+            kind: kind.into(),
+            subject,
+            time_utc_ns: stamp.utc_ns,
+            time_s: stamp.time_s,
+            run: stamp.header.run,
+            run_time_s: stamp.run_time_s,
+            detail,
+            alarm: alarm.map(|(name, on)| (name.to_string(), on)),
+        });
     }
 
-    /// Moves pending history and events into `outbox`'s rings if their locks are free; returns
-    /// the stamp of the newest estimate if it has not been published yet (then publish it).
-    pub fn flush<V>(&mut self, outbox: &Outbox<V, P, E>) -> Option<Stamp> {
+    /// Moves pending history into `outbox`'s ring if its lock is free and events to the
+    /// store; returns the stamp of the newest estimate if it has not been published yet (then
+    /// publish it).
+    pub fn flush<V>(&mut self, outbox: &Outbox<V, P>) -> Option<Stamp> {
         outbox.history.try_append(&mut self.pending_history);
-        outbox.events.try_append(&mut self.pending_events);
+        outbox
+            .store
+            .append(std::mem::take(&mut self.pending_events));
         std::mem::take(&mut self.dirty)
             .then_some(self.last)
             .flatten()
@@ -154,18 +187,30 @@ impl<P: Clone, E: Clone> Track<P, E> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::store::{EventQuery, StorageConfig};
 
     fn header(run: u32, sample_time_ns: u64) -> FrameHeader {
         FrameHeader {
             run,
             sample_time_ns,
+            acquired_utc_ns: 1_000_000_000 + sample_time_ns as i64,
             ..Default::default()
         }
     }
 
+    fn memory_store() -> Arc<EventStore> {
+        let config = StorageConfig {
+            data_dir: ":memory:".into(),
+            ..StorageConfig::default()
+        };
+        EventStore::open(&config, &crate::config::Identity::default())
+            .unwrap()
+            .0
+    }
+
     #[test]
     fn frames_of_the_same_time_get_one_history_point() {
-        let mut track: Track<f64, ()> = Track::new(0.001, 100);
+        let mut track: Track<f64> = Track::new(StreamKind::Bogie, 0.001, 100);
         let mut points = 0;
         for k in 0..1000u64 {
             for _bogie in 0..2 {
@@ -176,10 +221,15 @@ mod tests {
         assert_eq!(points, 10);
     }
 
+    #[derive(Serialize)]
+    struct Detail {
+        n: u64,
+    }
+
     #[test]
     fn stream_time_continues_across_sources_and_history_is_decimated() {
-        let outbox: Outbox<(), f64, u64> = Outbox::new(100, 10);
-        let mut track = Track::new(1.0, 2000);
+        let outbox: Outbox<(), f64> = Outbox::new(100, memory_store());
+        let mut track = Track::new(StreamKind::Vehicle, 1.0, 2000);
         track.restart();
         for k in 0..5 {
             let stamp = track.stamp(&header(0, k * 1_000_000_000));
@@ -187,7 +237,14 @@ mod tests {
                 track.push_history(stamp.time_s);
             }
         }
-        track.push_event(|id| id * 10);
+        let last = track.last.unwrap();
+        track.push_event(
+            &last,
+            "regime_changed",
+            String::new(),
+            &Detail { n: 1 },
+            None,
+        );
         assert_eq!(track.flush(&outbox).unwrap().time_s, 4.0);
         assert_eq!(track.flush(&outbox), None, "published once");
         track.restart(); // the next source's run time 0 is stream time 5
@@ -195,9 +252,28 @@ mod tests {
         assert_eq!((stamp.time_s, stamp.run_time_s), (5.0, 0.0));
         assert!(track.history_due(stamp.time_s));
         track.push_history(stamp.time_s);
-        track.push_event(|id| id * 10);
+        track.push_event(
+            &stamp,
+            "regime_changed",
+            String::new(),
+            &Detail { n: 2 },
+            None,
+        );
         track.flush(&outbox);
         assert_eq!(outbox.history.collect(|_| true), vec![0.0, 2.0, 4.0, 5.0]);
-        assert_eq!(outbox.events.collect(|_| true), vec![10, 20]);
+        outbox.store.flush();
+        let events = outbox
+            .store
+            .page(&EventQuery {
+                limit: 10,
+                ..EventQuery::default()
+            })
+            .unwrap();
+        let got: Vec<(u64, f64, u64)> = events
+            .iter()
+            .map(|e| (e.id, e.time_s, e.detail["n"].as_u64().unwrap()))
+            .collect();
+        assert_eq!(got, vec![(1, 4.0, 1), (2, 5.0, 2)]);
+        assert_eq!(events[1].time_utc, "1970-01-01T00:00:01.000Z");
     }
 }

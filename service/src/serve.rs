@@ -38,7 +38,8 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let config = ServiceConfig::load(args.config.as_deref(), std::env::vars())
         .context("invalid configuration")?;
     let addr = config.listen_addr()?;
-    let state = AppState::new(config).context("metrics registry")?;
+    let state = AppState::new(config).context("starting the service")?;
+    let state_for_close = state.clone();
     let shutdown = Arc::new(AtomicBool::new(false));
     let threads = start_ingest(&state, shutdown.clone()).context("starting ingest threads")?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
@@ -69,6 +70,8 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
             tracing::error!("an ingest thread panicked");
         }
     }
+    // Then every event they raised is written before the process ends.
+    state_for_close.close_store();
     tracing::info!("stopped");
     served
 }

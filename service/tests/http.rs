@@ -5,7 +5,7 @@ mod common;
 use axum::body::{to_bytes, Body};
 use axum::http::{Request, StatusCode};
 use common::vehicle::{vehicle_config, VehicleHarness};
-use common::Harness;
+use common::{test_config, Harness};
 use railmon_service::{app, AppState, ServiceConfig};
 use serde_json::Value;
 use tower::ServiceExt;
@@ -40,7 +40,7 @@ async fn get_json(state: &AppState, uri: &str) -> (StatusCode, Value) {
 
 /// State after `steps` frames of the seed scenario.
 fn state_after(steps: usize) -> AppState {
-    let state = AppState::new(ServiceConfig::default()).unwrap();
+    let state = AppState::new(test_config()).unwrap();
     let mut harness = Harness::with(state.drive.clone(), state.metrics.clone());
     for _ in 0..steps {
         harness.advance().unwrap();
@@ -54,7 +54,7 @@ fn state_after(steps: usize) -> AppState {
 fn vehicle_state_after(steps: usize) -> AppState {
     let config = ServiceConfig {
         vehicle: vehicle_config(),
-        ..ServiceConfig::default()
+        ..test_config()
     };
     let state = AppState::new(config.clone()).unwrap();
     let mut drives = Harness::with(state.drive.clone(), state.metrics.clone());
@@ -168,7 +168,7 @@ async fn metrics_carry_the_same_numbers_as_the_api() {
 
 #[tokio::test]
 async fn every_answer_and_series_names_the_vehicle() {
-    let mut config = ServiceConfig::default();
+    let mut config = test_config();
     config.identity.vehicle_id = "unit-4711".into();
     config.identity.fleet = "north".into();
     let state = AppState::new(config).unwrap();
@@ -276,7 +276,7 @@ async fn events_filter_by_drive_and_id() {
 
 #[tokio::test]
 async fn probes_status_and_docs() {
-    let state = AppState::new(ServiceConfig::default()).unwrap();
+    let state = AppState::new(test_config()).unwrap();
     let (status, body) = get_json(&state, "/healthz").await;
     assert_eq!(
         (status, body["status"].as_str()),
@@ -326,6 +326,7 @@ async fn every_metric_the_dashboard_queries_is_exported() {
         bogie,
         state.bogie.clone(),
         state.metrics.clone(),
+        &[],
     );
     let (_, _, metrics) = get(&state, "/metrics").await;
     let dashboard = std::fs::read_to_string(
@@ -484,7 +485,7 @@ async fn disabled_streams_are_json_404s_alike() {
             enabled: false,
             ..Default::default()
         },
-        ..ServiceConfig::default()
+        ..test_config()
     })
     .unwrap();
     for uri in [
@@ -519,7 +520,7 @@ async fn unknown_bogies_and_bad_bogie_queries_are_json_errors() {
             enabled: true,
             ..Default::default()
         },
-        ..ServiceConfig::default()
+        ..test_config()
     };
     let state = AppState::new(config).unwrap();
     for uri in [

@@ -33,8 +33,13 @@ fn pipeline_reproduces_the_library_and_flags_drive_1_slips() {
         }
     }
     harness.view();
-    let events = harness.shared.events.collect(|_| true);
-    assert!(events.iter().all(|e| e.drive == 1), "{events:?}");
+    let events = common::stored_events(&harness.shared.store);
+    assert!(
+        events
+            .iter()
+            .all(|e| e.detail["drive"] == 1 && e.subject == "1"),
+        "{events:?}"
+    );
     // Drive 1 slips on steps [500, 1500] (62.5-187.5 ms), edges smoothed by a normal CDF of
     // scale 30 steps (so the load starts falling ~3 scales early): one start, its end after.
     let dt_s = scenario.dt_s();

@@ -57,10 +57,13 @@ fn pipeline_reproduces_the_library_and_reports_regime_changes() {
     assert!(changes > 0, "2000 s of city driving change regime");
     let rmse = view.forecast_rmse_cm3_s.unwrap();
     assert!((rmse - (squared / n as f64).sqrt()).abs() < 1e-12, "{rmse}");
-    let events = harness.shared.events.collect(|_| true);
+    let events = common::stored_events(&harness.shared.store);
     assert_eq!(events.len() as u64, changes);
     for pair in events.windows(2) {
-        assert_eq!(pair[1].from_regime, pair[0].to_regime, "{pair:?}");
+        assert_eq!(
+            pair[1].detail["from_regime"], pair[0].detail["to_regime"],
+            "{pair:?}"
+        );
         assert!(pair[1].time_s > pair[0].time_s && pair[1].id == pair[0].id + 1);
     }
     // One history point per second of stream time.

@@ -186,6 +186,16 @@ impl Drop for Process {
 pub struct Service {
     pub process: Process,
     pub addr: String,
+    /// The event database's directory when the test did not give one (removed on drop).
+    own_data_dir: Option<PathBuf>,
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        if let Some(dir) = &self.own_data_dir {
+            let _ = std::fs::remove_dir_all(dir);
+        }
+    }
 }
 
 impl Service {
@@ -198,7 +208,22 @@ impl Service {
             N.fetch_add(1, Ordering::Relaxed)
         ));
         let _ = std::fs::remove_file(&addr_file);
+        // Every service its own event database, unless the test gives one (to restart on it).
+        let own_data_dir = match settings
+            .iter()
+            .any(|(k, _)| *k == "RAILMON_STORAGE__DATA_DIR")
+        {
+            true => None,
+            false => Some(std::env::temp_dir().join(format!(
+                "railmon-test-data-{}-{}",
+                std::process::id(),
+                N.fetch_add(1, Ordering::Relaxed)
+            ))),
+        };
         let mut command = Command::new(&binaries().railmon);
+        if let Some(dir) = &own_data_dir {
+            command.env("RAILMON_STORAGE__DATA_DIR", dir);
+        }
         command
             .args(["serve", "--addr-file"])
             .arg(&addr_file)
@@ -229,7 +254,11 @@ impl Service {
             std::thread::sleep(Duration::from_millis(10));
         };
         let _ = std::fs::remove_file(&addr_file);
-        Service { process, addr }
+        Service {
+            process,
+            addr,
+            own_data_dir,
+        }
     }
 
     /// GET `path`: status code and body.

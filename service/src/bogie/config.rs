@@ -27,8 +27,6 @@ pub struct BogieConfig {
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
     pub history_capacity: usize,
-    /// Damper health events kept.
-    pub events_capacity: usize,
     /// Hysteresis of the damper health flag: a damper is degraded when its health ratio
     /// (estimate / nominal) falls below `degraded_below_ratio` with its whole 90% interval,
     /// healthy again when the whole interval rises above `recovered_above_ratio`; each change
@@ -50,7 +48,6 @@ impl Default for BogieConfig {
             stale_after_ms: 500,
             history_interval_ms: 100,
             history_capacity: 72_000,
-            events_capacity: 1000,
             degraded_below_ratio: 0.7,
             recovered_above_ratio: 0.8,
             estimator: DamperMonitorConfig::default(),
@@ -65,7 +62,6 @@ impl BogieConfig {
             self.stale_after_ms,
             self.history_interval_ms,
             self.history_capacity,
-            self.events_capacity,
         )?;
         let ids = &self.bogies;
         if ids.is_empty() || ids.len() > MAX_BOGIES {

@@ -15,11 +15,11 @@ pub use config::{BogieConfig, MAX_BOGIES};
 pub use metrics::BogieMetrics;
 pub use pipeline::BogiePipeline;
 pub use routes::{routes, BogieApi};
-pub use view::{BogieShared, BogiesView, DamperEventView};
+pub use view::{BogieShared, BogiesView, DamperEventDetail};
 
 impl BogieConfig {
     /// The outbox of the bogie stream, sized by this config.
-    pub fn outbox(&self) -> BogieShared {
-        BogieShared::new(self.history_capacity, self.events_capacity)
+    pub fn outbox(&self, store: std::sync::Arc<crate::store::EventStore>) -> BogieShared {
+        BogieShared::new(self.history_capacity, store)
     }
 }

@@ -11,14 +11,17 @@ use railmon_bus::{BogieFrame, FrameHeader};
 use railmon_damper::gain_table::GainTable;
 use railmon_damper::{BogieSample, DamperError, DamperMonitor, DamperPosterior, Propagation, Rbpf};
 
+use railmon_bus::StreamKind;
+
 use super::view::{
-    BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, DamperEventView,
+    BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, DamperEventDetail,
     DamperView, DAMPERS,
 };
 use super::BogieConfig;
 use crate::ingest::{Pipeline, Rejection};
 use crate::metrics::Metrics;
 use crate::outbox::{Stamp, Track};
+use crate::store::ActiveAlarm;
 
 /// Gauges of one damper of one bogie, looked up once.
 struct DamperGauges {
@@ -96,17 +99,37 @@ pub struct BogiePipeline {
     /// it takes ~0.5 s, which on the first frame would stall the lossless publisher past its
     /// backpressure limit and lose frames.
     table: Result<Option<Arc<GainTable>>, Rejection>,
-    track: Track<BogieHistoryPoint, DamperEventView>,
+    track: Track<BogieHistoryPoint>,
 }
 
 impl BogiePipeline {
-    pub fn new(config: BogieConfig, shared: Arc<BogieShared>, metrics: Arc<Metrics>) -> Self {
+    /// `restored`: the alarms active when the service stopped (a damper flagged degraded stays
+    /// flagged until an estimate clears it, with an event).
+    pub fn new(
+        config: BogieConfig,
+        shared: Arc<BogieShared>,
+        metrics: Arc<Metrics>,
+        restored: &[ActiveAlarm],
+    ) -> Self {
         let slots = config
             .bogies
             .iter()
-            .map(|&id| BogieSlot::new(id, &metrics))
+            .map(|&id| {
+                let mut slot = BogieSlot::new(id, &metrics);
+                for (d, damper) in DAMPERS.iter().enumerate() {
+                    let subject = format!("{id}/{damper}");
+                    slot.degraded[d] = restored.iter().any(|a| {
+                        a.stream == "bogie" && a.alarm == "degraded" && a.subject == subject
+                    });
+                }
+                slot
+            })
             .collect();
-        let track = Track::new(config.estimator.dt_s, config.history_interval_ms);
+        let track = Track::new(
+            StreamKind::Bogie,
+            config.estimator.dt_s,
+            config.history_interval_ms,
+        );
         let estimator = &config.estimator;
         let table = match estimator.rbpf.propagation {
             Propagation::SteadyState => Rbpf::gain_table(estimator).map(Some).map_err(rejection_of),
@@ -197,18 +220,14 @@ impl BogiePipeline {
                 time_s = stamp.time_s,
                 "{kind}"
             );
-            let bogie = slot.id;
-            self.track.push_event(|id| DamperEventView {
-                id,
-                kind: kind.into(),
-                bogie,
+            let detail = DamperEventDetail {
+                bogie: slot.id,
                 damper: DAMPERS[d].into(),
-                time_utc: stamp.time_utc(),
-                time_s: stamp.time_s,
-                run: stamp.header.run,
-                run_time_s: stamp.run_time_s,
                 health_ratio: ratio,
-            });
+            };
+            let subject = format!("{}/{}", slot.id, DAMPERS[d]);
+            self.track
+                .push_event(stamp, kind, subject, &detail, Some(("degraded", !degraded)));
         }
         if self.track.history_due(stamp.time_s) {
             let bogies = self
@@ -333,9 +352,10 @@ impl Pipeline for BogiePipeline {
     }
 
     fn restart(&mut self) {
+        // Health flags carry over (never a silent clear): the new filter's estimates clear
+        // them, with an event, once they say so.
         for slot in &mut self.slots {
             slot.monitor = None;
-            slot.degraded = [false; 2];
             slot.last_stamp = None;
         }
         self.track.restart();

@@ -4,13 +4,14 @@ use axum::extract::State;
 use axum::routing::get;
 use axum::{Json, Router};
 use railmon_bus::StreamKind;
-use serde::{Deserialize, Serialize};
-use utoipa::{IntoParams, OpenApi, ToSchema};
+use serde::Serialize;
+use utoipa::{OpenApi, ToSchema};
 
 use super::view::{
-    BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, DamperEventView,
+    BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, DamperEventDetail,
     DamperView,
 };
+use crate::http::events::{self, EventsPage, EventsQuery, Scope};
 use crate::http::{require_stream, ApiPath, ApiQuery, AppError, ErrorBody, HistoryQuery};
 use crate::AppState;
 
@@ -26,8 +27,7 @@ use crate::AppState;
         BogieHistoryEntry,
         BogieHistoryEntryAt,
         BogieHistoryPoint,
-        DamperEventView,
-        BogieEventsView
+        DamperEventDetail
     ))
 )]
 pub struct BogieApi;
@@ -159,41 +159,15 @@ async fn bogie_history(
     }))
 }
 
-/// `GET /api/v1/bogies/events`: damper degraded / recovered, oldest first.
-#[derive(Debug, Serialize, ToSchema)]
-pub struct BogieEventsView {
-    pub events: Vec<DamperEventView>,
-}
-
-#[derive(Debug, Deserialize, IntoParams)]
-#[serde(deny_unknown_fields)]
-#[into_params(parameter_in = Query)]
-pub struct BogieEventsQuery {
-    /// Only events with a larger id.
-    pub after_id: Option<u64>,
-    /// Only this bogie.
-    pub bogie: Option<String>,
-}
-
-/// Damper events of every bogie, oldest first.
+/// Damper events of every bogie, oldest first, in pages (`bogie` picks one bogie).
 #[utoipa::path(get, path = "/api/v1/bogies/events", tag = "bogies",
-    params(BogieEventsQuery),
-    responses((status = 200, description = "The events, oldest first", body = BogieEventsView),
+    params(EventsQuery),
+    responses((status = 200, description = "A page of events, oldest first", body = EventsPage),
               (status = 400, description = "Bad query", body = ErrorBody),
               (status = 404, description = "Unknown bogie, or the stream is disabled", body = ErrorBody)))]
 async fn bogie_events(
     State(state): State<AppState>,
-    ApiQuery(query): ApiQuery<BogieEventsQuery>,
-) -> Result<Json<BogieEventsView>, AppError> {
-    let outbox = outbox(&state)?;
-    let after_id = query.after_id.unwrap_or(0);
-    let bogie = match &query.bogie {
-        Some(id) => Some(bogie_id(&state, id)?),
-        None => None,
-    };
-    Ok(Json(BogieEventsView {
-        events: outbox
-            .events
-            .collect(|e| e.id > after_id && bogie.is_none_or(|b| e.bogie == b)),
-    }))
+    ApiQuery(query): ApiQuery<EventsQuery>,
+) -> Result<Json<EventsPage>, AppError> {
+    events::page(state, Scope::Stream(StreamKind::Bogie), query).await
 }

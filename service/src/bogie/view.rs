@@ -78,23 +78,15 @@ pub struct BogieHistoryPoint {
     pub bogies: Vec<BogieHistoryEntry>,
 }
 
-/// A damper's health flag changed.
+/// The bogie stream's fields of a `damper_degraded` / `damper_recovered` event (subject:
+/// `<bogie>/<damper>`, e.g. `2/csay`).
 #[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
-pub struct DamperEventView {
-    /// Increasing id (restarts with the service).
-    pub id: u64,
-    /// `damper_degraded` or `damper_recovered`.
-    pub kind: String,
+pub struct DamperEventDetail {
     pub bogie: u32,
     /// `csy` or `csay`.
     pub damper: String,
-    /// When the sample that raised it was acquired, RFC 3339 UTC.
-    pub time_utc: String,
-    pub time_s: f64,
-    pub run: u32,
-    pub run_time_s: f64,
     pub health_ratio: f64,
 }
 
 /// What the ingest thread shares with the HTTP side.
-pub type BogieShared = Outbox<BogiesView, BogieHistoryPoint, DamperEventView>;
+pub type BogieShared = Outbox<BogiesView, BogieHistoryPoint>;

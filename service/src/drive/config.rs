@@ -23,8 +23,6 @@ pub struct DriveConfig {
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
     pub history_capacity: usize,
-    /// Slip events kept.
-    pub events_capacity: usize,
     /// The estimator (`railmon_slip::SlipMonitorConfig`).
     pub estimator: SlipMonitorConfig,
 }
@@ -39,7 +37,6 @@ impl Default for DriveConfig {
             slip_off_ratio: 0.2,
             history_interval_ms: 10,
             history_capacity: 60_000,
-            events_capacity: 1000,
             estimator: default_estimator(),
         }
     }
@@ -72,7 +69,6 @@ impl DriveConfig {
             self.stale_after_ms,
             self.history_interval_ms,
             self.history_capacity,
-            self.events_capacity,
         )?;
         if !(1..=MAX_DRIVES).contains(&self.max_drives) {
             return Err(invalid(

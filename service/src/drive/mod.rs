@@ -13,11 +13,11 @@ pub use config::DriveConfig;
 pub use metrics::DriveMetrics;
 pub use pipeline::DrivePipeline;
 pub use routes::{routes, DriveApi};
-pub use view::{DriveShared, DriveView, DrivesView, HistoryPoint, SlipEventView};
+pub use view::{DriveShared, DriveView, DrivesView, HistoryPoint, SlipEventDetail};
 
 impl DriveConfig {
     /// The outbox of the drive stream, sized by this config.
-    pub fn outbox(&self) -> DriveShared {
-        DriveShared::new(self.history_capacity, self.events_capacity)
+    pub fn outbox(&self, store: std::sync::Arc<crate::store::EventStore>) -> DriveShared {
+        DriveShared::new(self.history_capacity, store)
     }
 }

@@ -7,11 +7,14 @@ use prometheus::{Gauge, IntGauge};
 use railmon_bus::{DriveFrame, FrameHeader};
 use railmon_slip::{DriveSample, SlipMonitor};
 
-use super::view::{DriveShared, DriveView, DrivesView, HistoryPoint, SlipEventView};
+use railmon_bus::StreamKind;
+
+use super::view::{DriveShared, DriveView, DrivesView, HistoryPoint, SlipEventDetail};
 use super::DriveConfig;
 use crate::ingest::{Pipeline, Rejection};
 use crate::metrics::Metrics;
 use crate::outbox::{Stamp, Track};
+use crate::store::ActiveAlarm;
 
 struct DriveGauges {
     slip_probability: Gauge,
@@ -43,18 +46,39 @@ pub struct DrivePipeline {
     monitor: Option<SlipMonitor>,
     slipping: Vec<bool>,
     gauges: Vec<DriveGauges>,
-    track: Track<HistoryPoint, SlipEventView>,
+    track: Track<HistoryPoint>,
 }
 
 impl DrivePipeline {
-    pub fn new(config: DriveConfig, shared: Arc<DriveShared>, metrics: Arc<Metrics>) -> Self {
-        let track = Track::new(config.estimator.dt_s, config.history_interval_ms);
+    /// `restored`: the alarms active when the service stopped (drives flagged slipping stay
+    /// flagged until an estimate clears them, with an event).
+    pub fn new(
+        config: DriveConfig,
+        shared: Arc<DriveShared>,
+        metrics: Arc<Metrics>,
+        restored: &[ActiveAlarm],
+    ) -> Self {
+        let track = Track::new(
+            StreamKind::Drive,
+            config.estimator.dt_s,
+            config.history_interval_ms,
+        );
+        let mut slipping = Vec::new();
+        for alarm in restored
+            .iter()
+            .filter(|a| a.stream == "drive" && a.alarm == "slipping")
+        {
+            if let Ok(drive @ 1..=railmon_bus::MAX_DRIVES) = alarm.subject.parse::<usize>() {
+                slipping.resize(slipping.len().max(drive), false);
+                slipping[drive - 1] = true;
+            }
+        }
         Self {
             config,
             shared,
             metrics,
             monitor: None,
-            slipping: Vec::new(),
+            slipping,
             gauges: Vec::new(),
             track,
         }
@@ -89,7 +113,8 @@ impl DrivePipeline {
                 message: e.to_string(),
             })?;
         self.monitor = Some(monitor);
-        self.slipping = vec![false; n_drives];
+        // Flags carry over a restart of the source (and of the service): never a silent clear.
+        self.slipping.resize(n_drives, false);
         self.gauges = (1..=n_drives)
             .map(|id| DriveGauges::new(&self.metrics, id))
             .collect();
@@ -128,16 +153,14 @@ impl DrivePipeline {
                 slip_probability = p,
                 "{kind}"
             );
-            self.track.push_event(|id| SlipEventView {
-                id,
-                kind: kind.into(),
+            let started = kind == "slip_started";
+            let detail = SlipEventDetail {
                 drive: k + 1,
-                time_utc: stamp.time_utc(),
-                time_s: stamp.time_s,
-                run: stamp.header.run,
-                run_time_s: stamp.run_time_s,
                 slip_probability: p,
-            });
+            };
+            let subject = (k + 1).to_string();
+            self.track
+                .push_event(stamp, kind, subject, &detail, Some(("slipping", started)));
         }
     }
 }

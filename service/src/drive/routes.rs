@@ -4,11 +4,12 @@ use axum::extract::State;
 use axum::routing::get;
 use axum::{Json, Router};
 use railmon_bus::StreamKind;
-use serde::{Deserialize, Serialize};
-use utoipa::{IntoParams, OpenApi, ToSchema};
+use serde::Serialize;
+use utoipa::{OpenApi, ToSchema};
 
-use super::view::{DriveView, DrivesView, SlipEventView};
+use super::view::{DriveView, DrivesView, SlipEventDetail};
 use super::DriveShared;
+use crate::http::events::{self, EventsPage, EventsQuery, Scope};
 use crate::http::{require_stream, ApiPath, ApiQuery, AppError, ErrorBody, HistoryQuery};
 use crate::AppState;
 
@@ -21,8 +22,7 @@ use crate::AppState;
         DriveDetail,
         DriveHistory,
         DriveHistoryPoint,
-        SlipEventView,
-        SlipEventsView
+        SlipEventDetail
     ))
 )]
 pub struct DriveApi;
@@ -159,41 +159,15 @@ async fn drive_history(
     }))
 }
 
-/// `GET /api/v1/drives/events`: slip started / ended, oldest first.
-#[derive(Debug, Serialize, ToSchema)]
-pub struct SlipEventsView {
-    pub events: Vec<SlipEventView>,
-}
-
-#[derive(Debug, Deserialize, IntoParams)]
-#[serde(deny_unknown_fields)]
-#[into_params(parameter_in = Query)]
-pub struct DriveEventsQuery {
-    /// Only events with a larger id.
-    pub after_id: Option<u64>,
-    /// Only this drive (1-based).
-    pub drive: Option<usize>,
-}
-
-/// Slip started / ended events of every drive, oldest first.
+/// Slip started / ended events, oldest first, in pages (`drive` picks one drive).
 #[utoipa::path(get, path = "/api/v1/drives/events", tag = "drives",
-    params(DriveEventsQuery),
-    responses((status = 200, description = "The events, oldest first", body = SlipEventsView),
+    params(EventsQuery),
+    responses((status = 200, description = "A page of events, oldest first", body = EventsPage),
               (status = 400, description = "Bad query", body = ErrorBody),
               (status = 404, description = "The drive stream is disabled", body = ErrorBody)))]
 async fn drive_events(
     State(state): State<AppState>,
-    ApiQuery(query): ApiQuery<DriveEventsQuery>,
-) -> Result<Json<SlipEventsView>, AppError> {
-    let outbox = outbox(&state)?;
-    if query.drive == Some(0) {
-        return Err(AppError::BadQuery(
-            "`drive=0`: drives are numbered from 1".into(),
-        ));
-    }
-    let after_id = query.after_id.unwrap_or(0);
-    let events = outbox
-        .events
-        .collect(|e| e.id > after_id && query.drive.is_none_or(|d| e.drive == d));
-    Ok(Json(SlipEventsView { events }))
+    ApiQuery(query): ApiQuery<EventsQuery>,
+) -> Result<Json<EventsPage>, AppError> {
+    events::page(state, Scope::Stream(StreamKind::Drive), query).await
 }

@@ -50,21 +50,13 @@ pub struct HistoryPoint {
     pub drives: Vec<DriveView>,
 }
 
-/// A slip started or ended (hysteresis crossing).
+/// The drive stream's fields of a `slip_started` / `slip_ended` event (hysteresis crossing;
+/// subject: the drive number).
 #[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
-pub struct SlipEventView {
-    /// Increasing id (restarts with the service).
-    pub id: u64,
-    /// `slip_started` or `slip_ended`.
-    pub kind: String,
+pub struct SlipEventDetail {
     pub drive: usize,
-    /// When the sample that raised it was acquired, RFC 3339 UTC.
-    pub time_utc: String,
-    pub time_s: f64,
-    pub run: u32,
-    pub run_time_s: f64,
     pub slip_probability: f64,
 }
 
 /// What the ingest thread shares with the HTTP side.
-pub type DriveShared = Outbox<DrivesView, HistoryPoint, SlipEventView>;
+pub type DriveShared = Outbox<DrivesView, HistoryPoint>;

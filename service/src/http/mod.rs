@@ -3,6 +3,7 @@
 //! Swagger UI). Handlers only read atomics, `arc-swap` snapshots and the history/event rings.
 
 mod error;
+pub mod events;
 mod query;
 pub mod server;
 mod system;
@@ -24,12 +25,19 @@ use crate::AppState;
         description = "Onboard condition monitoring of a rail vehicle: wheel slip of traction drives, damper health of bogies, fuel use and driving regime."
     ),
     paths(
+        events::all_events,
+        events::alarms,
         system::status,
         system::healthz,
         system::readyz,
         system::metrics
     ),
     components(schemas(
+        events::EventsPage,
+        events::AlarmsView,
+        crate::store::EventView,
+        crate::store::ActiveAlarm,
+        crate::store::StoreStatus,
         system::StatusView,
         crate::ingest::StreamStatusView,
         crate::ingest::RejectionRecord,
@@ -63,6 +71,8 @@ pub fn app(state: AppState) -> Router {
         .merge(crate::drive::routes())
         .merge(crate::bogie::routes())
         .merge(crate::vehicle::routes())
+        .route("/api/v1/events", get(events::all_events))
+        .route("/api/v1/alarms", get(events::alarms))
         .route("/api/v1/status", get(system::status))
         .route("/healthz", get(system::healthz))
         .route("/readyz", get(system::readyz))

@@ -20,6 +20,8 @@ pub struct StatusView {
     pub streams: Vec<StreamStatusView>,
     /// Connections refused because `http.max_connections` were open.
     pub http_connections_refused: u64,
+    /// The event store.
+    pub events: crate::store::StoreStatus,
 }
 
 /// Every enabled stream: freshness, counters, rejections, timings, whether it keeps up.
@@ -35,6 +37,7 @@ pub async fn status(State(state): State<AppState>) -> Json<StatusView> {
             .http
             .connections_refused
             .load(std::sync::atomic::Ordering::Relaxed),
+        events: state.store.status(),
     })
 }
 

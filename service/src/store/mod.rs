@@ -67,6 +67,22 @@ impl Default for StorageConfig {
 }
 
 impl StorageConfig {
+    pub(crate) fn validate(&self) -> Result<(), crate::config::ConfigError> {
+        if self.max_events == 0 || self.max_events > 1_000_000_000 {
+            return Err(crate::config::invalid(
+                "storage.max_events",
+                format!("{} is not in 1..=1000000000", self.max_events),
+            ));
+        }
+        if self.max_age_days > 36_500 {
+            return Err(crate::config::invalid(
+                "storage.max_age_days",
+                format!("{} is not in 0..=36500", self.max_age_days),
+            ));
+        }
+        Ok(())
+    }
+
     /// The database file, or `None` for the in-memory store.
     pub fn database_path(&self) -> Option<PathBuf> {
         if self.data_dir == ":memory:" {
@@ -140,6 +156,8 @@ pub struct EventQuery {
     pub stream: Option<StreamKind>,
     pub kind: Option<String>,
     pub subject: Option<String>,
+    /// Subjects starting with this (`2/`: both dampers of bogie 2).
+    pub subject_prefix: Option<String>,
     pub limit: usize,
 }
 
@@ -365,6 +383,7 @@ impl EventStore {
                  WHERE id > ?1 AND time_utc_ns >= ?2
                    AND (?3 IS NULL OR stream = ?3) AND (?4 IS NULL OR kind = ?4)
                    AND (?5 IS NULL OR subject = ?5)
+                   AND (?7 IS NULL OR substr(subject, 1, length(?7)) = ?7)
                  ORDER BY id LIMIT ?6",
             )?;
             let rows = statement.query_map(
@@ -375,6 +394,7 @@ impl EventStore {
                     query.kind,
                     query.subject,
                     query.limit as i64,
+                    query.subject_prefix,
                 ],
                 |r| {
                     Ok((

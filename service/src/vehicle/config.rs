@@ -19,8 +19,6 @@ pub struct VehicleConfig {
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
     pub history_capacity: usize,
-    /// Regime-change events kept.
-    pub events_capacity: usize,
     /// The estimator (`railmon_fuel::FuelMonitorConfig`); keys given override single defaults.
     pub estimator: FuelMonitorConfig,
 }
@@ -32,7 +30,6 @@ impl Default for VehicleConfig {
             stale_after_ms: 3000,
             history_interval_ms: 1000,
             history_capacity: 86_400,
-            events_capacity: 1000,
             estimator: FuelMonitorConfig::default(),
         }
     }
@@ -45,7 +42,6 @@ impl VehicleConfig {
             self.stale_after_ms,
             self.history_interval_ms,
             self.history_capacity,
-            self.events_capacity,
         )?;
         self.estimator
             .validate()

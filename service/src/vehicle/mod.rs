@@ -14,11 +14,11 @@ pub use config::VehicleConfig;
 pub use metrics::VehicleMetrics;
 pub use pipeline::VehiclePipeline;
 pub use routes::{routes, VehicleApi};
-pub use view::{RegimeEventView, VehicleHistoryPoint, VehicleShared, VehicleView};
+pub use view::{RegimeEventDetail, VehicleHistoryPoint, VehicleShared, VehicleView};
 
 impl VehicleConfig {
     /// The outbox of the vehicle stream, sized by this config.
-    pub fn outbox(&self) -> VehicleShared {
-        VehicleShared::new(self.history_capacity, self.events_capacity)
+    pub fn outbox(&self, store: std::sync::Arc<crate::store::EventStore>) -> VehicleShared {
+        VehicleShared::new(self.history_capacity, store)
     }
 }

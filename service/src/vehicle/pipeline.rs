@@ -7,7 +7,9 @@ use prometheus::Gauge;
 use railmon_bus::{FrameHeader, VehicleFrame};
 use railmon_fuel::{FuelError, FuelMonitor, VehicleSample};
 
-use super::view::{RegimeEventView, VehicleHistoryPoint, VehicleShared, VehicleView};
+use railmon_bus::StreamKind;
+
+use super::view::{RegimeEventDetail, VehicleHistoryPoint, VehicleShared, VehicleView};
 use super::VehicleConfig;
 use crate::ingest::{Pipeline, Rejection};
 use crate::metrics::Metrics;
@@ -103,7 +105,7 @@ pub struct VehiclePipeline {
     errors: ForecastErrors,
     regime_changes: u64,
     speed_m_s: Option<f64>,
-    track: Track<VehicleHistoryPoint, RegimeEventView>,
+    track: Track<VehicleHistoryPoint>,
 }
 
 impl VehiclePipeline {
@@ -111,7 +113,11 @@ impl VehiclePipeline {
         let gauges = VehicleGauges::new(&metrics, &config);
         metrics.vehicle.regime_active.set(-1);
         metrics.vehicle.initialising.set(1);
-        let track = Track::new(config.estimator.sample_period_s, config.history_interval_ms);
+        let track = Track::new(
+            StreamKind::Vehicle,
+            config.estimator.sample_period_s,
+            config.history_interval_ms,
+        );
         Self {
             config,
             shared,
@@ -160,17 +166,13 @@ impl VehiclePipeline {
                     probability,
                     "regime_changed"
                 );
-                self.track.push_event(|id| RegimeEventView {
-                    id,
-                    kind: "regime_changed".into(),
-                    time_utc: stamp.time_utc(),
-                    time_s: stamp.time_s,
-                    run: stamp.header.run,
-                    run_time_s: stamp.run_time_s,
+                let detail = RegimeEventDetail {
                     from_regime: from,
                     to_regime: to,
                     probability,
-                });
+                };
+                self.track
+                    .push_event(stamp, "regime_changed", String::new(), &detail, None);
             }
         }
         if self.track.history_due(stamp.time_s) {

@@ -4,23 +4,18 @@ use axum::extract::State;
 use axum::routing::get;
 use axum::{Json, Router};
 use railmon_bus::StreamKind;
-use serde::{Deserialize, Serialize};
-use utoipa::{IntoParams, OpenApi, ToSchema};
+use serde::Serialize;
+use utoipa::{OpenApi, ToSchema};
 
-use super::view::{RegimeEventView, VehicleHistoryPoint, VehicleShared, VehicleView};
+use super::view::{RegimeEventDetail, VehicleHistoryPoint, VehicleShared, VehicleView};
+use crate::http::events::{self, EventsPage, EventsQuery, Scope};
 use crate::http::{require_stream, ApiQuery, AppError, ErrorBody, HistoryQuery};
 use crate::AppState;
 
 #[derive(OpenApi)]
 #[openapi(
     paths(vehicle, vehicle_history, vehicle_events),
-    components(schemas(
-        VehicleView,
-        VehicleHistory,
-        VehicleHistoryPoint,
-        RegimeEventView,
-        VehicleEventsView
-    ))
+    components(schemas(VehicleView, VehicleHistory, VehicleHistoryPoint, RegimeEventDetail))
 )]
 pub struct VehicleApi;
 
@@ -75,33 +70,15 @@ async fn vehicle_history(
     }))
 }
 
-/// `GET /api/v1/vehicle/events`: regime changes, oldest first.
-#[derive(Debug, Serialize, ToSchema)]
-pub struct VehicleEventsView {
-    pub events: Vec<RegimeEventView>,
-}
-
-#[derive(Debug, Deserialize, IntoParams)]
-#[serde(deny_unknown_fields)]
-#[into_params(parameter_in = Query)]
-pub struct VehicleEventsQuery {
-    /// Only events with a larger id.
-    pub after_id: Option<u64>,
-}
-
-/// Regime changes, oldest first.
+/// Regime changes, oldest first, in pages.
 #[utoipa::path(get, path = "/api/v1/vehicle/events", tag = "vehicle",
-    params(VehicleEventsQuery),
-    responses((status = 200, description = "The events, oldest first", body = VehicleEventsView),
+    params(EventsQuery),
+    responses((status = 200, description = "A page of events, oldest first", body = EventsPage),
               (status = 400, description = "Bad query", body = ErrorBody),
               (status = 404, description = "The vehicle stream is disabled", body = ErrorBody)))]
 async fn vehicle_events(
     State(state): State<AppState>,
-    ApiQuery(query): ApiQuery<VehicleEventsQuery>,
-) -> Result<Json<VehicleEventsView>, AppError> {
-    let outbox = outbox(&state)?;
-    let after_id = query.after_id.unwrap_or(0);
-    Ok(Json(VehicleEventsView {
-        events: outbox.events.collect(|e| e.id > after_id),
-    }))
+    ApiQuery(query): ApiQuery<EventsQuery>,
+) -> Result<Json<EventsPage>, AppError> {
+    events::page(state, Scope::Stream(StreamKind::Vehicle), query).await
 }

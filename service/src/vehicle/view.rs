@@ -70,18 +70,9 @@ pub struct VehicleHistoryPoint {
     pub cumulative_fuel_cm3: f64,
 }
 
-/// The (confirmed) driving regime changed.
+/// The vehicle stream's fields of a `regime_changed` event (the confirmed driving regime).
 #[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
-pub struct RegimeEventView {
-    /// Increasing id (restarts with the service).
-    pub id: u64,
-    /// `regime_changed`.
-    pub kind: String,
-    /// When the sample that raised it was acquired, RFC 3339 UTC.
-    pub time_utc: String,
-    pub time_s: f64,
-    pub run: u32,
-    pub run_time_s: f64,
+pub struct RegimeEventDetail {
     pub from_regime: usize,
     pub to_regime: usize,
     /// Probability of the new regime.
@@ -89,4 +80,4 @@ pub struct RegimeEventView {
 }
 
 /// What the ingest thread shares with the HTTP side.
-pub type VehicleShared = Outbox<VehicleView, VehicleHistoryPoint, RegimeEventView>;
+pub type VehicleShared = Outbox<VehicleView, VehicleHistoryPoint>;

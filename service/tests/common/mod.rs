@@ -7,9 +7,11 @@ use std::path::Path;
 use std::sync::Arc;
 
 use railmon_bus::{DriveChannels, DriveFrame, FrameHeader, FRAME_LAYOUT_VERSION};
+use railmon_service::config::Identity;
 use railmon_service::drive::{DrivePipeline, DriveShared, DrivesView};
 use railmon_service::ingest::Pipeline;
 use railmon_service::metrics::Metrics;
+use railmon_service::store::{EventQuery, EventStore, EventView};
 use railmon_service::ServiceConfig;
 use railmon_slip::{AdhesionScenario, DriveSample, DriveSimulator};
 
@@ -40,9 +42,34 @@ pub struct Harness {
     pub step: u64,
 }
 
+/// The default settings with the event store in memory (tests must not share a database).
+pub fn test_config() -> ServiceConfig {
+    let mut config = ServiceConfig::default();
+    config.storage.data_dir = ":memory:".into();
+    config
+}
+
+/// An event store of its own, in memory.
+pub fn memory_store() -> Arc<EventStore> {
+    EventStore::open(&test_config().storage, &Identity::default())
+        .unwrap()
+        .0
+}
+
+/// Every event in `store`, oldest first (after writing what is queued).
+pub fn stored_events(store: &EventStore) -> Vec<EventView> {
+    store.flush();
+    store
+        .page(&EventQuery {
+            limit: 100_000,
+            ..EventQuery::default()
+        })
+        .unwrap()
+}
+
 impl Harness {
     pub fn new() -> Self {
-        let shared = Arc::new(ServiceConfig::default().drive.outbox());
+        let shared = Arc::new(ServiceConfig::default().drive.outbox(memory_store()));
         Self::with(shared, Arc::new(Metrics::new().unwrap()))
     }
 
@@ -50,7 +77,7 @@ impl Harness {
     pub fn with(shared: Arc<DriveShared>, metrics: Arc<Metrics>) -> Self {
         let scenario = seed();
         let config = ServiceConfig::default().drive;
-        let mut pipeline = DrivePipeline::new(config, shared.clone(), metrics);
+        let mut pipeline = DrivePipeline::new(config, shared.clone(), metrics, &[]);
         pipeline.restart();
         Self {
             pipeline,
@@ -75,6 +102,8 @@ impl Harness {
 
     pub fn view(&mut self) -> DrivesView {
         self.pipeline.publish();
+        // Events are written by the store's thread: wait for them, as a reader would.
+        self.shared.store.flush();
         DrivesView::clone(&self.shared.snapshot.load())
     }
 }

@@ -48,7 +48,7 @@ pub struct VehicleHarness {
 
 impl VehicleHarness {
     pub fn new(config: VehicleConfig) -> Self {
-        let shared = Arc::new(config.outbox());
+        let shared = Arc::new(config.outbox(super::memory_store()));
         Self::with(config, shared, Arc::new(Metrics::new().unwrap()))
     }
 
@@ -82,6 +82,8 @@ impl VehicleHarness {
 
     pub fn view(&mut self) -> VehicleView {
         self.pipeline.publish();
+        // Events are written by the store's thread: wait for them, as a reader would.
+        self.shared.store.flush();
         VehicleView::clone(&self.shared.snapshot.load())
     }
 }
