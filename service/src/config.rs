@@ -324,6 +324,29 @@ mod tests {
         assert_eq!(from_file, ServiceConfig::default());
     }
 
+    /// The demo runs the estimators the way the scenarios it replays were validated: its
+    /// settings cannot drift from theirs.
+    #[test]
+    fn demo_config_runs_the_scenarios_validated_monitors() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let demo = ServiceConfig::load(Some(&root.join("config/demo.toml")), []).unwrap();
+        let read = |name: &str| std::fs::read_to_string(root.join(name)).unwrap();
+        let fuel = railmon_fuel::VehicleScenario::from_toml_str(&read(
+            "config/scenarios/fuel-cycles.toml",
+        ))
+        .unwrap();
+        assert_eq!(demo.vehicle.estimator, fuel.monitor);
+        let damper = railmon_damper::DamperScenario::from_toml_str(&read(
+            "config/scenarios/damper-fault.toml",
+        ))
+        .unwrap();
+        assert_eq!(
+            demo.bogie.estimator.track_velocity_std_m_s,
+            damper.monitor.track_velocity_std_m_s
+        );
+        assert!(demo.bogie.enabled && demo.vehicle.enabled && demo.drive.enabled);
+    }
+
     #[test]
     fn runs_without_a_file_and_binds_loopback_by_default() {
         let config = load_with(&[]).unwrap();
