@@ -18,7 +18,12 @@ fn event(k: u64) -> NewEvent {
     detail.insert("slip_probability".into(), 0.8134.into());
     NewEvent {
         stream: StreamKind::Drive,
-        kind: if k % 2 == 0 { "slip_started" } else { "slip_ended" }.into(),
+        kind: if k % 2 == 0 {
+            "slip_started"
+        } else {
+            "slip_ended"
+        }
+        .into(),
         subject: (k % 8 + 1).to_string(),
         time_utc_ns: 1_795_000_000_000_000_000 + k as i64 * 1_000_000,
         time_s: k as f64 * 1e-3,

@@ -87,6 +87,20 @@ fn bad_frames_are_rejected_and_change_nothing() {
         "dt_mismatch"
     );
 
+    // Currents in mA instead of A: refused, naming the drive, the channel and the limit.
+    let mut milliamps = good;
+    for d in &mut milliamps.drives[..3] {
+        d.i_alpha_a *= 1000.0;
+        d.i_beta_a *= 1000.0;
+    }
+    let rejection = harness.pipeline.check(&next, &milliamps).unwrap_err();
+    assert_eq!(rejection.reason, "out_of_range");
+    assert!(
+        rejection.message.contains("drive 1") && rejection.message.contains("max_abs_current_a"),
+        "{}",
+        rejection.message
+    );
+
     let mut fewer = good;
     fewer.n_drives = 2;
     assert_eq!(

@@ -15,6 +15,11 @@ pub struct DriveConfig {
     pub stale_after_ms: u64,
     /// Frames with more drives are rejected (at most the frame capacity, 32).
     pub max_drives: usize,
+    /// Plausible magnitudes of the stator currents and voltages: a frame beyond them is
+    /// refused (`out_of_range`), not estimated. Currents in mA instead of A once gave a load
+    /// torque of 13,320 N m with no complaint.
+    pub max_abs_current_a: f64,
+    pub max_abs_voltage_v: f64,
     /// Hysteresis of the slipping flag: on when the slip probability reaches `slip_on_ratio`,
     /// off when it falls to `slip_off_ratio`.
     pub slip_on_ratio: f64,
@@ -33,6 +38,8 @@ impl Default for DriveConfig {
             enabled: true,
             stale_after_ms: 500,
             max_drives: MAX_DRIVES,
+            max_abs_current_a: 1_000.0,
+            max_abs_voltage_v: 5_000.0,
             slip_on_ratio: 0.8,
             slip_off_ratio: 0.2,
             history_interval_ms: 10,
@@ -75,6 +82,17 @@ impl DriveConfig {
                 "drive.max_drives",
                 format!("{} is not in 1..={MAX_DRIVES}", self.max_drives),
             ));
+        }
+        for (key, value) in [
+            ("max_abs_current_a", self.max_abs_current_a),
+            ("max_abs_voltage_v", self.max_abs_voltage_v),
+        ] {
+            if !(value > 0.0 && value <= 1e6) {
+                return Err(invalid(
+                    &format!("drive.{key}"),
+                    format!("{value} is not in (0, 1e6]"),
+                ));
+            }
         }
         if !(self.slip_on_ratio > 0.0 && self.slip_on_ratio <= 1.0) {
             return Err(invalid(

@@ -175,6 +175,7 @@ impl Pipeline for DrivePipeline {
         "not_finite",
         "dt_mismatch",
         "drive_count_changed",
+        "out_of_range",
     ];
 
     fn sample_period_ns(&self) -> u64 {
@@ -199,6 +200,24 @@ impl Pipeline for DrivePipeline {
                     frame.dt_ns
                 ),
             ));
+        }
+        let (max_i, max_u) = (self.config.max_abs_current_a, self.config.max_abs_voltage_v);
+        for (k, d) in drives.iter().enumerate() {
+            let channels = [
+                ("i_alpha_a", d.i_alpha_a, max_i, "drive.max_abs_current_a"),
+                ("i_beta_a", d.i_beta_a, max_i, "drive.max_abs_current_a"),
+                ("u_alpha_v", d.u_alpha_v, max_u, "drive.max_abs_voltage_v"),
+                ("u_beta_v", d.u_beta_v, max_u, "drive.max_abs_voltage_v"),
+            ];
+            if let Some((name, value, max, key)) = channels.into_iter().find(|c| c.1.abs() > c.2) {
+                return Err(Rejection::new(
+                    "out_of_range",
+                    format!(
+                        "drive {}: {name} = {value:.4e} is beyond +-{max} ({key}; wrong units?)",
+                        k + 1
+                    ),
+                ));
+            }
         }
         if let Some(m) = &self.monitor {
             if m.n_drives() != drives.len() {
