@@ -18,7 +18,7 @@ fn event(k: u64) -> NewEvent {
     detail.insert("slip_probability".into(), 0.8134.into());
     NewEvent {
         stream: StreamKind::Drive,
-        kind: if k % 2 == 0 {
+        kind: if k.is_multiple_of(2) {
             "slip_started"
         } else {
             "slip_ended"
@@ -30,7 +30,7 @@ fn event(k: u64) -> NewEvent {
         run: 0,
         run_time_s: k as f64 * 1e-3,
         detail,
-        alarm: Some(("slipping".into(), k % 2 == 0)),
+        alarm: Some(("slipping".into(), k.is_multiple_of(2))),
     }
 }
 
@@ -76,7 +76,7 @@ fn main() {
         .map(|e| e.metadata().map_or(0, |m| m.len()))
         .sum();
 
-    let mut pages = |kind: Option<&str>| {
+    let pages = |kind: Option<&str>| {
         let mut times = Vec::new();
         for p in 0..400u64 {
             let after_id = p * (total / 400);
