@@ -161,6 +161,16 @@ async fn metrics_carry_the_same_numbers_as_the_api() {
             .unwrap();
         assert_eq!(value, d["slip_probability"].as_f64().unwrap());
     }
+    // Time flagged slipping, as a counter: a slip shorter than a scrape interval still shows
+    // in its rate. Drive 1 slips from about step 480 of these 1000 (125 us each).
+    let slip_s = |drive: u64| {
+        series(
+            &text,
+            &format!("railmon_drive_slip_seconds_total{{drive=\"{drive}\"}}"),
+        )
+    };
+    assert!((0.03..0.07).contains(&slip_s(1)), "{}", slip_s(1));
+    assert_eq!((slip_s(2), slip_s(3)), (0.0, 0.0));
     assert!(text.contains("railmon_process_resident_memory_bytes"));
     assert!(text.lines().any(|l| without_identity_labels(l)
         .starts_with("railmon_stream_samples_received_total{stream=\"drive\"} ")));

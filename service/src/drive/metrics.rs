@@ -1,6 +1,6 @@
 //! Metric families of the drive stream (label `drive`, 1-based).
 
-use prometheus::{Gauge, GaugeVec, IntCounterVec, IntGaugeVec};
+use prometheus::{CounterVec, Gauge, GaugeVec, IntCounterVec, IntGaugeVec};
 
 use crate::metrics::Families;
 
@@ -12,6 +12,7 @@ pub struct DriveMetrics {
     pub slipping: IntGaugeVec,
     pub global_torque: Gauge,
     pub slip_events: IntCounterVec,
+    pub slip_seconds: CounterVec,
 }
 
 impl DriveMetrics {
@@ -51,6 +52,11 @@ impl DriveMetrics {
                 "drive_slip_events_total",
                 "Slip started / ended events.",
                 &["drive", "kind"],
+            )?,
+            slip_seconds: f.counter_vec(
+                "drive_slip_seconds_total",
+                "Sample time the drive spent flagged slipping: its rate over any window shows slips shorter than a scrape interval.",
+                drive,
             )?,
         })
     }

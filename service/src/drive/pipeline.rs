@@ -17,6 +17,7 @@ use crate::outbox::{Stamp, Track};
 use crate::store::ActiveAlarm;
 
 struct DriveGauges {
+    slip_seconds: prometheus::Counter,
     slip_probability: Gauge,
     electrical_speed: Gauge,
     mechanical_speed: Gauge,
@@ -30,6 +31,7 @@ impl DriveGauges {
         let label = [id.as_str()];
         let m = &metrics.drive;
         Self {
+            slip_seconds: m.slip_seconds.with_label_values(&label),
             slip_probability: m.slip_probability.with_label_values(&label),
             electrical_speed: m.electrical_speed.with_label_values(&label),
             mechanical_speed: m.mechanical_speed.with_label_values(&label),
@@ -133,7 +135,11 @@ impl DrivePipeline {
     /// Hysteresis on the slip probability; crossings become events.
     fn update_slipping(&mut self, stamp: &Stamp) {
         let Some(monitor) = &self.monitor else { return };
+        let dt_s = self.config.estimator.dt_s;
         for (k, drive) in monitor.last().drives.iter().enumerate() {
+            if self.slipping[k] {
+                self.gauges[k].slip_seconds.inc_by(dt_s);
+            }
             let p = drive.slip_probability;
             let kind = match self.slipping[k] {
                 false if p >= self.config.slip_on_ratio => "slip_started",
