@@ -200,10 +200,26 @@ fn bad_bogie_frames_are_rejected_counted_and_leave_the_estimate_alone() {
     let mut nan = BogieFrame::from_sample(1, &sample(10));
     nan.body_accel_m_s2 = f64::NAN;
     let unknown = BogieFrame::from_sample(9, &sample(11));
+    // The same data in mm/s^2 and mrad/s: refused, not read as a failed damper.
+    let s = sample(12);
+    let scaled = BogieSample {
+        wheelset1_accel_m_s2: 1000.0 * s.wheelset1_accel_m_s2,
+        wheelset2_accel_m_s2: 1000.0 * s.wheelset2_accel_m_s2,
+        bogie_accel_m_s2: 1000.0 * s.bogie_accel_m_s2,
+        bogie_yaw_rate_rad_s: 1000.0 * s.bogie_yaw_rate_rad_s,
+        body_accel_m_s2: 1000.0 * s.body_accel_m_s2,
+    };
     publisher.send(&nan, 10_000_000).unwrap();
-    publisher.send(&unknown, 11_000_000).unwrap();
+    publisher
+        .send(&BogieFrame::from_sample(1, &scaled), 11_000_000)
+        .unwrap();
+    publisher.send(&unknown, 12_000_000).unwrap();
     publisher.notify().unwrap();
-    service.assert_rejections("bogie", 10, &["not_finite", "unknown_bogie"]);
+    service.assert_rejections(
+        "bogie",
+        10,
+        &["not_finite", "out_of_range", "unknown_bogie"],
+    );
     assert_eq!(service.get_json("/api/v1/bogies/1"), before);
     let last = service.status("bogie")["last_rejection"]["message"].clone();
     assert!(last.as_str().unwrap().contains("bogie 9"), "{last}");

@@ -23,6 +23,11 @@ pub struct BogieConfig {
     /// The stream is stale (and `/readyz` fails) when no frame came for this long; also the
     /// most the estimates may fall behind the samples' clock before the stream is `lagging`.
     pub stale_after_ms: u64,
+    /// Plausible magnitudes of the lateral accelerations (m/s^2) and of the yaw rate (rad/s):
+    /// a frame beyond them is refused (`out_of_range`), not estimated. Data scaled by 1000
+    /// (mm/s^2, mrad/s) once read as a damper at 10 % of its health: a false `degraded`.
+    pub max_abs_accel_m_s2: f64,
+    pub max_abs_yaw_rate_rad_s: f64,
     /// One history point per bogie per this much stream time.
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
@@ -46,6 +51,8 @@ impl Default for BogieConfig {
             enabled: false,
             bogies: vec![1, 2],
             stale_after_ms: 500,
+            max_abs_accel_m_s2: 50.0,
+            max_abs_yaw_rate_rad_s: 5.0,
             history_interval_ms: 100,
             history_capacity: 72_000,
             degraded_below_ratio: 0.7,
@@ -63,6 +70,17 @@ impl BogieConfig {
             self.history_interval_ms,
             self.history_capacity,
         )?;
+        for (key, value) in [
+            ("max_abs_accel_m_s2", self.max_abs_accel_m_s2),
+            ("max_abs_yaw_rate_rad_s", self.max_abs_yaw_rate_rad_s),
+        ] {
+            if !(value > 0.0 && value <= 1e6) {
+                return Err(invalid(
+                    &format!("bogie.{key}"),
+                    format!("{value} is not in (0, 1e6]"),
+                ));
+            }
+        }
         let ids = &self.bogies;
         if ids.is_empty() || ids.len() > MAX_BOGIES {
             return Err(invalid(

@@ -331,7 +331,8 @@ pub struct CheckedBogieSample {
 impl Pipeline for BogiePipeline {
     type Frame = BogieFrame;
     type Checked = CheckedBogieSample;
-    const REJECTION_REASONS: &'static [&'static str] = &["not_finite", "unknown_bogie"];
+    const REJECTION_REASONS: &'static [&'static str] =
+        &["not_finite", "unknown_bogie", "out_of_range"];
     /// The bogies of one step share its time.
     const REPEATED_TIMES: bool = true;
 
@@ -348,6 +349,51 @@ impl Pipeline for BogiePipeline {
             .checked_sample()
             .map_err(|e| Rejection::new(e.reason(), e.to_string()))?;
         let slot = self.slot_of(frame)?;
+        let (max_a, max_r) = (
+            self.config.max_abs_accel_m_s2,
+            self.config.max_abs_yaw_rate_rad_s,
+        );
+        let channels = [
+            (
+                "wheelset1_accel_m_s2",
+                frame.wheelset1_accel_m_s2,
+                max_a,
+                "max_abs_accel_m_s2",
+            ),
+            (
+                "wheelset2_accel_m_s2",
+                frame.wheelset2_accel_m_s2,
+                max_a,
+                "max_abs_accel_m_s2",
+            ),
+            (
+                "bogie_accel_m_s2",
+                frame.bogie_accel_m_s2,
+                max_a,
+                "max_abs_accel_m_s2",
+            ),
+            (
+                "bogie_yaw_rate_rad_s",
+                frame.bogie_yaw_rate_rad_s,
+                max_r,
+                "max_abs_yaw_rate_rad_s",
+            ),
+            (
+                "body_accel_m_s2",
+                frame.body_accel_m_s2,
+                max_a,
+                "max_abs_accel_m_s2",
+            ),
+        ];
+        if let Some((name, value, max, key)) = channels.into_iter().find(|c| c.1.abs() > c.2) {
+            return Err(Rejection::new(
+                "out_of_range",
+                format!(
+                    "bogie {}: {name} = {value:.4e} is beyond +-{max} (bogie.{key}; wrong units?)",
+                    frame.bogie_id
+                ),
+            ));
+        }
         Ok(CheckedBogieSample { slot, sample })
     }
 
