@@ -6,7 +6,7 @@
 //! denominator; the estimate of `P(z_t = l | psi = q)` normalises over the categories `s in z*`.
 
 /// Counts `rows x cols`, with the prior each row starts from (for stabilised forgetting).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CountTable {
     cols: usize,
     counts: Vec<f64>,

@@ -11,7 +11,7 @@ use crate::regression::RegressionStats;
 use crate::FuelError;
 
 /// Sizes and settings of a [`Mixture`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MixtureSpec {
     /// `m_c`.
     pub components: usize,
@@ -52,7 +52,7 @@ pub struct MixtureInput<'a> {
 }
 
 /// The estimator state: component statistics, categorical counts, switching counts, pointer.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Mixture {
     spec: MixtureSpec,
     v0: DMatrix<f64>,

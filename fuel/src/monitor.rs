@@ -20,7 +20,7 @@ use crate::sample::{bin_index, Channel, VehicleSample};
 use crate::FuelError;
 
 /// The estimator's outputs once it is initialised.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct MixtureEstimate {
     /// The paper's 0-step estimate (section 4.4): `theta' psi_t` of the active component, the
     /// pointer picked and the statistics updated with `y_t` itself. Not a forecast.
@@ -52,7 +52,7 @@ pub struct MixtureEstimate {
 }
 
 /// Everything the monitor reports after a sample.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct FuelEstimate {
     pub time_s: f64,
     /// Measured fuel now.
@@ -67,7 +67,7 @@ pub struct FuelEstimate {
 }
 
 /// A sample reduced to what the mixture uses, checked.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 struct Prepared {
     time_s: f64,
     /// Continuous channels in the monitor's order (fuel first), raw units.
@@ -81,7 +81,7 @@ struct Prepared {
 }
 
 /// Mean and spread of each channel from the initial samples.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 struct Standardiser {
     mean: Vec<f64>,
     scale: Vec<f64>,
@@ -116,7 +116,7 @@ impl Standardiser {
 }
 
 /// What the regressors need from the past: newest first.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct Past {
     y: VecDeque<DVector<f64>>,
     category: Option<usize>,
@@ -126,7 +126,7 @@ struct Past {
 }
 
 /// The recursive fuel estimator on vehicle samples. See the crate documentation.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct FuelMonitor {
     config: FuelMonitorConfig,
     channels: Vec<Channel>,

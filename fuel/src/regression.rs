@@ -14,7 +14,7 @@ use railmon_filter::kalman::LN_2PI;
 use crate::FuelError;
 
 /// GiW statistics of one component and the point estimates derived from them.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct RegressionStats {
     k_y: usize,
     /// Extended information matrix over `d = [y; psi]`, `(k_y + p) x (k_y + p)`.

@@ -18,6 +18,7 @@ pub mod ingest;
 pub mod metrics;
 pub mod outbox;
 pub mod ring;
+pub mod snapshot;
 pub mod store;
 pub mod vehicle;
 
@@ -207,9 +208,11 @@ pub fn spawn_ingest<P: Pipeline + Send + 'static>(
         .spawn(move || {
             // A bus failure (e.g. /dev/shm full) is recorded in the status and retried: the
             // HTTP side stays up and /readyz says the stream is not fresh.
+            let snapshots = config.storage.snapshot_policy();
             while let Err(e) = ingest::run_ingest(
                 &config.bus,
                 &config.ingest,
+                snapshots.as_ref(),
                 &mut pipeline,
                 &status,
                 &shutdown,

@@ -60,6 +60,14 @@ impl Stamp {
     }
 }
 
+/// Where a stream's time stands ([`Track::clock`]), saved with an estimator's state.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
+pub struct TrackClock {
+    pub run_offset_s: f64,
+    pub last_time_s: Option<f64>,
+    pub next_history_s: f64,
+}
+
 /// The ingest thread's side of an [`Outbox`]. See the module documentation.
 #[derive(Clone, Debug)]
 pub struct Track<P> {
@@ -90,6 +98,22 @@ impl<P: Clone> Track<P> {
             last: None,
             dirty: false,
         }
+    }
+
+    /// Where stream time stands, to carry it over a restart of the service.
+    pub fn clock(&self) -> TrackClock {
+        TrackClock {
+            run_offset_s: self.run_offset_s,
+            last_time_s: self.last_time_s,
+            next_history_s: self.next_history_s,
+        }
+    }
+
+    /// Stream time goes on from `clock` (a resumed estimator).
+    pub fn resume_clock(&mut self, clock: TrackClock) {
+        self.run_offset_s = clock.run_offset_s;
+        self.last_time_s = clock.last_time_s;
+        self.next_history_s = clock.next_history_s;
     }
 
     /// A new source: its run time 0 comes one step after the last frame of the previous one.

@@ -109,3 +109,34 @@ fn bad_frames_are_rejected_and_change_nothing() {
     );
     assert_eq!(harness.view(), before);
 }
+
+/// A restart resumes the saved estimator: the same frames then give exactly the estimates the
+/// pipeline that never stopped gives (no second lock-on of the EKFs).
+#[test]
+fn a_saved_state_resumes_the_estimator_exactly() {
+    let mut running = Harness::new();
+    for _ in 0..800 {
+        running.advance();
+    }
+    running.view();
+    let state = running.pipeline.save_state().expect("a monitor to save");
+    let mut resumed = Harness::new();
+    resumed.pipeline.resume_state(&state).unwrap();
+    // The resumed pipeline gets the frames that follow.
+    for _ in 0..400 {
+        let step = running.step;
+        let samples = running.advance().unwrap();
+        let (frame, header) = (
+            frame_of(&samples, running.dt_ns),
+            header(step, running.dt_ns),
+        );
+        let input = resumed.pipeline.check(&header, &frame).unwrap();
+        resumed.pipeline.step(&header, input).unwrap();
+    }
+    let (a, b) = (running.view(), resumed.view());
+    assert_eq!(a.drives, b.drives);
+    assert_eq!(a.time_s, b.time_s, "stream time goes on");
+    // Settings of another estimator refuse the state's shape only if it cannot be read: the
+    // snapshot file's settings fingerprint is what guards that (tested in snapshot.rs).
+    assert!(resumed.pipeline.resume_state(b"not a state").is_err());
+}

@@ -178,3 +178,28 @@ fn a_new_source_restarts_the_estimator_and_stream_time_continues() {
     assert_eq!(second.run_time_s, Some(0.0));
     assert_eq!(second.regime_changes, 0);
 }
+
+/// A restart resumes the saved mixture: the following samples give exactly the estimates of
+/// the pipeline that never stopped (no second initialisation of 150+ samples).
+#[test]
+fn a_saved_state_resumes_the_mixture_exactly() {
+    let mut running = VehicleHarness::new(vehicle_config());
+    for _ in 0..1500 {
+        running.advance();
+    }
+    running.view();
+    let state = running.pipeline.save_state().expect("a monitor to save");
+    let mut resumed = VehicleHarness::new(vehicle_config());
+    resumed.pipeline.resume_state(&state).unwrap();
+    resumed.step = running.step;
+    for _ in 0..200 {
+        running.advance();
+        resumed.advance();
+    }
+    let (a, b) = (running.view(), resumed.view());
+    assert!(!b.initialising, "resumed estimates at once");
+    assert_eq!(a.virtual_sensor_cm3_s, b.virtual_sensor_cm3_s);
+    assert_eq!(a.forecast_cm3_s, b.forecast_cm3_s);
+    assert_eq!(a.regime_probabilities, b.regime_probabilities);
+    assert_eq!(a.time_s, b.time_s, "stream time goes on");
+}

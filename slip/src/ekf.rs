@@ -85,7 +85,7 @@ impl EkfConfig {
 }
 
 /// Mean and covariance of one drive's state, plus the voltage it applies over the coming step.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct DriveFilter {
     pub x: DriveState,
     pub p: DriveMatrix,
@@ -213,7 +213,7 @@ fn start_from_back_emf(
 }
 
 /// N independent drive EKFs (the block-diagonal filter of eq. 16-17).
-#[derive(Debug)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct EkfBank {
     model: DriveModel,
     q: DriveMatrix,

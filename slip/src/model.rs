@@ -79,7 +79,7 @@ impl MotorParams {
 }
 
 /// The discrete model (11) with its coefficients (12)-(13) precomputed for one `dt`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct DriveModel {
     pub params: MotorParams,
     pub dt_s: f64,

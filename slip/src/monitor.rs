@@ -57,7 +57,7 @@ impl SlipMonitorConfig {
 }
 
 /// One drive's estimate at one step.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct DriveEstimate {
     /// EKF electrical speed.
     pub speed_rad_s: f64,
@@ -70,7 +70,7 @@ pub struct DriveEstimate {
 }
 
 /// The monitor's output for one step.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SlipEstimate {
     /// `M_z^(G)`.
     pub global_torque_nm: f64,
@@ -79,7 +79,7 @@ pub struct SlipEstimate {
 }
 
 /// One EKF per drive plus the configured adhesion estimator.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SlipMonitor {
     bank: EkfBank,
     backup: EkfBank,

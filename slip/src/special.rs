@@ -52,7 +52,7 @@ pub fn ln_gamma(mut x: f64) -> f64 {
 
 /// A Beta factor over the adhesion-loss probability `pi`, written as the paper's
 /// `p(pi) ∝ pi^(alpha_1 - 1) (1 - pi)^(alpha_0 - 1)` (eq. 25).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct BetaFactor {
     /// Pseudo-count of drives with adhesion (component 0).
     pub alpha_0: f64,
@@ -102,7 +102,7 @@ impl BetaFactor {
 }
 
 /// A Gamma factor over a precision, shape `a`, rate `b`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GammaFactor {
     pub shape: f64,
     pub rate: f64,

@@ -135,3 +135,49 @@ fn sigkill_at_random_moments_loses_and_duplicates_no_event() {
         );
     }
 }
+
+/// A service stopped and started again on the same data directory resumes each estimator
+/// from the snapshot written at shutdown: the replay's frames continue the saved source (no
+/// new source, no restart of the filters).
+#[test]
+fn a_restarted_service_resumes_its_estimator_from_the_snapshot() {
+    let bus = PrivateBus::new();
+    let data_dir = std::env::temp_dir().join(format!("railmon-resume-{}", bus.prefix));
+    let _ = std::fs::remove_dir_all(&data_dir);
+    let data = data_dir.to_str().unwrap().to_string();
+    let settings = [("RAILMON_STORAGE__DATA_DIR", data.as_str())];
+    let mut service = Service::start(&bus, &settings);
+    let mut replay = start_replay(
+        &bus,
+        "drive",
+        &[
+            "--scenario",
+            SEED,
+            "--speed",
+            "1",
+            "--loop",
+            "--wait-subscriber-s",
+            "0",
+        ],
+    );
+    service.wait_for_status("drive", Duration::from_secs(20), "0.5 s of frames", |s| {
+        s["estimator_steps"].as_u64() > Some(4000)
+    });
+    let before = service.status("drive");
+    assert_eq!(before["sources"], 1, "{before}");
+    assert!(service.process.terminate(Duration::from_secs(10)).success());
+    assert!(data_dir.join("snapshots/drive.snapshot").exists());
+
+    let service = Service::start(&bus, &settings);
+    let after = service.wait_for_status("drive", Duration::from_secs(20), "frames again", |s| {
+        s["estimator_steps"].as_u64() > Some(800)
+    });
+    assert_eq!(after["sources"], 0, "resumed, not a new source: {after}");
+    let drives = service.get_json("/api/v1/drives");
+    // Drives 2 and 3 never slip: a restarted EKF bank locking on again would flag them.
+    for d in &drives["drives"].as_array().unwrap()[1..] {
+        assert!(d["slip_probability"].as_f64().unwrap() < 0.1, "{drives}");
+    }
+    replay.terminate(Duration::from_secs(10));
+    let _ = std::fs::remove_dir_all(&data_dir);
+}

@@ -171,6 +171,13 @@ impl DrivePipeline {
     }
 }
 
+/// What a drive snapshot holds.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct SavedDrive {
+    monitor: SlipMonitor,
+    clock: crate::outbox::TrackClock,
+}
+
 impl Pipeline for DrivePipeline {
     type Frame = DriveFrame;
     /// One sample per drive, every value finite, the configured step.
@@ -264,6 +271,30 @@ impl Pipeline for DrivePipeline {
                 drives,
             });
         }
+        Ok(())
+    }
+
+    fn settings(&self) -> String {
+        serde_json::to_string(&self.config.estimator).unwrap_or_default()
+    }
+
+    /// The monitor (EKF states and covariances, the adhesion estimator's carried posterior)
+    /// and stream time. The slipping flags are not saved: the event store's active alarms,
+    /// committed with the events, are newer and restored at start.
+    fn save_state(&self) -> Option<Vec<u8>> {
+        let saved = SavedDrive {
+            monitor: self.monitor.clone()?,
+            clock: self.track.clock(),
+        };
+        bincode::serialize(&saved).ok()
+    }
+
+    fn resume_state(&mut self, state: &[u8]) -> Result<(), String> {
+        let saved: SavedDrive = bincode::deserialize(state).map_err(|e| e.to_string())?;
+        self.start_monitor(saved.monitor.n_drives())
+            .map_err(|r| r.message)?;
+        self.monitor = Some(saved.monitor);
+        self.track.resume_clock(saved.clock);
         Ok(())
     }
 

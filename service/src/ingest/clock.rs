@@ -42,6 +42,17 @@ impl SampleClock {
         }
     }
 
+    /// The last sample time used.
+    pub fn last(&self) -> Option<u64> {
+        self.last_ns
+    }
+
+    /// Goes on from `last_ns` (a resumed estimator).
+    pub fn resume(&mut self, last_ns: Option<u64>) {
+        self.last_ns = last_ns;
+        self.jumped_to_ns = None;
+    }
+
     pub fn restart(&mut self) {
         self.last_ns = None;
         self.jumped_to_ns = None;

@@ -22,6 +22,7 @@ pub use status::{
 };
 
 use crate::config::IngestConfig;
+use crate::snapshot::{IngestState, SnapshotFile};
 
 /// Why a frame was not used.
 #[derive(Clone, Debug, PartialEq)]
@@ -60,6 +61,28 @@ pub trait Pipeline {
     fn step(&mut self, header: &FrameHeader, input: Self::Checked) -> Result<(), Rejection>;
     /// Makes the latest results visible (HTTP snapshot, gauges); called once per batch.
     fn publish(&mut self);
+    /// The estimator settings a saved state is only valid for (their serialised text).
+    fn settings(&self) -> String {
+        String::new()
+    }
+    /// The estimator's state to resume after a restart (`None`: nothing worth saving, or the
+    /// stream does not resume).
+    fn save_state(&self) -> Option<Vec<u8>> {
+        None
+    }
+    /// Resumes from `state` (made by `save_state` with the same settings); on error nothing
+    /// changed.
+    fn resume_state(&mut self, _state: &[u8]) -> Result<(), String> {
+        Err("this stream does not resume from snapshots".into())
+    }
+}
+
+/// Where and how often the ingest loop saves its pipeline's state (`None`: never).
+#[derive(Clone, Debug)]
+pub struct SnapshotPolicy {
+    pub data_dir: std::path::PathBuf,
+    pub interval: Duration,
+    pub max_age_s: f64,
 }
 
 /// What the ingest loop keeps about the current source of a stream.
@@ -161,18 +184,67 @@ fn handle_frame<P: Pipeline>(
 pub fn run_ingest<P: Pipeline>(
     bus: &BusConfig,
     ingest: &IngestConfig,
+    snapshots: Option<&SnapshotPolicy>,
     pipeline: &mut P,
     status: &StreamStatus,
     shutdown: &AtomicBool,
 ) -> Result<(), BusError> {
-    let result = ingest_loop(bus, ingest, pipeline, status, shutdown);
+    let result = ingest_loop(bus, ingest, snapshots, pipeline, status, shutdown);
     status.record_stopped(result.as_ref().err());
     result
+}
+
+/// Saves the pipeline's state with where its source stands.
+fn save_snapshot<P: Pipeline>(file: &SnapshotFile, pipeline: &P, source: &SourceTracking) {
+    let (Some(state), Some((instance, run, next))) =
+        (pipeline.save_state(), source.sequence.position())
+    else {
+        return;
+    };
+    let state = IngestState {
+        publisher_instance: instance,
+        run,
+        next_sequence: next,
+        last_sample_time_ns: source.clock.last(),
+        pipeline: state,
+    };
+    if let Err(e) = file.save(&state) {
+        tracing::warn!("cannot save the estimator snapshot: {e}");
+    }
+}
+
+/// Resumes the pipeline from its snapshot if one fits (else it starts from its prior).
+fn resume_snapshot<P: Pipeline>(
+    file: &SnapshotFile,
+    max_age_s: f64,
+    pipeline: &mut P,
+    source: &mut SourceTracking,
+    kind: railmon_bus::StreamKind,
+) {
+    match file.load(max_age_s) {
+        Ok(None) => {}
+        Ok(Some(state)) => match pipeline.resume_state(&state.pipeline) {
+            Ok(()) => {
+                source
+                    .sequence
+                    .resume(state.publisher_instance, state.run, state.next_sequence);
+                source.clock.resume(state.last_sample_time_ns);
+                tracing::info!(stream = %kind, file = %file.path().display(), "estimator resumed from its snapshot");
+            }
+            Err(e) => {
+                tracing::warn!(stream = %kind, file = %file.path().display(), "snapshot refused, the estimator starts from its prior: {e}")
+            }
+        },
+        Err(e) => {
+            tracing::warn!(stream = %kind, file = %file.path().display(), "snapshot refused, the estimator starts from its prior: {e}")
+        }
+    }
 }
 
 fn ingest_loop<P: Pipeline>(
     bus: &BusConfig,
     ingest: &IngestConfig,
+    snapshots: Option<&SnapshotPolicy>,
     pipeline: &mut P,
     status: &StreamStatus,
     shutdown: &AtomicBool,
@@ -203,6 +275,12 @@ fn ingest_loop<P: Pipeline>(
         clock: SampleClock::new(pipeline.sample_period_ns(), P::REPEATED_TIMES, stale_ns),
         realtime: RealTimeTracker::default(),
     };
+    let snapshot_file = snapshots
+        .map(|policy| SnapshotFile::new(&policy.data_dir, kind.name(), &pipeline.settings()));
+    if let (Some(file), Some(policy)) = (&snapshot_file, snapshots) {
+        resume_snapshot(file, policy.max_age_s, pipeline, &mut source, kind);
+    }
+    let mut last_snapshot = Instant::now();
     while !shutdown.load(Ordering::Relaxed) {
         waitset
             .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, wake_interval)
@@ -238,6 +316,12 @@ fn ingest_loop<P: Pipeline>(
                 break;
             }
         }
+        if let (Some(file), Some(policy)) = (&snapshot_file, snapshots) {
+            if last_snapshot.elapsed() >= policy.interval {
+                save_snapshot(file, pipeline, &source);
+                last_snapshot = Instant::now();
+            }
+        }
         if last_cleanup.elapsed() >= cleanup_interval {
             let cleaned = node.cleanup_dead_nodes();
             if cleaned > 0 {
@@ -245,6 +329,9 @@ fn ingest_loop<P: Pipeline>(
             }
             last_cleanup = Instant::now();
         }
+    }
+    if let Some(file) = &snapshot_file {
+        save_snapshot(file, pipeline, &source);
     }
     tracing::info!(stream = %kind, "ingest stopped");
     Ok(())

@@ -75,6 +75,20 @@ impl SequenceTracker {
         self.last_seen_ns = now_ns;
     }
 
+    /// The source followed and the sequence number expected next, if any.
+    pub fn position(&self) -> Option<(u64, u32, u64)> {
+        self.current
+            .map(|(instance, run)| (instance, run, self.next))
+    }
+
+    /// Goes on following a source saved before a restart: its next frames continue it (no new
+    /// source, no estimator restart); another publisher is a new source as usual.
+    pub fn resume(&mut self, instance: u64, run: u32, next: u64) {
+        self.current = Some((instance, run));
+        self.next = next;
+        self.last_seen_ns = 0;
+    }
+
     /// A publisher of the stream died: whoever sends next may take over at once.
     pub fn publisher_died(&mut self) {
         self.last_seen_ns = 0;

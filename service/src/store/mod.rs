@@ -54,6 +54,11 @@ pub struct StorageConfig {
     pub max_age_days: u32,
     /// At most this many events are kept; the oldest are pruned beyond it.
     pub max_events: u64,
+    /// Each stream's estimator state is saved this often (and at shutdown) under
+    /// `data_dir/snapshots` (0: never).
+    pub snapshot_interval_s: f64,
+    /// A snapshot older than this is not resumed at start (the estimator starts from its prior).
+    pub snapshot_max_age_s: f64,
 }
 
 impl Default for StorageConfig {
@@ -62,6 +67,8 @@ impl Default for StorageConfig {
             data_dir: String::new(),
             max_age_days: 365,
             max_events: 1_000_000,
+            snapshot_interval_s: 5.0,
+            snapshot_max_age_s: 600.0,
         }
     }
 }
@@ -74,6 +81,19 @@ impl StorageConfig {
                 format!("{} is not in 1..=1000000000", self.max_events),
             ));
         }
+        if !(self.snapshot_interval_s == 0.0 || (0.1..=3600.0).contains(&self.snapshot_interval_s))
+        {
+            return Err(crate::config::invalid(
+                "storage.snapshot_interval_s",
+                format!("{} is not 0 or in [0.1, 3600]", self.snapshot_interval_s),
+            ));
+        }
+        if !(0.0..=86_400.0 * 365.0).contains(&self.snapshot_max_age_s) {
+            return Err(crate::config::invalid(
+                "storage.snapshot_max_age_s",
+                format!("{} is not in [0, 31536000]", self.snapshot_max_age_s),
+            ));
+        }
         if self.max_age_days > 36_500 {
             return Err(crate::config::invalid(
                 "storage.max_age_days",
@@ -81,6 +101,17 @@ impl StorageConfig {
             ));
         }
         Ok(())
+    }
+
+    /// Where and how often estimator snapshots are saved (`None`: never; also with the
+    /// in-memory store).
+    pub fn snapshot_policy(&self) -> Option<crate::ingest::SnapshotPolicy> {
+        let dir = self.database_path()?.parent()?.to_path_buf();
+        (self.snapshot_interval_s > 0.0).then(|| crate::ingest::SnapshotPolicy {
+            data_dir: dir,
+            interval: std::time::Duration::from_secs_f64(self.snapshot_interval_s),
+            max_age_s: self.snapshot_max_age_s,
+        })
     }
 
     /// The database file, or `None` for the in-memory store.

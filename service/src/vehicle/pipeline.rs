@@ -89,7 +89,7 @@ fn rejection_of(e: FuelError) -> Rejection {
 }
 
 /// 1-step forecast error statistics of the current source.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct ForecastErrors {
     last_cm3_s: Option<f64>,
     sum_squares: f64,
@@ -271,6 +271,16 @@ impl VehiclePipeline {
     }
 }
 
+/// What a vehicle snapshot holds.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct SavedVehicle {
+    monitor: FuelMonitor,
+    errors: ForecastErrors,
+    regime_changes: u64,
+    speed_m_s: Option<f64>,
+    clock: crate::outbox::TrackClock,
+}
+
 impl Pipeline for VehiclePipeline {
     type Frame = VehicleFrame;
     /// Known channel bits, every present value finite.
@@ -313,6 +323,32 @@ impl Pipeline for VehiclePipeline {
         self.speed_m_s = sample.speed_m_s;
         let stamp = self.track.stamp(header);
         self.follow(&stamp, previous_regime);
+        Ok(())
+    }
+
+    fn settings(&self) -> String {
+        serde_json::to_string(&self.config.estimator).unwrap_or_default()
+    }
+
+    /// The mixture's statistics, the forecast error tally and stream time.
+    fn save_state(&self) -> Option<Vec<u8>> {
+        let saved = SavedVehicle {
+            monitor: self.monitor.clone()?,
+            errors: self.errors,
+            regime_changes: self.regime_changes,
+            speed_m_s: self.speed_m_s,
+            clock: self.track.clock(),
+        };
+        bincode::serialize(&saved).ok()
+    }
+
+    fn resume_state(&mut self, state: &[u8]) -> Result<(), String> {
+        let saved: SavedVehicle = bincode::deserialize(state).map_err(|e| e.to_string())?;
+        self.monitor = Some(saved.monitor);
+        self.errors = saved.errors;
+        self.regime_changes = saved.regime_changes;
+        self.speed_m_s = saved.speed_m_s;
+        self.track.resume_clock(saved.clock);
         Ok(())
     }
 

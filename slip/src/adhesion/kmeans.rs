@@ -74,7 +74,7 @@ pub fn two_means(
     centroids
 }
 
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct KMeansEstimator {
     config: KMeansConfig,
     rng: ChaCha8Rng,

@@ -36,7 +36,7 @@ impl MedianConfig {
     }
 }
 
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MedianEstimator {
     config: MedianConfig,
     sorted: Vec<f64>,

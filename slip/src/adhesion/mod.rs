@@ -103,7 +103,7 @@ impl AdhesionConfig {
 }
 
 /// What an estimator gives for one time step.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AdhesionOutput {
     /// The global torque `M_z^(G)`.
     pub global_torque_nm: f64,
@@ -147,7 +147,7 @@ impl AdhesionOutput {
 }
 
 /// One estimator of any method (enum dispatch: five fixed methods, no trait objects needed).
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub enum AdhesionEstimator {
     Vb(VbEstimator),
     Vmp(VmpEstimator),

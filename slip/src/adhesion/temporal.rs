@@ -217,7 +217,7 @@ fn erfc(x: f64) -> f64 {
     }
 }
 
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TemporalEstimator {
     config: TemporalConfig,
     posterior: Option<VbPosterior>,

@@ -129,7 +129,7 @@ impl VbConfig {
 }
 
 /// `N(mu | mean, 1 / (beta Lambda)) Gamma(Lambda | shape, rate)`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct NormalGamma {
     pub mean: f64,
     pub beta: f64,
@@ -191,14 +191,14 @@ impl NormalGamma {
 }
 
 /// Prior of one VB run.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct VbPriors {
     pub pi: BetaFactor,
     pub components: [NormalGamma; 2],
 }
 
 /// Posterior of one VB run.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct VbPosterior {
     pub pi: BetaFactor,
     pub components: [NormalGamma; 2],
@@ -275,7 +275,7 @@ pub fn initial_responsibilities(
 }
 
 /// The paper's VB: fresh priors every step, a fixed number of iterations.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct VbEstimator {
     config: VbConfig,
     out: AdhesionOutput,

@@ -84,7 +84,7 @@ impl VmpConfig {
 }
 
 /// `q(mu) = N(mean, 1/precision)`, `q(Lambda) = Gamma`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 struct Node {
     mean: f64,
     mean_precision: f64,
@@ -178,7 +178,7 @@ fn run(
 }
 
 /// The paper's VMP estimator.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct VmpEstimator {
     config: VmpConfig,
     out: AdhesionOutput,
