@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use railmon_bus::{DriveChannels, DriveFrame, MAX_DRIVES};
 use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveSample, DriveTruth};
-use railmon_slip::{AdhesionScenario, DriveSimulator};
+use railmon_slip::{AdhesionScenario, DriveSimulator, SlipMonitorConfig};
 
 use crate::replay::{publish, Source};
 use crate::ReplayArgs;
@@ -21,8 +21,9 @@ pub struct DriveArgs {
     /// Recorded drive CSV (`step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a[,truth...]`).
     #[arg(long)]
     csv: Option<PathBuf>,
-    /// Control step of the CSV recording, s (scenarios carry their own).
-    #[arg(long, default_value_t = 125e-6)]
+    /// Control step of the CSV recording, s (scenarios carry their own); by default the
+    /// monitor's (`railmon_slip::SlipMonitorConfig::default().dt_s`).
+    #[arg(long, default_value_t = SlipMonitorConfig::default().dt_s)]
     dt_s: f64,
     #[command(flatten)]
     replay: ReplayArgs,

@@ -218,15 +218,6 @@ impl ServiceConfig {
             None => toml::Table::new(),
         };
         let overrides = settings::apply_env_overrides(&mut table, env)?;
-        // The estimator's defaults are the seed scenario's, not SlipMonitorConfig::default():
-        // lay the given keys over them before deserialising.
-        if let Some(toml::Value::Table(drive)) = table.get_mut("drive") {
-            if let Some(toml::Value::Table(given)) = drive.remove("estimator") {
-                let mut estimator = crate::drive::config::seed_monitor_table();
-                settings::merge_tables(&mut estimator, given);
-                drive.insert("estimator".into(), toml::Value::Table(estimator));
-            }
-        }
         let config: ServiceConfig =
             settings::deserialize(toml::Value::Table(table), "", &overrides)?;
         config.validate()?;
@@ -367,15 +358,22 @@ mod tests {
     }
 
     #[test]
-    fn estimator_keys_override_single_seed_values() {
-        let config = load_with(&[(
-            "RAILMON_DRIVE__ESTIMATOR__EKF__MEASUREMENT_NOISE_A2",
-            "0.02",
-        )])
-        .unwrap();
-        let mut expected = crate::drive::config::default_estimator();
+    fn estimator_keys_override_single_values_of_the_default_or_the_preset() {
+        let key = "RAILMON_DRIVE__ESTIMATOR__EKF__MEASUREMENT_NOISE_A2";
+        let config = load_with(&[(key, "0.02")]).unwrap();
+        let mut expected = railmon_slip::SlipMonitorConfig::default();
         expected.ekf.measurement_noise_a2 = 0.02;
         assert_eq!(config.drive.estimator, expected);
+        let config =
+            load_with(&[(key, "0.02"), ("RAILMON_DRIVE__ESTIMATOR__PRESET", "paper")]).unwrap();
+        let mut expected = railmon_slip::SlipMonitorConfig::paper();
+        expected.ekf.measurement_noise_a2 = 0.02;
+        assert_eq!(config.drive.estimator, expected);
+        let err = error_of(&[("RAILMON_DRIVE__ESTIMATOR__PRESET", "magic")]);
+        assert!(
+            err.contains("drive.estimator") && err.contains("magic"),
+            "{err}"
+        );
     }
 
     #[test]

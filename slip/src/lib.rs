@@ -24,7 +24,9 @@ pub use adhesion::{AdhesionConfig, AdhesionEstimator, AdhesionMethod, AdhesionOu
 pub use ekf::{EkfBank, EkfConfig};
 pub use error::SlipError;
 pub use model::{DriveModel, MotorParams};
-pub use monitor::{DriveEstimate, SlipEstimate, SlipMonitor, SlipMonitorConfig};
+pub use monitor::{
+    deserialize_with_preset, DriveEstimate, SlipEstimate, SlipMonitor, SlipMonitorConfig,
+};
 pub use pipeline::MultiMethodPipeline;
 pub use sample::{is_slipping, DriveSample, DriveTruth, SLIP_RULE_FRACTION};
 pub use scenario::{AdhesionScenario, SlipEvent};

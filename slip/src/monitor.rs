@@ -1,6 +1,7 @@
 //! `SlipMonitor`: the EKF bank plus one adhesion estimator, stepped frame by frame. This is
 //! what the service runs.
 
+use railmon_settings::Presets;
 use serde::{Deserialize, Serialize};
 
 use crate::adhesion::{AdhesionConfig, AdhesionEstimator, AdhesionMethod};
@@ -10,7 +11,13 @@ use crate::model::{DriveModel, MotorParams};
 use crate::sample::{validate_frame, DriveSample};
 
 /// Everything the monitor needs: motor parameters, sampling period, EKF noise, the method and
-/// the settings of every method. `Default` is the paper's setting with the temporal method.
+/// the settings of every method.
+///
+/// `Default` is the validated setting (the seed and hard scenarios, docs/adhesion.md): the
+/// EKF noise of [`EkfConfig::default`] and the temporal method. Every path takes it from here
+/// (the service, `railmon analyze adhesion --input`, scenarios without `[monitor]`).
+/// [`SlipMonitorConfig::paper`] is the paper's EKF noise; a TOML table asks for it with
+/// `preset = "paper"` and may override single keys on top ([`railmon_settings::with_preset`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SlipMonitorConfig {
@@ -34,7 +41,23 @@ impl Default for SlipMonitorConfig {
     }
 }
 
+impl Presets for SlipMonitorConfig {
+    const PRESETS: &'static [&'static str] = &["paper"];
+    fn preset(name: &str) -> Option<Self> {
+        (name == "paper").then(Self::paper)
+    }
+}
+
 impl SlipMonitorConfig {
+    /// The paper's EKF noise and initialisation ([`EkfConfig::paper`]), everything else as the
+    /// default: what `preset = "paper"` starts from.
+    pub fn paper() -> Self {
+        SlipMonitorConfig {
+            ekf: EkfConfig::paper(),
+            ..Self::default()
+        }
+    }
+
     pub fn validate(&self) -> Result<(), SlipError> {
         check_positive("dt_s", self.dt_s)?;
         self.motor.validate("motor")?;
@@ -42,18 +65,39 @@ impl SlipMonitorConfig {
         self.adhesion.validate()
     }
 
-    /// Parses a TOML table with these fields (any may be left out: defaults) and validates it.
-    pub fn from_toml_str(text: &str) -> Result<Self, SlipError> {
-        let config: SlipMonitorConfig =
-            toml::from_str(text).map_err(|e| SlipError::Toml(e.to_string()))?;
+    /// Reads a TOML table of these fields: from the preset its `preset` key names (else the
+    /// default), every other key overriding one value of it; then validates.
+    pub fn from_toml_table(table: toml::Table) -> Result<Self, SlipError> {
+        let config: SlipMonitorConfig = railmon_settings::with_preset(table, "")
+            .map_err(|e| SlipError::Toml(format!("{}: {}", e.key, e.reason)))?;
         config.validate()?;
         Ok(config)
+    }
+
+    /// [`SlipMonitorConfig::from_toml_table`] of a TOML document.
+    pub fn from_toml_str(text: &str) -> Result<Self, SlipError> {
+        let table = text
+            .parse::<toml::Table>()
+            .map_err(|e| SlipError::Toml(e.to_string()))?;
+        Self::from_toml_table(table)
     }
 
     /// The drive model these settings describe.
     pub fn model(&self) -> Result<DriveModel, SlipError> {
         DriveModel::new(self.motor, self.dt_s)
     }
+}
+
+/// For `#[serde(deserialize_with = ...)]` on a field holding the monitor's settings (a
+/// scenario's `[monitor]`, the service's `[drive.estimator]`): the table is read with
+/// presets, as [`SlipMonitorConfig::from_toml_table`] (not validated: the owner validates).
+pub fn deserialize_with_preset<'de, D>(deserializer: D) -> Result<SlipMonitorConfig, D::Error>
+where
+    D: serde::Deserializer<'de>,
+{
+    let table = toml::Table::deserialize(deserializer)?;
+    railmon_settings::with_preset(table, "")
+        .map_err(|e| serde::de::Error::custom(format!("{}: {}", e.key, e.reason)))
 }
 
 /// One drive's estimate at one step.
@@ -174,7 +218,6 @@ mod tests {
                 .unwrap();
         assert_eq!(c.method, AdhesionMethod::Vmp);
         assert_eq!(c.adhesion.vmp.iterations, 7);
-        assert_eq!(c.ekf, EkfConfig::default());
         let e = SlipMonitorConfig::from_toml_str("dt_s = 0.0\n")
             .unwrap_err()
             .to_string();
@@ -188,6 +231,30 @@ mod tests {
             .to_string();
         assert!(e.contains("motor.r_s_ohm"), "{e}");
         assert!(SlipMonitor::new(&SlipMonitorConfig::default(), 0).is_err());
+    }
+
+    #[test]
+    fn the_paper_preset_is_the_base_and_single_keys_override_it() {
+        let c = SlipMonitorConfig::from_toml_str(
+            "preset = \"paper\"\n[ekf]\nmeasurement_noise_a2 = 0.02\n",
+        )
+        .unwrap();
+        assert_eq!(c.ekf.process_noise_diag, [0.05, 0.05, 0.001, 0.0001, 0.1]);
+        assert_eq!(c.ekf.initial_covariance_diag, [1.0; 5]);
+        assert_eq!(c.ekf.measurement_noise_a2, 0.02);
+        assert_eq!(c.method, AdhesionMethod::Temporal);
+        // Without a preset a key overrides the default's value only.
+        let c = SlipMonitorConfig::from_toml_str("[ekf]\ninitial_torque_nm = 5.0\n").unwrap();
+        assert_eq!(c.ekf.process_noise_diag, [1e-5, 1e-5, 1e-4, 1e-6, 1.0]);
+        assert_eq!(c.ekf.initial_torque_nm, 5.0);
+        let e = SlipMonitorConfig::from_toml_str("preset = \"magic\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("magic") && e.contains("paper"), "{e}");
+        let e = SlipMonitorConfig::from_toml_str("preset = \"paper\"\n[ekf]\ngain = 1.0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("ekf") && e.contains("gain"), "{e}");
     }
 
     #[test]

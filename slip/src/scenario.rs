@@ -345,7 +345,9 @@ pub struct AdhesionScenario {
     pub load: LoadProfile,
     #[serde(default)]
     pub events: Vec<SlipEvent>,
-    #[serde(default)]
+    /// The monitor's settings: absent, [`SlipMonitorConfig::default`]; a table may start
+    /// from a preset (`preset = "paper"`) and override single keys.
+    #[serde(default, deserialize_with = "crate::monitor::deserialize_with_preset")]
     pub monitor: SlipMonitorConfig,
 }
 
@@ -541,10 +543,15 @@ mod tests {
             ),
             "load.drive_scale",
         );
-        rejects(
-            ("[monitor]\ndt_s = 125e-6", "[monitor]\ndt_s = 1e-4"),
-            "monitor.dt_s",
-        );
+        let with_monitor = |table: &str| format!("{SEED}\n[monitor]\n{table}\n");
+        let err = AdhesionScenario::from_toml_str(&with_monitor("dt_s = 1e-4"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("monitor.dt_s"), "{err}");
+        let err = AdhesionScenario::from_toml_str(&with_monitor("preset = \"magic\""))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("magic") && err.contains("paper"), "{err}");
         rejects(
             ("end_step = 1500.0", "end_step = 400.0"),
             "events[0].end_step",

@@ -28,7 +28,9 @@ pub struct DriveConfig {
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
     pub history_capacity: usize,
-    /// The estimator (`railmon_slip::SlipMonitorConfig`).
+    /// The estimator (`railmon_slip::SlipMonitorConfig`): its default, or the preset the table
+    /// names (`preset = "paper"`), with the given keys on top.
+    #[serde(deserialize_with = "railmon_slip::deserialize_with_preset")]
     pub estimator: SlipMonitorConfig,
 }
 
@@ -44,29 +46,9 @@ impl Default for DriveConfig {
             slip_off_ratio: 0.2,
             history_interval_ms: 10,
             history_capacity: 60_000,
-            estimator: default_estimator(),
+            estimator: SlipMonitorConfig::default(),
         }
     }
-}
-
-/// The estimator settings validated on the paper's experiment: the `[monitor]` section of
-/// `config/scenarios/adhesion-seed.toml`, embedded at build time. `[drive.estimator]` in the
-/// config file (or RAILMON_DRIVE__ESTIMATOR__... variables) override single keys of it.
-const SEED_SCENARIO_TOML: &str = include_str!("../../../config/scenarios/adhesion-seed.toml");
-
-pub(crate) fn seed_monitor_table() -> toml::Table {
-    let mut seed: toml::Table = SEED_SCENARIO_TOML
-        .parse()
-        .expect("config/scenarios/adhesion-seed.toml is valid TOML (checked by the slip tests)");
-    match seed.remove("monitor") {
-        Some(toml::Value::Table(monitor)) => monitor,
-        _ => toml::Table::new(),
-    }
-}
-
-pub(crate) fn default_estimator() -> SlipMonitorConfig {
-    SlipMonitorConfig::deserialize(toml::Value::Table(seed_monitor_table()))
-        .expect("the seed scenario's [monitor] section is a valid SlipMonitorConfig")
 }
 
 impl DriveConfig {
