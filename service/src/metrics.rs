@@ -7,25 +7,108 @@
 //! The families every stream has are here ([`StreamMetrics`]); each stream defines its own next
 //! to its pipeline (`drive::DriveMetrics`, ...). [`Families`] creates and registers a family in
 //! one call, so no family is defined without being exported.
+//!
+//! **No value without an estimate.** Every series that reports an estimate (slip probability,
+//! damping, health ratio, ESS, fuel rates and forecasts, regime probabilities, ...) is an
+//! [`EstimateGauge`]: absent from `/metrics` until the estimator produced its first value, and
+//! removed again while the estimate is undefined (the API's `null`, NaN here). A default of 0
+//! would read as "damper at 0 % health" or "0 % slip probability" before the first frame and
+//! while the sensors are silent, so an alert on `health_ratio < 0.7` would fire at every start.
+//! Alert rules that must notice the absence use `absent()` or the stream metrics (`fresh`,
+//! `up`), which exist from the start.
+//! Process metrics are the standard `process_*` family (what every Prometheus dashboard and
+//! alert expects), `railmon_build_info` says which build answers.
 
-use prometheus::core::Collector;
+use std::sync::Mutex;
+
+use prometheus::core::{
+    Atomic, AtomicF64, AtomicI64, Collector, GenericGauge, GenericGaugeVec, Number,
+};
 use prometheus::{
-    CounterVec, Encoder, Gauge, GaugeVec, Histogram, HistogramOpts, HistogramVec, IntCounter,
-    IntCounterVec, IntGauge, IntGaugeVec, Opts, Registry, TextEncoder,
+    CounterVec, Encoder, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec,
+    IntGauge, IntGaugeVec, Opts, Registry, TextEncoder,
 };
 
 use crate::bogie::BogieMetrics;
 use crate::drive::DriveMetrics;
 use crate::vehicle::VehicleMetrics;
 
-/// Histogram buckets from 1 us to 50 ms (values in seconds).
-pub const MICROSECOND_BUCKETS_S: [f64; 14] = [
-    1e-6, 2e-6, 5e-6, 10e-6, 20e-6, 50e-6, 100e-6, 200e-6, 500e-6, 1e-3, 2e-3, 5e-3, 10e-3, 50e-3,
+/// Buckets of one estimator step, s: 1 us to 20 ms, ~1.5x apart (1-1.5-2-3-5-7 per decade), so
+/// that each stream's typical step spreads over several buckets: a drive frame (3 drives, EKF +
+/// VB/VMP) takes 2-8 us, a vehicle update ~20 us, one bogie's RBPF step (N = 1000) 100-300 us
+/// (docs/service.md, "Histogram buckets", has the measured spread).
+pub const STEP_BUCKETS_S: [f64; 26] = [
+    1e-6, 1.5e-6, 2e-6, 3e-6, 5e-6, 7e-6, 10e-6, 15e-6, 20e-6, 30e-6, 50e-6, 70e-6, 100e-6, 150e-6,
+    200e-6, 300e-6, 500e-6, 700e-6, 1e-3, 1.5e-3, 2e-3, 3e-3, 5e-3, 7e-3, 10e-3, 20e-3,
 ];
+
+/// Buckets of publish-to-estimate latency, s: 5 us to 30 s. Paced and keeping up it is 10-50 us
+/// (drives) to a few ms (a bogie batch); a stream that queues (`--speed max`, a loaded machine)
+/// reaches tens of ms to seconds: under load 47.7 % of bogie samples were above 50 ms, where the
+/// old buckets ended, so the top buckets run to the staleness limits and beyond.
+pub const LATENCY_BUCKETS_S: [f64; 20] = [
+    5e-6, 10e-6, 20e-6, 50e-6, 100e-6, 200e-6, 500e-6, 1e-3, 2e-3, 5e-3, 10e-3, 20e-3, 50e-3, 0.1,
+    0.2, 0.5, 1.0, 2.0, 5.0, 30.0,
+];
+
+/// A gauge of an estimate: its series exists only while there is a value (see the module
+/// docs). `set(NaN)` (float gauges) removes the series; the next finite value brings it back.
+/// Made by [`EstimateGaugeVec::with_label_values`], which creates no series.
+pub struct EstimateGauge<P: Atomic = AtomicF64> {
+    family: GenericGaugeVec<P>,
+    labels: Vec<String>,
+    /// The series while it exists (looked up once per appearance: label lookups lock).
+    series: Mutex<Option<GenericGauge<P>>>,
+}
+
+/// An [`EstimateGauge`] of an integer (a flag): it appears with its first value.
+pub type EstimateIntGauge = EstimateGauge<AtomicI64>;
+
+impl<P: Atomic + 'static> EstimateGauge<P> {
+    pub fn set(&self, value: P::T) {
+        let mut series = self.series.lock().unwrap_or_else(|p| p.into_inner());
+        if value.into_f64().is_nan() {
+            if series.take().is_some() {
+                // Err only for a wrong label count, which `with_label_values` already refused.
+                let _ = self.family.remove_label_values(&self.labels);
+            }
+            return;
+        }
+        series
+            .get_or_insert_with(|| self.family.with_label_values(&self.labels))
+            .set(value);
+    }
+
+    /// The value, if the series exists.
+    pub fn get(&self) -> Option<P::T> {
+        let series = self.series.lock().unwrap_or_else(|p| p.into_inner());
+        series.as_ref().map(GenericGauge::get)
+    }
+}
+
+/// A family of [`EstimateGauge`]s.
+#[derive(Clone)]
+pub struct EstimateGaugeVec<P: Atomic = AtomicF64>(GenericGaugeVec<P>);
+
+/// A family of [`EstimateIntGauge`]s.
+pub type EstimateIntGaugeVec = EstimateGaugeVec<AtomicI64>;
+
+impl<P: Atomic + 'static> EstimateGaugeVec<P> {
+    /// The gauge of these label values, absent until its first value.
+    pub fn with_label_values(&self, labels: &[&str]) -> EstimateGauge<P> {
+        EstimateGauge {
+            family: self.0.clone(),
+            labels: labels.iter().map(|l| l.to_string()).collect(),
+            series: Mutex::new(None),
+        }
+    }
+}
 
 /// Creates metric families in the `railmon` namespace and registers each as it is made.
 pub struct Families<'r> {
     registry: &'r Registry,
+    /// The names of the families made, also of those with no series yet.
+    names: std::cell::RefCell<Vec<String>>,
 }
 
 impl Families<'_> {
@@ -34,6 +117,9 @@ impl Families<'_> {
         made: Result<C, prometheus::Error>,
     ) -> Result<C, prometheus::Error> {
         let collector = made?;
+        self.names
+            .borrow_mut()
+            .extend(collector.desc().iter().map(|d| d.fq_name.clone()));
         self.registry.register(Box::new(collector.clone()))?;
         Ok(collector)
     }
@@ -42,8 +128,26 @@ impl Families<'_> {
         Opts::new(name, help).namespace("railmon")
     }
 
-    pub fn gauge(&self, name: &str, help: &str) -> Result<Gauge, prometheus::Error> {
-        self.add(Gauge::with_opts(Self::opts(name, help)))
+    /// A family of estimate gauges (absent until set; see [`EstimateGauge`]).
+    pub fn estimate_gauge_vec<P: Atomic + 'static>(
+        &self,
+        name: &str,
+        help: &str,
+        labels: &[&str],
+    ) -> Result<EstimateGaugeVec<P>, prometheus::Error> {
+        self.add(GenericGaugeVec::<P>::new(Self::opts(name, help), labels))
+            .map(EstimateGaugeVec)
+    }
+
+    /// An estimate gauge without labels of its own.
+    pub fn estimate_gauge(
+        &self,
+        name: &str,
+        help: &str,
+    ) -> Result<EstimateGauge, prometheus::Error> {
+        Ok(self
+            .estimate_gauge_vec(name, help, &[])?
+            .with_label_values(&[]))
     }
 
     pub fn int_gauge(&self, name: &str, help: &str) -> Result<IntGauge, prometheus::Error> {
@@ -52,15 +156,6 @@ impl Families<'_> {
 
     pub fn int_counter(&self, name: &str, help: &str) -> Result<IntCounter, prometheus::Error> {
         self.add(IntCounter::with_opts(Self::opts(name, help)))
-    }
-
-    pub fn gauge_vec(
-        &self,
-        name: &str,
-        help: &str,
-        labels: &[&str],
-    ) -> Result<GaugeVec, prometheus::Error> {
-        self.add(GaugeVec::new(Self::opts(name, help), labels))
     }
 
     pub fn int_gauge_vec(
@@ -126,12 +221,13 @@ pub struct StreamMetrics {
     pub samples_received: IntCounterVec,
     pub sequence_gaps: IntCounterVec,
     pub samples_rejected: IntCounterVec,
-    pub last_sample_age: GaugeVec,
+    pub last_sample_age: EstimateGaugeVec,
     pub fresh: IntGaugeVec,
+    pub ready: IntGaugeVec,
     pub estimator_step: HistogramVec,
     pub publish_to_estimate: HistogramVec,
-    pub realtime_load: GaugeVec,
-    pub lag: GaugeVec,
+    pub realtime_load: EstimateGaugeVec,
+    pub lag: EstimateGaugeVec,
     pub lagging: IntGaugeVec,
 }
 
@@ -154,9 +250,9 @@ impl StreamMetrics {
                 "Frames rejected before reaching the estimator (NaN, too many drives, ...).",
                 &["stream", "reason"],
             )?,
-            last_sample_age: f.gauge_vec(
+            last_sample_age: f.estimate_gauge_vec(
                 "stream_last_sample_age_seconds",
-                "Time since the last frame (-1: none yet).",
+                "Time since the last frame (absent before the first).",
                 stream,
             )?,
             fresh: f.int_gauge_vec(
@@ -164,24 +260,29 @@ impl StreamMetrics {
                 "1 while the stream delivers within its staleness limit.",
                 stream,
             )?,
+            ready: f.int_gauge_vec(
+                "stream_ready",
+                "1 while estimates are made from the stream's data now (as /readyz; the reason in /api/v1/status).",
+                stream,
+            )?,
             estimator_step: f.histogram_vec(
                 "estimator_step_duration_seconds",
                 "Time of one estimator step (one frame).",
-                &MICROSECOND_BUCKETS_S,
+                &STEP_BUCKETS_S,
                 stream,
             )?,
             publish_to_estimate: f.histogram_vec(
                 "publish_to_estimate_latency_seconds",
                 "From the publisher's send to the estimate being ready (CLOCK_MONOTONIC).",
-                &MICROSECOND_BUCKETS_S,
+                &LATENCY_BUCKETS_S,
                 stream,
             )?,
-            realtime_load: f.gauge_vec(
+            realtime_load: f.estimate_gauge_vec(
                 "stream_realtime_load_ratio",
                 "Estimator time over the sample time it covered, last second of samples (above 1: cannot keep up).",
                 stream,
             )?,
-            lag: f.gauge_vec(
+            lag: f.estimate_gauge_vec(
                 "stream_lag_seconds",
                 "How far the estimates fall behind the samples' own clock (growth of wall minus sample time since the source's best).",
                 stream,
@@ -195,9 +296,19 @@ impl StreamMetrics {
     }
 }
 
+/// `profile` of `railmon_build_info`: a debug build is ~10x slower, which matters when reading
+/// the timing histograms.
+const BUILD_PROFILE: &str = if cfg!(debug_assertions) {
+    "debug"
+} else {
+    "release"
+};
+
 /// Every metric family of the service, in one registry.
 pub struct Metrics {
     registry: Registry,
+    /// Every `railmon_` family, also those without a series yet (estimates before the first).
+    family_names: Vec<String>,
     pub stream: StreamMetrics,
     pub drive: DriveMetrics,
     pub bogie: BogieMetrics,
@@ -228,24 +339,47 @@ impl Metrics {
         let registry = Registry::new_custom(None, Some(labels))?;
         let f = Families {
             registry: &registry,
+            names: Default::default(),
         };
         let stream = StreamMetrics::new(&f)?;
         let drive = DriveMetrics::new(&f)?;
         let bogie = BogieMetrics::new(&f)?;
         let vehicle = VehicleMetrics::new(&f)?;
+        // The standard names (`process_cpu_seconds_total`, `process_resident_memory_bytes`,
+        // ...), no namespace.
         #[cfg(target_os = "linux")]
         registry.register(Box::new(
-            prometheus::process_collector::ProcessCollector::new(
-                std::process::id() as i32,
-                "railmon",
-            ),
+            prometheus::process_collector::ProcessCollector::for_self(),
         ))?;
+        f.int_gauge_vec(
+            "build_info",
+            "Always 1: the build that answers (version, profile).",
+            &["version", "profile"],
+        )?
+        .with_label_values(&[env!("CARGO_PKG_VERSION"), BUILD_PROFILE])
+        .set(1);
+        let family_names = f.names.into_inner();
         Ok(Metrics {
             registry,
+            family_names,
             stream,
             drive,
             bogie,
             vehicle,
+        })
+    }
+
+    /// The names of every `railmon_` metric family, including those with no series yet.
+    pub fn family_names(&self) -> &[String] {
+        &self.family_names
+    }
+
+    /// Whether `name` is a series name of an exported family (histograms: also its `_bucket`,
+    /// `_sum`, `_count`), whether or not it has a series now.
+    pub fn exports(&self, name: &str) -> bool {
+        self.family_names.iter().any(|f| {
+            name.strip_prefix(f.as_str())
+                .is_some_and(|rest| ["", "_bucket", "_sum", "_count"].contains(&rest))
         })
     }
 
@@ -254,5 +388,79 @@ impl Metrics {
         let mut out = Vec::new();
         TextEncoder::new().encode(&self.registry.gather(), &mut out)?;
         Ok(String::from_utf8_lossy(&out).into_owned())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lines_of(metrics: &Metrics, name: &str) -> Vec<String> {
+        let text = metrics.render().unwrap();
+        text.lines()
+            .filter(|l| l.starts_with(name))
+            .map(str::to_string)
+            .collect()
+    }
+
+    #[test]
+    fn an_estimate_gauge_exists_only_while_it_has_a_value() {
+        let metrics = Metrics::new().unwrap();
+        let name = "railmon_bogie_damper_health_ratio";
+        let gauge = metrics.bogie.health.with_label_values(&["1", "csay"]);
+        assert!(lines_of(&metrics, name).is_empty());
+        assert_eq!(gauge.get(), None);
+        gauge.set(0.42);
+        assert_eq!(
+            lines_of(&metrics, name),
+            ["railmon_bogie_damper_health_ratio{bogie=\"1\",damper=\"csay\"} 0.42"]
+        );
+        gauge.set(f64::NAN);
+        assert!(
+            lines_of(&metrics, name).is_empty(),
+            "NaN removes the series"
+        );
+        assert_eq!(gauge.get(), None);
+        gauge.set(0.9);
+        assert_eq!(gauge.get(), Some(0.9));
+        assert_eq!(lines_of(&metrics, name).len(), 1);
+        // A flag appears with its first value, 0 included.
+        let flag = metrics.bogie.degraded.with_label_values(&["1", "csay"]);
+        assert!(lines_of(&metrics, "railmon_bogie_damper_degraded").is_empty());
+        flag.set(0);
+        assert_eq!(lines_of(&metrics, "railmon_bogie_damper_degraded").len(), 1);
+    }
+
+    #[test]
+    fn process_metrics_are_standard_and_the_build_is_named() {
+        let metrics = Metrics::new().unwrap();
+        let text = metrics.render().unwrap();
+        assert!(!text.contains("railmon_process_"), "{text}");
+        #[cfg(target_os = "linux")]
+        assert!(
+            text.lines()
+                .any(|l| l.starts_with("process_resident_memory_bytes ")),
+            "{text}"
+        );
+        let build = format!(
+            "railmon_build_info{{profile=\"{BUILD_PROFILE}\",version=\"{}\"}} 1",
+            env!("CARGO_PKG_VERSION")
+        );
+        assert!(text.lines().any(|l| l == build), "{build} in {text}");
+        // Declared families are known before they have a series.
+        assert!(metrics
+            .family_names()
+            .iter()
+            .any(|n| n == "railmon_bogie_damper_health_ratio"));
+    }
+
+    #[test]
+    fn buckets_increase_and_reach_past_the_measured_ranges() {
+        for buckets in [&STEP_BUCKETS_S[..], &LATENCY_BUCKETS_S[..]] {
+            assert!(buckets.windows(2).all(|w| w[0] < w[1]), "{buckets:?}");
+        }
+        // One bogie step under load reached ~5 ms; latency under load tens of seconds.
+        assert!(STEP_BUCKETS_S[STEP_BUCKETS_S.len() - 1] >= 10e-3);
+        assert!(LATENCY_BUCKETS_S[LATENCY_BUCKETS_S.len() - 1] >= 10.0);
     }
 }

@@ -21,6 +21,8 @@ use std::time::{Duration, Instant};
 
 use railmon_bus::BusConfig;
 
+pub mod monitoring;
+
 pub struct Binaries {
     pub railmon: PathBuf,
     pub replay: PathBuf,

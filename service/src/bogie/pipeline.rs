@@ -6,7 +6,7 @@
 
 use std::sync::Arc;
 
-use prometheus::{Gauge, IntCounter, IntGauge};
+use prometheus::IntCounter;
 use railmon_bus::{BogieFrame, FrameHeader};
 use railmon_damper::gain_table::GainTable;
 use railmon_damper::{BogieSample, DamperError, DamperMonitor, DamperPosterior, Propagation, Rbpf};
@@ -19,16 +19,16 @@ use super::view::{
 };
 use super::BogieConfig;
 use crate::ingest::{Pipeline, Rejection};
-use crate::metrics::Metrics;
+use crate::metrics::{EstimateGauge, EstimateIntGauge, Metrics};
 use crate::outbox::{Stamp, Track};
 use crate::store::ActiveAlarm;
 
 /// Gauges of one damper of one bogie, looked up once.
 struct DamperGauges {
     /// mean, q05, q95.
-    damping: [Gauge; 3],
-    health: Gauge,
-    degraded: IntGauge,
+    damping: [EstimateGauge; 3],
+    health: EstimateGauge,
+    degraded: EstimateIntGauge,
     /// degraded, recovered.
     events: [IntCounter; 2],
 }
@@ -40,7 +40,7 @@ struct BogieSlot {
     degraded: [bool; 2],
     last_stamp: Option<Stamp>,
     dampers: [DamperGauges; 2],
-    ess: Gauge,
+    ess: EstimateGauge,
 }
 
 impl BogieSlot {

@@ -1,16 +1,16 @@
 //! Metric families of the drive stream (label `drive`, 1-based).
 
-use prometheus::{CounterVec, Gauge, GaugeVec, IntCounterVec, IntGaugeVec};
+use prometheus::{CounterVec, IntCounterVec};
 
-use crate::metrics::Families;
+use crate::metrics::{EstimateGauge, EstimateGaugeVec, EstimateIntGaugeVec, Families};
 
 pub struct DriveMetrics {
-    pub slip_probability: GaugeVec,
-    pub electrical_speed: GaugeVec,
-    pub mechanical_speed: GaugeVec,
-    pub load_torque: GaugeVec,
-    pub slipping: IntGaugeVec,
-    pub global_torque: Gauge,
+    pub slip_probability: EstimateGaugeVec,
+    pub electrical_speed: EstimateGaugeVec,
+    pub mechanical_speed: EstimateGaugeVec,
+    pub load_torque: EstimateGaugeVec,
+    pub slipping: EstimateIntGaugeVec,
+    pub global_torque: EstimateGauge,
     pub slip_events: IntCounterVec,
     pub slip_seconds: CounterVec,
 }
@@ -19,32 +19,32 @@ impl DriveMetrics {
     pub fn new(f: &Families) -> Result<Self, prometheus::Error> {
         let drive = &["drive"];
         Ok(Self {
-            slip_probability: f.gauge_vec(
+            slip_probability: f.estimate_gauge_vec(
                 "drive_slip_probability_ratio",
                 "Probability that the drive has lost adhesion.",
                 drive,
             )?,
-            electrical_speed: f.gauge_vec(
+            electrical_speed: f.estimate_gauge_vec(
                 "drive_electrical_speed_radians_per_second",
                 "Estimated electrical speed of the drive (pole pairs x mechanical).",
                 drive,
             )?,
-            mechanical_speed: f.gauge_vec(
+            mechanical_speed: f.estimate_gauge_vec(
                 "drive_mechanical_speed_radians_per_second",
                 "Estimated mechanical speed of the motor shaft.",
                 drive,
             )?,
-            load_torque: f.gauge_vec(
+            load_torque: f.estimate_gauge_vec(
                 "drive_load_torque_newton_meters",
                 "Estimated load torque of the drive.",
                 drive,
             )?,
-            slipping: f.int_gauge_vec(
+            slipping: f.estimate_gauge_vec(
                 "drive_slipping",
                 "1 while the drive is flagged as slipping (hysteresis).",
                 drive,
             )?,
-            global_torque: f.gauge(
+            global_torque: f.estimate_gauge(
                 "drive_global_torque_newton_meters",
                 "Global (adhesion-consistent) load torque over all drives.",
             )?,

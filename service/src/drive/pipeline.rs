@@ -3,7 +3,6 @@
 
 use std::sync::Arc;
 
-use prometheus::{Gauge, IntGauge};
 use railmon_bus::{DriveFrame, FrameHeader};
 use railmon_slip::{DriveSample, SlipMonitor};
 
@@ -12,17 +11,17 @@ use railmon_bus::StreamKind;
 use super::view::{DriveShared, DriveView, DrivesView, HistoryPoint, SlipEventDetail};
 use super::DriveConfig;
 use crate::ingest::{Pipeline, Rejection};
-use crate::metrics::Metrics;
+use crate::metrics::{EstimateGauge, EstimateIntGauge, Metrics};
 use crate::outbox::{Stamp, Track};
 use crate::store::ActiveAlarm;
 
 struct DriveGauges {
     slip_seconds: prometheus::Counter,
-    slip_probability: Gauge,
-    electrical_speed: Gauge,
-    mechanical_speed: Gauge,
-    load_torque: Gauge,
-    slipping: IntGauge,
+    slip_probability: EstimateGauge,
+    electrical_speed: EstimateGauge,
+    mechanical_speed: EstimateGauge,
+    load_torque: EstimateGauge,
+    slipping: EstimateIntGauge,
 }
 
 impl DriveGauges {

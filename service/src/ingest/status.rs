@@ -5,13 +5,13 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use arc_swap::ArcSwapOption;
-use prometheus::{Gauge, Histogram, IntCounter, IntGauge};
+use prometheus::{Histogram, IntCounter, IntGauge};
 use railmon_bus::{monotonic_ns, FrameHeader, StreamKind};
 use serde::Serialize;
 use utoipa::ToSchema;
 
 use super::Rejection;
-use crate::metrics::Metrics;
+use crate::metrics::{EstimateGauge, Metrics};
 
 /// The rejection reasons of every stream (header layout, sequence, estimator failure); each
 /// [`super::Pipeline`] adds its own. All are exported from the start, so each series exists (at 0):
@@ -59,8 +59,9 @@ pub struct StreamStatus {
     rejected_total: AtomicU64,
     step: Histogram,
     latency: Histogram,
-    realtime_load: Gauge,
-    lag: Gauge,
+    realtime_load: EstimateGauge,
+    lag: EstimateGauge,
+    last_sample_age: EstimateGauge,
     lagging_gauge: IntGauge,
     metrics: Arc<Metrics>,
     last_received_ns: AtomicU64,
@@ -156,6 +157,7 @@ impl StreamStatus {
             latency: metrics.stream.publish_to_estimate.with_label_values(&label),
             realtime_load: metrics.stream.realtime_load.with_label_values(&label),
             lag: metrics.stream.lag.with_label_values(&label),
+            last_sample_age: metrics.stream.last_sample_age.with_label_values(&label),
             lagging_gauge: metrics.stream.lagging.with_label_values(&label),
             metrics,
             last_received_ns: AtomicU64::new(0),
@@ -236,17 +238,19 @@ impl StreamStatus {
     /// Updates the scrape-time gauges (age, freshness).
     pub fn refresh_gauges(&self, now_ns: u64) {
         let label = [self.kind.name()];
-        let age = self.last_sample_age_s(now_ns).unwrap_or(-1.0);
-        self.metrics
-            .stream
-            .last_sample_age
-            .with_label_values(&label)
-            .set(age);
+        // Absent before the first frame.
+        self.last_sample_age
+            .set(self.last_sample_age_s(now_ns).unwrap_or(f64::NAN));
         self.metrics
             .stream
             .fresh
             .with_label_values(&label)
             .set(i64::from(self.is_fresh(now_ns)));
+        self.metrics
+            .stream
+            .ready
+            .with_label_values(&label)
+            .set(i64::from(self.readiness(now_ns) == ReadinessReason::Ready));
     }
 
     pub fn view(&self, now_ns: u64) -> StreamStatusView {

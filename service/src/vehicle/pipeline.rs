@@ -3,7 +3,6 @@
 
 use std::sync::Arc;
 
-use prometheus::Gauge;
 use railmon_bus::{FrameHeader, VehicleFrame};
 use railmon_fuel::{FuelError, FuelMonitor, VehicleSample};
 
@@ -12,7 +11,7 @@ use railmon_bus::StreamKind;
 use super::view::{RegimeEventDetail, VehicleHistoryPoint, VehicleShared, VehicleView};
 use super::VehicleConfig;
 use crate::ingest::{Pipeline, Rejection};
-use crate::metrics::Metrics;
+use crate::metrics::{EstimateGauge, Metrics};
 use crate::outbox::{run_time_s, Stamp, Track};
 
 /// Cubic metres per cubic centimetre: the metrics are in base units.
@@ -29,11 +28,11 @@ const FUEL_RATE_KINDS: [&str; 4] = [
 /// Gauges looked up once (label lookups lock), set once per batch.
 struct VehicleGauges {
     /// In the order of [`FUEL_RATE_KINDS`].
-    fuel_rate: [Gauge; 4],
-    forecast: Vec<Gauge>,
-    consumed_measured: Gauge,
-    consumed_virtual: Gauge,
-    regime_probability: Vec<Gauge>,
+    fuel_rate: [EstimateGauge; 4],
+    forecast: Vec<EstimateGauge>,
+    consumed_measured: EstimateGauge,
+    consumed_virtual: EstimateGauge,
+    regime_probability: Vec<EstimateGauge>,
 }
 
 impl VehicleGauges {
