@@ -1,6 +1,9 @@
 //! `railmon`: the onboard condition-monitoring service (`serve`) and offline analysis (`analyze`).
 
 mod serve;
+mod summary;
+
+use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
@@ -8,10 +11,11 @@ use clap::{Parser, Subcommand};
 #[command(
     name = "railmon",
     version,
-    about = "Onboard condition monitoring for rail vehicles"
+    about = "Onboard condition monitoring for rail vehicles: wheel slip, damper health, fuel use",
+    after_help = "Logs go to stderr; RAILMON_LOG (or RUST_LOG) sets the filter, e.g. RAILMON_LOG=warn."
 )]
 struct Cli {
-    /// Logs as JSON lines instead of human-readable text.
+    /// Log as JSON lines instead of human-readable text.
     #[arg(long, global = true)]
     log_json: bool,
     #[command(subcommand)]
@@ -22,7 +26,7 @@ struct Cli {
 enum Command {
     /// Ingest the sensor streams from the bus and serve estimates over HTTP.
     Serve(serve::ServeArgs),
-    /// Offline analysis of a scenario or a recorded CSV.
+    /// Run an estimator offline over a scenario or a recorded CSV: CSV reports and PNG plots.
     #[command(subcommand)]
     Analyze(Analyze),
 }
@@ -30,26 +34,87 @@ enum Command {
 /// One line per domain: `Name(railmon_analyze::name::Args)` here and its arm in `main`.
 #[derive(Subcommand)]
 enum Analyze {
+    /// Wheel slip of traction drives: EKF per drive, then VB, VMP, k-means, median and temporal.
+    #[command(long_about = None)]
     Adhesion(railmon_analyze::adhesion::Args),
+    /// Damper health of a bogie: Rao-Blackwellised particle filter against an augmented EKF.
+    #[command(long_about = None)]
     Damper(railmon_analyze::damper::Args),
+    /// Fuel use and driving regime: recursive mixture with data-dependent switching.
+    #[command(long_about = None)]
     Fuel(railmon_analyze::fuel::Args),
 }
 
-fn main() -> anyhow::Result<()> {
-    let cli = Cli::parse();
-    serve::init_tracing(cli.log_json);
+/// An error and its causes on one line, each cause once: an error whose message already
+/// includes its source's (the usual `"{file}: {source}"`) is not followed by it again.
+/// Runs of white space (line breaks) become one space.
+fn one_line(error: &anyhow::Error) -> String {
+    let mut line = error.to_string();
+    for cause in error.chain().skip(1) {
+        let cause = cause.to_string();
+        if !line.contains(&cause) {
+            line.push_str(": ");
+            line.push_str(&cause);
+        }
+    }
+    // Messages that span lines (a settings error names key and variable on lines of their
+    // own) become one line.
+    line.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Serve(args) => serve::run(args),
-        Command::Analyze(analyze) => match analyze {
-            Analyze::Adhesion(args) => railmon_analyze::adhesion::run(&args)
-                .map(|_| ())
-                .map_err(anyhow::Error::from),
-            Analyze::Damper(args) => railmon_analyze::damper::run(&args)
-                .map(|_| ())
-                .map_err(anyhow::Error::from),
-            Analyze::Fuel(args) => railmon_analyze::fuel::run(&args)
-                .map(|_| ())
-                .map_err(anyhow::Error::from),
-        },
+        Command::Analyze(analyze) => {
+            // Whole seconds: a file system may store coarser times than the clock reads.
+            let started = std::time::SystemTime::now() - std::time::Duration::from_secs(1);
+            let (out, headline) = match analyze {
+                Analyze::Adhesion(args) => (
+                    args.run.out.clone(),
+                    summary::adhesion(&railmon_analyze::adhesion::run(&args)?),
+                ),
+                Analyze::Damper(args) => (
+                    args.run.out.clone(),
+                    summary::damper(&railmon_analyze::damper::run(&args)?),
+                ),
+                Analyze::Fuel(args) => (
+                    args.run.out.clone(),
+                    summary::fuel(&railmon_analyze::fuel::run(&args)?),
+                ),
+            };
+            println!("{}\n{headline}", summary::written(&out, started));
+            Ok(())
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    serve::init_tracing(cli.log_json);
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("railmon: {}", one_line(&e));
+            ExitCode::FAILURE
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::one_line;
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("config/x.toml: {0}")]
+    struct Outer(#[source] std::io::Error);
+
+    #[test]
+    fn an_error_is_one_line_with_each_cause_once() {
+        let inner = std::io::Error::other("no such key `foo`\n (from RAILMON_FOO)");
+        let e = anyhow::Error::from(Outer(inner)).context("invalid configuration");
+        assert_eq!(
+            one_line(&e),
+            "invalid configuration: config/x.toml: no such key `foo` (from RAILMON_FOO)"
+        );
     }
 }

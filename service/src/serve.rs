@@ -19,10 +19,11 @@ pub struct ServeArgs {
     addr_file: Option<PathBuf>,
 }
 
-/// Human-readable logs, or JSON lines; the filter comes from RAILMON_LOG (default `info`).
+/// Human-readable logs, or JSON lines, on stderr. The filter (`info`, `warn`,
+/// `railmon_service=debug,info`, ...) comes from `RAILMON_LOG`, else from the conventional
+/// `RUST_LOG`, else `info`; a filter that does not parse is said once and `info` applies.
 pub fn init_tracing(json: bool) {
-    let filter = tracing_subscriber::EnvFilter::try_from_env("RAILMON_LOG")
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let (filter, refused) = log_filter(|name| std::env::var(name).ok());
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
@@ -31,6 +32,35 @@ pub fn init_tracing(json: bool) {
         builder.json().init();
     } else {
         builder.init();
+    }
+    if let Some((name, value, e)) = refused {
+        tracing::warn!("{name}={value:?} is not a log filter ({e}); logging at info");
+    }
+}
+
+/// The variables that set the log filter, the first set one wins.
+const LOG_FILTER_VARIABLES: [&str; 2] = ["RAILMON_LOG", "RUST_LOG"];
+
+/// The log filter from the environment (`var` reads a variable), and the variable that did not
+/// parse, if any.
+fn log_filter(
+    var: impl Fn(&str) -> Option<String>,
+) -> (
+    tracing_subscriber::EnvFilter,
+    Option<(&'static str, String, String)>,
+) {
+    use tracing_subscriber::EnvFilter;
+    let set = LOG_FILTER_VARIABLES.iter().find_map(|&name| {
+        var(name)
+            .filter(|v| !v.trim().is_empty())
+            .map(|v| (name, v))
+    });
+    match set {
+        None => (EnvFilter::new("info"), None),
+        Some((name, value)) => match EnvFilter::try_new(&value) {
+            Ok(filter) => (filter, None),
+            Err(e) => (EnvFilter::new("info"), Some((name, value, e.to_string()))),
+        },
     }
 }
 
@@ -90,5 +120,35 @@ async fn termination() {
     tokio::select! {
         _ = tokio::signal::ctrl_c() => tracing::info!("SIGINT: shutting down"),
         _ = term.recv() => tracing::info!("SIGTERM: shutting down"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::log_filter;
+
+    fn filter_of(vars: &[(&str, &str)]) -> (String, bool) {
+        let (filter, refused) = log_filter(|name| {
+            vars.iter()
+                .find(|(k, _)| *k == name)
+                .map(|(_, v)| v.to_string())
+        });
+        (filter.to_string(), refused.is_some())
+    }
+
+    #[test]
+    fn railmon_log_overrides_rust_log_which_overrides_info() {
+        assert_eq!(filter_of(&[]), ("info".into(), false));
+        assert_eq!(filter_of(&[("RUST_LOG", "debug")]), ("debug".into(), false));
+        assert_eq!(
+            filter_of(&[("RUST_LOG", "debug"), ("RAILMON_LOG", "warn")]),
+            ("warn".into(), false)
+        );
+        // An empty RAILMON_LOG is not set.
+        assert_eq!(
+            filter_of(&[("RUST_LOG", "debug"), ("RAILMON_LOG", "")]),
+            ("debug".into(), false)
+        );
+        assert_eq!(filter_of(&[("RUST_LOG", "info,[")]), ("info".into(), true));
     }
 }

@@ -14,11 +14,16 @@ pub const DAMPERS: [&str; 2] = ["csy", "csay"];
 pub struct DamperView {
     /// Healthy (design) damping, N s/m.
     pub nominal_n_s_per_m: f64,
-    /// RBPF posterior mean and its 5% / 95% quantiles, N s/m.
+    /// RBPF posterior mean and its 5% / 95% quantiles, N s/m; this and the health ratio
+    /// are null until the bogie's first frame.
+    #[schema(value_type = Option<f64>)]
     pub mean_n_s_per_m: f64,
+    #[schema(value_type = Option<f64>)]
     pub q05_n_s_per_m: f64,
+    #[schema(value_type = Option<f64>)]
     pub q95_n_s_per_m: f64,
     /// Mean over nominal.
+    #[schema(value_type = Option<f64>)]
     pub health_ratio: f64,
     /// Flagged degraded: set when the whole 90% interval (its 95% quantile) falls below
     /// `degraded_below_ratio` x nominal, cleared when it (its 5% quantile) rises above
@@ -39,7 +44,8 @@ pub struct BogieView {
     pub run_time_s: Option<f64>,
     pub csy: DamperView,
     pub csay: DamperView,
-    /// Effective sample size of its particle filter (particles).
+    /// Effective sample size of its particle filter (particles); null until its first frame.
+    #[schema(value_type = Option<f64>)]
     pub effective_sample_size: f64,
 }
 

@@ -34,19 +34,30 @@ pub struct AlarmsView {
 #[serde(deny_unknown_fields)]
 #[into_params(parameter_in = Query)]
 pub struct EventsQuery {
-    /// Only events with a larger id (ids increase over the life of the database).
+    /// Only events with a larger id (ids increase over the life of the database; SQLite
+    /// holds them as i64).
+    #[param(maximum = 9223372036854775807_i64, example = 0)]
     pub after_id: Option<u64>,
     /// Only events acquired at or after this time (RFC 3339, e.g. 2026-11-22T08:00:00Z).
+    /// The pattern is what the server parses: RFC 3339 with `T`, `t` or a space, optional
+    /// fractions, `Z` or an offset, years 1678-2261 (nanoseconds since 1970 in an i64).
+    #[param(
+        pattern = r"^(1(6(7[89]|[89][0-9])|[7-9][0-9]{2})|2([01][0-9]{2}|2([0-5][0-9]|6[01])))-(0[1-9]|1[0-2])-(0[1-9]|[12][0-9]|3[01])[Tt ]([01][0-9]|2[0-3]):[0-5][0-9]:([0-5][0-9]|60)(\.[0-9]+)?([Zz]|[+-][0-9]{2}:[0-9]{2})$",
+        example = "2026-11-22T08:00:00Z"
+    )]
     pub since: Option<String>,
     /// Only events of this kind (`slip_started`, `damper_degraded`, `regime_changed`, ...).
     pub kind: Option<String>,
     /// Events per page, 1..=1000 (default 100).
+    #[param(minimum = 1, maximum = 1000, example = 100)]
     pub limit: Option<usize>,
     /// Only this vehicle (this service's `vehicle_id`; another gives an empty page).
     pub vehicle: Option<String>,
     /// `/api/v1/events` only: one stream (`drive`, `bogie`, `vehicle`).
+    #[param(pattern = "^(drive|bogie|vehicle)$", example = "bogie")]
     pub stream: Option<String>,
     /// `/api/v1/drives/events` only: one drive (1-based).
+    #[param(minimum = 1, maximum = 32, example = 1)]
     pub drive: Option<usize>,
     /// `/api/v1/bogies/events` only: one bogie.
     pub bogie: Option<u32>,
@@ -90,6 +101,12 @@ fn store_query(state: &AppState, scope: Scope, q: &EventsQuery) -> Result<EventQ
                 .ok_or_else(|| bad(format!("`stream={name}`: expected drive, bogie or vehicle")))?,
         ),
     };
+    if let Some(after_id) = q.after_id.filter(|&id| i64::try_from(id).is_err()) {
+        return Err(bad(format!(
+            "`after_id={after_id}`: expected at most {}",
+            i64::MAX
+        )));
+    }
     let limit = q.limit.unwrap_or(DEFAULT_PAGE);
     if !(1..=MAX_PAGE).contains(&limit) {
         return Err(bad(format!("`limit={limit}`: expected 1..={MAX_PAGE}")));
@@ -99,7 +116,12 @@ fn store_query(state: &AppState, scope: Scope, q: &EventsQuery) -> Result<EventQ
         Some(text) => Some(railmon_bus::utc::parse_rfc3339(text).map_err(bad)?),
     };
     let subject = match (q.drive, q.bogie) {
-        (Some(0), _) => return Err(bad("`drive=0`: drives are numbered from 1".into())),
+        (Some(drive), _) if !(1..=railmon_bus::MAX_DRIVES).contains(&drive) => {
+            return Err(bad(format!(
+                "`drive={drive}`: drives are numbered 1..={}",
+                railmon_bus::MAX_DRIVES
+            )))
+        }
         (Some(drive), _) => Some(drive.to_string()),
         (_, Some(bogie)) => {
             if !state.config.bogie.bogies.contains(&bogie) {

@@ -59,10 +59,37 @@ struct ServiceApi;
 
 /// The OpenAPI document: the service's endpoints and every stream's.
 pub fn api_doc() -> utoipa::openapi::OpenApi {
-    ServiceApi::openapi()
+    let mut doc = ServiceApi::openapi()
         .merge_from(crate::drive::DriveApi::openapi())
         .merge_from(crate::bogie::BogieApi::openapi())
-        .merge_from(crate::vehicle::VehicleApi::openapi())
+        .merge_from(crate::vehicle::VehicleApi::openapi());
+    only_own_event_filters(&mut doc);
+    doc
+}
+
+/// The events endpoints share one query type ([`events::EventsQuery`]), whose `stream`,
+/// `drive` and `bogie` filters each belong to one endpoint (elsewhere they are a `bad_query`):
+/// each endpoint's document lists only its own.
+fn only_own_event_filters(doc: &mut utoipa::openapi::OpenApi) {
+    const FILTERS: [&str; 3] = ["stream", "drive", "bogie"];
+    for (path, own) in [
+        ("/api/v1/events", "stream"),
+        ("/api/v1/drives/events", "drive"),
+        ("/api/v1/bogies/events", "bogie"),
+        ("/api/v1/vehicle/events", ""),
+    ] {
+        let Some(item) = doc.paths.paths.get_mut(path) else {
+            continue;
+        };
+        if let Some(params) = item.get.as_mut().and_then(|op| op.parameters.as_mut()) {
+            params.retain(|p| match p {
+                utoipa::openapi::RefOr::T(p) => {
+                    p.name == own || !FILTERS.contains(&p.name.as_str())
+                }
+                utoipa::openapi::RefOr::Ref(_) => true,
+            });
+        }
+    }
 }
 
 /// The router; `state` carries everything the handlers read.
@@ -77,6 +104,7 @@ pub fn app(state: AppState) -> Router {
         .route("/healthz", get(system::healthz))
         .route("/readyz", get(system::readyz))
         .route("/metrics", get(system::metrics))
+        .route("/", get(system::root))
         .route("/openapi.json", get(system::openapi))
         .route("/docs", get(system::swagger_index))
         .route("/docs/", get(system::swagger_index))
@@ -105,12 +133,15 @@ async fn identify(
     next: axum::middleware::Next,
 ) -> axum::response::Response {
     use axum::http::header::{HeaderValue, CONTENT_LENGTH, CONTENT_TYPE};
+    // The OpenAPI document is about the API, not an answer of this vehicle.
+    let document = request.uri().path() == "/openapi.json";
     let response = next.run(request).await;
     let (mut parts, body) = response.into_parts();
     let json = parts
         .headers
         .get(CONTENT_TYPE)
-        .is_some_and(|v| v.as_bytes().starts_with(b"application/json"));
+        .is_some_and(|v| v.as_bytes().starts_with(b"application/json"))
+        && !document;
     let body = match json {
         false => body,
         true => match axum::body::to_bytes(body, usize::MAX).await {

@@ -48,6 +48,7 @@ pub const MAX_HISTORY_SECONDS: f64 = 86_400.0;
 #[into_params(parameter_in = Query)]
 pub struct HistoryQuery {
     /// Window of stream time before the newest point, s (at most 86400).
+    #[param(exclusive_minimum = 0.0, maximum = 86400.0, example = 60.0)]
     pub seconds: Option<f64>,
 }
 

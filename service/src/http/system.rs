@@ -123,6 +123,11 @@ pub async fn metrics(State(state): State<AppState>) -> Result<Response, AppError
         .into_response())
 }
 
+/// `GET /`: a browser that opens the service's address lands on the API documentation.
+pub async fn root() -> axum::response::Redirect {
+    axum::response::Redirect::temporary("/docs")
+}
+
 pub async fn openapi() -> Json<utoipa::openapi::OpenApi> {
     Json(super::api_doc())
 }

@@ -1,0 +1,102 @@
+//! What `railmon analyze <domain>` says when it is done: the files it wrote into `--out` and
+//! the headline numbers of its report, in a few lines on stdout.
+
+use std::fmt::Write as _;
+use std::path::Path;
+use std::time::SystemTime;
+
+use railmon_analyze::adhesion::AdhesionReport;
+use railmon_analyze::damper::DamperReport;
+use railmon_analyze::fuel::Evaluation;
+
+/// The files of `out` written since `started` (name and size), sorted by name.
+pub fn written(out: &Path, started: SystemTime) -> String {
+    let mut files: Vec<(String, u64)> = std::fs::read_dir(out)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|entry| {
+            let meta = entry.metadata().ok()?;
+            let fresh = meta.is_file() && meta.modified().ok()? >= started;
+            fresh.then(|| (entry.file_name().to_string_lossy().into_owned(), meta.len()))
+        })
+        .collect();
+    files.sort();
+    let total: u64 = files.iter().map(|(_, n)| n).sum();
+    let names: Vec<&str> = files.iter().map(|(n, _)| n.as_str()).collect();
+    format!(
+        "wrote {} files ({:.1} MB) to {}: {}",
+        files.len(),
+        total as f64 / 1e6,
+        out.display(),
+        names.join(", ")
+    )
+}
+
+fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or("-".into(), |v| format!("{v:.digits$}"))
+}
+
+/// Detection per method: F1 of every drive.
+pub fn adhesion(report: &AdhesionReport) -> String {
+    let mut out = format!("{} steps; detection F1 per drive:", report.n_steps);
+    let mut method = None;
+    for row in &report.detection {
+        let name = row.method.to_string();
+        if method.as_ref() != Some(&name) {
+            let _ = write!(out, "\n  {name:>9}:");
+            method = Some(name);
+        }
+        let _ = write!(out, " drive {} {}", row.drive, opt(row.score.f1, 3));
+    }
+    out
+}
+
+/// Per method and damper: error at the end and whether the 90 % interval covers the truth.
+pub fn damper(report: &DamperReport) -> String {
+    let mut out = format!(
+        "{} steps, {:.1} us per step; error at the end (90 % interval covers the truth):",
+        report.steps, report.mean_step_us
+    );
+    for row in &report.summary {
+        let _ = write!(
+            out,
+            "\n  {:>4} {:>4}: {} % ({})",
+            row.method,
+            row.damper,
+            opt(row.error_end.map(|e| 100.0 * e), 2),
+            if row.covered_end {
+                "covered"
+            } else {
+                "not covered"
+            }
+        );
+    }
+    out
+}
+
+/// RMSE of every method at its shortest horizon, and the regime accuracy when labelled.
+pub fn fuel(report: &Evaluation) -> String {
+    let mut out = format!("{} samples; RMSE, cm^3/s:", report.samples);
+    let mut seen = Vec::new();
+    for row in &report.scores {
+        if seen.contains(&row.method) {
+            continue;
+        }
+        seen.push(row.method);
+        let _ = write!(
+            out,
+            "\n  {} ({} s ahead): {:.3}",
+            row.method, row.horizon_s, row.rmse
+        );
+    }
+    if let Some(regimes) = &report.regimes {
+        let _ = write!(
+            out,
+            "\n  regime accuracy: {:.1} % (reported regime: {:.1} %)",
+            100.0 * regimes.accuracy(),
+            100.0 * regimes.confirmed_accuracy()
+        );
+    }
+    out
+}

@@ -1,0 +1,172 @@
+//! The OpenAPI document is valid (`openapi-spec-validator`, from the Python environment of
+//! `scripts/install-test-deps`: `target-venv`, or `$RAILMON_TEST_VENV`) and usable: every
+//! operation has a summary, a tag of its stream, and a description for every response; every
+//! `f64` that the server may send as `null` is nullable; the history bound is the server's.
+//! `GET /` leads to the docs. The server's answers against the document: `tests/tests/schemathesis.rs`.
+
+mod common;
+
+use axum::body::{to_bytes, Body};
+use axum::http::{Request, StatusCode};
+use common::test_config;
+use railmon_service::{app, AppState};
+use serde_json::Value;
+use tower::ServiceExt;
+
+async fn get(state: &AppState, uri: &str) -> (StatusCode, Option<String>, String) {
+    let response = app(state.clone())
+        .oneshot(Request::get(uri).body(Body::empty()).unwrap())
+        .await
+        .unwrap();
+    let status = response.status();
+    let location = response
+        .headers()
+        .get("location")
+        .map(|v| v.to_str().unwrap().to_string());
+    let body = to_bytes(response.into_body(), 16 << 20).await.unwrap();
+    (
+        status,
+        location,
+        String::from_utf8_lossy(&body).into_owned(),
+    )
+}
+
+async fn document() -> Value {
+    let state = AppState::new(test_config()).unwrap();
+    let (status, _, body) = get(&state, "/openapi.json").await;
+    assert_eq!(status, StatusCode::OK);
+    serde_json::from_str(&body).unwrap()
+}
+
+#[tokio::test]
+async fn the_document_passes_the_openapi_validator() {
+    let venv = std::env::var("RAILMON_TEST_VENV")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|_| {
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target-venv")
+        });
+    let validator = venv.join("bin/openapi-spec-validator");
+    assert!(
+        validator.exists(),
+        "{} missing: run scripts/install-test-deps",
+        validator.display()
+    );
+    let file = std::env::temp_dir().join(format!("railmon-openapi-{}.json", std::process::id()));
+    std::fs::write(&file, document().await.to_string()).unwrap();
+    let out = std::process::Command::new(&validator)
+        .arg(&file)
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_file(&file);
+    assert!(
+        out.status.success(),
+        "openapi-spec-validator:\n{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[tokio::test]
+async fn every_operation_has_a_summary_a_stream_tag_and_described_responses() {
+    let api = document().await;
+    let tags: Vec<&str> = api["tags"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["name"].as_str().unwrap())
+        .collect();
+    let mut operations = 0;
+    for (path, item) in api["paths"].as_object().unwrap() {
+        for (method, op) in item.as_object().unwrap() {
+            operations += 1;
+            let name = format!("{method} {path}");
+            assert!(
+                op["summary"].as_str().is_some_and(|s| !s.is_empty()),
+                "{name}: no summary"
+            );
+            let op_tags = op["tags"]
+                .as_array()
+                .unwrap_or_else(|| panic!("{name}: no tag"));
+            assert!(
+                op_tags.iter().all(|t| tags.contains(&t.as_str().unwrap())),
+                "{name}: {op_tags:?}"
+            );
+            let stream = ["drives", "bogies", "vehicle"]
+                .into_iter()
+                .find(|s| path.starts_with(&format!("/api/v1/{s}")));
+            if let Some(stream) = stream {
+                assert_eq!(op_tags, &[Value::from(stream)], "{name}");
+            }
+            for (code, response) in op["responses"].as_object().unwrap() {
+                assert!(
+                    response["description"]
+                        .as_str()
+                        .is_some_and(|d| !d.is_empty()),
+                    "{name} {code}: no description"
+                );
+            }
+        }
+    }
+    assert!(operations >= 15, "{operations}");
+}
+
+#[tokio::test]
+async fn the_root_leads_to_the_docs() {
+    let state = AppState::new(test_config()).unwrap();
+    let (status, location, _) = get(&state, "/").await;
+    assert_eq!(
+        (status, location.as_deref()),
+        (StatusCode::TEMPORARY_REDIRECT, Some("/docs"))
+    );
+}
+
+/// The bounds the document states are the ones the server enforces.
+#[tokio::test]
+async fn parameter_bounds_are_the_servers() {
+    let api = document().await;
+    let param = |path: &str, name: &str| -> Value {
+        api["paths"][path]["get"]["parameters"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["name"] == name)
+            .unwrap_or_else(|| panic!("{path}: no parameter {name}"))["schema"]
+            .clone()
+    };
+    let limit = param("/api/v1/events", "limit");
+    assert_eq!(
+        (limit["minimum"].as_u64(), limit["maximum"].as_u64()),
+        (
+            Some(1),
+            Some(railmon_service::http::events::MAX_PAGE as u64)
+        )
+    );
+    let drive = param("/api/v1/drives/events", "drive");
+    assert_eq!(
+        drive["maximum"].as_u64(),
+        Some(railmon_bus::MAX_DRIVES as u64)
+    );
+    let seconds = param("/api/v1/drives/{id}/history", "seconds");
+    assert_eq!(
+        seconds["maximum"].as_f64(),
+        Some(railmon_service::http::MAX_HISTORY_SECONDS)
+    );
+    assert_eq!(seconds["exclusiveMinimum"].as_f64(), Some(0.0));
+    // Each events endpoint lists only its own subject filter.
+    let names = |path: &str| -> Vec<String> {
+        api["paths"][path]["get"]["parameters"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p["name"].as_str().unwrap().to_string())
+            .collect()
+    };
+    assert!(names("/api/v1/drives/events").contains(&"drive".to_string()));
+    assert!(!names("/api/v1/drives/events").contains(&"bogie".to_string()));
+    assert!(!names("/api/v1/vehicle/events")
+        .iter()
+        .any(|n| ["drive", "bogie", "stream"].contains(&n.as_str())));
+    // Where the server sends null before the first estimate, the schema allows it.
+    let damper = &api["components"]["schemas"]["DamperView"]["properties"]["health_ratio"];
+    assert!(damper.to_string().contains("null"), "{damper}");
+}
