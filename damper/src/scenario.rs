@@ -1,16 +1,17 @@
 //! Simulated runs, parsed from `config/scenarios/damper-*.toml`.
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::config::DamperMonitorConfig;
+use crate::faults::DamperFault;
 use crate::params::{positive, BogieParams, Dampers};
-use crate::simulator::{DamperFault, SensorNoise};
+use crate::sample::SensorNoise;
 use crate::track::TrackSpec;
 use crate::DamperError;
 
 /// A scenario: the plant, its track and faults, the sensors, and the monitor settings to run
 /// on it.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DamperScenario {
     pub name: String,
