@@ -273,6 +273,14 @@ impl Default for DamperMonitorConfig {
     }
 }
 
+impl railmon_settings::Presets for DamperMonitorConfig {
+    const PRESETS: &'static [&'static str] = &["paper"];
+
+    fn preset(name: &str) -> Option<Self> {
+        (name == "paper").then(DamperMonitorConfig::paper)
+    }
+}
+
 impl DamperMonitorConfig {
     /// The paper's filter (section 4.3): the exact per-particle Kalman filters, the Liu-West
     /// kernel every step, static parameters (no diffusion, no regeneration). Slow (about 100x
