@@ -14,6 +14,9 @@
 //! - `faults.csv` (scenarios with faults): per fault, method and damper, the relative error
 //!   10 s after the fault is complete and the time from then until the estimate settles
 //!   within 5% for good;
+//! - `events.csv`: `id,kind,stream_time_s,subject,detail`, the damper health events
+//!   (`damper_degraded` / `damper_recovered`) of `railmon_damper::DamperAlarm`, the rule the
+//!   service applies (`subject` = `<bogie>/<damper>`, `detail` the service's JSON fields);
 //! - `timing.csv`: steps, particles, propagation, mean wall time of one monitor step (RBPF,
 //!   EKF and the posterior summary) and the real-time factor at the sample rate, and when
 //!   the EKF diverged if it did;
@@ -28,8 +31,9 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use railmon_damper::{
-    BogieSample, BogieSimulator, DamperError, DamperEstimate, DamperFault, DamperId, DamperMonitor,
-    DamperMonitorConfig, DamperScenario, FaultKind, Propagation,
+    BogieSample, BogieSimulator, DamperAlarm, DamperError, DamperEstimate, DamperEvent,
+    DamperFault, DamperId, DamperMonitor, DamperMonitorConfig, DamperScenario, FaultKind,
+    Propagation,
 };
 use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord};
 use railmon_records::{write_csv_table, RecordError};
@@ -51,8 +55,9 @@ pub struct Args {
     /// Run only the first seconds of the scenario or recording.
     #[arg(long)]
     pub duration_s: Option<f64>,
-    /// With `--input`: the bogie whose rows are analysed (a recording of several bogies holds
-    /// them interleaved; a file without a `bogie` column is bogie 1).
+    /// The bogie analysed: with `--input`, whose rows (a recording of several bogies holds
+    /// them interleaved; a file without a `bogie` column is bogie 1); always, whose RBPF seed
+    /// (`rbpf.seed + bogie - 1`, as the service seeds it) and event subject.
     #[arg(long, default_value_t = 1)]
     pub bogie: u32,
     /// Write a row of `estimates.csv` (and a plot point) every this many steps.
@@ -125,6 +130,8 @@ pub struct FaultRow {
 #[derive(Debug, Clone)]
 pub struct DamperReport {
     pub summary: Vec<SummaryRow>,
+    /// The health events, as the service would raise them.
+    pub events: Vec<DamperEvent>,
     pub faults: Vec<FaultRow>,
     pub steps: u64,
     /// Mean wall time of one monitor step (RBPF + EKF + posterior summary).
@@ -145,16 +152,21 @@ enum Source {
     Recording(Box<BogieCsvReader<std::fs::File>>),
 }
 
-/// A sample and, for simulated or recorded-with-truth data, the true `[C_sy, C_say]`.
-type TruthSample = (BogieSample, Option<[f64; 2]>);
+/// A sample, its time (s) and, for simulated or recorded-with-truth data, the true
+/// `[C_sy, C_say]`.
+type TruthSample = (BogieSample, f64, Option<[f64; 2]>);
 
 impl Source {
     /// Next sample and truth; `Ok(None)` at the end.
     fn next(&mut self) -> Result<Option<TruthSample>, DamperAnalysisError> {
         match self {
-            Source::Simulator(sim) => Ok(sim
-                .step()
-                .map(|(y, t)| (*y, Some([t.dampers.csy_ns_per_m, t.dampers.csay_ns_per_m])))),
+            Source::Simulator(sim) => Ok(sim.step().map(|(y, t)| {
+                (
+                    *y,
+                    t.time_s,
+                    Some([t.dampers.csy_ns_per_m, t.dampers.csay_ns_per_m]),
+                )
+            })),
             Source::Recording(r) => Ok(r.next_record()?.map(|rec| {
                 let s = rec.sensors;
                 (
@@ -165,6 +177,7 @@ impl Source {
                         bogie_yaw_rate_rad_s: s[3],
                         body_accel_m_s2: s[4],
                     },
+                    rec.time_s,
                     rec.truth_ns_per_m,
                 )
             })),
@@ -229,15 +242,24 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
         .duration_s
         .map(|d| (d / config.dt_s).round() as u64)
         .or(n_steps.map(|n| n as u64));
-    let (trace, steps, elapsed, ekf_diverged_at_s) = run_monitor(
+    let run = run_monitor(
         &name,
         &config,
+        args.bogie,
         source,
         record,
         max_steps,
         args.csv_every.max(1),
     )?;
+    let MonitorRun {
+        trace,
+        events,
+        steps,
+        elapsed,
+        ekf_diverged_at_s,
+    } = run;
     write_estimates(&args.run.out.join("estimates.csv"), &trace)?;
+    write_events(&args.run.out.join("events.csv"), args.bogie, &events)?;
     let has_truth = trace.iter().all(|p| p.truth.is_some()) && !trace.is_empty();
     let summary = if has_truth { summarise(&trace) } else { vec![] };
     if has_truth {
@@ -279,6 +301,7 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
     )?;
     Ok(DamperReport {
         summary,
+        events,
         faults: fault_rows,
         steps,
         mean_step_us,
@@ -286,30 +309,45 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
     })
 }
 
-type MonitorRun = (Vec<TracePoint>, u64, Duration, Option<f64>);
+struct MonitorRun {
+    trace: Vec<TracePoint>,
+    events: Vec<DamperEvent>,
+    steps: u64,
+    elapsed: Duration,
+    ekf_diverged_at_s: Option<f64>,
+}
 
 fn run_monitor(
     name: &str,
     config: &DamperMonitorConfig,
+    bogie: u32,
     mut source: Source,
     mut record: Option<BogieCsvWriter>,
     max_steps: Option<u64>,
     every: usize,
 ) -> Result<MonitorRun, DamperAnalysisError> {
     let mut monitor =
-        DamperMonitor::new(config, config.rbpf.seed).map_err(estimator_error(name))?;
+        DamperMonitor::for_bogie(config, bogie, None).map_err(estimator_error(name))?;
+    let mut alarms = DamperAlarm::pair(&config.alarm, &config.nominal, [false; 2]);
+    let mut events = vec![];
     let bar = progress_bar(max_steps.unwrap_or(0), "damper");
     let mut trace = vec![];
     let mut steps = 0u64;
     let mut elapsed = Duration::ZERO;
     while max_steps.is_none_or(|m| steps < m) {
-        let Some((sample, truth)) = source.next()? else {
+        let Some((sample, time_s, truth)) = source.next()? else {
             break;
         };
         let started = Instant::now();
         let estimate = *monitor.step(&sample).map_err(estimator_error(name))?;
         elapsed += started.elapsed();
         steps += 1;
+        // Stamped with the sample's own time, as the service stamps its events.
+        events.extend(
+            alarms
+                .iter_mut()
+                .filter_map(|a| a.update(&estimate).map(|e| DamperEvent { time_s, ..e })),
+        );
         if let Some(w) = record.as_mut() {
             w.write(&BogieRecord {
                 time_s: estimate.time_s,
@@ -332,7 +370,36 @@ fn run_monitor(
     if let Some(w) = record {
         w.finish()?;
     }
-    Ok((trace, steps, elapsed, monitor.ekf_diverged_at_s()))
+    Ok(MonitorRun {
+        trace,
+        events,
+        steps,
+        elapsed,
+        ekf_diverged_at_s: monitor.ekf_diverged_at_s(),
+    })
+}
+
+/// `events.csv`: the columns every `railmon analyze` domain writes, the service's kinds,
+/// subjects and detail fields.
+fn write_events(path: &Path, bogie: u32, events: &[DamperEvent]) -> Result<(), RecordError> {
+    write_csv_table(
+        path,
+        &["id", "kind", "stream_time_s", "subject", "detail"],
+        events.iter().enumerate().map(|(i, e)| {
+            let detail = serde_json::json!({
+                "bogie": bogie,
+                "damper": e.damper.name(),
+                "health_ratio": e.health_ratio,
+            });
+            vec![
+                (i + 1).to_string(),
+                e.kind.as_str().to_owned(),
+                format!("{:.6}", e.time_s),
+                format!("{bogie}/{}", e.damper.name()),
+                detail.to_string(),
+            ]
+        }),
+    )
 }
 
 fn sample_array(s: &BogieSample) -> [f64; 5] {

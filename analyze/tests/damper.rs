@@ -83,7 +83,8 @@ fn scenario_run_writes_reports_and_its_recording_replays_identically() {
     assert_eq!(replayed, estimates);
 
     // The same rows as bogie 2 of a two-bogie recording (bogie 1: other, halved, signals),
-    // analysed with `--bogie 2`, give the same estimates again.
+    // analysed with `--bogie 2`, give the same estimates again: bogie 2's RBPF runs on
+    // `rbpf.seed + 1` (as the service seeds it), so the configured seed is one less.
     let two = replay.join("two-bogies.csv");
     let mut reader = BogieCsvReader::open(&out.join("bogie.csv")).unwrap();
     let mut writer = BogieCsvWriter::create_with_bogie_ids(&two, reader.has_truth()).unwrap();
@@ -94,7 +95,14 @@ fn scenario_run_writes_reports_and_its_recording_replays_identically() {
         writer.write_bogie(2, &record).unwrap();
     }
     writer.finish().unwrap();
+    let config_2 = replay.join("monitor-2.toml");
+    std::fs::write(
+        &config_2,
+        "track_velocity_std_m_s = 0.1\n[rbpf]\ndelta = 0.99\nseed = 10\n",
+    )
+    .unwrap();
     b.run.input = Some(two);
+    b.run.config = Some(config_2);
     b.bogie = 2;
     run(&b).unwrap();
     let bogie_2 = std::fs::read_to_string(replay.join("estimates.csv")).unwrap();

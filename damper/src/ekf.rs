@@ -9,9 +9,9 @@
 use nalgebra::SMatrix;
 
 use crate::config::DamperMonitorConfig;
+use crate::kalman::initial_covariance;
 use crate::model::{BogieModel, Matrix17, Matrix5, Matrix5x17, Vector5, N_OUTPUTS, N_STATES};
 use crate::params::Dampers;
-use crate::rbpf::initial_covariance;
 use crate::DamperError;
 use railmon_filter::kalman::update_joseph;
 

@@ -4,7 +4,7 @@
 use nalgebra::{Cholesky, Matrix2, SMatrix};
 
 use crate::expm::Discrete;
-use crate::model::{Matrix17, Matrix5, Matrix5x17, Vector17, Vector5, N_OUTPUTS, N_STATES};
+use crate::model::{state, Matrix17, Matrix5, Matrix5x17, Vector17, Vector5, N_OUTPUTS, N_STATES};
 use crate::DamperError;
 use railmon_filter::kalman::{symmetrize, update_joseph, LN_2PI};
 
@@ -145,6 +145,19 @@ pub fn steady_from_p(
         s_inv,
         ln_det_s,
     })
+}
+
+/// Initial state covariance of the exact filter: the vehicle starts near rest; standard
+/// deviations 1 cm (displacements, track), 1 mrad, 1 cm/s, 10 mrad/s.
+pub fn initial_covariance() -> Matrix17 {
+    let mut d = Vector17::repeat(1e-2f64.powi(2));
+    for i in [state::PSIW1, state::PSIW2, state::PSIB] {
+        d[i] = 1e-3f64.powi(2);
+    }
+    for i in [state::PSIW1_DOT, state::PSIW2_DOT, state::PSIB_DOT] {
+        d[i] = 1e-2f64.powi(2);
+    }
+    Matrix17::from_diagonal(&d)
 }
 
 #[cfg(test)]

@@ -10,52 +10,34 @@
 //! a time); [`BogieSimulator`] gives samples and ground truth for a [`DamperScenario`].
 //! Design, results and measurements: `docs/damper.md`.
 
+pub mod alarm;
 pub mod config;
 pub mod ekf;
+pub mod error;
 pub mod expm;
+pub mod faults;
 pub mod gain_table;
 pub mod kalman;
 pub mod model;
 pub mod monitor;
 pub mod params;
 pub mod rbpf;
+pub mod sample;
 pub mod scenario;
 pub mod simulator;
 pub mod track;
 
+pub use alarm::{DamperAlarm, DamperAlarmConfig, DamperEvent, DamperEventKind};
 pub use config::{
     DamperMonitorConfig, EkfConfig, GainGridConfig, KernelSchedule, Propagation, RbpfConfig,
 };
 pub use ekf::{AugmentedEkf, EkfEstimate};
+pub use error::DamperError;
+pub use faults::{DamperFault, DamperId, FaultKind};
 pub use monitor::{DamperEstimate, DamperMonitor};
 pub use params::{BogieParams, Dampers};
 pub use rbpf::{DamperPosterior, Rbpf, RbpfEstimate};
+pub use sample::{BogieSample, SensorNoise};
 pub use scenario::DamperScenario;
-pub use simulator::{
-    BogieSample, BogieSimulator, BogieTruth, DamperFault, DamperId, FaultKind, SensorNoise,
-};
+pub use simulator::{BogieSimulator, BogieTruth};
 pub use track::{ErriLevel, TrackSpec};
-
-/// Errors of the damper crate.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum DamperError {
-    /// A configuration value is out of range.
-    #[error("invalid parameter {field} = {value}: {reason}")]
-    InvalidParameter {
-        field: &'static str,
-        value: f64,
-        reason: &'static str,
-    },
-    /// A value that must be finite was NaN or infinite.
-    #[error("non-finite value in {what}")]
-    NonFinite { what: &'static str },
-    /// A sensor sample was rejected before it reached the filter (the filter is unchanged).
-    #[error("invalid sample: {field} = {value}")]
-    InvalidSample { field: &'static str, value: f64 },
-    /// The scenario or monitor configuration text could not be parsed.
-    #[error("configuration: {0}")]
-    Config(String),
-    /// A shared numerics routine failed.
-    #[error(transparent)]
-    Filter(#[from] railmon_filter::FilterError),
-}

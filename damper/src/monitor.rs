@@ -7,7 +7,7 @@ use crate::config::{DamperMonitorConfig, Propagation};
 use crate::ekf::{AugmentedEkf, EkfEstimate};
 use crate::gain_table::GainTable;
 use crate::rbpf::{DamperPosterior, Rbpf};
-use crate::simulator::BogieSample;
+use crate::sample::BogieSample;
 use crate::DamperError;
 
 /// The monitor's output after a step.
@@ -42,6 +42,27 @@ impl DamperMonitor {
             Propagation::Exact => None,
         };
         Self::with_gain_table(config, seed, table)
+    }
+
+    /// The monitor of bogie `bogie_id` of a vehicle: its RBPF seeded with
+    /// [`DamperMonitor::bogie_seed`], so that the service and `railmon analyze damper --bogie`
+    /// give the same answer on the same data.
+    pub fn for_bogie(
+        config: &DamperMonitorConfig,
+        bogie_id: u32,
+        table: Option<Arc<GainTable>>,
+    ) -> Result<Self, DamperError> {
+        Self::with_gain_table(config, Self::bogie_seed(config, bogie_id), table)
+    }
+
+    /// `rbpf.seed + bogie_id - 1`: bogie 1 runs on the configured seed (the one every figure
+    /// in `docs/damper.md` was measured with), each other bogie on its own.
+    pub fn bogie_seed(config: &DamperMonitorConfig, bogie_id: u32) -> u64 {
+        config
+            .rbpf
+            .seed
+            .wrapping_add(u64::from(bogie_id))
+            .wrapping_sub(1)
     }
 
     /// As [`DamperMonitor::new`] with a gain table shared by the bogies of one vehicle type

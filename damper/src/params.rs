@@ -1,11 +1,11 @@
 //! Physical parameters of the plan-view half vehicle (paper appendix), as a validated value.
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::DamperError;
 
 /// The two damping coefficients the filters estimate (`theta = [C_sy, C_say]`, section 2).
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Dampers {
     /// Secondary lateral damping per bogie `C_sy` (N s/m).
@@ -50,7 +50,7 @@ impl Default for Dampers {
 
 /// Everything in equations (1) except the two dampers. Defaults are the paper's appendix;
 /// the conicity, which the paper does not print, defaults to 0.15 (seed notes).
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct BogieParams {
     /// `m_w`, each wheelset (kg).

@@ -1,16 +1,17 @@
 //! Simulated runs, parsed from `config/scenarios/damper-*.toml`.
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::config::DamperMonitorConfig;
+use crate::faults::DamperFault;
 use crate::params::{positive, BogieParams, Dampers};
-use crate::simulator::{DamperFault, SensorNoise};
+use crate::sample::SensorNoise;
 use crate::track::TrackSpec;
 use crate::DamperError;
 
 /// A scenario: the plant, its track and faults, the sensors, and the monitor settings to run
 /// on it.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DamperScenario {
     pub name: String,
@@ -30,10 +31,17 @@ pub struct DamperScenario {
     pub sensors: SensorNoise,
     #[serde(default)]
     pub faults: Vec<DamperFault>,
-    /// The estimator settings to run on it; `vehicle` and `dt_s` are taken from the
-    /// scenario's (the monitor knows the vehicle's design values).
+    /// The estimator settings to run on it (`DamperMonitorConfig::default()` with the keys
+    /// given; `preset = "paper"` starts from `DamperMonitorConfig::paper()` instead). Its
+    /// `dt_s` is the scenario's (a different one is refused). Its vehicle is
+    /// `[monitor.vehicle]` when given (the filter's assumed vehicle; the plant, `[vehicle]`, may
+    /// differ: a wrong conicity, a wrong speed), else the plant's (the monitor knows the
+    /// vehicle's design values).
     #[serde(default)]
     pub monitor: DamperMonitorConfig,
+    /// Whether `[monitor.vehicle]` was given (set by [`DamperScenario::from_toml_str`]).
+    #[serde(skip)]
+    pub monitor_vehicle_given: bool,
 }
 
 fn default_dt_s() -> f64 {
@@ -42,8 +50,29 @@ fn default_dt_s() -> f64 {
 
 impl DamperScenario {
     pub fn from_toml_str(text: &str) -> Result<Self, DamperError> {
-        let s: DamperScenario =
-            toml::from_str(text).map_err(|e| DamperError::Config(e.to_string()))?;
+        let config = |e: &dyn std::fmt::Display| DamperError::Config(e.to_string());
+        let mut table: toml::Table = text.parse().map_err(|e| config(&e))?;
+        let mut monitor_vehicle_given = false;
+        if let Some(monitor) = table.remove("monitor") {
+            let toml::Value::Table(monitor) = monitor else {
+                return Err(DamperError::Config("monitor: not a table".into()));
+            };
+            monitor_vehicle_given = monitor.contains_key("vehicle");
+            if let Some(dt) = monitor.get("dt_s") {
+                return Err(DamperError::Config(format!(
+                    "monitor.dt_s = {dt}: the filter runs at the scenario's sample period \
+                     (dt_s); remove it"
+                )));
+            }
+            let monitor: DamperMonitorConfig =
+                railmon_settings::with_preset(monitor, "monitor").map_err(|e| config(&e))?;
+            let value = toml::Value::try_from(monitor).map_err(|e| config(&e))?;
+            table.insert("monitor".into(), value);
+        }
+        let mut s: DamperScenario = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e| config(&e))?;
+        s.monitor_vehicle_given = monitor_vehicle_given;
         s.validate()?;
         Ok(s)
     }
@@ -65,9 +94,15 @@ impl DamperScenario {
         (self.duration_s / self.dt_s).round() as usize
     }
 
+    /// The monitor to run: `[monitor]` at the scenario's `dt_s`, assuming `[monitor.vehicle]`
+    /// if given, else the plant's vehicle.
     pub fn monitor_config(&self) -> DamperMonitorConfig {
         DamperMonitorConfig {
-            vehicle: self.vehicle,
+            vehicle: if self.monitor_vehicle_given {
+                self.monitor.vehicle
+            } else {
+                self.vehicle
+            },
             dt_s: self.dt_s,
             ..self.monitor
         }
@@ -101,6 +136,65 @@ mod tests {
             let s = DamperScenario::from_toml_str(text).unwrap();
             assert_eq!(s.name, name);
         }
+    }
+
+    const MINIMAL: &str = "name = \"x\"\nseed = 1\nduration_s = 1.0\n[track]\nkind = \"white\"\nvelocity_std_m_s = 0.05\n";
+
+    /// `[monitor.vehicle]` is the filter's vehicle, the plant's stays `[vehicle]`; without
+    /// it the filter assumes the plant's. Never ignored.
+    #[test]
+    fn monitor_vehicle_sets_the_filters_vehicle_and_the_plant_may_differ() {
+        let both = format!(
+            "{MINIMAL}[vehicle]\nconicity = 0.2\nspeed_m_s = 30.0\n[monitor.vehicle]\nconicity = 0.15\n"
+        );
+        let s = DamperScenario::from_toml_str(&both).unwrap();
+        assert_eq!((s.vehicle.conicity, s.vehicle.speed_m_s), (0.2, 30.0));
+        let filter = s.monitor_config().vehicle;
+        assert_eq!(
+            filter,
+            BogieParams {
+                conicity: 0.15,
+                ..BogieParams::default()
+            }
+        );
+        let plant_only = format!("{MINIMAL}[vehicle]\nconicity = 0.2\n");
+        let s = DamperScenario::from_toml_str(&plant_only).unwrap();
+        assert_eq!(s.monitor_config().vehicle.conicity, 0.2);
+        let typo = format!("{MINIMAL}[monitor.vehicle]\nconicty = 0.15\n");
+        assert!(matches!(
+            DamperScenario::from_toml_str(&typo),
+            Err(DamperError::Config(m)) if m.contains("conicty")
+        ));
+        let bad = format!("{MINIMAL}[monitor.vehicle]\nconicity = -0.15\n");
+        assert!(matches!(
+            DamperScenario::from_toml_str(&bad),
+            Err(DamperError::InvalidParameter {
+                field: "conicity",
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn a_monitor_dt_is_refused_and_the_paper_preset_is_taken() {
+        let dt = format!("{MINIMAL}[monitor]\ndt_s = 0.002\n");
+        assert!(matches!(
+            DamperScenario::from_toml_str(&dt),
+            Err(DamperError::Config(m)) if m.contains("monitor.dt_s")
+        ));
+        let paper =
+            format!("{MINIMAL}[monitor]\npreset = \"paper\"\n[monitor.rbpf]\nparticles = 50\n");
+        let s = DamperScenario::from_toml_str(&paper).unwrap();
+        let want = DamperMonitorConfig::paper();
+        assert_eq!(s.monitor.rbpf.propagation, want.rbpf.propagation);
+        assert_eq!(s.monitor.rbpf.kernel, want.rbpf.kernel);
+        assert_eq!(s.monitor.rbpf.regeneration_fraction, 0.0);
+        assert_eq!(s.monitor.rbpf.particles, 50);
+        let unknown = format!("{MINIMAL}[monitor]\npreset = \"magic\"\n");
+        assert!(matches!(
+            DamperScenario::from_toml_str(&unknown),
+            Err(DamperError::Config(m)) if m.contains("paper")
+        ));
     }
 
     #[test]

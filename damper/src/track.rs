@@ -13,7 +13,7 @@
 use nalgebra::{Matrix2, Matrix4, Vector2};
 use rand::Rng;
 use rand_distr::StandardNormal;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::expm::expm;
 use crate::params::positive;
@@ -24,7 +24,7 @@ pub const ERRI_OMEGA_C: f64 = 0.8246;
 pub const ERRI_OMEGA_R: f64 = 0.0206;
 
 /// ERRI B176 irregularity level.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ErriLevel {
     Low,
@@ -42,7 +42,7 @@ impl ErriLevel {
 }
 
 /// What the scenario asks for.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum TrackSpec {
     /// The paper's model: `beta_k ~ N(0, sigma^2 I)` held over each step, the two wheelsets

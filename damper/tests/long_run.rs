@@ -2,9 +2,9 @@
 //! covariance stays symmetric positive definite (the model's unobservable drift is leaked,
 //! see `model` docs), and memory stays flat.
 
+use railmon_damper::kalman::initial_covariance;
 use railmon_damper::kalman::{self, StateEstimate};
 use railmon_damper::model::{track_position_rows, BogieModel, Vector17};
-use railmon_damper::rbpf::initial_covariance;
 use railmon_damper::*;
 use railmon_filter::kalman::is_symmetric_positive_definite;
 

@@ -2,9 +2,9 @@
 //! the invariants that must hold on seeded simulations.
 
 use nalgebra::{Matrix2, SMatrix};
+use railmon_damper::kalman::initial_covariance;
 use railmon_damper::kalman::{self, StateEstimate};
 use railmon_damper::model::{BogieModel, Matrix17, Matrix5, Matrix5x17, Vector17, Vector5};
-use railmon_damper::rbpf::initial_covariance;
 use railmon_damper::*;
 use railmon_filter::kalman::is_symmetric_positive_definite;
 

@@ -478,14 +478,26 @@ mod tests {
 
     #[test]
     fn degraded_ratio_of_one_is_rejected() {
-        assert!(error_of(&[("RAILMON_BOGIE__DEGRADED_BELOW_RATIO", "1.0")])
-            .contains("bogie.degraded_below_ratio"));
+        let err = error_of(&[(
+            "RAILMON_BOGIE__ESTIMATOR__ALARM__DEGRADED_BELOW_RATIO",
+            "1.0",
+        )]);
+        assert!(
+            err.contains("bogie.estimator") && err.contains("alarm.degraded_below_ratio"),
+            "{err}"
+        );
     }
 
     #[test]
     fn recovered_ratio_not_above_degraded_is_rejected() {
-        assert!(error_of(&[("RAILMON_BOGIE__RECOVERED_ABOVE_RATIO", "0.7")])
-            .contains("bogie.recovered_above_ratio"));
+        let err = error_of(&[(
+            "RAILMON_BOGIE__ESTIMATOR__ALARM__RECOVERED_ABOVE_RATIO",
+            "0.7",
+        )]);
+        assert!(
+            err.contains("bogie.estimator") && err.contains("alarm.recovered_above_ratio"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -14,21 +14,18 @@ use serde_json::Value;
 const DAMPER_FAULT: &str = "config/scenarios/damper-fault.toml";
 const PARTICLES: usize = 100;
 
-/// The bogie stream on (bogies 1 and 2, 100 particles, the scenario's track model), the drive
-/// stream off.
-const BOGIE_ONLY: [(&str, &str); 4] = [
+/// The bogie stream on (bogies 1 and 2, 100 particles), the drive stream off.
+const BOGIE_ONLY: [(&str, &str); 3] = [
     ("RAILMON_BOGIE__ENABLED", "true"),
     ("RAILMON_DRIVE__ENABLED", "false"),
     ("RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES", "100"),
-    ("RAILMON_BOGIE__ESTIMATOR__TRACK_VELOCITY_STD_M_S", "0.1"),
 ];
 
 /// The service's estimator for bogie `id` (what [`BOGIE_ONLY`] configures).
 fn monitor(id: u32) -> DamperMonitor {
     let mut config = DamperMonitorConfig::default();
     config.rbpf.particles = PARTICLES;
-    config.track_velocity_std_m_s = 0.1;
-    DamperMonitor::new(&config, config.rbpf.seed + u64::from(id)).unwrap()
+    DamperMonitor::for_bogie(&config, id, None).unwrap()
 }
 
 /// The library's estimate for bogie 1 after every sample of `record` (bogie 1's rows of it).

@@ -32,15 +32,9 @@ pub struct BogieConfig {
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
     pub history_capacity: usize,
-    /// Hysteresis of the damper health flag: a damper is degraded when its health ratio
-    /// (estimate / nominal) falls below `degraded_below_ratio` with its whole 90% interval,
-    /// healthy again when the whole interval rises above `recovered_above_ratio`; each change
-    /// is an event.
-    pub degraded_below_ratio: f64,
-    pub recovered_above_ratio: f64,
     /// The estimator (`railmon_damper::DamperMonitorConfig`); keys given override single
     /// defaults (e.g. `RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES=100`). Each bogie's RBPF is
-    /// seeded with `rbpf.seed + bogie id`.
+    /// seeded with `rbpf.seed + bogie id - 1`; `alarm` is the degraded / recovered rule.
     #[serde(skip_serializing)]
     pub estimator: DamperMonitorConfig,
 }
@@ -55,8 +49,6 @@ impl Default for BogieConfig {
             max_abs_yaw_rate_rad_s: 5.0,
             history_interval_ms: 100,
             history_capacity: 72_000,
-            degraded_below_ratio: 0.7,
-            recovered_above_ratio: 0.8,
             estimator: DamperMonitorConfig::default(),
         }
     }
@@ -96,19 +88,6 @@ impl BogieConfig {
             return Err(invalid(
                 "bogie.bogies",
                 format!("bogie id {id} appears twice"),
-            ));
-        }
-        let (below, above) = (self.degraded_below_ratio, self.recovered_above_ratio);
-        if !(below > 0.0 && below < 1.0) {
-            return Err(invalid(
-                "bogie.degraded_below_ratio",
-                format!("{below} is not in (0, 1)"),
-            ));
-        }
-        if !(above > below && above <= 1.0) {
-            return Err(invalid(
-                "bogie.recovered_above_ratio",
-                format!("{above} is not in (degraded_below_ratio = {below}, 1]"),
             ));
         }
         self.estimator

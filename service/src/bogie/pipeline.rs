@@ -9,7 +9,10 @@ use std::sync::Arc;
 use prometheus::IntCounter;
 use railmon_bus::{BogieFrame, FrameHeader};
 use railmon_damper::gain_table::GainTable;
-use railmon_damper::{BogieSample, DamperError, DamperMonitor, DamperPosterior, Propagation, Rbpf};
+use railmon_damper::{
+    BogieSample, DamperAlarm, DamperError, DamperEventKind, DamperMonitor, DamperPosterior,
+    Propagation, Rbpf,
+};
 
 use railmon_bus::StreamKind;
 
@@ -37,14 +40,15 @@ struct DamperGauges {
 struct BogieSlot {
     id: u32,
     monitor: Option<DamperMonitor>,
-    degraded: [bool; 2],
+    /// The health flags of `csy` and `csay` (the damper crate's rule).
+    alarms: [DamperAlarm; 2],
     last_stamp: Option<Stamp>,
     dampers: [DamperGauges; 2],
     ess: EstimateGauge,
 }
 
 impl BogieSlot {
-    fn new(id: u32, metrics: &Metrics) -> Self {
+    fn new(id: u32, metrics: &Metrics, alarms: [DamperAlarm; 2]) -> Self {
         let bogie = id.to_string();
         let dampers = DAMPERS.map(|damper| {
             let labels = [bogie.as_str(), damper];
@@ -68,7 +72,7 @@ impl BogieSlot {
         Self {
             id,
             monitor: None,
-            degraded: [false; 2],
+            alarms,
             last_stamp: None,
             dampers,
             ess: metrics
@@ -115,14 +119,15 @@ impl BogiePipeline {
             .bogies
             .iter()
             .map(|&id| {
-                let mut slot = BogieSlot::new(id, &metrics);
-                for (d, damper) in DAMPERS.iter().enumerate() {
+                let degraded = DAMPERS.map(|damper| {
                     let subject = format!("{id}/{damper}");
-                    slot.degraded[d] = restored.iter().any(|a| {
+                    restored.iter().any(|a| {
                         a.stream == "bogie" && a.alarm == "degraded" && a.subject == subject
-                    });
-                }
-                slot
+                    })
+                });
+                let estimator = &config.estimator;
+                let alarms = DamperAlarm::pair(&estimator.alarm, &estimator.nominal, degraded);
+                BogieSlot::new(id, &metrics, alarms)
             })
             .collect();
         let track = Track::new(
@@ -174,60 +179,46 @@ impl BogiePipeline {
         let estimator = &self.config.estimator;
         let slot = &mut self.slots[k];
         if slot.monitor.is_none() {
-            let seed = estimator.rbpf.seed.wrapping_add(u64::from(slot.id));
             let table = self.table.clone()?;
             slot.monitor =
-                Some(DamperMonitor::with_gain_table(estimator, seed, table).map_err(rejection_of)?);
+                Some(DamperMonitor::for_bogie(estimator, slot.id, table).map_err(rejection_of)?);
         }
         Ok(slot.monitor.as_mut().expect("created above"))
     }
 
-    /// Health hysteresis and events of slot `k` after its step.
+    /// Health flags and events of slot `k` after its step (`railmon_damper::DamperAlarm`).
     fn follow(&mut self, k: usize, stamp: &Stamp) {
-        let (below, above) = (
-            self.config.degraded_below_ratio,
-            self.config.recovered_above_ratio,
-        );
         let slot = &mut self.slots[k];
         let Some(monitor) = &slot.monitor else { return };
         let estimate = monitor.estimate();
-        let nominal = self.config.estimator.nominal;
-        let nominals = [nominal.csy_ns_per_m, nominal.csay_ns_per_m];
-        for (d, posterior) in [estimate.csy, estimate.csay].iter().enumerate() {
-            let ratio = posterior.health_ratio;
-            let degraded = slot.degraded[d];
-            // On the 90% interval, not the mean alone: in its first ~0.1 s the RBPF's mean
-            // wanders from the prior by tens of percent (seen in the e2e test: spurious
-            // degraded/recovered pairs at 0.05-0.12 s) while its interval is still wide.
-            let changed = match degraded {
-                false => posterior.q95_ns_per_m / nominals[d] < below,
-                true => posterior.q05_ns_per_m / nominals[d] > above,
-            };
-            if !changed {
+        for (alarm, gauges) in slot.alarms.iter_mut().zip(&slot.dampers) {
+            let Some(event) = alarm.update(estimate) else {
                 continue;
-            }
-            slot.degraded[d] = !degraded;
-            let kind = if degraded {
-                "damper_recovered"
-            } else {
-                "damper_degraded"
             };
-            slot.dampers[d].events[usize::from(degraded)].inc();
+            let kind = event.kind.as_str();
+            let damper = event.damper.name();
+            let recovered = event.kind == DamperEventKind::DamperRecovered;
+            gauges.events[usize::from(recovered)].inc();
             tracing::info!(
                 bogie = slot.id,
-                damper = DAMPERS[d],
-                health_ratio = ratio,
+                damper,
+                health_ratio = event.health_ratio,
                 time_s = stamp.time_s,
                 "{kind}"
             );
             let detail = DamperEventDetail {
                 bogie: slot.id,
-                damper: DAMPERS[d].into(),
-                health_ratio: ratio,
+                damper: damper.into(),
+                health_ratio: event.health_ratio,
             };
-            let subject = format!("{}/{}", slot.id, DAMPERS[d]);
-            self.track
-                .push_event(stamp, kind, subject, &detail, Some(("degraded", !degraded)));
+            let subject = format!("{}/{damper}", slot.id);
+            self.track.push_event(
+                stamp,
+                kind,
+                subject,
+                &detail,
+                Some(("degraded", alarm.degraded())),
+            );
         }
         if self.track.history_due(stamp.time_s) {
             let bogies = self
@@ -280,7 +271,7 @@ impl BogiePipeline {
                         q05_n_s_per_m: p.q05_ns_per_m,
                         q95_n_s_per_m: p.q95_ns_per_m,
                         health_ratio: p.health_ratio,
-                        degraded: s.degraded[d],
+                        degraded: s.alarms[d].degraded(),
                         ekf_n_s_per_m: ekf,
                     }
                 };

@@ -26,8 +26,8 @@ pub struct DamperView {
     #[schema(value_type = Option<f64>)]
     pub health_ratio: f64,
     /// Flagged degraded: set when the whole 90% interval (its 95% quantile) falls below
-    /// `degraded_below_ratio` x nominal, cleared when it (its 5% quantile) rises above
-    /// `recovered_above_ratio` x nominal.
+    /// `estimator.alarm.degraded_below_ratio` x nominal, cleared when it (its 5% quantile) rises
+    /// above `estimator.alarm.recovered_above_ratio` x nominal (`railmon_damper::DamperAlarm`).
     pub degraded: bool,
     /// The EKF baseline's estimate, N s/m (null when disabled or after it diverged).
     pub ekf_n_s_per_m: Option<f64>,

@@ -1,0 +1,283 @@
+//! The per-particle Kalman filters of the RBPF, exact or steady-state (see the module docs of
+//! [`super`]), run for every particle at once.
+
+use std::sync::Arc;
+
+use crate::config::{DamperMonitorConfig, Propagation};
+use crate::expm::discretize;
+use crate::gain_table::{GainTable, LN_DET_OFFSET, NODE_LEN, S_INV_OFFSET};
+use crate::kalman::{self, initial_covariance, NoiseCovariances, StateEstimate};
+use crate::model::{BogieModel, Matrix17, Matrix5x17, Vector17, Vector5, N_OUTPUTS, N_STATES};
+use crate::params::Dampers;
+use crate::DamperError;
+use railmon_filter::kalman::LN_2PI;
+
+use super::propagator::{Block, SparsePropagator, BLOCK};
+use super::Rbpf;
+
+impl Bank {
+    /// The per-particle filters of `config`, every state at rest (`x0 = 0`); `table` for
+    /// steady-state propagation (built when `None`).
+    pub(super) fn new(
+        config: &DamperMonitorConfig,
+        table: Option<Arc<GainTable>>,
+    ) -> Result<Self, DamperError> {
+        let cfg = config.rbpf;
+        let n = cfg.particles;
+        let model = BogieModel::new(&config.vehicle, config.drift_leak_per_s)?;
+        Ok(match (cfg.propagation, table) {
+            (Propagation::Exact, _) => {
+                // x0 = 0 (vehicle at rest on the track centre line), P0 = the prior's
+                // stationary spread is unknown: a diffuse-enough start, refined in a second.
+                let est0 = StateEstimate {
+                    x: Vector17::zeros(),
+                    p: initial_covariance(),
+                };
+                Bank::Exact(Box::new(ExactBank {
+                    h: model.h_matrix(),
+                    noise: config.noise(),
+                    dt_s: config.dt_s,
+                    est: vec![est0.clone(); n],
+                    next: vec![est0; n],
+                    model,
+                }))
+            }
+            (Propagation::SteadyState, table) => {
+                let table = match table {
+                    Some(t) => t,
+                    None => Rbpf::gain_table(config)?,
+                };
+                let entries = model.damper_entries(&Dampers {
+                    csy_ns_per_m: 1.0,
+                    csay_ns_per_m: 1.0,
+                });
+                Bank::Steady(Box::new(SteadyBank {
+                    n,
+                    prop: SparsePropagator::new(&model, config.dt_s, cfg.taylor_order)?,
+                    table,
+                    csay_gain: entries.yaw_damping_per_s,
+                    end_stiffness: entries.series_rate_per_s,
+                    x: vec![0.0; N_STATES * n],
+                    next: vec![0.0; N_STATES * n],
+                    yaw: vec![0.0; n],
+                    series: vec![0.0; n],
+                    nodes: vec![0.0; NODE_LEN * n],
+                    node_theta: vec![[f64::NAN; 2]; n],
+                    block: Block::new(),
+                }))
+            }
+        })
+    }
+}
+
+/// Per-particle filters, exact or steady-state.
+#[derive(Debug, Clone)]
+pub(super) enum Bank {
+    Exact(Box<ExactBank>),
+    Steady(Box<SteadyBank>),
+}
+
+#[derive(Debug, Clone)]
+pub(super) struct ExactBank {
+    model: BogieModel,
+    h: Matrix5x17,
+    noise: NoiseCovariances,
+    dt_s: f64,
+    est: Vec<StateEstimate>,
+    next: Vec<StateEstimate>,
+}
+
+#[derive(Debug, Clone)]
+pub(super) struct SteadyBank {
+    n: usize,
+    prop: SparsePropagator,
+    table: Arc<GainTable>,
+    csay_gain: f64,
+    end_stiffness: f64,
+    /// Posterior states, structure-of-arrays `x[state * n + particle]`.
+    x: Vec<f64>,
+    /// The step's new posterior states (committed by swapping with `x`).
+    next: Vec<f64>,
+    yaw: Vec<f64>,
+    series: Vec<f64>,
+    /// Per particle: the interpolated gain node, structure-of-arrays
+    /// `nodes[value * n + particle]`, and the `ln theta` it was computed for (recomputed
+    /// only when the particle's parameters changed).
+    nodes: Vec<f64>,
+    node_theta: Vec<[f64; 2]>,
+    block: Box<Block>,
+}
+
+impl Bank {
+    /// Runs predict + update of every particle with its new parameters; writes the
+    /// log-likelihoods. Nothing is committed (see `commit`).
+    pub(super) fn step(
+        &mut self,
+        ln_theta: &[[f64; 2]],
+        y: &Vector5,
+        ll: &mut [f64],
+    ) -> Result<(), DamperError> {
+        match self {
+            Bank::Exact(b) => {
+                let g = b.model.g_matrix();
+                for (i, th) in ln_theta.iter().enumerate() {
+                    let d = Dampers::from_ln(*th);
+                    let disc = discretize(&b.model.a_matrix(&d), &g, b.dt_s)?;
+                    let pred = kalman::predict(&b.est[i], &disc, &b.noise);
+                    let (post, l) = kalman::update(&pred, y, &b.h, &b.noise.q_v)?;
+                    b.next[i] = post;
+                    ll[i] = l;
+                }
+                Ok(())
+            }
+            Bank::Steady(b) => b.step(ln_theta, y, ll),
+        }
+    }
+
+    pub(super) fn commit(&mut self) {
+        match self {
+            Bank::Exact(b) => std::mem::swap(&mut b.est, &mut b.next),
+            Bank::Steady(b) => std::mem::swap(&mut b.x, &mut b.next),
+        }
+    }
+
+    /// Replaces particle `j` by particle `indices[j]`.
+    pub(super) fn resample(&mut self, indices: &[usize]) {
+        match self {
+            Bank::Exact(b) => {
+                for (j, &i) in indices.iter().enumerate() {
+                    b.next[j].clone_from(&b.est[i]);
+                }
+                std::mem::swap(&mut b.est, &mut b.next);
+            }
+            Bank::Steady(b) => {
+                let n = b.n;
+                for s in 0..N_STATES {
+                    let src = &b.x[s * n..(s + 1) * n];
+                    let dst = &mut b.next[s * n..(s + 1) * n];
+                    for (d, &i) in dst.iter_mut().zip(indices) {
+                        *d = src[i];
+                    }
+                }
+                std::mem::swap(&mut b.x, &mut b.next);
+            }
+        }
+    }
+
+    /// Posterior state mean of particle `i` (for tests and diagnostics).
+    pub(super) fn state(&self, i: usize) -> Vector17 {
+        match self {
+            Bank::Exact(b) => b.est[i].x,
+            Bank::Steady(b) => Vector17::from_fn(|s, _| b.x[s * b.n + i]),
+        }
+    }
+
+    /// Posterior covariance of particle `i`; the steady-state filter's is the Riccati
+    /// solution `(I - K H) P-` of its parameters, not stored per particle.
+    pub(super) fn covariance(&self, i: usize) -> Option<Matrix17> {
+        match self {
+            Bank::Exact(b) => Some(b.est[i].p),
+            Bank::Steady(_) => None,
+        }
+    }
+}
+
+impl SteadyBank {
+    fn step(
+        &mut self,
+        ln_theta: &[[f64; 2]],
+        y: &Vector5,
+        ll: &mut [f64],
+    ) -> Result<(), DamperError> {
+        let n = self.n;
+        // Parameters change only at kernel moves (or every step with `EveryStep`): refresh the
+        // damper entries and the interpolated gain of the particles that moved.
+        let mut node = [0.0; NODE_LEN];
+        for (i, th) in ln_theta.iter().enumerate() {
+            if self.node_theta[i] != *th {
+                self.yaw[i] = self.csay_gain * th[1].exp();
+                self.series[i] = self.end_stiffness * (-th[0]).exp();
+                self.table.interpolate(&self.table.cell(*th), &mut node);
+                for (k, v) in node.iter().enumerate() {
+                    self.nodes[k * n + i] = *v;
+                }
+                self.node_theta[i] = *th;
+            }
+        }
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU supports AVX2, checked just above.
+                unsafe { self.filter_all_avx2(y, ll) };
+                return check_finite(ll);
+            }
+        }
+        self.filter_all(y, ll);
+        check_finite(ll)
+    }
+
+    /// [`SteadyBank::filter_all`] compiled for AVX2 (4-wide vectors instead of SSE2's 2).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn filter_all_avx2(&mut self, y: &Vector5, ll: &mut [f64]) {
+        self.filter_all(y, ll)
+    }
+
+    /// Predict, innovation, log-likelihood and update of every particle, block by block.
+    #[inline(always)]
+    fn filter_all(&mut self, y: &Vector5, ll: &mut [f64]) {
+        let n = self.n;
+        let const_term = N_OUTPUTS as f64 * LN_2PI;
+        let blk = &mut self.block;
+        for i0 in (0..n).step_by(BLOCK) {
+            let len = BLOCK.min(n - i0);
+            blk.load(
+                &self.x,
+                &self.yaw[i0..i0 + len],
+                &self.series[i0..i0 + len],
+                n,
+                i0,
+            );
+            self.prop.propagate_block(blk);
+            self.prop.innovation_block(blk, y);
+            let node = |k: usize| &self.nodes[k * n + i0..k * n + i0 + len];
+            // ln N(e; 0, S) with S^-1 and ln det S of each particle's parameters.
+            let lls = &mut ll[i0..i0 + len];
+            for (l, d) in lls.iter_mut().zip(node(LN_DET_OFFSET)) {
+                *l = const_term + d;
+            }
+            for r in 0..N_OUTPUTS {
+                for c in 0..N_OUTPUTS {
+                    let s_inv = node(S_INV_OFFSET + r * N_OUTPUTS + c);
+                    for (((l, si), er), ec) in
+                        lls.iter_mut().zip(s_inv).zip(&blk.e[r]).zip(&blk.e[c])
+                    {
+                        *l += si * er * ec;
+                    }
+                }
+            }
+            for l in lls.iter_mut() {
+                *l *= -0.5;
+            }
+            // x+ = x- + K e.
+            for (s, acc_row) in blk.acc.iter_mut().enumerate() {
+                for (m, e_row) in blk.e.iter().enumerate() {
+                    let k = node(s * N_OUTPUTS + m);
+                    for ((a, kj), ej) in acc_row.iter_mut().zip(k).zip(e_row) {
+                        *a += kj * ej;
+                    }
+                }
+            }
+            blk.store(&mut self.next, n, i0, len);
+        }
+    }
+}
+
+fn check_finite(ll: &[f64]) -> Result<(), DamperError> {
+    if ll.iter().any(|v| !v.is_finite()) {
+        return Err(DamperError::NonFinite {
+            what: "particle likelihood",
+        });
+    }
+    Ok(())
+}

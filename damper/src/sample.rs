@@ -1,0 +1,119 @@
+//! What the five sensors of a bogie give (paper fig. 1, eq. 4): one sample, and the noise
+//! of their channels. The live input of [`crate::DamperMonitor`] and the output of the
+//! simulator.
+
+use serde::{Deserialize, Serialize};
+
+use crate::model::{Matrix5, Vector5, OUTPUT_NAMES};
+use crate::params::positive;
+use crate::DamperError;
+
+/// One 1 kHz sample of the five sensors (paper fig. 1, eq. 4), what a real bogie gives.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BogieSample {
+    /// Lateral acceleration of the leading wheelset `y_w1''` (m/s^2).
+    pub wheelset1_accel_m_s2: f64,
+    /// Lateral acceleration of the trailing wheelset `y_w2''` (m/s^2).
+    pub wheelset2_accel_m_s2: f64,
+    /// Lateral acceleration of the bogie frame `y_b''` (m/s^2).
+    pub bogie_accel_m_s2: f64,
+    /// Yaw rate of the bogie frame `psi_b'` (rad/s).
+    pub bogie_yaw_rate_rad_s: f64,
+    /// Lateral acceleration of the body above the bogie `y_bd''` (m/s^2).
+    pub body_accel_m_s2: f64,
+}
+
+impl BogieSample {
+    /// The measurement vector `y` in the order of eq. 4.
+    pub fn to_vector(&self) -> Vector5 {
+        Vector5::new(
+            self.wheelset1_accel_m_s2,
+            self.wheelset2_accel_m_s2,
+            self.bogie_accel_m_s2,
+            self.bogie_yaw_rate_rad_s,
+            self.body_accel_m_s2,
+        )
+    }
+
+    pub fn from_vector(y: &Vector5) -> Self {
+        BogieSample {
+            wheelset1_accel_m_s2: y[0],
+            wheelset2_accel_m_s2: y[1],
+            bogie_accel_m_s2: y[2],
+            bogie_yaw_rate_rad_s: y[3],
+            body_accel_m_s2: y[4],
+        }
+    }
+
+    /// Every field finite, else an error naming the first bad one.
+    pub fn validate(&self) -> Result<Vector5, DamperError> {
+        let y = self.to_vector();
+        for (i, v) in y.iter().enumerate() {
+            if !v.is_finite() {
+                return Err(DamperError::InvalidSample {
+                    field: OUTPUT_NAMES[i],
+                    value: *v,
+                });
+            }
+        }
+        Ok(y)
+    }
+}
+
+/// Standard deviations of the sensor noise (white, independent).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SensorNoise {
+    /// Each of the four lateral accelerometers (m/s^2).
+    pub accel_std_m_s2: f64,
+    /// The bogie yaw-rate gyro (rad/s).
+    pub gyro_std_rad_s: f64,
+}
+
+impl Default for SensorNoise {
+    /// A 100 ug/sqrt(Hz) accelerometer and a 0.01 deg/s/sqrt(Hz) gyro over 500 Hz bandwidth:
+    /// roughly 0.02 m/s^2 and 0.004 rad/s.
+    fn default() -> Self {
+        SensorNoise {
+            accel_std_m_s2: 0.02,
+            gyro_std_rad_s: 0.004,
+        }
+    }
+}
+
+impl SensorNoise {
+    pub fn validate(&self) -> Result<(), DamperError> {
+        positive("accel_std_m_s2", self.accel_std_m_s2)?;
+        positive("gyro_std_rad_s", self.gyro_std_rad_s)
+    }
+
+    pub fn std_vector(&self) -> Vector5 {
+        let (a, g) = (self.accel_std_m_s2, self.gyro_std_rad_s);
+        Vector5::new(a, a, a, g, a)
+    }
+
+    /// `Q_v = diag(sigma^2)`.
+    pub fn covariance(&self) -> Matrix5 {
+        Matrix5::from_diagonal(&self.std_vector().map(|s| s * s))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nan_sample_is_rejected_by_field_name() {
+        let s = BogieSample {
+            bogie_yaw_rate_rad_s: f64::NAN,
+            ..BogieSample::default()
+        };
+        assert!(matches!(
+            s.validate(),
+            Err(DamperError::InvalidSample {
+                field: "bogie_yaw_rate_rad_s",
+                ..
+            })
+        ));
+    }
+}
