@@ -8,6 +8,11 @@
 //!   the paper's Table 1;
 //! - `detection.csv` (when the truth is known): per method and drive, precision, recall and
 //!   F1 of "probability > 0.5" against the true slip flag, and the median detection delay;
+//!   then the same for the alarm rule (`railmon_slip::SlipAlarm`, what the service raises) in
+//!   the `alarm_*` columns; `rule` and `alarm_rule` say which rule each group scores;
+//! - `events.csv`: the `slip_started` / `slip_ended` events the configured method's alarm
+//!   raises (the service's events on the same data): `id,kind,stream_time_s,subject,detail,
+//!   step,method`, stream time `step x dt` in whole nanoseconds as on the bus;
 //! - `drives.csv` (scenarios only): the simulated record, in the layout `--input` reads
 //!   (`railmon_records::drive`), so a scenario run can be replayed from its file;
 //! - PNG plots after the paper's figures 5-9 (see [`plots`]).
@@ -21,7 +26,7 @@ use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveTruth};
 use railmon_records::{create_csv, RecordError};
 use railmon_slip::{
     AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveSample,
-    DriveSimulator, MultiMethodPipeline, SlipError, SlipMonitorConfig,
+    DriveSimulator, MultiMethodPipeline, SlipAlarmEvent, SlipError, SlipMonitorConfig,
 };
 
 use crate::report::AnalysisError;
@@ -94,6 +99,23 @@ pub struct AdhesionRun {
     pub truth: Option<Vec<Vec<(f64, bool)>>>,
     /// Per method: `[step]` global torque and `[drive][step]` slip probability.
     pub methods: Vec<MethodTrace>,
+    /// The configured method (the one the service runs) and its alarm's events.
+    pub method: AdhesionMethod,
+    pub events: Vec<EventRow>,
+    /// The alarm rule, as `detection.csv` names it.
+    pub alarm_rule: String,
+}
+
+/// An alarm event at a step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EventRow {
+    pub step: usize,
+    pub event: SlipAlarmEvent,
+}
+
+/// Stream time of `step`, as the bus stamps it: `step x dt` in whole nanoseconds.
+pub fn stream_time_s(step: usize, dt_s: f64) -> f64 {
+    (step as u64 * (dt_s * 1e9).round() as u64) as f64 / 1e9
 }
 
 #[derive(Debug, Clone)]
@@ -101,6 +123,8 @@ pub struct MethodTrace {
     pub method: AdhesionMethod,
     pub global_torque_nm: Vec<f64>,
     pub slip_probability: Vec<Vec<f64>>,
+    /// `[drive][step]` the alarm's slipping flag.
+    pub alarm_slipping: Vec<Vec<bool>>,
 }
 
 /// A row of `table1.csv`.
@@ -118,7 +142,10 @@ pub struct DetectionRow {
     pub method: AdhesionMethod,
     /// 1-based.
     pub drive: usize,
+    /// "probability > 0.5".
     pub score: DetectionScore,
+    /// The alarm rule's flag.
+    pub alarm: DetectionScore,
 }
 
 /// The result of `run`: the tables it wrote.
@@ -202,6 +229,7 @@ pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
         &args.run.out,
     )?;
     let report = write_tables(&run, args.table1_skip_steps, &args.run.out)?;
+    write_events(&run, &args.run.out)?;
     if !args.no_plots {
         plots::write_all(&run, &report, &args.run.out)?;
     }
@@ -233,6 +261,9 @@ fn analyse(
         ekf_torque_nm: Vec::new(),
         truth: None,
         methods: Vec::new(),
+        method: config.method,
+        events: Vec::new(),
+        alarm_rule: config.alarm.describe(),
     };
     let mut step = 0usize;
     while let Some(frame) = source.next()? {
@@ -253,6 +284,7 @@ fn analyse(
                         method,
                         global_torque_nm: Vec::with_capacity(n_steps_hint),
                         slip_probability: vec![Vec::with_capacity(n_steps_hint); n],
+                        alarm_slipping: vec![Vec::with_capacity(n_steps_hint); n],
                     })
                     .collect();
                 est.write_record(estimates_header(run.truth.is_some()))
@@ -292,11 +324,23 @@ fn analyse(
             }
             est.write_record(&fields).map_err(write_err)?;
         }
-        for (trace, (_, out)) in run.methods.iter_mut().zip(pipe.outputs()) {
+        for ((trace, (_, out)), (_, flags)) in run
+            .methods
+            .iter_mut()
+            .zip(pipe.outputs())
+            .zip(pipe.slipping())
+        {
             trace.global_torque_nm.push(out.global_torque_nm);
             for (p, &v) in trace.slip_probability.iter_mut().zip(&out.slip_probability) {
                 p.push(v);
             }
+            for (a, &f) in trace.alarm_slipping.iter_mut().zip(flags) {
+                a.push(f);
+            }
+        }
+        if let Some((_, events)) = pipe.events().find(|(m, _)| *m == run.method) {
+            run.events
+                .extend(events.iter().map(|&event| EventRow { step, event }));
         }
         step += 1;
         bar.inc(1);
@@ -358,15 +402,21 @@ pub fn tables(run: &AdhesionRun, skip: usize) -> AdhesionReport {
             }
             if let Some(truth) = &run.truth {
                 let mut counter = DetectionCounter::default();
-                for (step, (&p, &(_, slipping))) in
-                    trace.slip_probability[k].iter().zip(&truth[k]).enumerate()
+                let mut alarm = DetectionCounter::default();
+                for (step, ((&p, &flag), &(_, slipping))) in trace.slip_probability[k]
+                    .iter()
+                    .zip(&trace.alarm_slipping[k])
+                    .zip(&truth[k])
+                    .enumerate()
                 {
                     counter.push(step, p > 0.5, slipping);
+                    alarm.push(step, flag, slipping);
                 }
                 detection.push(DetectionRow {
                     method: trace.method,
                     drive: k + 1,
                     score: counter.score(),
+                    alarm: alarm.score(),
                 });
             }
         }
@@ -413,11 +463,22 @@ fn write_tables(
             "false_neg",
             "events",
             "missed_events",
+            // Added by issue 8 (the columns above keep their names and meaning).
+            "rule",
+            "alarm_rule",
+            "alarm_precision",
+            "alarm_recall",
+            "alarm_f1",
+            "alarm_median_delay_steps",
+            "alarm_true_pos",
+            "alarm_false_pos",
+            "alarm_false_neg",
+            "alarm_missed_events",
         ])
         .map_err(|e| write_error(&path, e))?;
         let opt = |v: Option<f64>| v.map_or(String::new(), fmt);
         for r in &report.detection {
-            let s = &r.score;
+            let (s, a) = (&r.score, &r.alarm);
             w.write_record([
                 r.method.to_string(),
                 r.drive.to_string(),
@@ -430,12 +491,61 @@ fn write_tables(
                 s.false_neg.to_string(),
                 s.events.to_string(),
                 s.missed_events.to_string(),
+                PROBABILITY_RULE.to_owned(),
+                run.alarm_rule.clone(),
+                opt(a.precision),
+                opt(a.recall),
+                opt(a.f1),
+                opt(a.median_delay_steps),
+                a.true_pos.to_string(),
+                a.false_pos.to_string(),
+                a.false_neg.to_string(),
+                a.missed_events.to_string(),
             ])
             .map_err(|e| write_error(&path, e))?;
         }
         w.flush().map_err(|e| write_error(&path, e))?;
     }
     Ok(report)
+}
+
+/// What the first score columns of `detection.csv` count as a detection.
+pub const PROBABILITY_RULE: &str = "p > 0.5";
+
+/// `events.csv`: the configured method's alarm events.
+fn write_events(run: &AdhesionRun, out: &Path) -> Result<(), AdhesionAnalysisError> {
+    let path = out.join("events.csv");
+    let mut w = create_csv(&path)?;
+    w.write_record([
+        "id",
+        "kind",
+        "stream_time_s",
+        "subject",
+        "detail",
+        "step",
+        "method",
+    ])
+    .map_err(|e| write_error(&path, e))?;
+    for (id, e) in run.events.iter().enumerate() {
+        // The service's event detail (`SlipEventDetail`), as JSON; `{}` of an f64 is its
+        // shortest round-trip form.
+        let detail = format!(
+            "{{\"drive\":{},\"slip_probability\":{}}}",
+            e.event.drive, e.event.slip_probability
+        );
+        w.write_record([
+            (id + 1).to_string(),
+            e.event.kind.name().to_owned(),
+            stream_time_s(e.step, run.dt_s).to_string(),
+            e.event.drive.to_string(),
+            detail,
+            e.step.to_string(),
+            run.method.to_string(),
+        ])
+        .map_err(|e| write_error(&path, e))?;
+    }
+    w.flush().map_err(|e| write_error(&path, e))?;
+    Ok(())
 }
 
 fn print_summary(run: &AdhesionRun, report: &AdhesionReport) {
@@ -463,21 +573,22 @@ fn print_summary(run: &AdhesionRun, report: &AdhesionReport) {
     }
     if !report.detection.is_empty() {
         println!(
-            "{:<9} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9}",
-            "method", "drive", "precision", "recall", "f1", "delay", "false_pos"
+            "{:<9} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
+            "method", "drive", "precision", "recall", "f1", "delay", "false_pos", "alarm_f1"
         );
         let opt = |v: Option<f64>| v.map_or("-".to_owned(), |x| format!("{x:.4}"));
         for r in &report.detection {
             let s = &r.score;
             println!(
-                "{:<9} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9}",
+                "{:<9} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
                 r.method.to_string(),
                 r.drive,
                 opt(s.precision),
                 opt(s.recall),
                 opt(s.f1),
                 opt(s.median_delay_steps),
-                s.false_pos
+                s.false_pos,
+                opt(r.alarm.f1)
             );
         }
     }
@@ -552,7 +663,13 @@ mod tests {
                 .score
         };
         assert!(temporal(1).f1.unwrap() >= 0.98);
-        for name in ["estimates.csv", "table1.csv", "detection.csv", "drives.csv"] {
+        for name in [
+            "estimates.csv",
+            "table1.csv",
+            "detection.csv",
+            "drives.csv",
+            "events.csv",
+        ] {
             assert!(out.join(name).is_file(), "{name}");
         }
         let table1 = std::fs::read_to_string(out.join("table1.csv")).unwrap();
@@ -574,6 +691,10 @@ mod tests {
         .unwrap();
         assert_eq!(replay.table1, report.table1);
         assert_eq!(replay.detection, report.detection);
+        assert_eq!(
+            std::fs::read_to_string(replay_out.join("events.csv")).unwrap(),
+            std::fs::read_to_string(out.join("events.csv")).unwrap()
+        );
         assert_eq!(
             std::fs::read_to_string(replay_out.join("table1.csv")).unwrap(),
             table1

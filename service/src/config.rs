@@ -425,16 +425,18 @@ mod tests {
     }
 
     #[test]
-    fn slip_on_ratio_above_one_is_rejected() {
+    fn slip_on_probability_above_one_is_rejected() {
         assert!(
-            error_of(&[("RAILMON_DRIVE__SLIP_ON_RATIO", "1.5")]).contains("drive.slip_on_ratio")
+            error_of(&[("RAILMON_DRIVE__ESTIMATOR__ALARM__ON_PROBABILITY", "1.5")])
+                .contains("alarm.on_probability")
         );
     }
 
     #[test]
-    fn slip_off_ratio_not_below_on_ratio_is_rejected() {
+    fn slip_off_probability_not_below_on_probability_is_rejected() {
         assert!(
-            error_of(&[("RAILMON_DRIVE__SLIP_OFF_RATIO", "0.9")]).contains("drive.slip_off_ratio")
+            error_of(&[("RAILMON_DRIVE__ESTIMATOR__ALARM__OFF_PROBABILITY", "0.9")])
+                .contains("alarm.off_probability")
         );
     }
 

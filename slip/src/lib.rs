@@ -5,10 +5,12 @@
 //! Data flow: [`DriveSample`]s (voltages, currents) of N drives -> [`EkfBank`] (one 5-state
 //! sensorless EKF per drive, eq. 11-17) -> N load-torque estimates -> an
 //! [`AdhesionEstimator`] (VB, VMP, k-means, median, or our temporal method) -> global torque
-//! `M_z^(G)` and per-drive slip probabilities. [`SlipMonitor`] ties the two together;
+//! `M_z^(G)` and per-drive slip probabilities -> [`SlipAlarm`] (the slipping flag and its
+//! events, hysteresis on the probability). [`SlipMonitor`] ties the first two together;
 //! [`DriveSimulator`] produces data with ground truth from an [`AdhesionScenario`].
 
 pub mod adhesion;
+pub mod alarm;
 pub mod ekf;
 pub mod error;
 pub mod model;
@@ -21,6 +23,7 @@ pub mod simulator;
 pub mod special;
 
 pub use adhesion::{AdhesionConfig, AdhesionEstimator, AdhesionMethod, AdhesionOutput};
+pub use alarm::{SlipAlarm, SlipAlarmConfig, SlipAlarmEvent, SlipAlarmKind};
 pub use ekf::{EkfBank, EkfConfig};
 pub use error::SlipError;
 pub use model::{DriveModel, MotorParams};

@@ -5,6 +5,7 @@ use railmon_settings::Presets;
 use serde::{Deserialize, Serialize};
 
 use crate::adhesion::{AdhesionConfig, AdhesionEstimator, AdhesionMethod};
+use crate::alarm::SlipAlarmConfig;
 use crate::ekf::{EkfBank, EkfConfig};
 use crate::error::{check_positive, SlipError};
 use crate::model::{DriveModel, MotorParams};
@@ -27,6 +28,8 @@ pub struct SlipMonitorConfig {
     pub ekf: EkfConfig,
     pub method: AdhesionMethod,
     pub adhesion: AdhesionConfig,
+    /// The slipping flag over the chosen method's probability ([`crate::SlipAlarm`]).
+    pub alarm: SlipAlarmConfig,
 }
 
 impl Default for SlipMonitorConfig {
@@ -37,6 +40,7 @@ impl Default for SlipMonitorConfig {
             ekf: EkfConfig::default(),
             method: AdhesionMethod::Temporal,
             adhesion: AdhesionConfig::default(),
+            alarm: SlipAlarmConfig::default(),
         }
     }
 }
@@ -62,7 +66,8 @@ impl SlipMonitorConfig {
         check_positive("dt_s", self.dt_s)?;
         self.motor.validate("motor")?;
         self.ekf.validate("ekf")?;
-        self.adhesion.validate()
+        self.adhesion.validate()?;
+        self.alarm.validate()
     }
 
     /// Reads a TOML table of these fields: from the preset its `preset` key names (else the

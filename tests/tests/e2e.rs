@@ -171,12 +171,12 @@ fn bad_command_lines_and_settings_fail_with_the_culprit_named() {
 
     let service = Command::new(&binaries.railmon)
         .arg("serve")
-        .env("RAILMON_DRIVE__SLIP_ON_RATIO", "2")
+        .env("RAILMON_DRIVE__ESTIMATOR__ALARM__ON_PROBABILITY", "2")
         .output()
         .unwrap();
     assert!(!service.status.success());
     let stderr = String::from_utf8_lossy(&service.stderr);
-    assert!(stderr.contains("drive.slip_on_ratio"), "{stderr}");
+    assert!(stderr.contains("alarm.on_probability"), "{stderr}");
 }
 
 #[test]

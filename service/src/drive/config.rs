@@ -20,15 +20,12 @@ pub struct DriveConfig {
     /// torque of 13,320 N m with no complaint.
     pub max_abs_current_a: f64,
     pub max_abs_voltage_v: f64,
-    /// Hysteresis of the slipping flag: on when the slip probability reaches `slip_on_ratio`,
-    /// off when it falls to `slip_off_ratio`.
-    pub slip_on_ratio: f64,
-    pub slip_off_ratio: f64,
     /// One history point per this much stream time.
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
     pub history_capacity: usize,
-    /// The estimator (`railmon_slip::SlipMonitorConfig`): its default, or the preset the table
+    /// The estimator and its slip alarm (`railmon_slip::SlipMonitorConfig`; the alarm's
+    /// hysteresis is `[drive.estimator.alarm]`): its default, or the preset the table
     /// names (`preset = "paper"`), with the given keys on top.
     #[serde(deserialize_with = "railmon_slip::deserialize_with_preset")]
     pub estimator: SlipMonitorConfig,
@@ -42,8 +39,6 @@ impl Default for DriveConfig {
             max_drives: MAX_DRIVES,
             max_abs_current_a: 1_000.0,
             max_abs_voltage_v: 5_000.0,
-            slip_on_ratio: 0.8,
-            slip_off_ratio: 0.2,
             history_interval_ms: 10,
             history_capacity: 60_000,
             estimator: SlipMonitorConfig::default(),
@@ -75,21 +70,6 @@ impl DriveConfig {
                     format!("{value} is not in (0, 1e6]"),
                 ));
             }
-        }
-        if !(self.slip_on_ratio > 0.0 && self.slip_on_ratio <= 1.0) {
-            return Err(invalid(
-                "drive.slip_on_ratio",
-                format!("{} is not in (0, 1]", self.slip_on_ratio),
-            ));
-        }
-        if !(self.slip_off_ratio >= 0.0 && self.slip_off_ratio < self.slip_on_ratio) {
-            return Err(invalid(
-                "drive.slip_off_ratio",
-                format!(
-                    "{} is not in [0, slip_on_ratio = {})",
-                    self.slip_off_ratio, self.slip_on_ratio
-                ),
-            ));
         }
         self.estimator
             .validate()

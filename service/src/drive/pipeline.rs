@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use railmon_bus::{DriveFrame, FrameHeader};
-use railmon_slip::{DriveSample, SlipMonitor};
+use railmon_slip::{DriveSample, SlipAlarm, SlipAlarmEvent, SlipAlarmKind, SlipMonitor};
 
 use railmon_bus::StreamKind;
 
@@ -45,7 +45,10 @@ pub struct DrivePipeline {
     shared: Arc<DriveShared>,
     metrics: Arc<Metrics>,
     monitor: Option<SlipMonitor>,
-    slipping: Vec<bool>,
+    /// The slipping flags (`railmon_slip::SlipAlarm`, the rule `analyze adhesion` applies too).
+    alarm: SlipAlarm,
+    /// Scratch: the alarm's events of one step.
+    alarm_events: Vec<SlipAlarmEvent>,
     gauges: Vec<DriveGauges>,
     track: Track<HistoryPoint>,
 }
@@ -64,14 +67,15 @@ impl DrivePipeline {
             config.estimator.dt_s,
             config.history_interval_ms,
         );
-        let mut slipping = Vec::new();
-        for alarm in restored
+        // Validated with the config: the thresholds are in range.
+        let mut alarm = SlipAlarm::new(config.estimator.alarm, 0)
+            .expect("drive.estimator.alarm was validated with the config");
+        for alarm_state in restored
             .iter()
             .filter(|a| a.stream == "drive" && a.alarm == "slipping")
         {
-            if let Ok(drive @ 1..=railmon_bus::MAX_DRIVES) = alarm.subject.parse::<usize>() {
-                slipping.resize(slipping.len().max(drive), false);
-                slipping[drive - 1] = true;
+            if let Ok(drive @ 1..=railmon_bus::MAX_DRIVES) = alarm_state.subject.parse::<usize>() {
+                alarm.restore(drive, true);
             }
         }
         Self {
@@ -79,7 +83,8 @@ impl DrivePipeline {
             shared,
             metrics,
             monitor: None,
-            slipping,
+            alarm,
+            alarm_events: Vec::new(),
             gauges: Vec::new(),
             track,
         }
@@ -94,7 +99,7 @@ impl DrivePipeline {
             .last()
             .drives
             .iter()
-            .zip(&self.slipping)
+            .zip(self.alarm.slipping())
             .enumerate()
             .map(|(k, (d, &slipping))| DriveView {
                 id: k + 1,
@@ -115,7 +120,7 @@ impl DrivePipeline {
             })?;
         self.monitor = Some(monitor);
         // Flags carry over a restart of the source (and of the service): never a silent clear.
-        self.slipping.resize(n_drives, false);
+        self.alarm.resize(n_drives);
         self.gauges = (1..=n_drives)
             .map(|id| DriveGauges::new(&self.metrics, id))
             .collect();
@@ -131,41 +136,44 @@ impl DrivePipeline {
         Ok(())
     }
 
-    /// Hysteresis on the slip probability; crossings become events.
+    /// The slip alarm over this step's probabilities; its crossings become events.
     fn update_slipping(&mut self, stamp: &Stamp) {
         let Some(monitor) = &self.monitor else { return };
         let dt_s = self.config.estimator.dt_s;
-        for (k, drive) in monitor.last().drives.iter().enumerate() {
-            if self.slipping[k] {
-                self.gauges[k].slip_seconds.inc_by(dt_s);
+        for (gauges, &slipping) in self.gauges.iter().zip(self.alarm.slipping()) {
+            if slipping {
+                gauges.slip_seconds.inc_by(dt_s);
             }
-            let p = drive.slip_probability;
-            let kind = match self.slipping[k] {
-                false if p >= self.config.slip_on_ratio => "slip_started",
-                true if p <= self.config.slip_off_ratio => "slip_ended",
-                _ => continue,
-            };
-            self.slipping[k] = kind == "slip_started";
-            let id = (k + 1).to_string();
+        }
+        let probabilities: Vec<f64> = monitor
+            .last()
+            .drives
+            .iter()
+            .map(|d| d.slip_probability)
+            .collect();
+        self.alarm_events.clear();
+        self.alarm.update(&probabilities, &mut self.alarm_events);
+        for event in &self.alarm_events {
+            let kind = event.kind.name();
+            let id = event.drive.to_string();
             self.metrics
                 .drive
                 .slip_events
                 .with_label_values(&[id.as_str(), kind])
                 .inc();
             tracing::info!(
-                drive = k + 1,
+                drive = event.drive,
                 time_s = stamp.time_s,
-                slip_probability = p,
+                slip_probability = event.slip_probability,
                 "{kind}"
             );
-            let started = kind == "slip_started";
+            let started = event.kind == SlipAlarmKind::SlipStarted;
             let detail = SlipEventDetail {
-                drive: k + 1,
-                slip_probability: p,
+                drive: event.drive,
+                slip_probability: event.slip_probability,
             };
-            let subject = (k + 1).to_string();
             self.track
-                .push_event(stamp, kind, subject, &detail, Some(("slipping", started)));
+                .push_event(stamp, kind, id, &detail, Some(("slipping", started)));
         }
     }
 }

@@ -18,7 +18,8 @@ pub struct DriveView {
     pub mechanical_speed_rad_s: f64,
     /// Estimated load torque, N m.
     pub load_torque_nm: f64,
-    /// Slipping flag with hysteresis (on at `slip_on_ratio`, off at `slip_off_ratio`).
+    /// Slipping flag with hysteresis (`drive.estimator.alarm`: on at `on_probability`, off at
+    /// `off_probability`).
     pub slipping: bool,
 }
 
