@@ -6,6 +6,8 @@
 //!   estimate, honest 1-step forecast and virtual sensor, the baselines, the regime
 //!   probabilities and active regime (and the label, for simulated data);
 //! - `summary.csv`: `method,horizon_s,rmse,mae,n` (horizon 0: estimates of the current sample);
+//! - `events.csv`: the `regime_changed` events the service would raise on the same samples
+//!   (`id,kind,stream_time_s,subject,detail`, detail the event's JSON fields);
 //! - `regimes.csv` (labelled data only): per component its matched label, and the accuracy;
 //! - `simulated.csv` (scenarios only): the simulated samples in the railmon vehicle layout;
 //! - PNG plots after the paper's figures 1-3: `fuel_predictions.png` (+ a 300 s zoom),
@@ -17,15 +19,17 @@ mod plots;
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use railmon_fuel::config::deserialize_with_preset;
 use railmon_fuel::{
     DriveCycle, FuelError, FuelMonitorConfig, VehicleSample, VehicleScenario, VehicleSimulator,
+    REGIME_CHANGED,
 };
 use railmon_records::vehicle::{read_drive_cycle, read_vehicle_csv, write_vehicle_csv, VehicleRow};
 use railmon_records::{write_csv_table, RecordError};
 
 use crate::report::AnalysisError;
 use crate::report::{create_out_dir, progress_bar, RunArgs};
-pub use evaluate::{evaluate, Evaluation, PredictionRow, RegimeScore, ScoreRow};
+pub use evaluate::{evaluate, Evaluation, PredictionRow, RegimeEvent, RegimeScore, ScoreRow};
 
 /// Arguments of `railmon analyze fuel`.
 #[derive(clap::Args, Debug, Clone)]
@@ -55,11 +59,13 @@ fn read_text(path: &Path) -> Result<String, FuelAnalysisError> {
 
 fn read_config(path: &Path) -> Result<FuelMonitorConfig, FuelAnalysisError> {
     let file = path.display().to_string();
-    let config: FuelMonitorConfig =
-        toml::from_str(&read_text(path)?).map_err(|e| FuelAnalysisError::Input {
-            file: file.clone(),
-            reason: e.to_string(),
-        })?;
+    let input_error = |e: &dyn std::fmt::Display| FuelAnalysisError::Input {
+        file: file.clone(),
+        reason: e.to_string(),
+    };
+    // A `preset = "..."` key starts from that preset, as in the service's [vehicle.estimator].
+    let table: toml::Table = toml::from_str(&read_text(path)?).map_err(|e| input_error(&e))?;
+    let config = deserialize_with_preset(toml::Value::Table(table)).map_err(|e| input_error(&e))?;
     config
         .validate()
         .map_err(|source| FuelAnalysisError::Estimator { file, source })?;
@@ -197,6 +203,7 @@ pub fn analyse(input: &FuelInput, out: &Path) -> Result<Evaluation, FuelAnalysis
     let label_names: Option<&[String]> = input.labels.as_ref().map(|(_, n)| n.as_slice());
     write_predictions(&out.join("predictions.csv"), &evaluation, label_names)?;
     write_summary(&out.join("summary.csv"), &evaluation.scores)?;
+    write_events(&out.join("events.csv"), &evaluation.events)?;
     if let (Some(score), Some(names)) = (&evaluation.regimes, label_names) {
         write_regimes(&out.join("regimes.csv"), score, names)?;
     }
@@ -263,6 +270,25 @@ fn write_summary(path: &Path, scores: &[ScoreRow]) -> Result<(), RecordError> {
         ]
     });
     write_csv_table(path, &["method", "horizon_s", "rmse", "mae", "n"], rows)
+}
+
+/// `events.csv`: one row per event, ids from 1; `subject` is empty as in the service's
+/// vehicle events (one vehicle per service); `detail` the event's fields as JSON, floats exact.
+fn write_events(path: &Path, events: &[RegimeEvent]) -> Result<(), RecordError> {
+    let rows = events.iter().enumerate().map(|(i, e)| {
+        vec![
+            (i + 1).to_string(),
+            REGIME_CHANGED.to_string(),
+            e.time_s.to_string(),
+            String::new(),
+            serde_json::to_string(&e.change).unwrap_or_default(),
+        ]
+    });
+    write_csv_table(
+        path,
+        &["id", "kind", "stream_time_s", "subject", "detail"],
+        rows,
+    )
 }
 
 fn write_regimes(path: &Path, score: &RegimeScore, names: &[String]) -> Result<(), RecordError> {

@@ -81,6 +81,7 @@ fn scenario_run_writes_every_report() {
     for f in [
         "predictions.csv",
         "summary.csv",
+        "events.csv",
         "regimes.csv",
         "simulated.csv",
         "fuel_predictions.png",
@@ -102,6 +103,9 @@ fn scenario_run_writes_every_report() {
     ] {
         assert!(summary.contains(method), "{method} missing from\n{summary}");
     }
+    let events = std::fs::read_to_string(out.join("events.csv")).unwrap();
+    assert!(events.starts_with("id,kind,stream_time_s,subject,detail\n"));
+    assert_eq!(events.lines().count(), ev.events.len() + 1, "{events}");
     let regimes = std::fs::read_to_string(out.join("regimes.csv")).unwrap();
     let last_two: Vec<&str> = regimes.lines().rev().take(2).collect();
     assert!(
@@ -185,4 +189,83 @@ fn fuel_cycles_regime_accuracy_is_at_least_85_percent() {
     let mix = rmse(&ev, "mixture", 1);
     assert!(mix < rmse(&ev, "single_regression", 1) && mix < rmse(&ev, "persistence", 1));
     assert!(rmse(&ev, "virtual_sensor", 0) < rmse(&ev, "single_regression_virtual_sensor", 0));
+}
+
+/// Headline numbers of a run: every `summary.csv` score, the regime accuracy (labelled data)
+/// and the number of regime-change events.
+fn headline(ev: &Evaluation) -> Vec<(String, f64)> {
+    let mut out = Vec::new();
+    for s in &ev.scores {
+        let key = format!("{}_h{}", s.method, s.horizon_s);
+        out.push((format!("{key}_rmse"), s.rmse));
+        out.push((format!("{key}_mae"), s.mae));
+        out.push((format!("{key}_n"), s.n as f64));
+    }
+    if let Some(r) = &ev.regimes {
+        out.push(("regime_accuracy".into(), r.accuracy()));
+        out.push(("regime_confirmed_accuracy".into(), r.confirmed_accuracy()));
+    }
+    out.push(("regime_change_events".into(), ev.events.len() as f64));
+    out
+}
+
+/// Compares `values` with `tests/data/golden/<name>` at relative tolerance 1e-9; with
+/// `RAILMON_UPDATE_GOLDEN=1` rewrites the file instead.
+fn check_golden(name: &str, values: &[(String, f64)]) {
+    let path = shared_data().join("../tests/data/golden").join(name);
+    if std::env::var("RAILMON_UPDATE_GOLDEN").is_ok_and(|v| v == "1") {
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        let mut text = String::from("quantity,value\n");
+        for (k, v) in values {
+            text.push_str(&format!("{k},{v:e}\n"));
+        }
+        std::fs::write(&path, text).unwrap();
+        return;
+    }
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+        panic!(
+            "{}: {e} (RAILMON_UPDATE_GOLDEN=1 writes it)",
+            path.display()
+        )
+    });
+    let pinned: Vec<(String, f64)> = text
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let (k, v) = l.split_once(',').unwrap();
+            (k.to_string(), v.parse().unwrap())
+        })
+        .collect();
+    let keys = |v: &[(String, f64)]| v.iter().map(|(k, _)| k.clone()).collect::<Vec<_>>();
+    assert_eq!(keys(&pinned), keys(values), "{name}: quantities differ");
+    for ((k, want), (_, got)) in pinned.iter().zip(values) {
+        let tolerance = 1e-9 * want.abs().max(1e-12);
+        assert!(
+            (got - want).abs() <= tolerance,
+            "{name}: {k} = {got:e}, pinned {want:e}"
+        );
+    }
+}
+
+/// Issue 8: the headline numbers of a short seeded scenario (500 s, labelled) and of the
+/// aggressive Camry file, pinned.
+#[test]
+fn golden_headline_numbers() {
+    let dir = std::env::temp_dir().join(format!("railmon-fuel-golden-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (input, _) = simulate_scenario(&small_scenario(&dir)).unwrap();
+    let (labels, names) = input.labels.as_ref().unwrap();
+    let ev = evaluate(
+        &input.config,
+        &input.samples,
+        Some((labels, names.len())),
+        || {},
+    )
+    .unwrap();
+    check_golden("fuel-scenario-short.csv", &headline(&ev));
+    std::fs::remove_dir_all(&dir).unwrap();
+
+    let input = load_recording(&shared_data().join("anl-camry-2018/61811014.csv")).unwrap();
+    let ev = evaluate(&input.config, &input.samples, None, || {}).unwrap();
+    check_golden("fuel-camry-61811014.csv", &headline(&ev));
 }

@@ -2,7 +2,8 @@
 //! sizes, memories, priors and forgetting. Every field is validated by
 //! [`FuelMonitorConfig::validate`], which names the field and the value it rejects.
 
-use serde::{Deserialize, Serialize};
+use railmon_settings::{with_preset, Presets};
+use serde::{Deserialize, Deserializer, Serialize};
 
 use crate::sample::Channel;
 use crate::FuelError;
@@ -48,8 +49,12 @@ pub enum InitialPartition {
 /// and speed only, no gear; chosen on those files, see `docs/fuel.md`): regression memory 2 (so
 /// that `psi` carries the last acceleration), the switching conditioned on the fuel level and
 /// the sign of the last acceleration, slow forgetting (0.998, memory ~500 s) so the components
-/// follow a warming engine, weak priors. [`FuelMonitorConfig::paper`] is the paper's setting:
-/// five channels + gear, memory 1, switching on the fuel level only, no forgetting.
+/// follow a warming engine, weak priors. It is the one default: the service, `railmon analyze
+/// fuel --input` and scenarios without `[monitor]` take it from here. Named
+/// presets, asked for with `preset = "<name>"` in a settings table ([`deserialize_with_preset`]):
+/// `paper` ([`FuelMonitorConfig::paper`]: five channels + gear, memory 1, switching on the fuel
+/// level only, no forgetting) and `driving_style` ([`FuelMonitorConfig::driving_style`], the
+/// setting of `config/scenarios/fuel-cycles.toml` and the demo).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FuelMonitorConfig {
@@ -161,6 +166,29 @@ impl FuelMonitorConfig {
             regression_memory: 1,
             acceleration_bins_m_s2: Vec::new(),
             forgetting: 1.0,
+            ..Default::default()
+        }
+    }
+
+    /// The setting validated on `config/scenarios/fuel-cycles.toml` (preset `driving_style`):
+    /// the paper's five channels and the gear, one component per driving style (2), regression
+    /// memory 2, initialised from 1200 prior samples recorded as one time block per style, no
+    /// forgetting, and a switching prior worth 10^4 samples with a 1/1000 chance of a change per
+    /// second, so that the pointer weighs minutes of evidence (a driving style lasts minutes).
+    /// Needs a source with all five channels and the gear, and prior data laid out that way.
+    pub fn driving_style() -> Self {
+        FuelMonitorConfig {
+            channels: Channel::ALL.to_vec(),
+            categorical: Some(CategoricalConfig::default()),
+            components: 2,
+            regression_memory: 2,
+            init_samples: 1200,
+            init_partition: InitialPartition::TimeBlocks,
+            init_iterations: 0,
+            forgetting: 1.0,
+            acceleration_bins_m_s2: Vec::new(),
+            switching_prior_stay: 10_000.0,
+            switching_prior_move: 10.0,
             ..Default::default()
         }
     }
@@ -332,6 +360,29 @@ fn check_open_unit(field: &'static str, v: f64) -> Result<(), FuelError> {
     } else {
         Err(FuelError::invalid(field, v, "must be in (0, 1]"))
     }
+}
+
+impl Presets for FuelMonitorConfig {
+    const PRESETS: &'static [&'static str] = &["paper", "driving_style"];
+
+    fn preset(name: &str) -> Option<Self> {
+        match name {
+            "paper" => Some(Self::paper()),
+            "driving_style" => Some(Self::driving_style()),
+            _ => None,
+        }
+    }
+}
+
+/// Reads a settings table (`[vehicle.estimator]`, a scenario's `[monitor]`) as a
+/// [`FuelMonitorConfig`]: from the preset its `preset` key names (`paper`, `driving_style`),
+/// else from [`FuelMonitorConfig::default`], with every other key overriding a single value.
+/// For `#[serde(deserialize_with)]` on self-describing formats (TOML, JSON).
+pub fn deserialize_with_preset<'de, D: Deserializer<'de>>(
+    deserializer: D,
+) -> Result<FuelMonitorConfig, D::Error> {
+    let table = toml::Table::deserialize(deserializer)?;
+    with_preset(table, "").map_err(serde::de::Error::custom)
 }
 
 fn check_edges(field: &'static str, edges: &[f64]) -> Result<(), FuelError> {

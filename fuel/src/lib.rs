@@ -29,7 +29,7 @@ pub use config::{CategoricalConfig, FuelMonitorConfig, InitialPartition};
 pub use counts::CountTable;
 pub use error::FuelError;
 pub use mixture::{Mixture, MixtureInput, MixtureSpec};
-pub use monitor::{FuelEstimate, FuelMonitor, MixtureEstimate};
+pub use monitor::{FuelEstimate, FuelMonitor, MixtureEstimate, RegimeChange, REGIME_CHANGED};
 pub use regression::RegressionStats;
 pub use sample::{bin_index, Channel, VehicleSample};
 pub use simulator::{

@@ -44,12 +44,25 @@ pub struct MixtureEstimate {
     /// The reported driving regime: the active regime once it has been active for
     /// `regime_confirm_samples` samples in a row (the first estimate's active regime at start).
     pub regime: usize,
-    /// `regime` differs from the previous sample's (false on the first estimate): the
-    /// regime-change event of a live service.
-    pub regime_changed: bool,
+    /// `regime` differs from the previous sample's (`None` on the first estimate): the
+    /// `regime_changed` event, raised by the service and written by `railmon analyze fuel`.
+    pub regime_change: Option<RegimeChange>,
     /// Fuel integrated from the virtual sensor since initialisation, cm^3.
     pub cumulative_virtual_fuel_cm3: f64,
 }
+
+/// The alarm rule of the fuel stream: the reported regime changed. The event `regime_changed`
+/// of the service and of `railmon analyze fuel` (`events.csv`) carries these fields.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
+pub struct RegimeChange {
+    pub from_regime: usize,
+    pub to_regime: usize,
+    /// Probability of the new regime on this sample.
+    pub probability: f64,
+}
+
+/// The `kind` of a [`RegimeChange`] event.
+pub const REGIME_CHANGED: &str = "regime_changed";
 
 /// Everything the monitor reports after a sample.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
@@ -446,7 +459,13 @@ impl FuelMonitor {
             Some(e) if self.active_streak.1 < self.config.regime_confirm_samples => e.regime,
             _ => active,
         };
-        let regime_changed = previous.is_some_and(|e| e.regime != regime);
+        let regime_change = previous
+            .filter(|e| e.regime != regime)
+            .map(|e| RegimeChange {
+                from_regime: e.regime,
+                to_regime: regime,
+                probability: regime_probabilities[regime],
+            });
         let cumulative_virtual =
             previous.map_or(0.0, |e| e.cumulative_virtual_fuel_cm3) + virtual_sensor * dt;
         Ok(MixtureEstimate {
@@ -457,7 +476,7 @@ impl FuelMonitor {
             regime_probabilities,
             active_regime: active,
             regime,
-            regime_changed,
+            regime_change,
             cumulative_virtual_fuel_cm3: cumulative_virtual,
         })
     }

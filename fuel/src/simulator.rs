@@ -225,8 +225,9 @@ pub struct VehicleScenario {
     pub vehicle: VehicleParameters,
     #[serde(rename = "segment")]
     pub segments: Vec<Segment>,
-    /// The estimator settings this scenario is analysed with.
-    #[serde(default = "FuelMonitorConfig::paper")]
+    /// The estimator settings this scenario is analysed with: `FuelMonitorConfig::default()`
+    /// when the table is absent, the preset its `preset` key names, single keys on top.
+    #[serde(default, deserialize_with = "crate::config::deserialize_with_preset")]
     pub monitor: FuelMonitorConfig,
 }
 

@@ -401,8 +401,16 @@ fn check_regime_confirmation(confirm: usize) -> (usize, usize) {
         }
         let expected = if streak >= confirm { active } else { reported };
         assert_eq!(e.regime, expected, "t = {t}");
-        assert_eq!(e.regime_changed, expected != reported, "t = {t}");
-        reported_changes += usize::from(e.regime_changed);
+        let change = (expected != reported).then_some((reported, expected));
+        assert_eq!(
+            e.regime_change.map(|c| (c.from_regime, c.to_regime)),
+            change,
+            "t = {t}"
+        );
+        if let Some(c) = e.regime_change {
+            assert_eq!(c.probability, e.regime_probabilities[c.to_regime]);
+        }
+        reported_changes += usize::from(change.is_some());
         reported = expected;
     }
     (active_changes, reported_changes)

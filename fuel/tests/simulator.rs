@@ -3,8 +3,8 @@
 use std::collections::BTreeMap;
 
 use railmon_fuel::{
-    DriveCycle, DriverStyle, FuelError, VehicleParameters, VehicleSample, VehicleScenario,
-    VehicleSimulator, VehicleTruth,
+    DriveCycle, DriverStyle, FuelError, FuelMonitorConfig, VehicleParameters, VehicleSample,
+    VehicleScenario, VehicleSimulator, VehicleTruth,
 };
 
 /// Stand 10 s, accelerate at 1 m/s^2 to 20 m/s, cruise 60 s, brake at 1 m/s^2, stand 10 s.
@@ -191,4 +191,33 @@ fn bad_scenarios_and_parameters_are_errors() {
         VehicleSimulator::new(&s, &BTreeMap::from([("trapezoid".to_string(), bad)])),
         Err(FuelError::Scenario(_))
     ));
+}
+
+/// Issue 8: a scenario without `[monitor]` is analysed with the one default; `preset` starts
+/// from a named preset and single keys override it; an unknown preset names the known ones.
+#[test]
+fn a_scenario_monitor_is_the_default_or_a_named_preset_with_overrides() {
+    let base = "seed = 1\ndrive_cycle_dir = \".\"\n\
+                [[segment]]\ncycle = \"trapezoid\"\ndriver = \"eco\"\nregime = \"a\"\n";
+    let monitor = |table: &str| VehicleScenario::from_toml_str(&format!("{base}{table}"));
+    assert_eq!(monitor("").unwrap().monitor, FuelMonitorConfig::default());
+    let style = monitor("[monitor]\npreset = \"driving_style\"\ncomponents = 3\n").unwrap();
+    let mut want = FuelMonitorConfig::driving_style();
+    assert_eq!(want.components, 2);
+    want.components = 3;
+    assert_eq!(style.monitor, want);
+    let paper = monitor("[monitor]\npreset = \"paper\"\n").unwrap();
+    assert_eq!(paper.monitor, FuelMonitorConfig::paper());
+    assert_ne!(paper.monitor, FuelMonitorConfig::default());
+    let err = monitor("[monitor]\npreset = \"magic\"\n")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("magic") && err.contains("paper") && err.contains("driving_style"),
+        "{err}"
+    );
+    let err = monitor("[monitor]\ncomponents = 0\n")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("components"), "{err}");
 }

@@ -29,7 +29,7 @@ fn reference(record: &Path) -> (FuelMonitor, u64) {
         changes += estimate
             .mixture
             .as_ref()
-            .map_or(0, |m| u64::from(m.regime_changed));
+            .map_or(0, |m| u64::from(m.regime_change.is_some()));
     }
     (monitor, changes)
 }

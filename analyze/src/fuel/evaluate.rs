@@ -7,7 +7,7 @@
 
 use std::collections::VecDeque;
 
-use railmon_fuel::{FuelError, FuelMonitor, FuelMonitorConfig, VehicleSample};
+use railmon_fuel::{FuelError, FuelMonitor, FuelMonitorConfig, RegimeChange, VehicleSample};
 
 /// One evaluated time step.
 #[derive(Clone, Debug, PartialEq)]
@@ -67,10 +67,21 @@ impl RegimeScore {
     }
 }
 
+/// A `regime_changed` event of the mixture, by the rule the service raises it with
+/// ([`railmon_fuel::MixtureEstimate::regime_change`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RegimeEvent {
+    /// Time of the sample that raised it, s.
+    pub time_s: f64,
+    pub change: RegimeChange,
+}
+
 /// Everything a run produces.
 #[derive(Clone, Debug)]
 pub struct Evaluation {
     pub rows: Vec<PredictionRow>,
+    /// The mixture's regime-change events, in time order.
+    pub events: Vec<RegimeEvent>,
     pub scores: Vec<ScoreRow>,
     pub regimes: Option<RegimeScore>,
     pub components: usize,
@@ -131,11 +142,18 @@ pub fn evaluate(
     let mut persist_h: Vec<ErrorSum> = (0..=horizon).map(|_| ErrorSum::default()).collect();
     let (mut virtual_mix, mut virtual_single) = (ErrorSum::default(), ErrorSum::default());
     let mut rows = Vec::new();
+    let mut events = Vec::new();
     let mut previous_fuel: Option<f64> = None;
     for (t, sample) in samples.iter().enumerate() {
         let a = mixture.update(sample)?.mixture.clone();
         let b = single.update(sample)?.mixture.clone();
         let fuel = sample.fuel_cm3_s.unwrap_or(f64::NAN);
+        if let Some(change) = a.as_ref().and_then(|a| a.regime_change) {
+            events.push(RegimeEvent {
+                time_s: sample.time_s,
+                change,
+            });
+        }
         if let (Some(a), Some(b)) = (a, b) {
             // Forecasts of this sample made h steps ago (h = 1 is element 0 of the newest path).
             for (age, (pm, ps, pp)) in paths.iter().enumerate() {
@@ -184,6 +202,7 @@ pub fn evaluate(
     let regimes = labels.map(|(_, n_labels)| score_regimes(&rows, config.components, n_labels));
     Ok(Evaluation {
         rows,
+        events,
         scores,
         regimes,
         components: config.components,

@@ -19,7 +19,10 @@ pub struct VehicleConfig {
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
     pub history_capacity: usize,
-    /// The estimator (`railmon_fuel::FuelMonitorConfig`); keys given override single defaults.
+    /// The estimator (`railmon_fuel::FuelMonitorConfig`): `preset = "driving_style"` (or
+    /// `"paper"`) starts from that preset instead of the default; keys given override single
+    /// values.
+    #[serde(deserialize_with = "railmon_fuel::config::deserialize_with_preset")]
     pub estimator: FuelMonitorConfig,
 }
 

@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use railmon_bus::{FrameHeader, VehicleFrame};
-use railmon_fuel::{FuelError, FuelMonitor, VehicleSample};
+use railmon_fuel::{FuelError, FuelMonitor, VehicleSample, REGIME_CHANGED};
 
 use railmon_bus::StreamKind;
 
@@ -139,7 +139,7 @@ impl VehiclePipeline {
     }
 
     /// Forecast error, regime-change event and history point of the estimate just made.
-    fn follow(&mut self, stamp: &Stamp, previous_regime: Option<usize>) {
+    fn follow(&mut self, stamp: &Stamp) {
         let Some(monitor) = &self.monitor else { return };
         let estimate = monitor.estimate();
         if let Some(m) = &estimate.mixture {
@@ -153,25 +153,19 @@ impl VehiclePipeline {
                     .forecast_abs_error
                     .observe(error.abs() * M3_PER_CM3);
             }
-            if let (true, Some(from)) = (m.regime_changed, previous_regime) {
-                let to = m.regime;
-                let probability = m.regime_probabilities[to];
+            if let Some(change) = m.regime_change {
                 self.regime_changes += 1;
                 self.metrics.vehicle.regime_changes.inc();
                 tracing::info!(
                     time_s = stamp.time_s,
-                    from,
-                    to,
-                    probability,
-                    "regime_changed"
+                    from = change.from_regime,
+                    to = change.to_regime,
+                    probability = change.probability,
+                    "{REGIME_CHANGED}"
                 );
-                let detail = RegimeEventDetail {
-                    from_regime: from,
-                    to_regime: to,
-                    probability,
-                };
+                let detail = RegimeEventDetail::from(change);
                 self.track
-                    .push_event(stamp, "regime_changed", String::new(), &detail, None);
+                    .push_event(stamp, REGIME_CHANGED, String::new(), &detail, None);
             }
         }
         if self.track.history_due(stamp.time_s) {
@@ -316,12 +310,11 @@ impl Pipeline for VehiclePipeline {
 
     fn step(&mut self, header: &FrameHeader, sample: VehicleSample) -> Result<(), Rejection> {
         let monitor = self.monitor()?;
-        let previous_regime = monitor.regime();
         // `update` validates the whole sample first: on error the estimator is unchanged.
         monitor.update(&sample).map_err(rejection_of)?;
         self.speed_m_s = sample.speed_m_s;
         let stamp = self.track.stamp(header);
-        self.follow(&stamp, previous_regime);
+        self.follow(&stamp);
         Ok(())
     }
 

@@ -79,5 +79,15 @@ pub struct RegimeEventDetail {
     pub probability: f64,
 }
 
+impl From<railmon_fuel::RegimeChange> for RegimeEventDetail {
+    fn from(c: railmon_fuel::RegimeChange) -> Self {
+        Self {
+            from_regime: c.from_regime,
+            to_regime: c.to_regime,
+            probability: c.probability,
+        }
+    }
+}
+
 /// What the ingest thread shares with the HTTP side.
 pub type VehicleShared = Outbox<VehicleView, VehicleHistoryPoint>;
