@@ -38,7 +38,8 @@ RUN apt-get update \
  && groupadd --gid 10001 railmon \
  && useradd --uid 10001 --gid 10001 --no-create-home --home-dir /opt/railmon railmon \
  && mkdir -p /tmp/iceoryx2 \
- && chown railmon:railmon /tmp/iceoryx2
+ && chown railmon:railmon /tmp/iceoryx2 \
+ && chmod 0700 /tmp/iceoryx2
 WORKDIR /opt/railmon
 COPY ${BIN_DIR}/railmon ${BIN_DIR}/sensors-replay /usr/local/bin/
 COPY config ./config
@@ -47,5 +48,7 @@ USER railmon
 EXPOSE 8787
 # Read by `railmon serve` and `sensors-replay` (clap `env = "RAILMON_CONFIG"`), like --config.
 ENV RAILMON_CONFIG=/opt/railmon/config/railmon.toml
+# The bus root path: the shared volume, private to uid 10001 (docs/reliability.md).
+ENV RAILMON_BUS__ROOT_PATH=/tmp/iceoryx2/
 ENTRYPOINT []
 CMD ["railmon", "serve"]

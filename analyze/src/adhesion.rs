@@ -23,7 +23,7 @@ use std::path::Path;
 
 use railmon_filter::stats::Summary;
 use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveTruth};
-use railmon_records::{create_csv, RecordError};
+use railmon_records::{create_csv, finish_csv, RecordError};
 use railmon_slip::{
     AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveSample,
     DriveSimulator, MultiMethodPipeline, SlipAlarmEvent, SlipError, SlipMonitorConfig,
@@ -245,7 +245,7 @@ fn analyse(
     mut source: Source,
     n_drives: Option<usize>,
     n_steps_hint: usize,
-    mut record: Option<DriveCsvWriter<std::io::BufWriter<std::fs::File>>>,
+    mut record: Option<DriveCsvWriter<railmon_records::AtomicFile>>,
     out: &Path,
 ) -> Result<AdhesionRun, AdhesionAnalysisError> {
     let est_path = out.join("estimates.csv");
@@ -352,7 +352,7 @@ fn analyse(
             reason: "no data rows".into(),
         });
     }
-    est.flush().map_err(|e| write_error(&est_path, e))?;
+    finish_csv(est)?;
     if let Some(w) = record {
         w.finish()?;
     }
@@ -447,7 +447,7 @@ fn write_tables(
         row.extend(fields);
         w.write_record(&row).map_err(|e| write_error(&path, e))?;
     }
-    w.flush().map_err(|e| write_error(&path, e))?;
+    finish_csv(w)?;
     if run.truth.is_some() {
         let path = out.join("detection.csv");
         let mut w = create_csv(&path)?;
@@ -504,7 +504,7 @@ fn write_tables(
             ])
             .map_err(|e| write_error(&path, e))?;
         }
-        w.flush().map_err(|e| write_error(&path, e))?;
+        finish_csv(w)?;
     }
     Ok(report)
 }

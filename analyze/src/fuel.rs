@@ -16,15 +16,12 @@
 pub mod evaluate;
 mod plots;
 
-use std::collections::BTreeMap;
 use std::path::Path;
 
 use railmon_fuel::config::deserialize_with_preset;
-use railmon_fuel::{
-    DriveCycle, FuelError, FuelMonitorConfig, VehicleSample, VehicleScenario, VehicleSimulator,
-    REGIME_CHANGED,
-};
-use railmon_records::vehicle::{read_drive_cycle, read_vehicle_csv, write_vehicle_csv, VehicleRow};
+use railmon_fuel::{FuelError, FuelMonitorConfig, VehicleSample, REGIME_CHANGED};
+use railmon_records::vehicle::{read_vehicle_csv, write_vehicle_csv, VehicleRow};
+use railmon_records::vehicle_scenario::simulate_vehicle_scenario;
 use railmon_records::{write_csv_table, RecordError};
 
 use crate::report::AnalysisError;
@@ -107,56 +104,19 @@ pub fn load_recording(path: &Path) -> Result<FuelInput, FuelAnalysisError> {
     })
 }
 
-/// Runs a scenario's simulator; drive cycles are read from `drive_cycle_dir` relative to the
-/// scenario file.
+/// Runs a scenario's simulator (`railmon_records::vehicle_scenario`: drive cycles are read
+/// from `drive_cycle_dir` relative to the scenario file).
 pub fn simulate_scenario(path: &Path) -> Result<(FuelInput, Vec<VehicleRow>), FuelAnalysisError> {
-    let file = path.display().to_string();
-    let scenario = VehicleScenario::from_toml_str(&read_text(path)?).map_err(|source| {
-        FuelAnalysisError::Estimator {
-            file: file.clone(),
-            source,
-        }
-    })?;
-    let dir = path
-        .parent()
-        .unwrap_or(Path::new("."))
-        .join(&scenario.drive_cycle_dir);
-    let mut cycles = BTreeMap::new();
-    for name in scenario.cycle_names() {
-        let trace = read_drive_cycle(&dir.join(format!("{name}.csv")))?;
-        cycles.insert(
-            name,
-            DriveCycle {
-                speed_m_s: trace.speed_m_s,
-                grade_rad: trace.grade_rad,
-            },
-        );
-    }
-    let mut sim = VehicleSimulator::new(&scenario, &cycles).map_err(|source| {
-        FuelAnalysisError::Estimator {
-            file: file.clone(),
-            source,
-        }
-    })?;
-    let names = scenario.regimes();
-    let (mut samples, mut labels, mut rows) = (Vec::new(), Vec::new(), Vec::new());
-    while let Some((s, truth)) = sim.step() {
-        rows.push(VehicleRow {
-            sample: s,
-            regime: Some(names[truth.regime].clone()),
-        });
-        samples.push(s);
-        labels.push(truth.regime);
-    }
+    let run = simulate_vehicle_scenario(path)?;
     let input = FuelInput {
-        samples,
-        labels: Some((labels, names)),
-        config: scenario.monitor.clone(),
-        name: path
-            .file_name()
-            .map_or(file.clone(), |n| n.to_string_lossy().into_owned()),
+        samples: samples_from_rows(&run.rows),
+        labels: Some((run.regimes, run.scenario.regimes())),
+        config: run.scenario.monitor.clone(),
+        name: path.file_name().map_or(path.display().to_string(), |n| {
+            n.to_string_lossy().into_owned()
+        }),
     };
-    Ok((input, rows))
+    Ok((input, run.rows))
 }
 
 /// `railmon analyze fuel`.

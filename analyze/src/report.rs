@@ -150,8 +150,11 @@ fn draw_chart(
     y_range: std::ops::Range<f64>,
     draw: impl FnOnce(&mut Chart) -> Result<(), String>,
 ) -> Result<(), ReportError> {
+    // Drawn under a temporary name and renamed when complete: no half-written PNG.
+    let file =
+        railmon_records::AtomicFile::create(path).map_err(|e| ReportError::new(path, e.reason))?;
     let err = |e: &dyn std::fmt::Display| ReportError::new(path, e);
-    let root = BitMapBackend::new(path, size).into_drawing_area();
+    let root = BitMapBackend::new(file.temporary_path(), size).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(axes.title, ("sans-serif", 22))
@@ -167,7 +170,10 @@ fn draw_chart(
         .draw()
         .map_err(|e| err(&e))?;
     draw(&mut chart).map_err(|e| err(&e))?;
-    root.present().map_err(|e| err(&e))
+    root.present().map_err(|e| err(&e))?;
+    drop(chart);
+    drop(root);
+    file.commit().map_err(|e| ReportError::new(path, e.reason))
 }
 
 fn draw_legend(chart: &mut Chart) -> Result<(), String> {

@@ -43,7 +43,8 @@ pub struct BusConfig {
     /// Prefix of every iceoryx2 file (shared memory in /dev/shm, discovery files): processes
     /// only see each other with the same prefix and root path.
     pub prefix: String,
-    /// Directory for iceoryx2 discovery files, liveness locks and event sockets.
+    /// Directory for iceoryx2 discovery files, liveness locks and event sockets; empty: a
+    /// private directory of the user (`crate::root_path`).
     pub root_path: String,
     pub drive: StreamConfig,
     pub bogie: StreamConfig,
@@ -54,7 +55,7 @@ impl Default for BusConfig {
     fn default() -> Self {
         Self {
             prefix: "railmon_".into(),
-            root_path: "/tmp/iceoryx2/".into(),
+            root_path: String::new(),
             drive: StreamConfig::default(),
             bogie: StreamConfig::default(),
             vehicle: StreamConfig::default(),
@@ -136,11 +137,13 @@ impl BusConfig {
                 ),
             });
         }
-        if !self.root_path.starts_with('/') || self.root_path.len() > 200 {
+        let root_ok = self.root_path.is_empty()
+            || (self.root_path.starts_with('/') && self.root_path.len() <= 200);
+        if !root_ok {
             return Err(BusError::Config {
                 key: "bus.root_path".into(),
                 reason: format!(
-                    "`{}` must be an absolute path of at most 200 characters",
+                    "`{}` must be empty (a private default) or an absolute path of at most 200 characters",
                     self.root_path
                 ),
             });

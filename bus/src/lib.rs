@@ -10,6 +10,8 @@
 //!   full subscriber after `backpressure_timeout_ms`, and [`FramePublisher::resend`] sends the
 //!   frame again under its number once a live subscriber answers;
 //! - stale shared memory after a crash: [`BusNode::create`] cleans up dead nodes;
+//! - a killed subscriber takes the frames in its buffer with it: subscribers acknowledge what
+//!   they took ([`taken`]), so the publisher counts what nobody took;
 //! - signals: nodes and WaitSets never install signal handlers (the binaries own SIGINT/SIGTERM);
 //! - ports are not `Send`: each thread creates its own [`BusNode`] and ports.
 
@@ -21,7 +23,9 @@ mod node;
 pub mod utc;
 pub use node::iceoryx2_config;
 mod publisher;
+pub mod root_path;
 mod subscriber;
+pub mod taken;
 
 pub use clock::monotonic_ns;
 pub use config::{BusConfig, StreamConfig, StreamKind};
@@ -32,7 +36,9 @@ pub use frames::{
 };
 pub use node::BusNode;
 pub use publisher::{utc_now_ns, FramePublisher};
+pub use root_path::RootPath;
 pub use subscriber::{FrameSubscriber, ReceivedFrame, Wakeups};
+pub use taken::{TakenFrames, TakenLedger, TakenReport};
 
 /// The WaitSet type the subscriber side attaches listeners to.
 pub type WaitSet = iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>;

@@ -1,7 +1,11 @@
+use std::sync::atomic::AtomicBool;
+
 use iceoryx2::config::Config;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 
+use crate::root_path::{resolve_root_path, RootPath};
+use crate::taken::{TakenFrames, TAKEN_BUFFER};
 use crate::{
     BusConfig, BusError, Frame, FrameHeader, FramePublisher, FrameSubscriber, StreamConfig, WaitSet,
 };
@@ -19,20 +23,24 @@ pub(crate) const EVENT_PUBLISHER_HELLO: usize = 3;
 /// listen): "I updated my connections after your hello".
 pub(crate) const EVENT_SUBSCRIBER_READY: usize = 4;
 
-/// The services of one stream: frames, data events, and readiness answers.
+/// The services of one stream: frames, data events, readiness answers, and what the
+/// subscribers took ([`crate::taken`]).
 pub(crate) struct StreamServices<F: Frame> {
     pub(crate) frames: PubSubFactory<F>,
     pub(crate) events: EventFactory,
     pub(crate) ready: EventFactory,
+    pub(crate) taken: TakenFactory,
 }
 
 pub(crate) type PubSubFactory<F> = publish_subscribe::PortFactory<ipc::Service, F, FrameHeader>;
+pub(crate) type TakenFactory = publish_subscribe::PortFactory<ipc::Service, TakenFrames, ()>;
 pub(crate) type EventFactory = event::PortFactory<ipc::Service>;
 
 /// One iceoryx2 node of this process (one per thread that owns ports: ports are not `Send`).
 pub struct BusNode {
     node: Node<ipc::Service>,
     config: BusConfig,
+    root_path: RootPath,
     cleaned_at_start: u64,
 }
 
@@ -45,17 +53,18 @@ impl std::fmt::Debug for BusNode {
     }
 }
 
-/// The iceoryx2 config for `bus`: the shipped file with railmon's prefix and root path.
-pub fn iceoryx2_config(bus: &BusConfig) -> Result<Config, BusError> {
+/// The iceoryx2 config for `bus`: the shipped file with railmon's prefix and `root_path`
+/// (resolved by [`crate::root_path::resolve_root_path`]).
+pub fn iceoryx2_config(bus: &BusConfig, root_path: &str) -> Result<Config, BusError> {
     let mut config: Config = toml::from_str(ICEORYX2_CONFIG_TOML)
         .map_err(|e| BusError::ipc("embedded config/iceoryx2.toml", e.to_string()))?;
     config.global.prefix = FileName::new(bus.prefix.as_bytes()).map_err(|e| BusError::Config {
         key: "bus.prefix".into(),
         reason: format!("`{}`: {e:?}", bus.prefix),
     })?;
-    let root = Path::new(bus.root_path.as_bytes()).map_err(|e| BusError::Config {
+    let root = Path::new(root_path.as_bytes()).map_err(|e| BusError::Config {
         key: "bus.root_path".into(),
-        reason: format!("`{}`: {e:?}", bus.root_path),
+        reason: format!("`{root_path}`: {e:?}"),
     })?;
     config.global.set_root_path(&root);
     Ok(config)
@@ -66,7 +75,9 @@ impl BusNode {
     /// SIGKILLed service or replay) left in shared memory and under the root path.
     pub fn create(config: &BusConfig, name: &str) -> Result<Self, BusError> {
         config.validate()?;
-        let ipc_config = iceoryx2_config(config)?;
+        let xdg_runtime_dir = std::env::var("XDG_RUNTIME_DIR").ok();
+        let root_path = resolve_root_path(&config.root_path, xdg_runtime_dir.as_deref())?;
+        let ipc_config = iceoryx2_config(config, &root_path.path)?;
         let node_name =
             NodeName::new(name).map_err(|e| BusError::ipc(format!("node name `{name}`"), e))?;
         let node = NodeBuilder::new()
@@ -81,8 +92,14 @@ impl BusNode {
         Ok(Self {
             node,
             config: config.clone(),
+            root_path,
             cleaned_at_start,
         })
+    }
+
+    /// The root path in use, and why earlier candidates of the default were not used.
+    pub fn root_path(&self) -> &RootPath {
+        &self.root_path
     }
 
     pub fn config(&self) -> &BusConfig {
@@ -109,9 +126,18 @@ impl BusNode {
     }
 
     pub fn publisher<F: Frame>(&self) -> Result<FramePublisher<F>, BusError> {
+        self.publisher_stopped_by(None)
+    }
+
+    /// A publisher whose sends stop waiting on a full subscriber as soon as `stop` is set
+    /// (a replay must react to SIGTERM within 100 ms, also while a stalled service holds it).
+    pub fn publisher_stopped_by<F: Frame>(
+        &self,
+        stop: Option<&'static AtomicBool>,
+    ) -> Result<FramePublisher<F>, BusError> {
         let stream = self.config.stream(F::STREAM);
         let services = self.open_services::<F>(&stream)?;
-        FramePublisher::new(stream, services)
+        FramePublisher::new(stream, services, stop)
     }
 
     pub fn subscriber<F: Frame>(&self) -> Result<FrameSubscriber<F>, BusError> {
@@ -162,10 +188,23 @@ impl BusNode {
             .event()
             .open_or_create()
             .map_err(|e| BusError::ipc(format!("open event service `{ready_name}`"), e))?;
+        let taken_name = format!("{}/taken", stream.service_name);
+        let taken = self
+            .node
+            .service_builder(&service_name(&taken_name)?)
+            .publish_subscribe::<TakenFrames>()
+            .enable_safe_overflow(true)
+            .subscriber_max_buffer_size(TAKEN_BUFFER)
+            .history_size(0)
+            .open_or_create()
+            .map_err(|e| {
+                BusError::ipc(format!("open publish-subscribe service `{taken_name}`"), e)
+            })?;
         Ok(StreamServices {
             frames,
             events,
             ready,
+            taken,
         })
     }
 }

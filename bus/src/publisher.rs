@@ -1,14 +1,17 @@
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use iceoryx2::port::listener::Listener;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::{BackpressureAction, BackpressureInfo};
 use iceoryx2::prelude::*;
 
 use crate::node::{
     PubSubFactory, StreamServices, EVENT_FRAMES_SENT, EVENT_PUBLISHER_HELLO, EVENT_SUBSCRIBER_READY,
 };
+use crate::taken::{TakenFrames, TakenLedger, TakenReport};
 use crate::{monotonic_ns, BusError, Frame, FrameHeader, StreamConfig, FRAME_LAYOUT_VERSION};
 
 /// Publishes one stream's frames, numbering and stamping each, and wakes the subscribers.
@@ -17,6 +20,9 @@ pub struct FramePublisher<F: Frame> {
     frames: PubSubFactory<F>,
     // Field order is drop order: the port goes before the notifier and listener.
     publisher: Publisher<ipc::Service, F, FrameHeader>,
+    /// The subscribers' acknowledgements of what they took.
+    taken_subscriber: Subscriber<ipc::Service, TakenFrames, ()>,
+    ledger: TakenLedger,
     notifier: Notifier<ipc::Service>,
     ready_listener: Listener<ipc::Service>,
     instance: u64,
@@ -36,18 +42,29 @@ impl<F: Frame> std::fmt::Debug for FramePublisher<F> {
 }
 
 impl<F: Frame> FramePublisher<F> {
-    pub(crate) fn new(stream: StreamConfig, services: StreamServices<F>) -> Result<Self, BusError> {
+    pub(crate) fn new(
+        stream: StreamConfig,
+        services: StreamServices<F>,
+        stop: Option<&'static AtomicBool>,
+    ) -> Result<Self, BusError> {
         let name = stream.service_name.clone();
         let limit = Duration::from_millis(stream.backpressure_timeout_ms);
         // Lossless mode waits for a full subscriber, but never longer than `limit`: a SIGKILLed
         // subscriber never drains its buffer and would block us until its node is cleaned up.
+        // A stop request ends the wait at once (the frame then reached no subscriber).
         let give_up_after_limit = move |info: &BackpressureInfo| {
-            if info.elapsed_time < limit {
+            let stopping = stop.is_some_and(|s| s.load(Ordering::Relaxed));
+            if info.elapsed_time < limit && !stopping {
                 BackpressureAction::Retry
             } else {
                 BackpressureAction::DiscardData
             }
         };
+        let taken_subscriber = services
+            .taken
+            .subscriber_builder()
+            .create()
+            .map_err(|e| BusError::ipc(format!("create subscriber on `{name}/taken`"), e))?;
         // The listener exists before the port, so every readiness answer to our hello reaches it.
         let ready_listener = services
             .ready
@@ -72,6 +89,8 @@ impl<F: Frame> FramePublisher<F> {
             stream,
             frames: services.frames,
             publisher,
+            taken_subscriber,
+            ledger: TakenLedger::default(),
             notifier,
             ready_listener,
             instance,
@@ -122,14 +141,22 @@ impl<F: Frame> FramePublisher<F> {
                 .notify_with_custom_event_id(EventId::new(EVENT_PUBLISHER_HELLO))
                 .map_err(|e| BusError::ipc(format!("hello on `{}`", self.service_name()), e))?;
             let mut ready = false;
-            self.ready_listener
-                .timed_wait(
-                    |event| ready |= event.id.as_value() == EVENT_SUBSCRIBER_READY,
-                    Duration::from_millis(10),
-                )
-                .map_err(|e| {
-                    BusError::ipc(format!("wait on `{}/ready`", self.service_name()), e)
-                })?;
+            let waited = self.ready_listener.timed_wait(
+                |event| ready |= event.id.as_value() == EVENT_SUBSCRIBER_READY,
+                Duration::from_millis(10),
+            );
+            match waited {
+                Ok(_) => {}
+                // A signal (SIGTERM to stop us) interrupts the wait: not an error. Returning
+                // it as one made SIGTERM exit 1 in 4 of 8 tries instead of 0.
+                Err(ListenerWaitError::InterruptSignal) => {}
+                Err(e) => {
+                    return Err(BusError::ipc(
+                        format!("wait on `{}/ready`", self.service_name()),
+                        e,
+                    ))
+                }
+            }
             if ready {
                 return Ok(());
             }
@@ -196,6 +223,48 @@ impl<F: Frame> FramePublisher<F> {
             .map_err(|e| BusError::ipc(format!("send on `{}`", self.stream.service_name), e))
     }
 
+    /// Reads the subscribers' acknowledgements that arrived since the last call (call it at
+    /// least every [`crate::taken::TAKEN_BUFFER`] batches the subscribers drain).
+    pub fn collect_taken(&mut self) -> Result<(), BusError> {
+        loop {
+            let ack = self.taken_subscriber.receive().map_err(|e| {
+                BusError::ipc(
+                    format!("receive on `{}/taken`", self.stream.service_name),
+                    e,
+                )
+            })?;
+            let Some(ack) = ack else { return Ok(()) };
+            if ack.publisher_instance == self.instance {
+                self.ledger.record(&ack);
+            }
+        }
+    }
+
+    /// What became of the frames sent so far, as acknowledged until the last
+    /// [`Self::collect_taken`].
+    pub fn taken_report(&self) -> TakenReport {
+        self.ledger.report(self.sequence)
+    }
+
+    /// Waits until a subscriber acknowledged the last frame sent, no subscriber is left,
+    /// `stop()` says so, or `timeout` passed; then reports what became of the frames.
+    pub fn wait_until_taken(
+        &mut self,
+        timeout: Duration,
+        stop: &dyn Fn() -> bool,
+    ) -> Result<TakenReport, BusError> {
+        let start = Instant::now();
+        loop {
+            self.collect_taken()?;
+            let report = self.taken_report();
+            let gone = self.subscriber_count() == 0;
+            if report.unconfirmed == 0 || gone || stop() || start.elapsed() >= timeout {
+                return Ok(report);
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
     /// Wakes the subscribers' WaitSets.
     pub fn notify(&self) -> Result<(), BusError> {
         self.notifier
@@ -215,7 +284,7 @@ pub fn utc_now_ns() -> i64 {
 /// An id that tells publishers apart, also across containers where every process is PID 1
 /// (the pid alone, or pid and clock bits, would then rest on the clock): std's hasher keyed
 /// from the OS's randomness, over the pid and the clock.
-fn new_instance_id() -> u64 {
+pub(crate) fn new_instance_id() -> u64 {
     use std::hash::BuildHasher;
     std::collections::hash_map::RandomState::new().hash_one((std::process::id(), monotonic_ns()))
 }

@@ -1,5 +1,8 @@
 use iceoryx2::port::listener::Listener;
+use std::cell::RefCell;
+
 use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
@@ -8,7 +11,11 @@ use crate::node::{
     PubSubFactory, StreamServices, EVENT_PUBLISHER_DEAD, EVENT_PUBLISHER_HELLO,
     EVENT_SUBSCRIBER_READY,
 };
+use crate::taken::TakenFrames;
 use crate::{monotonic_ns, BusError, Frame, FrameHeader, StreamConfig};
+
+/// Publishers whose taken ranges a subscriber remembers (the most recent ones).
+const TAKEN_PUBLISHERS: usize = 8;
 
 /// A frame as handed to the consumer: borrowed from shared memory, valid during the callback.
 pub struct ReceivedFrame<'a, F> {
@@ -23,6 +30,11 @@ pub struct FrameSubscriber<F: Frame> {
     stream: StreamConfig,
     frames: PubSubFactory<F>,
     subscriber: Subscriber<ipc::Service, F, FrameHeader>,
+    /// Tells the publishers what this subscriber took ([`crate::taken`]).
+    taken_publisher: Publisher<ipc::Service, TakenFrames, ()>,
+    /// Per publisher instance, the range taken so far (most recent last).
+    taken: RefCell<Vec<TakenFrames>>,
+    instance: u64,
     listener: Listener<ipc::Service>,
     ready_notifier: Notifier<ipc::Service>,
 }
@@ -54,6 +66,12 @@ impl<F: Frame> FrameSubscriber<F> {
             .map_err(|e| {
                 BusError::ipc(format!("create subscriber on `{}`", stream.service_name), e)
             })?;
+        let taken_publisher = services.taken.publisher_builder().create().map_err(|e| {
+            BusError::ipc(
+                format!("create publisher on `{}/taken`", stream.service_name),
+                e,
+            )
+        })?;
         let listener = services.events.listener_builder().create().map_err(|e| {
             BusError::ipc(format!("create listener on `{}`", stream.service_name), e)
         })?;
@@ -72,6 +90,9 @@ impl<F: Frame> FrameSubscriber<F> {
             stream,
             frames: services.frames,
             subscriber,
+            taken_publisher,
+            taken: RefCell::new(Vec::new()),
+            instance: crate::publisher::new_instance_id(),
             listener,
             ready_notifier,
         };
@@ -90,6 +111,12 @@ impl<F: Frame> FrameSubscriber<F> {
         self.subscriber.update_connections().map_err(|e| {
             BusError::ipc(
                 format!("connect subscriber on `{}`", self.stream.service_name),
+                e,
+            )
+        })?;
+        self.taken_publisher.update_connections().map_err(|e| {
+            BusError::ipc(
+                format!("connect publisher on `{}/taken`", self.stream.service_name),
                 e,
             )
         })
@@ -124,25 +151,77 @@ impl<F: Frame> FrameSubscriber<F> {
         Ok(wakeups)
     }
 
-    /// Hands up to `max` waiting frames to `consume`, in order; returns how many.
+    /// Hands up to `max` waiting frames to `consume`, in order; returns how many. Then tells
+    /// their publishers what this subscriber has taken from them.
     pub fn drain(
         &self,
         max: usize,
         mut consume: impl FnMut(ReceivedFrame<'_, F>),
     ) -> Result<usize, BusError> {
         let mut count = 0;
+        // Publisher instances whose frames this batch took (usually one).
+        let mut touched: Vec<u64> = Vec::new();
         while count < max {
             let sample = self.subscriber.receive().map_err(|e| {
                 BusError::ipc(format!("receive on `{}`", self.stream.service_name), e)
             })?;
             let Some(sample) = sample else { break };
+            let header = *sample.user_header();
             consume(ReceivedFrame {
-                header: sample.user_header(),
+                header: &header,
                 frame: sample.payload(),
                 received_at_ns: monotonic_ns(),
             });
+            self.record_taken(&header);
+            if !touched.contains(&header.publisher_instance) {
+                touched.push(header.publisher_instance);
+            }
             count += 1;
         }
+        for instance in touched {
+            self.acknowledge(instance)?;
+        }
         Ok(count)
+    }
+
+    fn record_taken(&self, header: &FrameHeader) {
+        let mut taken = self.taken.borrow_mut();
+        match taken
+            .iter_mut()
+            .find(|t| t.publisher_instance == header.publisher_instance)
+        {
+            Some(t) => {
+                t.first_sequence = t.first_sequence.min(header.sequence);
+                t.last_sequence = t.last_sequence.max(header.sequence);
+            }
+            None => {
+                if taken.len() == TAKEN_PUBLISHERS {
+                    taken.remove(0);
+                }
+                taken.push(TakenFrames {
+                    publisher_instance: header.publisher_instance,
+                    subscriber_instance: self.instance,
+                    first_sequence: header.sequence,
+                    last_sequence: header.sequence,
+                });
+            }
+        }
+    }
+
+    /// Sends the range taken from publisher `instance` (never blocks: safe overflow).
+    fn acknowledge(&self, instance: u64) -> Result<(), BusError> {
+        let Some(ack) = self
+            .taken
+            .borrow()
+            .iter()
+            .find(|t| t.publisher_instance == instance)
+            .copied()
+        else {
+            return Ok(());
+        };
+        self.taken_publisher
+            .send_copy(ack)
+            .map(|_| ())
+            .map_err(|e| BusError::ipc(format!("send on `{}/taken`", self.stream.service_name), e))
     }
 }

@@ -115,11 +115,13 @@ impl Default for RbpfConfig {
 
 impl RbpfConfig {
     pub fn validate(&self) -> Result<(), DamperError> {
-        if self.particles < 2 {
+        // At most a million: each particle holds a 17-state covariance (~2.5 kB), and 1e9
+        // particles aborted the service on a 136 GB allocation at its first frame.
+        if !(2..=1_000_000).contains(&self.particles) {
             return Err(DamperError::InvalidParameter {
                 field: "rbpf.particles",
                 value: self.particles as f64,
-                reason: "must be at least 2",
+                reason: "must be in 2..=1000000",
             });
         }
         if !(self.delta > 1.0 / 3.0 && self.delta < 1.0) {
@@ -396,6 +398,7 @@ mod tests {
         c.nominal.csay_ns_per_m = 0.0;
         rejects(c, "csay_ns_per_m");
         rejects(with_rbpf(|r| r.particles = 1), "rbpf.particles");
+        rejects(with_rbpf(|r| r.particles = 1_000_000_000), "rbpf.particles");
         rejects(with_rbpf(|r| r.delta = 1.0), "rbpf.delta");
         rejects(with_rbpf(|r| r.delta = 0.2), "rbpf.delta");
         rejects(

@@ -80,6 +80,15 @@ impl DamperScenario {
     pub fn validate(&self) -> Result<(), DamperError> {
         positive("duration_s", self.duration_s)?;
         positive("dt_s", self.dt_s)?;
+        // A bound on the steps, so a typo (1e20 s) is an error rather than a simulation that
+        // never ends: a million seconds is 11.6 days.
+        if self.duration_s > 1e6 {
+            return Err(DamperError::InvalidParameter {
+                field: "duration_s",
+                value: self.duration_s,
+                reason: "must be at most 1e6 s",
+            });
+        }
         self.vehicle.validate()?;
         self.dampers.validate()?;
         self.track.validate()?;

@@ -30,10 +30,10 @@
 //! [`BogieCsvReader::next_bogie_record`] reads every row with its bogie id.
 
 use std::fs::File;
-use std::io::{BufWriter, Read};
+use std::io::Read;
 use std::path::Path;
 
-use crate::{create_csv, Column, CsvTable, RecordError};
+use crate::{create_csv, finish_csv, AtomicFile, Column, CsvTable, RecordError};
 
 /// Time and sensor columns, in order.
 pub const BOGIE_COLUMNS: [&str; 6] = [
@@ -131,6 +131,11 @@ impl<R: Read> BogieCsvReader<R> {
     /// Whether the file names the bogie of each row (else it holds [`DEFAULT_BOGIE_ID`] only).
     pub fn has_bogie_column(&self) -> bool {
         self.bogie.is_some()
+    }
+
+    /// 1-based line of the row read last, for errors about it found by the caller.
+    pub fn line(&self) -> u64 {
+        self.table.line()
     }
 
     pub fn file(&self) -> &str {
@@ -260,7 +265,7 @@ impl<R: Read> BogieCsvReader<R> {
 
 /// Writes a bogie recording.
 pub struct BogieCsvWriter {
-    writer: csv::Writer<BufWriter<File>>,
+    writer: csv::Writer<AtomicFile>,
     file: String,
     with_truth: bool,
     bogie_column: bool,
@@ -337,10 +342,9 @@ impl BogieCsvWriter {
             .map_err(|e| RecordError::file(&self.file, format!("write error: {e}")))
     }
 
-    pub fn finish(mut self) -> Result<(), RecordError> {
-        self.writer
-            .flush()
-            .map_err(|e| RecordError::file(&self.file, format!("write error: {e}")))
+    /// Completes the file and puts it in place (until then an existing file is untouched).
+    pub fn finish(self) -> Result<(), RecordError> {
+        finish_csv(self.writer)
     }
 }
 

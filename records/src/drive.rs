@@ -21,13 +21,13 @@
 //! missing column or a truncated last line is an error naming file, line, field and value.
 
 use std::fs::File;
-use std::io::{BufWriter, Read, Write};
+use std::io::{Read, Write};
 use std::path::Path;
 
 // The row types are the estimator's own: a recording holds exactly what the monitor consumes.
 pub use railmon_slip::{DriveSample, DriveTruth};
 
-use crate::{create_csv, Column, CsvTable, RecordError, Row};
+use crate::{create_csv, finish_csv, AtomicFile, Column, CsvTable, RecordError, Row};
 
 /// Columns every drive recording has, in order.
 pub const DRIVE_COLUMNS: [&str; 6] = [
@@ -81,6 +81,9 @@ pub struct DriveCsvReader<R: Read> {
     n_drives: Option<usize>,
     /// First row of the next frame, read while finishing the previous one.
     pending: Option<ParsedRow>,
+    /// The error in the row after a complete frame: reported by the next call, so the frame
+    /// before a bad row is still handed out (a replay sends every good frame).
+    pending_error: Option<RecordError>,
     next_step: Option<u64>,
 }
 
@@ -134,6 +137,7 @@ impl<R: Read> DriveCsvReader<R> {
             columns,
             n_drives,
             pending: None,
+            pending_error: None,
             next_step: None,
         })
     }
@@ -194,6 +198,9 @@ impl<R: Read> DriveCsvReader<R> {
 
     /// The next frame, `Ok(None)` at the end of the file.
     pub fn next_frame(&mut self) -> Result<Option<DriveFrame>, RecordError> {
+        if let Some(e) = self.pending_error.take() {
+            return Err(e);
+        }
         let first = match self.pending.take() {
             Some(r) => r,
             None => match self.parse()? {
@@ -214,7 +221,17 @@ impl<R: Read> DriveCsvReader<R> {
         let step = first.step;
         let mut drives = vec![first.measurement];
         let mut truth = first.truth.map(|t| vec![t]);
-        while let Some(row) = self.parse()? {
+        loop {
+            let row = match self.parse() {
+                Ok(Some(row)) => row,
+                Ok(None) => break,
+                // Every drive of this step is in: the bad row is the next step's business.
+                Err(e) if self.n_drives == Some(drives.len()) => {
+                    self.pending_error = Some(e);
+                    break;
+                }
+                Err(e) => return Err(e),
+            };
             if row.step != step {
                 self.pending = Some(row);
                 break;
@@ -275,11 +292,16 @@ pub struct DriveCsvWriter<W: Write> {
     with_truth: bool,
 }
 
-impl DriveCsvWriter<BufWriter<File>> {
-    /// Creates `path`; `with_truth` adds the truth columns.
+impl DriveCsvWriter<AtomicFile> {
+    /// Starts `path` (in place only at [`DriveCsvWriter::finish`]); `with_truth` adds the truth columns.
     pub fn create(path: &Path, with_truth: bool) -> Result<Self, RecordError> {
         let writer = create_csv(path)?;
         Self::new(&path.display().to_string(), writer, with_truth)
+    }
+
+    /// Completes the file and puts it in place (until then an existing file is untouched).
+    pub fn finish(self) -> Result<(), RecordError> {
+        finish_csv(self.writer)
     }
 }
 
@@ -342,17 +364,31 @@ impl<W: Write> DriveCsvWriter<W> {
         Ok(())
     }
 
-    /// Flushes the file.
-    pub fn finish(mut self) -> Result<(), RecordError> {
+    /// Flushes and hands back the writer (a file: [`DriveCsvWriter::finish`]).
+    pub fn into_inner(self) -> Result<W, RecordError> {
         self.writer
-            .flush()
-            .map_err(|e| RecordError::file(&self.label, format!("write error: {e}")))
+            .into_inner()
+            .map_err(|e| RecordError::file(&self.label, format!("write error: {}", e.error())))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_complete_frame_before_a_bad_row_is_handed_out_first() {
+        let text = "step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a\n\
+                    0,1,1,2,3,4\n0,2,5,6,7,8\n1,1,1,2,3,4\n1,2,5,6,7,8\n2,1,NaN,2,3,4\n";
+        let mut r = DriveCsvReader::from_reader("d.csv", text.as_bytes(), None).unwrap();
+        assert_eq!(r.next_frame().unwrap().unwrap().step, 0);
+        assert_eq!(r.next_frame().unwrap().unwrap().step, 1);
+        let err = r.next_frame().unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "d.csv:6: field \"u_alpha_v\" = \"NaN\": not a finite number"
+        );
+    }
 
     const GOOD: &str = "step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a\n\
                         0,1,1,2,3,4\n0,2,5,6,7,8\n1,1,1.5,2,3,4\n1,2,5,6,7,8.5\n";
@@ -417,7 +453,7 @@ mod tests {
         let mut w = DriveCsvWriter::from_writer("mem", &mut buf, true).unwrap();
         w.write_frame(0, &drives, Some(&truth)).unwrap();
         w.write_frame(1, &drives, Some(&truth)).unwrap();
-        w.finish().unwrap();
+        w.into_inner().unwrap();
         let text = String::from_utf8(buf).unwrap();
         let frames = read_all(&text, Some(2)).unwrap();
         assert_eq!(frames.len(), 2);

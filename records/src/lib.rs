@@ -11,12 +11,16 @@
 
 use std::fmt;
 use std::fs::File;
-use std::io::{BufWriter, Read};
+use std::io::Read;
 use std::path::Path;
+
+pub use output::{refuse_output_that_is_an_input, AtomicFile};
 
 pub mod bogie;
 pub mod drive;
+pub mod output;
 pub mod vehicle;
+pub mod vehicle_scenario;
 
 /// What went wrong, and where, when reading or writing a record file.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -87,6 +91,8 @@ pub struct CsvTable<R: Read> {
     header: Vec<String>,
     reader: csv::Reader<R>,
     record: csv::StringRecord,
+    /// Line of the row read last (1: the header).
+    line: u64,
 }
 
 impl CsvTable<File> {
@@ -129,12 +135,18 @@ impl<R: Read> CsvTable<R> {
             header,
             reader,
             record: csv::StringRecord::new(),
+            line: 1,
         })
     }
 
     /// The file label used in errors.
     pub fn file(&self) -> &str {
         &self.file
+    }
+
+    /// 1-based line of the row read last (1 before any data row), for errors found later.
+    pub fn line(&self) -> u64 {
+        self.line
     }
 
     /// Column names as found in the header.
@@ -178,6 +190,7 @@ impl<R: Read> CsvTable<R> {
             Ok(false) => Ok(None),
             Ok(true) => {
                 let line = self.record.position().map_or(0, |p| p.line());
+                self.line = line;
                 Ok(Some(Row {
                     file: &self.file,
                     line,
@@ -285,12 +298,18 @@ fn csv_error(file: &str, e: csv::Error) -> RecordError {
     }
 }
 
-/// Creates (truncating) a CSV file for writing, with errors naming the path.
-pub fn create_csv(path: &Path) -> Result<csv::Writer<BufWriter<File>>, RecordError> {
-    let file = File::create(path).map_err(|e| {
-        RecordError::file(&path.display().to_string(), format!("cannot create: {e}"))
-    })?;
-    Ok(csv::Writer::from_writer(BufWriter::new(file)))
+/// Starts a CSV file, written whole or not at all ([`AtomicFile`]): [`finish_csv`] puts it in
+/// place; dropped unfinished, it leaves nothing and an existing file untouched.
+pub fn create_csv(path: &Path) -> Result<csv::Writer<AtomicFile>, RecordError> {
+    Ok(csv::Writer::from_writer(AtomicFile::create(path)?))
+}
+
+/// Completes a file started by [`create_csv`]: flushes it and renames it into place.
+pub fn finish_csv(writer: csv::Writer<AtomicFile>) -> Result<(), RecordError> {
+    writer
+        .into_inner()
+        .map_err(|e| RecordError::file("<csv>", format!("write error: {}", e.error())))?
+        .commit()
 }
 
 /// Writes a whole CSV file: the header, then the rows; errors name the file.
@@ -308,7 +327,8 @@ pub fn write_csv_table<S: AsRef<str>>(
     for row in rows {
         w.write_record(&row).map_err(|e| err(&e))?;
     }
-    w.flush().map_err(|e| err(&e))
+    w.flush().map_err(|e| err(&e))?;
+    finish_csv(w)
 }
 
 #[cfg(test)]

@@ -16,7 +16,7 @@
 use std::io::Read;
 use std::path::Path;
 
-use crate::{create_csv, CsvTable, RecordError};
+use crate::{create_csv, finish_csv, CsvTable, RecordError};
 
 /// m/s per mph (exact: 1 mph = 0.44704 m/s).
 pub const M_S_PER_MPH: f64 = 0.44704;
@@ -193,8 +193,7 @@ pub fn write_vehicle_csv(path: &Path, rows: &[VehicleRow]) -> Result<(), RecordE
             .collect();
         w.write_record(out).map_err(err)?;
     }
-    w.flush()
-        .map_err(|e| RecordError::file(&label, format!("write error: {e}")))
+    finish_csv(w)
 }
 
 /// A drive-cycle speed trace (fastsim layout: `cycSecs,cycMps,cycGrade[,cycRoadType]`).

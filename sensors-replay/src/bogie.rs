@@ -12,8 +12,8 @@ use railmon_bus::BogieFrame;
 use railmon_damper::{BogieSample, BogieSimulator, DamperScenario};
 use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord, DEFAULT_BOGIE_ID};
 
-use crate::replay::{publish, Source};
-use crate::ReplayArgs;
+use crate::replay::{publish, Outcome, Source};
+use crate::{input_label, ReplayArgs};
 
 #[derive(clap::Args, Debug)]
 pub struct BogieArgs {
@@ -30,7 +30,7 @@ pub struct BogieArgs {
     /// Id of the first (or only) bogie [default: 1]; a CSV with a `bogie` column names its own.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     bogie_id: Option<u32>,
-    /// Simulate only this much of the scenario, s (scenario only).
+    /// Simulate only this much of the scenario, s (scenario only; the scenario's bounds apply).
     #[arg(long)]
     duration_s: Option<f64>,
     #[command(flatten)]
@@ -65,6 +65,17 @@ struct BogieSource {
     writer: Option<BogieCsvWriter>,
 }
 
+/// The id of the last of `n` simulated bogies numbered from `first`: an error, not a wrap to
+/// 0, when it would be past `u32::MAX` (`--bogie-id 4294967295 --bogies 2`).
+fn last_bogie_id(first: u32, n: u32) -> anyhow::Result<u32> {
+    first.checked_add(n - 1).with_context(|| {
+        format!(
+            "--bogie-id {first} with --bogies {n}: the ids would run past {}",
+            u32::MAX
+        )
+    })
+}
+
 fn simulators(scenario: &DamperScenario, n: u32) -> anyhow::Result<Vec<BogieSimulator>> {
     (0..n)
         .map(|k| {
@@ -77,6 +88,8 @@ fn simulators(scenario: &DamperScenario, n: u32) -> anyhow::Result<Vec<BogieSimu
 
 impl BogieSource {
     fn open(args: &BogieArgs) -> anyhow::Result<Self> {
+        args.replay
+            .refuse_recording_over_an_input(&[args.scenario.as_deref(), args.csv.as_deref()])?;
         let (samples, n_bogies, dt_s, with_truth) = match (&args.scenario, &args.csv) {
             (Some(path), _) => {
                 let text = std::fs::read_to_string(path)
@@ -85,7 +98,11 @@ impl BogieSource {
                     .with_context(|| format!("scenario {}", path.display()))?;
                 if let Some(d) = args.duration_s {
                     scenario.duration_s = d;
+                    scenario
+                        .validate()
+                        .with_context(|| format!("--duration-s {d}"))?;
                 }
+                last_bogie_id(args.bogie_id.unwrap_or(DEFAULT_BOGIE_ID), args.bogies)?;
                 let simulators = simulators(&scenario, args.bogies)
                     .with_context(|| format!("scenario {}", path.display()))?;
                 let dt_s = scenario.dt_s;
@@ -136,7 +153,10 @@ impl BogieSource {
         match &mut self.samples {
             Samples::Simulated { simulators, .. } => {
                 if self.pending.is_empty() {
-                    for (k, s) in (self.first_id..).zip(simulators.iter_mut()) {
+                    // Ids checked at open: `first_id + k` stays within u32 (no RangeFrom,
+                    // whose step past the last id would overflow at u32::MAX).
+                    for (k, s) in (0..).zip(simulators.iter_mut()) {
+                        let k = self.first_id + k;
                         // The simulators share the scenario's duration: they end together.
                         let Some((y, truth)) = s.step() else {
                             self.pending.clear();
@@ -155,11 +175,20 @@ impl BogieSource {
                 }
                 Ok(self.pending.pop_front())
             }
-            Samples::Recorded { reader, .. } => {
+            Samples::Recorded { path, reader } => {
                 let file_ids = reader.has_bogie_column();
-                Ok(reader
-                    .next_bogie_record()?
-                    .map(|(id, record)| (if file_ids { id } else { self.first_id }, record)))
+                let Some((id, record)) = reader.next_bogie_record()? else {
+                    return Ok(None);
+                };
+                if record.time_s < 0.0 {
+                    bail!(
+                        "{}:{}: field \"time_s\" = \"{}\": negative (the bus carries times >= 0)",
+                        path.display(),
+                        reader.line(),
+                        record.time_s
+                    );
+                }
+                Ok(Some((if file_ids { id } else { self.first_id }, record)))
             }
         }
     }
@@ -176,12 +205,6 @@ impl Source for BogieSource {
         let Some((id, record)) = self.next_record()? else {
             return Ok(None);
         };
-        if record.time_s < 0.0 {
-            bail!(
-                "bogie {id}: time_s {} is negative (the bus carries times >= 0)",
-                record.time_s
-            );
-        }
         if !self.ids_sent.contains(&id) {
             self.ids_sent.push(id);
         }
@@ -228,9 +251,13 @@ impl Source for BogieSource {
     }
 }
 
-pub fn run(args: BogieArgs) -> anyhow::Result<()> {
+pub fn run(args: BogieArgs) -> anyhow::Result<Outcome> {
     let mut source = BogieSource::open(&args)?;
-    publish(&mut source, &args.replay)
+    publish(
+        &mut source,
+        &args.replay,
+        &input_label(&args.csv, &args.scenario),
+    )
 }
 
 #[cfg(test)]
@@ -341,6 +368,21 @@ mod tests {
             ]
         );
         assert!(source(&args("0")).is_err());
+        let err = source(&[
+            "--scenario",
+            SCENARIO,
+            "--bogie-id",
+            "4294967295",
+            "--bogies",
+            "2",
+        ])
+        .err()
+        .unwrap();
+        assert!(err.to_string().contains("run past 4294967295"), "{err}");
+        let err = source(&["--scenario", SCENARIO, "--duration-s=-1"])
+            .err()
+            .unwrap();
+        assert!(format!("{err:#}").contains("duration_s"), "{err:#}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

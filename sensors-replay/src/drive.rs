@@ -2,16 +2,16 @@
 //! drive CSV (`railmon_records::drive`), published as `DriveFrame`s.
 
 use std::fs::File;
-use std::io::BufWriter;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 use railmon_bus::{DriveChannels, DriveFrame, MAX_DRIVES};
 use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveSample, DriveTruth};
+use railmon_records::AtomicFile;
 use railmon_slip::{AdhesionScenario, DriveSimulator, SlipMonitorConfig};
 
-use crate::replay::{publish, Source};
-use crate::ReplayArgs;
+use crate::replay::{publish, Outcome, Source};
+use crate::{input_label, ReplayArgs};
 
 #[derive(clap::Args, Debug)]
 pub struct DriveArgs {
@@ -21,9 +21,9 @@ pub struct DriveArgs {
     /// Recorded drive CSV (`step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a[,truth...]`).
     #[arg(long)]
     csv: Option<PathBuf>,
-    /// Control step of the CSV recording, s (scenarios carry their own); by default the
-    /// monitor's (`railmon_slip::SlipMonitorConfig::default().dt_s`).
-    #[arg(long, default_value_t = SlipMonitorConfig::default().dt_s)]
+    /// Control step of the CSV recording, s, in [1e-6, 1] (scenarios carry their own); by
+    /// default the monitor's (`railmon_slip::SlipMonitorConfig::default().dt_s`).
+    #[arg(long, default_value_t = SlipMonitorConfig::default().dt_s, value_parser = crate::bounded_f64(1e-6, 1.0))]
     dt_s: f64,
     #[command(flatten)]
     replay: ReplayArgs,
@@ -73,12 +73,6 @@ impl DriveData {
             .csv
             .clone()
             .context("give --scenario FILE or --csv FILE")?;
-        if !(args.dt_s.is_finite() && args.dt_s > 0.0) {
-            bail!(
-                "--dt-s {}: expected a positive number of seconds",
-                args.dt_s
-            );
-        }
         let reader = DriveCsvReader::open(&path, None)?;
         Ok(DriveData::Csv {
             path,
@@ -151,7 +145,7 @@ struct DriveSource {
     step: Step,
     run_step: u64,
     drives: Vec<DriveChannels>,
-    recorder: Option<DriveCsvWriter<BufWriter<File>>>,
+    recorder: Option<DriveCsvWriter<AtomicFile>>,
 }
 
 impl Source for DriveSource {
@@ -199,7 +193,9 @@ impl Source for DriveSource {
     }
 }
 
-pub fn run(args: DriveArgs) -> anyhow::Result<()> {
+pub fn run(args: DriveArgs) -> anyhow::Result<Outcome> {
+    args.replay
+        .refuse_recording_over_an_input(&[args.scenario.as_deref(), args.csv.as_deref()])?;
     let source = DriveData::open(&args)?;
     let recorder = match &args.replay.record {
         Some(path) => Some(DriveCsvWriter::create(path, source.has_truth())?),
@@ -213,5 +209,9 @@ pub fn run(args: DriveArgs) -> anyhow::Result<()> {
         drives: Vec::new(),
         recorder,
     };
-    publish(&mut drive, &args.replay)
+    publish(
+        &mut drive,
+        &args.replay,
+        &input_label(&args.csv, &args.scenario),
+    )
 }

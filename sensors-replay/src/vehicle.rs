@@ -1,5 +1,5 @@
 //! The vehicle stream: a fuel scenario through `railmon_fuel::VehicleSimulator` (via
-//! `railmon_analyze::fuel::simulate_scenario`, which reads its drive cycles), or a recorded
+//! `railmon_records::vehicle_scenario`, which reads its drive cycles), or a recorded
 //! vehicle CSV (the railmon layout or an ANL Camry file as it ships), published as
 //! `VehicleFrame`s at the samples' own 1 Hz time stamps.
 
@@ -9,9 +9,10 @@ use anyhow::{bail, Context};
 use railmon_bus::VehicleFrame;
 use railmon_fuel::VehicleSample;
 use railmon_records::vehicle::{read_vehicle_csv, write_vehicle_csv, VehicleRow};
+use railmon_records::vehicle_scenario::simulate_vehicle_scenario;
 
-use crate::replay::{publish, Source};
-use crate::ReplayArgs;
+use crate::replay::{publish, Outcome, Source};
+use crate::{input_label, ReplayArgs};
 
 #[derive(clap::Args, Debug)]
 pub struct VehicleArgs {
@@ -39,11 +40,13 @@ struct VehicleSource {
 
 impl VehicleSource {
     fn open(args: &VehicleArgs) -> anyhow::Result<Self> {
+        args.replay
+            .refuse_recording_over_an_input(&[args.scenario.as_deref(), args.csv.as_deref()])?;
         let (label, rows) = match (&args.scenario, &args.csv) {
             (Some(path), _) => {
-                let (_, rows) = railmon_analyze::fuel::simulate_scenario(path)
+                let run = simulate_vehicle_scenario(path)
                     .with_context(|| format!("cannot simulate scenario {}", path.display()))?;
-                (path.display().to_string(), rows)
+                (path.display().to_string(), run.rows)
             }
             (None, Some(path)) => (path.display().to_string(), read_vehicle_csv(path)?.1),
             (None, None) => bail!("give --scenario FILE or --csv FILE"),
@@ -66,7 +69,7 @@ impl VehicleSource {
             _ => 1.0,
         };
         Ok(Self {
-            samples: railmon_analyze::fuel::samples_from_rows(&rows),
+            samples: rows.iter().map(|r| r.sample).collect(),
             rows,
             times_ns,
             period_s,
@@ -126,9 +129,13 @@ impl Source for VehicleSource {
     }
 }
 
-pub fn run(args: VehicleArgs) -> anyhow::Result<()> {
+pub fn run(args: VehicleArgs) -> anyhow::Result<Outcome> {
     let mut source = VehicleSource::open(&args)?;
-    publish(&mut source, &args.replay)
+    publish(
+        &mut source,
+        &args.replay,
+        &input_label(&args.csv, &args.scenario),
+    )
 }
 
 #[cfg(test)]

@@ -84,8 +84,11 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         let bound = listener.local_addr()?;
         tracing::info!("listening on http://{bound} (API /api/v1, docs /docs, metrics /metrics)");
         if let Some(file) = &args.addr_file {
-            std::fs::write(file, bound.to_string())
+            // Whole or not at all: a reader polling for the file never sees half an address.
+            let mut out = railmon_records::AtomicFile::create(file)?;
+            std::io::Write::write_all(&mut out, bound.to_string().as_bytes())
                 .with_context(|| format!("writing {}", file.display()))?;
+            out.commit()?;
         }
         let http = state.config.http.clone();
         let counters = state.http.clone();

@@ -13,6 +13,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use railmon_records::AtomicFile;
 use serde::{Deserialize, Serialize};
 
 const MAGIC: &str = "railmon-snapshot v1";
@@ -85,17 +86,14 @@ impl SnapshotFile {
         };
         let dir = self.path.parent().expect("snapshots/<stream>.snapshot");
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-        let temporary = self.path.with_extension("snapshot.tmp");
-        let write = || -> std::io::Result<()> {
-            let mut file = std::fs::File::create(&temporary)?;
+        let mut file = AtomicFile::create(&self.path).map_err(|e| e.to_string())?;
+        let write = |file: &mut AtomicFile| -> std::io::Result<()> {
             writeln!(file, "{MAGIC}")?;
             writeln!(file, "{}", serde_json::to_string(&header)?)?;
-            file.write_all(&payload)?;
-            file.sync_all()?;
-            std::fs::rename(&temporary, &self.path)?;
-            std::fs::File::open(dir)?.sync_all()
+            file.write_all(&payload)
         };
-        write().map_err(|e| format!("{}: {e}", self.path.display()))
+        write(&mut file).map_err(|e| format!("{}: {e}", self.path.display()))?;
+        file.commit().map_err(|e| e.to_string())
     }
 
     /// The saved state if it fits: this format, this stream, these settings, saved at most

@@ -367,8 +367,14 @@ impl AdhesionScenario {
                 "must be in 1..=4096",
             ));
         }
-        if self.n_steps == 0 {
-            return Err(SlipError::invalid("n_steps", self.n_steps, "must be >= 1"));
+        // Bounded so a typo (1e14 steps) is an error, not an allocation that aborts `analyze`:
+        // 1e8 steps are 3.5 h at 8 kHz.
+        if !(1..=100_000_000).contains(&self.n_steps) {
+            return Err(SlipError::invalid(
+                "n_steps",
+                self.n_steps,
+                "must be in 1..=100000000",
+            ));
         }
         check_positive("dt_s", self.dt_s)?;
         self.plant.motor.validate("plant.motor")?;
@@ -501,6 +507,7 @@ mod tests {
     fn each_invalid_scenario_field_is_rejected() {
         rejects(("n_drives = 3", "n_drives = 0"), "n_drives");
         rejects(("n_steps = 20000", "n_steps = 0"), "n_steps");
+        rejects(("n_steps = 20000", "n_steps = 100000000000000"), "n_steps");
         rejects(("dt_s = 125e-6", "dt_s = -1.0"), "dt_s");
         rejects(
             ("levels_nm = [10.0, 20.0, 30.0]", "levels_nm = [10.0, 20.0]"),

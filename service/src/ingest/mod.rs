@@ -254,6 +254,11 @@ fn ingest_loop<P: Pipeline>(
     if node.cleaned_at_start() > 0 {
         tracing::info!(stream = %kind, dead_nodes = node.cleaned_at_start(), "cleaned up stale bus resources");
     }
+    let root = node.root_path();
+    for note in &root.notes {
+        tracing::warn!(stream = %kind, "bus root path: {note}; falling back");
+    }
+    tracing::info!(stream = %kind, root_path = %root.path, "bus root path");
     let subscriber = node.subscriber::<P::Frame>()?;
     let waitset = node.waitset()?;
     let _wake_on_frames = waitset

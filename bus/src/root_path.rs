@@ -1,0 +1,180 @@
+//! Where iceoryx2 keeps its discovery files, liveness locks and event sockets. Its own default,
+//! `/tmp/iceoryx2/`, sits in world-writable `/tmp` with an owner nobody checks: another user
+//! could create it first and plant or read files there. railmon's default (`bus.root_path =
+//! ""`) is a private directory of the user, mode 0700, owner checked, the first that works of:
+//!
+//! 1. `$XDG_RUNTIME_DIR/railmon/` (the user's runtime directory, itself 0700);
+//! 2. `/run/railmon/` (a system service running as root, or a directory prepared for it);
+//! 3. `/tmp/railmon-<uid>/` (refused if it exists and is not ours or not private).
+//!
+//! Each step that does not work is noted (the binaries log the notes). The service and the
+//! replay find each other only with the same root path: run them as the same user in the
+//! same session, or set `bus.root_path` (`RAILMON_BUS__ROOT_PATH`) for both. A root path set
+//! explicitly is created 0700 if missing, and refused if it is world-writable.
+
+use std::os::unix::fs::{DirBuilderExt, MetadataExt, PermissionsExt};
+use std::path::{Path, PathBuf};
+
+use crate::BusError;
+
+/// A root path iceoryx2 may use, and what was tried before it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RootPath {
+    /// With a trailing `/`.
+    pub path: String,
+    /// Why earlier candidates were not used.
+    pub notes: Vec<String>,
+}
+
+fn euid() -> u32 {
+    // SAFETY: geteuid(2) has no preconditions and cannot fail.
+    unsafe { libc::geteuid() }
+}
+
+/// Makes sure `dir` exists, belongs to us and is private (0700); creates it 0700 if missing.
+fn private_dir(dir: &Path) -> Result<(), String> {
+    if !dir.exists() {
+        std::fs::DirBuilder::new()
+            .recursive(true)
+            .mode(0o700)
+            .create(dir)
+            .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+    }
+    let meta = std::fs::symlink_metadata(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    if !meta.is_dir() {
+        return Err(format!("{} is not a directory", dir.display()));
+    }
+    if meta.uid() != euid() {
+        return Err(format!(
+            "{} belongs to uid {}, not to us (uid {})",
+            dir.display(),
+            meta.uid(),
+            euid()
+        ));
+    }
+    if meta.mode() & 0o077 != 0 {
+        // Ours: make it private rather than give up.
+        std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o700))
+            .map_err(|e| format!("cannot make {} private (0700): {e}", dir.display()))?;
+    }
+    Ok(())
+}
+
+fn with_slash(path: &Path) -> String {
+    let mut text = path.display().to_string();
+    if !text.ends_with('/') {
+        text.push('/');
+    }
+    text
+}
+
+/// The root path for `configured` (`bus.root_path`): that directory, checked, or the private
+/// default when it is empty. `xdg_runtime_dir` is `$XDG_RUNTIME_DIR`.
+pub fn resolve_root_path(
+    configured: &str,
+    xdg_runtime_dir: Option<&str>,
+) -> Result<RootPath, BusError> {
+    if !configured.is_empty() {
+        let dir = Path::new(configured);
+        if !dir.exists() {
+            std::fs::DirBuilder::new()
+                .recursive(true)
+                .mode(0o700)
+                .create(dir)
+                .map_err(|e| BusError::Config {
+                    key: "bus.root_path".into(),
+                    reason: format!("cannot create `{configured}`: {e}"),
+                })?;
+        }
+        let meta = std::fs::metadata(dir).map_err(|e| BusError::Config {
+            key: "bus.root_path".into(),
+            reason: format!("`{configured}`: {e}"),
+        })?;
+        if meta.mode() & 0o002 != 0 {
+            return Err(BusError::Config {
+                key: "bus.root_path".into(),
+                reason: format!(
+                    "`{configured}` is world-writable (mode {:o}): anyone could plant bus files there; use a private directory",
+                    meta.mode() & 0o7777
+                ),
+            });
+        }
+        return Ok(RootPath {
+            path: with_slash(dir),
+            notes: Vec::new(),
+        });
+    }
+    let mut candidates: Vec<PathBuf> = Vec::new();
+    let mut notes = Vec::new();
+    match xdg_runtime_dir {
+        Some(xdg) if xdg.starts_with('/') => candidates.push(Path::new(xdg).join("railmon")),
+        _ => notes.push("XDG_RUNTIME_DIR is not set".to_string()),
+    }
+    candidates.push(PathBuf::from("/run/railmon"));
+    candidates.push(PathBuf::from(format!("/tmp/railmon-{}", euid())));
+    for dir in candidates {
+        match private_dir(&dir) {
+            Ok(()) => {
+                return Ok(RootPath {
+                    path: with_slash(&dir),
+                    notes,
+                })
+            }
+            Err(why) => notes.push(why),
+        }
+    }
+    Err(BusError::Config {
+        key: "bus.root_path".into(),
+        reason: format!(
+            "no private directory for the bus ({}); set bus.root_path",
+            notes.join("; ")
+        ),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("railmon-root-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        dir
+    }
+
+    #[test]
+    fn the_default_is_a_private_directory_under_the_runtime_dir() {
+        let xdg = scratch("xdg");
+        std::fs::create_dir_all(&xdg).unwrap();
+        let root = resolve_root_path("", Some(xdg.to_str().unwrap())).unwrap();
+        assert_eq!(root.path, format!("{}/railmon/", xdg.display()));
+        let mode = std::fs::metadata(xdg.join("railmon")).unwrap().mode();
+        assert_eq!(mode & 0o777, 0o700);
+        std::fs::remove_dir_all(&xdg).unwrap();
+    }
+
+    #[test]
+    fn an_unusable_runtime_dir_falls_back_with_a_note() {
+        let missing = scratch("missing-parent").join("not/writable/\0");
+        let root = resolve_root_path("", Some(missing.to_str().unwrap())).unwrap();
+        assert!(!root.notes.is_empty(), "{root:?}");
+        let none = resolve_root_path("", None).unwrap();
+        assert!(none.notes[0].contains("XDG_RUNTIME_DIR"), "{none:?}");
+        let mode = std::fs::metadata(&none.path).unwrap().mode();
+        assert_eq!(mode & 0o077, 0, "{none:?}");
+    }
+
+    #[test]
+    fn an_explicit_world_writable_root_is_refused_and_a_missing_one_created_private() {
+        let dir = scratch("explicit");
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o777)).unwrap();
+        let err = resolve_root_path(dir.to_str().unwrap(), None).unwrap_err();
+        assert!(err.to_string().contains("world-writable"), "{err}");
+        let inner = dir.join("bus");
+        let root = resolve_root_path(inner.to_str().unwrap(), None).unwrap();
+        assert_eq!(root.path, format!("{}/", inner.display()));
+        assert_eq!(std::fs::metadata(&inner).unwrap().mode() & 0o777, 0o700);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
