@@ -1,6 +1,7 @@
 //! `railmon`: the onboard condition-monitoring service (`serve`) and offline analysis (`analyze`).
 
 mod serve;
+#[cfg(feature = "analyze")]
 mod summary;
 
 use std::process::ExitCode;
@@ -27,11 +28,13 @@ enum Command {
     /// Ingest the sensor streams from the bus and serve estimates over HTTP.
     Serve(serve::ServeArgs),
     /// Run an estimator offline over a scenario or a recorded CSV: CSV reports and PNG plots.
+    #[cfg(feature = "analyze")]
     #[command(subcommand)]
     Analyze(Analyze),
 }
 
 /// One line per domain: `Name(railmon_analyze::name::Args)` here and its arm in `main`.
+#[cfg(feature = "analyze")]
 #[derive(Subcommand)]
 enum Analyze {
     /// Wheel slip of traction drives: EKF per drive, then VB, VMP, k-means, median and temporal.
@@ -65,6 +68,7 @@ fn one_line(error: &anyhow::Error) -> String {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Serve(args) => serve::run(args),
+        #[cfg(feature = "analyze")]
         Command::Analyze(analyze) => {
             // Whole seconds: a file system may store coarser times than the clock reads.
             let started = std::time::SystemTime::now() - std::time::Duration::from_secs(1);
