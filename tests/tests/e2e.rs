@@ -223,10 +223,10 @@ fn sigkilled_service_restarts_and_the_running_replay_reconnects() {
         s["samples_received"].as_u64() > Some(100)
     });
     assert_eq!(status["samples_rejected"], 0, "{status}");
-    assert!(
-        replay.terminate(Duration::from_secs(10)).success(),
-        "replay"
-    );
+    // Exit 5: the frames the killed service held are counted as lost by the replay
+    // (docs/reliability.md); 0 if it happened to hold none.
+    let code = replay.terminate(Duration::from_secs(10)).code();
+    assert!(matches!(code, Some(0) | Some(5)), "replay exit {code:?}");
     assert!(
         second.process.terminate(Duration::from_secs(10)).success(),
         "service"
