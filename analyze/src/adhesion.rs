@@ -476,37 +476,37 @@ fn write_tables(
             "alarm_missed_events",
         ])
         .map_err(|e| write_error(&path, e))?;
-        let opt = |v: Option<f64>| v.map_or(String::new(), fmt);
         for r in &report.detection {
-            let (s, a) = (&r.score, &r.alarm);
-            w.write_record([
-                r.method.to_string(),
-                r.drive.to_string(),
-                opt(s.precision),
-                opt(s.recall),
-                opt(s.f1),
-                opt(s.median_delay_steps),
-                s.true_pos.to_string(),
-                s.false_pos.to_string(),
-                s.false_neg.to_string(),
-                s.events.to_string(),
-                s.missed_events.to_string(),
-                PROBABILITY_RULE.to_owned(),
-                run.alarm_rule.clone(),
-                opt(a.precision),
-                opt(a.recall),
-                opt(a.f1),
-                opt(a.median_delay_steps),
-                a.true_pos.to_string(),
-                a.false_pos.to_string(),
-                a.false_neg.to_string(),
-                a.missed_events.to_string(),
-            ])
-            .map_err(|e| write_error(&path, e))?;
+            // One score's columns, in the order of the header: the probability rule's first
+            // (with its event count), the alarm rule's after the two rule names.
+            let mut row = vec![r.method.to_string(), r.drive.to_string()];
+            row.extend(score_columns(&r.score));
+            row.extend([
+                r.score.events.to_string(),
+                r.score.missed_events.to_string(),
+            ]);
+            row.extend([PROBABILITY_RULE.to_owned(), run.alarm_rule.clone()]);
+            row.extend(score_columns(&r.alarm));
+            row.push(r.alarm.missed_events.to_string());
+            w.write_record(&row).map_err(|e| write_error(&path, e))?;
         }
         finish_csv(w)?;
     }
     Ok(report)
+}
+
+/// precision, recall, f1, median delay, true / false positives, false negatives.
+fn score_columns(s: &DetectionScore) -> [String; 7] {
+    let opt = |v: Option<f64>| v.map_or(String::new(), fmt);
+    [
+        opt(s.precision),
+        opt(s.recall),
+        opt(s.f1),
+        opt(s.median_delay_steps),
+        s.true_pos.to_string(),
+        s.false_pos.to_string(),
+        s.false_neg.to_string(),
+    ]
 }
 
 /// What the first score columns of `detection.csv` count as a detection.

@@ -380,8 +380,18 @@ pub fn without_identity_labels(line: &str) -> String {
     }
 }
 
-/// Starts `sensors-replay <stream>` on `bus` with `args`.
+/// Starts `sensors-replay <stream>` on `bus` with `args` (its stderr goes to the test's).
 pub fn start_replay(bus: &PrivateBus, stream: &str, args: &[&str]) -> Process {
+    start_replay_with_stderr(bus, stream, args, Stdio::inherit())
+}
+
+/// [`start_replay`] with its stderr sent to `stderr` (`Stdio::piped()` to read its summary).
+pub fn start_replay_with_stderr(
+    bus: &PrivateBus,
+    stream: &str,
+    args: &[&str],
+    stderr: Stdio,
+) -> Process {
     let child = Command::new(&binaries().replay)
         .arg(stream)
         .args(args)
@@ -389,6 +399,7 @@ pub fn start_replay(bus: &PrivateBus, stream: &str, args: &[&str]) -> Process {
         .envs(bus.env())
         .stdin(Stdio::null())
         .stdout(Stdio::null())
+        .stderr(stderr)
         .spawn()
         .expect("starting sensors-replay");
     Process {

@@ -6,29 +6,16 @@
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use railmon_system_tests::{binaries, workspace_root, PrivateBus, Process, Service};
+use railmon_system_tests::{start_replay_with_stderr, PrivateBus, Process, Service};
 
 const SEED: &str = "config/scenarios/adhesion-seed.toml";
 
 /// `sensors-replay` with its stderr captured (the summary lines are read by the tests).
 fn replay(bus: &PrivateBus, stream: &str, args: &[&str]) -> Process {
-    let child = Command::new(&binaries().replay)
-        .arg(stream)
-        .args(args)
-        .current_dir(workspace_root())
-        .envs(bus.env())
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("starting sensors-replay");
-    Process {
-        child,
-        name: "sensors-replay".into(),
-    }
+    start_replay_with_stderr(bus, stream, args, Stdio::piped())
 }
 
 fn stderr_of(process: &mut Process) -> String {
