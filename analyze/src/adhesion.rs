@@ -544,7 +544,7 @@ fn write_events(run: &AdhesionRun, out: &Path) -> Result<(), AdhesionAnalysisErr
         ])
         .map_err(|e| write_error(&path, e))?;
     }
-    w.flush().map_err(|e| write_error(&path, e))?;
+    finish_csv(w)?;
     Ok(())
 }
 
