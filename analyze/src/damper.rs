@@ -566,7 +566,11 @@ fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), RecordError>
             ]);
         }
         row.push(format!("{:.1}", p.estimate.effective_sample_size));
-        row.push(format!("{:.4}", p.estimate.nis_window_mean));
+        row.push(
+            p.estimate
+                .nis_window_mean
+                .map_or_else(String::new, |v| format!("{v:.4}")),
+        );
         row.push(p.estimate.model_mismatch.to_string());
         row
     });

@@ -198,7 +198,7 @@ mod tests {
             csay: post(nominal.csay_ns_per_m, csay),
             effective_sample_size: 500.0,
             ekf: None,
-            nis_window_mean: 5.0,
+            nis_window_mean: Some(5.0),
             model_mismatch: false,
         }
     }

@@ -23,8 +23,8 @@ pub struct DamperEstimate {
     /// The EKF baseline; `None` when disabled or after it diverged.
     pub ekf: Option<EkfEstimate>,
     /// Mean of the RBPF's normalised innovation squared over the last complete window
-    /// (`consistency.window_s`; 5 when the filter's model is the plant's; NaN before).
-    pub nis_window_mean: f64,
+    /// (`consistency.window_s`; 5 when the filter's model is the plant's; `None` before).
+    pub nis_window_mean: Option<f64>,
     /// The filter's model does not explain the data (`consistency`): a wrong configuration
     /// (vehicle, speed, noise), not a damper fault. The health alarm does not judge meanwhile.
     pub model_mismatch: bool,
@@ -108,7 +108,7 @@ impl DamperMonitor {
                 csay: r.csay,
                 effective_sample_size: r.effective_sample_size,
                 ekf: ekf.as_ref().map(|e| e.estimate()),
-                nis_window_mean: f64::NAN,
+                nis_window_mean: None,
                 model_mismatch: false,
             },
             consistency: ConsistencyCheck::new(&config.consistency, config.dt_s),

@@ -135,7 +135,7 @@ fn run(
             );
         }
         t.mismatch += usize::from(e.model_mismatch);
-        t.nis_sum += e.nis_window_mean;
+        t.nis_sum += e.nis_window_mean.unwrap_or(0.0);
     }
     t.runs += 1;
     t.hours += scenario.duration_s / 3600.0;

@@ -283,7 +283,7 @@ impl BogiePipeline {
                     csy: damper(0),
                     csay: damper(1),
                     effective_sample_size: estimate.map_or(f64::NAN, |e| e.effective_sample_size),
-                    nis_window_mean: estimate.map_or(f64::NAN, |e| e.nis_window_mean),
+                    nis_window_mean: estimate.and_then(|e| e.nis_window_mean).unwrap_or(f64::NAN),
                     status: match estimate {
                         None => "no_samples",
                         Some(e) if e.model_mismatch => "model_mismatch",
