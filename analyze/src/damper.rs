@@ -328,7 +328,7 @@ fn run_monitor(
 ) -> Result<MonitorRun, DamperAnalysisError> {
     let mut monitor =
         DamperMonitor::for_bogie(config, bogie, None).map_err(estimator_error(name))?;
-    let mut alarms = DamperAlarm::pair(&config.alarm, &config.nominal, [false; 2]);
+    let mut alarms = DamperAlarm::pair(config, [false; 2]);
     let mut events = vec![];
     let bar = progress_bar(max_steps.unwrap_or(0), "damper");
     let mut trace = vec![];
@@ -540,7 +540,8 @@ fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), RecordError>
             header.push(format!("{n}_{col}"));
         }
     }
-    header.push("effective_sample_size".to_owned());
+    header
+        .extend(["effective_sample_size", "nis_window_mean", "model_mismatch"].map(str::to_owned));
     let rows = trace.iter().map(|p| {
         let mut row = vec![format!("{:.3}", p.time_s)];
         for d in DamperId::ALL {
@@ -565,6 +566,12 @@ fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), RecordError>
             ]);
         }
         row.push(format!("{:.1}", p.estimate.effective_sample_size));
+        row.push(
+            p.estimate
+                .nis_window_mean
+                .map_or_else(String::new, |v| format!("{v:.4}")),
+        );
+        row.push(p.estimate.model_mismatch.to_string());
         row
     });
     write_csv_table(path, &header, rows)

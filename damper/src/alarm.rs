@@ -4,9 +4,9 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::config::DamperMonitorConfig;
 use crate::faults::DamperId;
 use crate::monitor::DamperEstimate;
-use crate::params::Dampers;
 use crate::DamperError;
 
 /// Thresholds of the health flag of each damper.
@@ -19,6 +19,10 @@ pub struct DamperAlarmConfig {
     /// A degraded damper recovers when its whole 90% interval (the 5% quantile) lies above
     /// this ratio of nominal. Above `degraded_below_ratio`: the gap is the hysteresis.
     pub recovered_above_ratio: f64,
+    /// The interval must stay beyond the threshold for this much judged stream time before
+    /// the flag changes (s). A transient excursion of the posterior (a burst of track input,
+    /// noise the filter did not expect) does not raise an alarm; a failed damper stays failed.
+    pub hold_s: f64,
 }
 
 impl Default for DamperAlarmConfig {
@@ -26,6 +30,7 @@ impl Default for DamperAlarmConfig {
         DamperAlarmConfig {
             degraded_below_ratio: 0.7,
             recovered_above_ratio: 0.8,
+            hold_s: 3.0,
         }
     }
 }
@@ -47,7 +52,7 @@ impl DamperAlarmConfig {
                 reason: "must be in (degraded_below_ratio, 1]",
             });
         }
-        Ok(())
+        crate::params::non_negative("alarm.hold_s", self.hold_s)
     }
 }
 
@@ -86,29 +91,38 @@ pub struct DamperAlarm {
     damper: DamperId,
     config: DamperAlarmConfig,
     nominal_ns_per_m: f64,
+    /// Stream time one estimate stands for (the sample period).
+    dt_s: f64,
     degraded: bool,
+    /// Judged time the interval has been beyond the threshold that would change the flag.
+    beyond_s: f64,
 }
 
 impl DamperAlarm {
     /// A healthy flag for `damper` (`degraded` = the flag carried over from before, e.g. an
     /// alarm active when the service stopped: it stays until an estimate clears it).
-    pub fn new(
-        damper: DamperId,
-        config: &DamperAlarmConfig,
-        nominal: &Dampers,
-        degraded: bool,
-    ) -> Self {
+    pub fn new(damper: DamperId, config: &DamperMonitorConfig, degraded: bool) -> Self {
+        let nominal = config.nominal;
         DamperAlarm {
             damper,
-            config: *config,
+            config: config.alarm,
             nominal_ns_per_m: [nominal.csy_ns_per_m, nominal.csay_ns_per_m][damper.index()],
+            dt_s: config.dt_s,
             degraded,
+            beyond_s: 0.0,
         }
     }
 
     /// The flags of both dampers of a bogie, in [`DamperId::ALL`] order.
-    pub fn pair(config: &DamperAlarmConfig, nominal: &Dampers, degraded: [bool; 2]) -> [Self; 2] {
-        DamperId::ALL.map(|d| DamperAlarm::new(d, config, nominal, degraded[d.index()]))
+    pub fn pair(config: &DamperMonitorConfig, degraded: [bool; 2]) -> [Self; 2] {
+        DamperId::ALL.map(|d| DamperAlarm::new(d, config, degraded[d.index()]))
+    }
+
+    /// A new source (a restart of the replay, a new run): its monitor starts from the prior,
+    /// so the time beyond the threshold starts again. The flag itself carries over: a
+    /// degraded damper stays degraded until the new estimates clear it, with an event.
+    pub fn restart(&mut self) {
+        self.beyond_s = 0.0;
     }
 
     pub fn damper(&self) -> DamperId {
@@ -119,24 +133,38 @@ impl DamperAlarm {
         self.degraded
     }
 
-    /// Judges `estimate`; an event when the flag changes. On the 90% interval, not the mean
-    /// alone: in its first ~0.1 s the RBPF's mean wanders from the prior by tens of percent
-    /// while its interval is still wide (spurious degraded/recovered pairs at 0.05-0.12 s in
-    /// the e2e test when the mean was judged).
+    /// Judges `estimate`; an event when the flag changes: when the whole 90% interval has
+    /// been beyond the threshold (below `degraded_below_ratio` for a healthy damper, above
+    /// `recovered_above_ratio` for a degraded one) for `hold_s` of judged time. On the
+    /// interval, not the mean alone: in its first ~0.1 s the RBPF's mean wanders from the prior
+    /// by tens of percent while its interval is still wide (spurious degraded/recovered pairs
+    /// at 0.05-0.12 s in the e2e test when the mean was judged). Not judged while the filter
+    /// reports `model_mismatch` (its posterior is then of a model that is not the plant: a
+    /// warning, not a damper fault); the time beyond the threshold holds meanwhile.
     pub fn update(&mut self, estimate: &DamperEstimate) -> Option<DamperEvent> {
+        if estimate.model_mismatch {
+            return None;
+        }
         let posterior = match self.damper {
             DamperId::Csy => estimate.csy,
             DamperId::Csay => estimate.csay,
         };
-        let changed = if self.degraded {
+        let beyond = if self.degraded {
             posterior.q05_ns_per_m / self.nominal_ns_per_m > self.config.recovered_above_ratio
         } else {
             posterior.q95_ns_per_m / self.nominal_ns_per_m < self.config.degraded_below_ratio
         };
-        if !changed {
+        if !beyond {
+            self.beyond_s = 0.0;
+            return None;
+        }
+        self.beyond_s += self.dt_s;
+        // Half a step of slack: `hold_s` is a whole number of steps summed in floating point.
+        if self.beyond_s + 0.5 * self.dt_s < self.config.hold_s {
             return None;
         }
         self.degraded = !self.degraded;
+        self.beyond_s = 0.0;
         Some(DamperEvent {
             kind: if self.degraded {
                 DamperEventKind::DamperDegraded
@@ -153,6 +181,7 @@ impl DamperAlarm {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::params::Dampers;
     use crate::rbpf::DamperPosterior;
 
     fn estimate(time_s: f64, csay: [f64; 3]) -> DamperEstimate {
@@ -169,37 +198,73 @@ mod tests {
             csay: post(nominal.csay_ns_per_m, csay),
             effective_sample_size: 500.0,
             ekf: None,
+            nis_window_mean: Some(5.0),
+            model_mismatch: false,
         }
     }
 
+    /// A config with a 10-step hold (dt 0.1 s, hold 1 s).
+    fn config() -> DamperMonitorConfig {
+        let mut c = DamperMonitorConfig {
+            dt_s: 0.1,
+            ..DamperMonitorConfig::default()
+        };
+        c.alarm.hold_s = 1.0;
+        c
+    }
+
+    /// Feeds `n` steps of `csay` from `t0`; the events.
+    fn feed(alarm: &mut DamperAlarm, t0: f64, n: usize, csay: [f64; 3]) -> Vec<DamperEvent> {
+        (0..n)
+            .filter_map(|k| alarm.update(&estimate(t0 + 0.1 * k as f64, csay)))
+            .collect()
+    }
+
     #[test]
-    fn degraded_on_the_whole_interval_below_and_recovered_with_hysteresis() {
-        let config = DamperAlarmConfig::default();
-        let [mut csy, mut csay] = DamperAlarm::pair(&config, &Dampers::NOMINAL, [false; 2]);
-        // Mean below 0.7 but the interval reaching above it: no event.
-        assert_eq!(csay.update(&estimate(1.0, [0.6, 0.4, 0.75])), None);
-        let e = csay.update(&estimate(2.0, [0.4, 0.35, 0.45])).unwrap();
-        assert_eq!(e.kind, DamperEventKind::DamperDegraded);
+    fn degraded_after_the_whole_interval_stayed_below_for_the_hold_time() {
+        let [mut csy, mut csay] = DamperAlarm::pair(&config(), [false; 2]);
+        // Mean below 0.7 but the interval reaching above it: never.
+        assert!(feed(&mut csay, 0.0, 50, [0.6, 0.4, 0.75]).is_empty());
+        // Below for 9 steps, then a step above: the hold starts again.
+        assert!(feed(&mut csay, 5.0, 9, [0.4, 0.35, 0.45]).is_empty());
+        assert!(feed(&mut csay, 5.9, 1, [0.6, 0.4, 0.75]).is_empty());
+        assert!(feed(&mut csay, 6.0, 9, [0.4, 0.35, 0.45]).is_empty());
+        let e = feed(&mut csay, 6.9, 1, [0.4, 0.35, 0.45]);
+        assert_eq!(e.len(), 1, "{e:?}");
+        assert_eq!(e[0].kind, DamperEventKind::DamperDegraded);
         assert_eq!(
-            (e.damper, e.time_s, e.health_ratio),
-            (DamperId::Csay, 2.0, 0.4)
+            (e[0].damper, e[0].time_s, e[0].health_ratio),
+            (DamperId::Csay, 6.9, 0.4)
         );
-        assert_eq!(csy.update(&estimate(2.0, [0.4, 0.35, 0.45])), None);
+        assert!(feed(&mut csy, 0.0, 50, [0.4, 0.35, 0.45]).is_empty());
         // Between the thresholds: still degraded.
-        assert_eq!(csay.update(&estimate(3.0, [0.85, 0.75, 0.95])), None);
+        assert!(feed(&mut csay, 7.0, 50, [0.85, 0.75, 0.95]).is_empty());
         assert!(csay.degraded());
-        let e = csay.update(&estimate(4.0, [0.9, 0.85, 0.95])).unwrap();
-        assert_eq!(e.kind.as_str(), "damper_recovered");
+        let e = feed(&mut csay, 12.0, 10, [0.9, 0.85, 0.95]);
+        assert_eq!(e.len(), 1);
+        assert_eq!(e[0].kind.as_str(), "damper_recovered");
         assert!(!csay.degraded());
     }
 
     #[test]
-    fn a_carried_over_flag_stays_until_an_estimate_clears_it() {
-        let config = DamperAlarmConfig::default();
-        let mut csay = DamperAlarm::new(DamperId::Csay, &config, &Dampers::NOMINAL, true);
-        assert_eq!(csay.update(&estimate(0.0, [1.0, 0.5, 1.5])), None);
+    fn model_mismatch_holds_the_judgement_and_a_restart_keeps_the_flag() {
+        let mut csay = DamperAlarm::new(DamperId::Csay, &config(), false);
+        assert!(feed(&mut csay, 0.0, 5, [0.4, 0.35, 0.45]).is_empty());
+        let mismatch = DamperEstimate {
+            model_mismatch: true,
+            ..estimate(0.5, [0.4, 0.35, 0.45])
+        };
+        for _ in 0..100 {
+            assert_eq!(csay.update(&mismatch), None);
+        }
+        // The 5 steps before the mismatch still count: 5 more raise it.
+        assert_eq!(feed(&mut csay, 1.0, 5, [0.4, 0.35, 0.45]).len(), 1);
+        // A new source: the flag stays until the new estimates clear it, with an event.
+        csay.restart();
         assert!(csay.degraded());
-        assert!(csay.update(&estimate(1.0, [1.0, 0.95, 1.05])).is_some());
+        assert!(feed(&mut csay, 0.0, 50, [1.0, 0.5, 1.5]).is_empty());
+        assert!(csay.degraded());
+        assert_eq!(feed(&mut csay, 5.0, 10, [1.0, 0.95, 1.05]).len(), 1);
     }
 
     #[test]
@@ -207,6 +272,7 @@ mod tests {
         let bad = DamperAlarmConfig {
             degraded_below_ratio: 0.8,
             recovered_above_ratio: 0.7,
+            ..DamperAlarmConfig::default()
         };
         assert!(matches!(
             bad.validate(),
@@ -215,5 +281,10 @@ mod tests {
                 ..
             })
         ));
+        let bad = DamperAlarmConfig {
+            hold_s: -1.0,
+            ..DamperAlarmConfig::default()
+        };
+        assert!(bad.validate().is_err());
     }
 }

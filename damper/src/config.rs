@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::alarm::DamperAlarmConfig;
+use crate::consistency::ConsistencyConfig;
 use crate::params::{non_negative, positive, BogieParams, Dampers};
 use crate::sample::SensorNoise;
 use crate::DamperError;
@@ -253,6 +254,8 @@ pub struct DamperMonitorConfig {
     pub ekf: EkfConfig,
     /// The degraded / recovered rule judging the RBPF's posterior.
     pub alarm: DamperAlarmConfig,
+    /// The filter's check of its own model (`model_mismatch`).
+    pub consistency: ConsistencyConfig,
 }
 
 impl Default for DamperMonitorConfig {
@@ -271,6 +274,7 @@ impl Default for DamperMonitorConfig {
             rbpf: RbpfConfig::default(),
             ekf: EkfConfig::default(),
             alarm: DamperAlarmConfig::default(),
+            consistency: ConsistencyConfig::default(),
         }
     }
 }
@@ -323,7 +327,8 @@ impl DamperMonitorConfig {
         )?;
         self.rbpf.validate()?;
         self.ekf.validate()?;
-        self.alarm.validate()
+        self.alarm.validate()?;
+        self.consistency.validate()
     }
 
     /// `Q_w` and `Q_v` of the filter model.

@@ -27,6 +27,13 @@ pub struct EkfEstimate {
     pub std_ns_per_m: [f64; 2],
 }
 
+/// The EKF's augmented state (17 states, 2 damper ratios) and covariance, for a snapshot.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EkfState {
+    xi: Vector19,
+    p: Matrix19,
+}
+
 #[derive(Debug, Clone)]
 pub struct AugmentedEkf {
     model: BogieModel,
@@ -113,6 +120,21 @@ impl AugmentedEkf {
         self.xi = u.x;
         self.p = u.p;
         Ok(self.estimate())
+    }
+
+    pub fn state(&self) -> EkfState {
+        EkfState {
+            xi: self.xi,
+            p: self.p,
+        }
+    }
+
+    /// The EKF of `config` where `state` left it.
+    pub fn resume(config: &DamperMonitorConfig, state: EkfState) -> Result<Self, DamperError> {
+        let mut ekf = Self::new(config)?;
+        ekf.xi = state.xi;
+        ekf.p = state.p;
+        Ok(ekf)
     }
 
     pub fn estimate(&self) -> EkfEstimate {

@@ -12,6 +12,7 @@
 
 pub mod alarm;
 pub mod config;
+pub mod consistency;
 pub mod ekf;
 pub mod error;
 pub mod expm;
@@ -31,12 +32,13 @@ pub use alarm::{DamperAlarm, DamperAlarmConfig, DamperEvent, DamperEventKind};
 pub use config::{
     DamperMonitorConfig, EkfConfig, GainGridConfig, KernelSchedule, Propagation, RbpfConfig,
 };
+pub use consistency::{ConsistencyCheck, ConsistencyConfig};
 pub use ekf::{AugmentedEkf, EkfEstimate};
 pub use error::DamperError;
 pub use faults::{DamperFault, DamperId, FaultKind};
-pub use monitor::{DamperEstimate, DamperMonitor};
+pub use monitor::{DamperEstimate, DamperMonitor, DamperMonitorState};
 pub use params::{BogieParams, Dampers};
-pub use rbpf::{DamperPosterior, Rbpf, RbpfEstimate};
+pub use rbpf::{DamperPosterior, Rbpf, RbpfEstimate, RbpfState};
 pub use sample::{BogieSample, SensorNoise};
 pub use scenario::DamperScenario;
 pub use simulator::{BogieSimulator, BogieTruth};

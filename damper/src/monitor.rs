@@ -4,9 +4,10 @@
 use std::sync::Arc;
 
 use crate::config::{DamperMonitorConfig, Propagation};
-use crate::ekf::{AugmentedEkf, EkfEstimate};
+use crate::consistency::ConsistencyCheck;
+use crate::ekf::{AugmentedEkf, EkfEstimate, EkfState};
 use crate::gain_table::GainTable;
-use crate::rbpf::{DamperPosterior, Rbpf};
+use crate::rbpf::{DamperPosterior, Rbpf, RbpfState};
 use crate::sample::BogieSample;
 use crate::DamperError;
 
@@ -21,6 +22,24 @@ pub struct DamperEstimate {
     pub effective_sample_size: f64,
     /// The EKF baseline; `None` when disabled or after it diverged.
     pub ekf: Option<EkfEstimate>,
+    /// Mean of the RBPF's normalised innovation squared over the last complete window
+    /// (`consistency.window_s`; 5 when the filter's model is the plant's; `None` before).
+    pub nis_window_mean: Option<f64>,
+    /// The filter's model does not explain the data (`consistency`): a wrong configuration
+    /// (vehicle, speed, noise), not a damper fault. The health alarm does not judge meanwhile.
+    pub model_mismatch: bool,
+}
+
+/// A monitor's state for a snapshot ([`DamperMonitor::state`], [`DamperMonitor::resume`]):
+/// the RBPF's particles, weights and Kalman states, the EKF's state and covariance, the
+/// consistency check. The health flags are [`crate::DamperAlarm`]'s, saved beside it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DamperMonitorState {
+    rbpf: RbpfState,
+    ekf: Option<EkfState>,
+    ekf_diverged_at_s: Option<f64>,
+    steps: u64,
+    consistency: ConsistencyCheck,
 }
 
 #[derive(Debug, Clone)]
@@ -30,6 +49,7 @@ pub struct DamperMonitor {
     ekf_diverged_at_s: Option<f64>,
     dt_s: f64,
     steps: u64,
+    consistency: ConsistencyCheck,
     estimate: DamperEstimate,
 }
 
@@ -88,7 +108,10 @@ impl DamperMonitor {
                 csay: r.csay,
                 effective_sample_size: r.effective_sample_size,
                 ekf: ekf.as_ref().map(|e| e.estimate()),
+                nis_window_mean: None,
+                model_mismatch: false,
             },
+            consistency: ConsistencyCheck::new(&config.consistency, config.dt_s),
             rbpf,
             ekf,
             ekf_diverged_at_s: None,
@@ -115,6 +138,8 @@ impl DamperMonitor {
             }
             None => None,
         };
+        self.consistency
+            .update(self.rbpf.normalised_innovation_squared());
         let r = self.rbpf.estimate();
         self.estimate = DamperEstimate {
             time_s,
@@ -122,8 +147,56 @@ impl DamperMonitor {
             csay: r.csay,
             effective_sample_size: r.effective_sample_size,
             ekf,
+            nis_window_mean: self.consistency.window_mean(),
+            model_mismatch: self.consistency.mismatch(),
         };
         Ok(&self.estimate)
+    }
+
+    pub fn state(&self) -> DamperMonitorState {
+        DamperMonitorState {
+            rbpf: self.rbpf.state(),
+            ekf: self.ekf.as_ref().map(AugmentedEkf::state),
+            ekf_diverged_at_s: self.ekf_diverged_at_s,
+            steps: self.steps,
+            consistency: self.consistency,
+        }
+    }
+
+    /// The monitor of `config` where `state` left it (its gain table `table`, as
+    /// [`DamperMonitor::with_gain_table`]): the same samples then give exactly the estimates
+    /// the monitor that saved it would have given. A state of another particle count or
+    /// propagation is refused, and nothing is built.
+    pub fn resume(
+        config: &DamperMonitorConfig,
+        table: Option<Arc<GainTable>>,
+        state: DamperMonitorState,
+    ) -> Result<Self, DamperError> {
+        config.validate()?;
+        let mut rbpf = Rbpf::resume(config, table, state.rbpf)?;
+        let ekf = match (config.ekf.enabled, state.ekf) {
+            (true, Some(s)) => Some(AugmentedEkf::resume(config, s)?),
+            _ => None,
+        };
+        let r = rbpf.estimate();
+        let consistency = state.consistency;
+        Ok(DamperMonitor {
+            estimate: DamperEstimate {
+                time_s: state.steps as f64 * config.dt_s,
+                csy: r.csy,
+                csay: r.csay,
+                effective_sample_size: r.effective_sample_size,
+                ekf: ekf.as_ref().map(|e| e.estimate()),
+                nis_window_mean: consistency.window_mean(),
+                model_mismatch: consistency.mismatch(),
+            },
+            rbpf,
+            ekf,
+            ekf_diverged_at_s: state.ekf_diverged_at_s,
+            dt_s: config.dt_s,
+            steps: state.steps,
+            consistency,
+        })
     }
 
     pub fn estimate(&self) -> &DamperEstimate {

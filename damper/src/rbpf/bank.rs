@@ -3,6 +3,8 @@
 
 use std::sync::Arc;
 
+use serde::{Deserialize, Serialize};
+
 use crate::config::{DamperMonitorConfig, Propagation};
 use crate::expm::discretize;
 use crate::gain_table::{GainTable, LN_DET_OFFSET, NODE_LEN, S_INV_OFFSET};
@@ -15,7 +17,48 @@ use railmon_filter::kalman::LN_2PI;
 use super::propagator::{Block, SparsePropagator, BLOCK};
 use super::Rbpf;
 
+/// The per-particle filters' states, for a snapshot ([`Bank::save`], [`Bank::restore`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum BankState {
+    /// Per particle: state mean and covariance.
+    Exact(Vec<(Vector17, Matrix17)>),
+    /// The posterior states, structure-of-arrays `x[state * n + particle]` (the gains are the
+    /// table's, recomputed from the parameters).
+    Steady(Vec<f64>),
+}
+
 impl Bank {
+    pub(super) fn save(&self) -> BankState {
+        match self {
+            Bank::Exact(b) => BankState::Exact(b.est.iter().map(|e| (e.x, e.p)).collect()),
+            Bank::Steady(b) => BankState::Steady(b.x.clone()),
+        }
+    }
+
+    /// Takes the states of `state` (of the same propagation and particle count).
+    pub(super) fn restore(&mut self, state: BankState) -> Result<(), DamperError> {
+        let mismatch = |what: &str| DamperError::Config(format!("snapshot: {what}"));
+        match (self, state) {
+            (Bank::Exact(b), BankState::Exact(est)) => {
+                if est.len() != b.est.len() {
+                    return Err(mismatch("another particle count"));
+                }
+                for (dst, (x, p)) in b.est.iter_mut().zip(est) {
+                    *dst = StateEstimate { x, p };
+                }
+                Ok(())
+            }
+            (Bank::Steady(b), BankState::Steady(x)) => {
+                if x.len() != b.x.len() {
+                    return Err(mismatch("another particle count"));
+                }
+                b.x = x;
+                Ok(())
+            }
+            _ => Err(mismatch("another propagation")),
+        }
+    }
+
     /// The per-particle filters of `config`, every state at rest (`x0 = 0`); `table` for
     /// steady-state propagation (built when `None`).
     pub(super) fn new(
@@ -110,12 +153,14 @@ pub(super) struct SteadyBank {
 
 impl Bank {
     /// Runs predict + update of every particle with its new parameters; writes the
-    /// log-likelihoods. Nothing is committed (see `commit`).
+    /// log-likelihoods and the normalised innovations squared `e' S^-1 e`. Nothing is
+    /// committed (see `commit`).
     pub(super) fn step(
         &mut self,
         ln_theta: &[[f64; 2]],
         y: &Vector5,
         ll: &mut [f64],
+        nis: &mut [f64],
     ) -> Result<(), DamperError> {
         match self {
             Bank::Exact(b) => {
@@ -124,13 +169,16 @@ impl Bank {
                     let d = Dampers::from_ln(*th);
                     let disc = discretize(&b.model.a_matrix(&d), &g, b.dt_s)?;
                     let pred = kalman::predict(&b.est[i], &disc, &b.noise);
+                    let e = y - b.h * pred.x;
+                    let s_cov = b.h * pred.p * b.h.transpose() + b.noise.q_v;
+                    nis[i] = s_cov.cholesky().map_or(f64::NAN, |c| e.dot(&c.solve(&e)));
                     let (post, l) = kalman::update(&pred, y, &b.h, &b.noise.q_v)?;
                     b.next[i] = post;
                     ll[i] = l;
                 }
                 Ok(())
             }
-            Bank::Steady(b) => b.step(ln_theta, y, ll),
+            Bank::Steady(b) => b.step(ln_theta, y, ll, nis),
         }
     }
 
@@ -188,6 +236,7 @@ impl SteadyBank {
         ln_theta: &[[f64; 2]],
         y: &Vector5,
         ll: &mut [f64],
+        nis: &mut [f64],
     ) -> Result<(), DamperError> {
         let n = self.n;
         // Parameters change only at kernel moves (or every step with `EveryStep`): refresh the
@@ -208,24 +257,24 @@ impl SteadyBank {
         {
             if std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: the CPU supports AVX2, checked just above.
-                unsafe { self.filter_all_avx2(y, ll) };
+                unsafe { self.filter_all_avx2(y, ll, nis) };
                 return check_finite(ll);
             }
         }
-        self.filter_all(y, ll);
+        self.filter_all(y, ll, nis);
         check_finite(ll)
     }
 
     /// [`SteadyBank::filter_all`] compiled for AVX2 (4-wide vectors instead of SSE2's 2).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn filter_all_avx2(&mut self, y: &Vector5, ll: &mut [f64]) {
-        self.filter_all(y, ll)
+    unsafe fn filter_all_avx2(&mut self, y: &Vector5, ll: &mut [f64], nis: &mut [f64]) {
+        self.filter_all(y, ll, nis)
     }
 
     /// Predict, innovation, log-likelihood and update of every particle, block by block.
     #[inline(always)]
-    fn filter_all(&mut self, y: &Vector5, ll: &mut [f64]) {
+    fn filter_all(&mut self, y: &Vector5, ll: &mut [f64], nis: &mut [f64]) {
         let n = self.n;
         let const_term = N_OUTPUTS as f64 * LN_2PI;
         let blk = &mut self.block;
@@ -255,6 +304,15 @@ impl SteadyBank {
                         *l += si * er * ec;
                     }
                 }
+            }
+            // e' S^-1 e, for the filter's consistency check (taken from the sum so that the
+            // likelihoods stay bit for bit what they were).
+            for ((q, l), d) in nis[i0..i0 + len]
+                .iter_mut()
+                .zip(lls.iter())
+                .zip(node(LN_DET_OFFSET))
+            {
+                *q = l - (const_term + d);
             }
             for l in lls.iter_mut() {
                 *l *= -0.5;

@@ -22,6 +22,7 @@ use nalgebra::Matrix2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
+use serde::{Deserialize, Serialize};
 
 use crate::config::{DamperMonitorConfig, KernelSchedule, Propagation, RbpfConfig};
 use crate::gain_table::GainTable;
@@ -32,9 +33,26 @@ use railmon_filter::logspace::{effective_sample_size, normalize_log_weights};
 use railmon_filter::resample::systematic_resample;
 
 use bank::Bank;
+pub use bank::BankState;
 use posterior::SortedParticles;
 pub use posterior::{DamperPosterior, RbpfEstimate};
 pub use propagator::{SparsePropagator, BLOCK};
+
+/// Everything a filter needs to go on where another stopped, besides its configuration and
+/// gain table ([`Rbpf::state`], [`Rbpf::resume`]): particles, weights, their Kalman states,
+/// the random-number stream.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RbpfState {
+    ln_theta: Vec<[f64; 2]>,
+    log_w: Vec<f64>,
+    bank: BankState,
+    rng: ChaCha8Rng,
+    steps_since_move: u64,
+    ess: f64,
+    log_evidence: f64,
+    resamples: u64,
+    nis_mean: f64,
+}
 
 /// The filter.
 #[derive(Debug, Clone)]
@@ -50,6 +68,10 @@ pub struct Rbpf {
     log_w: Vec<f64>,
     log_w_next: Vec<f64>,
     ll: Vec<f64>,
+    /// Per particle, this step's normalised innovation squared `e' S^-1 e`.
+    nis: Vec<f64>,
+    /// Its mean over the particles' predictive weights.
+    nis_mean: f64,
     regeneration_penalty: Vec<f64>,
     indices: Vec<usize>,
     bank: Bank,
@@ -122,6 +144,8 @@ impl Rbpf {
             log_w: vec![-(n as f64).ln(); n],
             log_w_next: vec![0.0; n],
             ll: vec![0.0; n],
+            nis: vec![0.0; n],
+            nis_mean: f64::NAN,
             regeneration_penalty: vec![0.0; n],
             indices: vec![0; n],
             bank,
@@ -134,6 +158,58 @@ impl Rbpf {
                 ..SortedParticles::default()
             },
         })
+    }
+
+    /// The filter's state, to resume it later with [`Rbpf::resume`].
+    pub fn state(&self) -> RbpfState {
+        RbpfState {
+            ln_theta: self.ln_theta.clone(),
+            log_w: self.log_w.clone(),
+            bank: self.bank.save(),
+            rng: self.rng.clone(),
+            steps_since_move: self.steps_since_move,
+            ess: self.ess,
+            log_evidence: self.log_evidence,
+            resamples: self.resamples,
+            nis_mean: self.nis_mean,
+        }
+    }
+
+    /// The filter of `config` where `state` left it: the same data then give exactly the
+    /// estimates the filter that saved it would have given. A state of another particle count
+    /// or propagation is refused.
+    pub fn resume(
+        config: &DamperMonitorConfig,
+        table: Option<Arc<GainTable>>,
+        state: RbpfState,
+    ) -> Result<Self, DamperError> {
+        let mut f = Self::with_gain_table(config, table)?;
+        let n = f.n_particles();
+        if state.ln_theta.len() != n || state.log_w.len() != n {
+            return Err(DamperError::Config(format!(
+                "snapshot of {} particles, {n} configured",
+                state.ln_theta.len()
+            )));
+        }
+        if state.ln_theta.iter().flatten().any(|v| !v.is_finite())
+            || state.log_w.iter().any(|v| v.is_nan())
+        {
+            return Err(DamperError::NonFinite {
+                what: "snapshot particles",
+            });
+        }
+        f.bank.restore(state.bank)?;
+        f.ln_theta_next.clone_from(&state.ln_theta);
+        f.ln_theta = state.ln_theta;
+        f.log_w = state.log_w;
+        f.rng = state.rng;
+        f.steps_since_move = state.steps_since_move;
+        f.ess = state.ess;
+        f.log_evidence = state.log_evidence;
+        f.resamples = state.resamples;
+        f.nis_mean = state.nis_mean;
+        f.sorted.stale = true;
+        Ok(f)
     }
 
     pub fn n_particles(&self) -> usize {
@@ -156,7 +232,16 @@ impl Rbpf {
                 self.regeneration_penalty.fill(0.0);
             }
         }
-        self.bank.step(&self.ln_theta_next, y, &mut self.ll)?;
+        self.bank
+            .step(&self.ln_theta_next, y, &mut self.ll, &mut self.nis)?;
+        // Under the filter's own model `e' S^-1 e` is chi-square with 5 degrees of freedom
+        // (mean 5) for the particles near the truth; weighted by the predictive weights.
+        self.nis_mean = self
+            .log_w
+            .iter()
+            .zip(&self.nis)
+            .map(|(w, q)| w.exp() * q)
+            .sum();
         for (((next, w), l), pen) in self
             .log_w_next
             .iter_mut()
@@ -309,6 +394,13 @@ impl Rbpf {
 
     pub fn effective_sample_size(&self) -> f64 {
         self.ess
+    }
+
+    /// The last step's normalised innovation squared `e' S^-1 e`, averaged over the particles'
+    /// predictive weights (NaN before the first step). Chi-square with 5 degrees of freedom,
+    /// mean 5, when the filter's model (vehicle, noise, track) is the plant's.
+    pub fn normalised_innovation_squared(&self) -> f64 {
+        self.nis_mean
     }
 
     /// `ln p(y_1..y_k)` estimated by the filter (sum of the weight normalisers).

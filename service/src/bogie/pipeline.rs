@@ -10,8 +10,8 @@ use prometheus::IntCounter;
 use railmon_bus::{BogieFrame, FrameHeader};
 use railmon_damper::gain_table::GainTable;
 use railmon_damper::{
-    BogieSample, DamperAlarm, DamperError, DamperEventKind, DamperMonitor, DamperPosterior,
-    Propagation, Rbpf,
+    BogieSample, DamperAlarm, DamperError, DamperEventKind, DamperMonitor, DamperMonitorState,
+    DamperPosterior, Propagation, Rbpf,
 };
 
 use railmon_bus::StreamKind;
@@ -126,7 +126,7 @@ impl BogiePipeline {
                     })
                 });
                 let estimator = &config.estimator;
-                let alarms = DamperAlarm::pair(&estimator.alarm, &estimator.nominal, degraded);
+                let alarms = DamperAlarm::pair(estimator, degraded);
                 BogieSlot::new(id, &metrics, alarms)
             })
             .collect();
@@ -283,6 +283,13 @@ impl BogiePipeline {
                     csy: damper(0),
                     csay: damper(1),
                     effective_sample_size: estimate.map_or(f64::NAN, |e| e.effective_sample_size),
+                    nis_window_mean: estimate.and_then(|e| e.nis_window_mean).unwrap_or(f64::NAN),
+                    status: match estimate {
+                        None => "no_samples",
+                        Some(e) if e.model_mismatch => "model_mismatch",
+                        Some(_) => "ok",
+                    }
+                    .into(),
                 }
             })
             .collect();
@@ -317,6 +324,16 @@ impl BogiePipeline {
 pub struct CheckedBogieSample {
     slot: usize,
     sample: BogieSample,
+}
+
+/// What a bogie snapshot holds: each configured bogie's monitor (RBPF particles, weights and
+/// Kalman states, the EKF, the consistency check) and stream time. The health flags are not
+/// saved: the event store's active alarms, committed with their events, are newer and are
+/// restored at start.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct SavedBogies {
+    bogies: Vec<(u32, Option<DamperMonitorState>)>,
+    clock: crate::outbox::TrackClock,
 }
 
 impl Pipeline for BogiePipeline {
@@ -394,6 +411,9 @@ impl Pipeline for BogiePipeline {
         for slot in &mut self.slots {
             slot.monitor = None;
             slot.last_stamp = None;
+            for alarm in &mut slot.alarms {
+                alarm.restart();
+            }
         }
         self.track.restart();
     }
@@ -405,6 +425,52 @@ impl Pipeline for BogiePipeline {
         let stamp = self.track.stamp(header);
         self.slots[k].last_stamp = Some(stamp);
         self.follow(k, &stamp);
+        Ok(())
+    }
+
+    fn settings(&self) -> String {
+        serde_json::to_string(&self.config.estimator).unwrap_or_default()
+    }
+
+    fn save_state(&self) -> Option<Vec<u8>> {
+        if self.slots.iter().all(|s| s.monitor.is_none()) {
+            return None;
+        }
+        let saved = SavedBogies {
+            bogies: self
+                .slots
+                .iter()
+                .map(|s| (s.id, s.monitor.as_ref().map(DamperMonitor::state)))
+                .collect(),
+            clock: self.track.clock(),
+        };
+        bincode::serialize(&saved).ok()
+    }
+
+    /// Every bogie's monitor where the snapshot left it (built first: on error nothing
+    /// changes); a bogie the snapshot does not hold starts from its prior on its first frame.
+    fn resume_state(&mut self, state: &[u8]) -> Result<(), String> {
+        let saved: SavedBogies = bincode::deserialize(state).map_err(|e| e.to_string())?;
+        let table = self.table.clone().map_err(|r| r.message)?;
+        let mut monitors = Vec::with_capacity(self.slots.len());
+        for slot in &self.slots {
+            let state = saved
+                .bogies
+                .iter()
+                .find(|(id, _)| *id == slot.id)
+                .and_then(|(_, m)| m.clone());
+            monitors.push(match state {
+                Some(state) => Some(
+                    DamperMonitor::resume(&self.config.estimator, table.clone(), state)
+                        .map_err(|e| format!("bogie {}: {e}", slot.id))?,
+                ),
+                None => None,
+            });
+        }
+        for (slot, monitor) in self.slots.iter_mut().zip(monitors) {
+            slot.monitor = monitor;
+        }
+        self.track.resume_clock(saved.clock);
         Ok(())
     }
 

@@ -47,6 +47,13 @@ pub struct BogieView {
     /// Effective sample size of its particle filter (particles); null until its first frame.
     #[schema(value_type = Option<f64>)]
     pub effective_sample_size: f64,
+    /// Mean normalised innovation squared of the filter over its last 1 s window (5 when its
+    /// model explains the data).
+    pub nis_window_mean: f64,
+    /// `ok`, `no_samples`, or `model_mismatch`: the filter's model does not explain the data
+    /// for a sustained time (a wrong vehicle, speed or sensor noise in the configuration; the
+    /// health flags are not judged meanwhile).
+    pub status: String,
 }
 
 /// `GET /api/v1/bogies`: every configured bogie.

@@ -1,0 +1,53 @@
+//! A monitor resumed from its saved state (issue 12 item 4) goes on exactly as the one that
+//! saved it: after a restart its estimates are inside the pre-restart 90 % interval from the
+//! first sample on, where a monitor started from its prior (what a restart gave before) is not
+//! within 1 s.
+
+use railmon_damper::{BogieSample, BogieSimulator, DamperMonitor, DamperScenario, Rbpf};
+
+#[test]
+fn a_resumed_monitor_goes_on_exactly_and_inside_the_pre_restart_interval() {
+    let text = include_str!("../../config/scenarios/damper-seed.toml");
+    let mut scenario = DamperScenario::from_toml_str(text).unwrap();
+    scenario.duration_s = 21.0;
+    let mut config = scenario.monitor_config();
+    config.rbpf.particles = 200;
+    let table = Rbpf::gain_table(&config).unwrap();
+    let mut sim = BogieSimulator::new(&scenario).unwrap();
+    let mut samples: Vec<BogieSample> = vec![];
+    while let Some((s, _)) = sim.step() {
+        samples.push(*s);
+    }
+    let (before, after) = samples.split_at(20_000);
+    let mut running = DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
+    for s in before {
+        running.step(s).unwrap();
+    }
+    let pre = *running.estimate();
+    // Through bytes, as the service's snapshot file carries it.
+    let bytes = bincode::serialize(&running.state()).unwrap();
+    let state = bincode::deserialize(&bytes).unwrap();
+    let mut resumed = DamperMonitor::resume(&config, Some(table.clone()), state).unwrap();
+    assert_eq!(*resumed.estimate(), pre);
+    let inside = |e: &railmon_damper::DamperEstimate| {
+        [(e.csy, pre.csy), (e.csay, pre.csay)]
+            .iter()
+            .all(|(now, was)| {
+                was.q05_ns_per_m <= now.mean_ns_per_m && now.mean_ns_per_m <= was.q95_ns_per_m
+            })
+    };
+    let mut fresh = DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
+    for s in after {
+        let a = *running.step(s).unwrap();
+        let b = *resumed.step(s).unwrap();
+        assert_eq!(a, b);
+        assert!(inside(&b), "{b:?} outside {pre:?}");
+        fresh.step(s).unwrap();
+    }
+    // What a restart gave before: 1 s after it, the prior's estimate is outside.
+    assert!(!inside(fresh.estimate()), "{:?}", fresh.estimate());
+    // A state of another particle count is refused.
+    let mut other = config;
+    other.rbpf.particles = 100;
+    assert!(DamperMonitor::resume(&other, None, running.state()).is_err());
+}
