@@ -57,7 +57,7 @@ pub fn central_interval(terms: &[StudentT], mass: f64) -> Interval {
     }
 }
 
-/// The `p`-quantile of the mixture by bisection on its CDF (monotone), to 1e-9 of the bracket.
+/// The `p`-quantile of the mixture by bisection on its CDF (monotone), to 1e-7 of the bracket.
 pub fn quantile(terms: &[StudentT], p: f64) -> f64 {
     let live = || {
         terms
@@ -81,7 +81,7 @@ pub fn quantile(terms: &[StudentT], p: f64) -> f64 {
     if !(lo.is_finite() && hi.is_finite()) {
         return f64::NAN;
     }
-    let tolerance = 1e-9 * (hi - lo).max(1e-12);
+    let tolerance = 1e-7 * (hi - lo).max(1e-12);
     while hi - lo > tolerance {
         let mid = 0.5 * (lo + hi);
         if cdf(mid) < p {
@@ -109,8 +109,12 @@ pub fn student_t_cdf(t: f64, dof: f64) -> f64 {
     if t.is_nan() || dof.is_nan() {
         return f64::NAN;
     }
-    if dof > 1e7 {
-        return normal_cdf(t);
+    if dof > 100.0 {
+        // Abramowitz & Stegun 26.7.8: z = t (1 - 1/(4 dof)) / sqrt(1 + t^2 / (2 dof)) is close
+        // to normal (error in the CDF ~1e-5 at 100 degrees of freedom), and costs one erfc
+        // instead of a continued fraction: the monitor evaluates this ~10^3 times a step.
+        let z = t * (1.0 - 0.25 / dof) / (1.0 + t * t / (2.0 * dof)).sqrt();
+        return normal_cdf(z);
     }
     let x = dof / (dof + t * t);
     let tail = 0.5 * regularized_incomplete_beta(0.5 * dof, 0.5, x);
