@@ -15,6 +15,7 @@
 
 pub mod evaluate;
 mod plots;
+pub mod rls;
 
 use std::path::Path;
 
@@ -187,6 +188,11 @@ fn write_predictions(
         "persistence_cm3_s",
         "active_regime",
         "regime",
+        "rls_virtual_sensor_cm3_s",
+        "mixture_1step_lower_90_cm3_s",
+        "mixture_1step_upper_90_cm3_s",
+        "virtual_sensor_lower_90_cm3_s",
+        "virtual_sensor_upper_90_cm3_s",
     ]
     .map(String::from)
     .to_vec();
@@ -210,6 +216,17 @@ fn write_predictions(
         .collect();
         f.push(r.active_regime.to_string());
         f.push(r.regime.to_string());
+        f.extend(
+            [
+                r.rls_virtual_sensor_cm3_s,
+                r.one_step_interval_cm3_s.lower,
+                r.one_step_interval_cm3_s.upper,
+                r.virtual_sensor_interval_cm3_s.lower,
+                r.virtual_sensor_interval_cm3_s.upper,
+            ]
+            .iter()
+            .map(|v| format!("{v:.6}")),
+        );
         f.extend(r.regime_probabilities.iter().map(|p| format!("{p:.6}")));
         if let (Some(names), Some(l)) = (labels, r.label) {
             f.push(names[l].clone());
@@ -227,9 +244,14 @@ fn write_summary(path: &Path, scores: &[ScoreRow]) -> Result<(), RecordError> {
             format!("{:.6}", s.rmse),
             format!("{:.6}", s.mae),
             s.n.to_string(),
+            s.coverage_90.map_or(String::new(), |c| format!("{c:.4}")),
         ]
     });
-    write_csv_table(path, &["method", "horizon_s", "rmse", "mae", "n"], rows)
+    write_csv_table(
+        path,
+        &["method", "horizon_s", "rmse", "mae", "n", "coverage_90"],
+        rows,
+    )
 }
 
 /// `events.csv`: one row per event, ids from 1; `subject` is empty as in the service's

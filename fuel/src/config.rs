@@ -5,7 +5,7 @@
 use railmon_settings::{with_preset, Presets};
 use serde::{Deserialize, Deserializer, Serialize};
 
-use crate::sample::Channel;
+use crate::sample::{Channel, DerivedChannel};
 use crate::FuelError;
 
 /// The categorical channel `z` (the gear, section 4.1) and how raw gears are grouped into
@@ -65,6 +65,22 @@ pub struct FuelMonitorConfig {
     /// within a component (a mean per component): their level then tells the components apart,
     /// which is what recognising a regime needs, while fuel keeps its dynamics.
     pub lagged_channels: Option<Vec<Channel>>,
+    /// Channels computed from the speed now and a sample ago, appended to `y_t` after the
+    /// measured ones (never lagged into `psi`): what the engine must deliver now. The virtual
+    /// sensor conditions fuel on them, so within a component it is a regression of fuel on
+    /// speed, acceleration, power demand and speed powers, which a fuel map is close to
+    /// (tractive power ~ m a v + c_r m g v + c_d v^3); and the pointer sees them, so regimes
+    /// separate by what the driver does (accelerate, cruise, coast). Need the `speed` channel.
+    pub derived_channels: Vec<DerivedChannel>,
+    /// Blend each h-step fuel forecast of the mixture with that of a single regression run
+    /// alongside (same settings, one component), weighted per horizon by the convex
+    /// combination with the smallest squared error so far (errors of forecasts whose target has
+    /// been measured, data up to `t` only, forgotten with `blend_forgetting`). The mixture's
+    /// mean forecast loses the regime after a few steps (the pointer is propagated, not known);
+    /// the blend then moves towards the single regression. Off: the mixture alone (the paper).
+    pub forecast_blend: bool,
+    /// Forgetting of the squared-error sums that set the blend weights, in (0, 1].
+    pub blend_forgetting: f64,
     /// The categorical channel `z_t` (gear), if the source has one.
     pub categorical: Option<CategoricalConfig>,
     /// Number of components `m_c` (driving regimes).
@@ -130,6 +146,14 @@ impl Default for FuelMonitorConfig {
         FuelMonitorConfig {
             channels: vec![Channel::Fuel, Channel::Speed],
             lagged_channels: None,
+            derived_channels: vec![
+                DerivedChannel::Acceleration,
+                DerivedChannel::PowerDemand,
+                DerivedChannel::SpeedSquared,
+                DerivedChannel::SpeedCubed,
+            ],
+            forecast_blend: true,
+            blend_forgetting: 0.999,
             categorical: None,
             components: 3,
             regression_memory: 2,
@@ -162,6 +186,8 @@ impl FuelMonitorConfig {
     pub fn paper() -> Self {
         FuelMonitorConfig {
             channels: Channel::ALL.to_vec(),
+            derived_channels: Vec::new(),
+            forecast_blend: false,
             categorical: Some(CategoricalConfig::default()),
             regression_memory: 1,
             acceleration_bins_m_s2: Vec::new(),
@@ -179,6 +205,7 @@ impl FuelMonitorConfig {
     pub fn driving_style() -> Self {
         FuelMonitorConfig {
             channels: Channel::ALL.to_vec(),
+            derived_channels: Vec::new(),
             categorical: Some(CategoricalConfig::default()),
             components: 2,
             regression_memory: 2,
@@ -321,6 +348,19 @@ impl FuelMonitorConfig {
             ));
         }
         check_open_unit("forgetting", self.forgetting)?;
+        check_open_unit("blend_forgetting", self.blend_forgetting)?;
+        for (i, d) in self.derived_channels.iter().enumerate() {
+            if self.derived_channels[..i].contains(d) {
+                return Err(FuelError::invalid("derived_channels", d, "listed twice"));
+            }
+        }
+        if !self.derived_channels.is_empty() && !self.channels.contains(&Channel::Speed) {
+            return Err(FuelError::invalid(
+                "derived_channels",
+                format!("{:?}", self.derived_channels),
+                "need `speed` in `channels`",
+            ));
+        }
         check_positive("prior_information", self.prior_information)?;
         check_positive("prior_kappa", self.prior_kappa)?;
         check_positive("dirichlet_prior", self.dirichlet_prior)?;

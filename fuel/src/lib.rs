@@ -21,6 +21,7 @@ pub mod counts;
 pub mod error;
 pub mod mixture;
 pub mod monitor;
+pub mod predictive;
 pub mod regression;
 pub mod sample;
 pub mod simulator;
@@ -30,8 +31,9 @@ pub use counts::CountTable;
 pub use error::FuelError;
 pub use mixture::{Mixture, MixtureInput, MixtureSpec};
 pub use monitor::{FuelEstimate, FuelMonitor, MixtureEstimate, RegimeChange, REGIME_CHANGED};
+pub use predictive::{central_interval, Interval, StudentT};
 pub use regression::RegressionStats;
-pub use sample::{bin_index, Channel, VehicleSample};
+pub use sample::{bin_index, Channel, DerivedChannel, VehicleSample};
 pub use simulator::{
     DriveCycle, DriverStyle, Segment, VehicleParameters, VehicleScenario, VehicleSimulator,
     VehicleTruth,

@@ -10,14 +10,18 @@
 
 use std::collections::VecDeque;
 
-use nalgebra::DVector;
+use nalgebra::{DMatrix, DVector};
 use railmon_filter::logspace::normalize_log_weights;
 use serde::Serialize;
 
 use crate::config::{FuelMonitorConfig, InitialPartition};
 use crate::mixture::{argmax, Mixture, MixtureInput, MixtureSpec};
-use crate::sample::{bin_index, Channel, VehicleSample};
+use crate::predictive::{central_interval, Interval, StudentT};
+use crate::sample::{bin_index, Channel, DerivedChannel, VehicleSample};
 use crate::FuelError;
+
+/// Probability mass of the predictive intervals the monitor reports.
+pub const INTERVAL_MASS: f64 = 0.9;
 
 /// The estimator's outputs once it is initialised.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
@@ -26,17 +30,28 @@ pub struct MixtureEstimate {
     /// pointer picked and the statistics updated with `y_t` itself. Not a forecast.
     pub zero_step_cm3_s: f64,
     /// Honest 1-step forecast of this sample's fuel, made at `t-1` from data up to `t-1`, the
-    /// pointer predicted with the switching model.
+    /// pointer predicted with the switching model (blended with the single regression when
+    /// `forecast_blend` is on): the first element of the previous sample's `forecast_cm3_s`.
     pub one_step_forecast_cm3_s: f64,
+    /// 90 % predictive interval of the 1-step forecast (made at `t-1`).
+    pub one_step_interval_cm3_s: Interval,
     /// Virtual fuel sensor: fuel now from the other channels now (and data up to `t-1`), each
     /// component's Gaussian conditioned on the observed channels, weighted by the predicted
     /// pointer times the likelihood of those channels. Equals the 1-step forecast when fuel is
     /// the only continuous channel (and there is no gear).
     pub virtual_sensor_cm3_s: f64,
+    /// 90 % predictive interval of the virtual sensor: the mixture over components of each
+    /// one's Student-t of fuel given the other channels, weighted as the virtual sensor is.
+    pub virtual_sensor_interval_cm3_s: Interval,
     /// Fuel forecasts for `t+1 .. t+H` (H = `forecast_horizon_steps`): pointer propagated with
     /// the switching model, regressors filled with the forecast means, gear, speed level and
     /// acceleration level held at their last values.
     pub forecast_cm3_s: Vec<f64>,
+    /// 90 % predictive interval of each forecast: the mixture of the components' Student-t
+    /// densities under the propagated pointer, with the regressor's uncertainty propagated
+    /// (moment matching) from step 2 on; pooled with the single regression's by the blend
+    /// weights.
+    pub forecast_interval_cm3_s: Vec<Interval>,
     /// `w_{i;t}`: probability of each component (driving regime).
     pub regime_probabilities: Vec<f64>,
     /// `argmax_i w_{i;t}`: the point estimate of the pointer.
@@ -101,15 +116,16 @@ struct Standardiser {
 }
 
 impl Standardiser {
-    fn from_samples(channels: &[Channel], samples: &[Prepared]) -> Self {
+    /// `min_scales[c]`: the floor of channel `c`'s spread.
+    fn from_samples(min_scales: &[f64], samples: &[Prepared]) -> Self {
         let n = samples.len() as f64;
-        let mut mean = vec![0.0; channels.len()];
-        let mut scale = vec![0.0; channels.len()];
-        for (c, ch) in channels.iter().enumerate() {
+        let mut mean = vec![0.0; min_scales.len()];
+        let mut scale = vec![0.0; min_scales.len()];
+        for (c, floor) in min_scales.iter().enumerate() {
             let m = samples.iter().map(|s| s.y[c]).sum::<f64>() / n;
             let var = samples.iter().map(|s| (s.y[c] - m).powi(2)).sum::<f64>() / n;
             mean[c] = m;
-            scale[c] = var.sqrt().max(ch.min_scale());
+            scale[c] = var.sqrt().max(*floor);
         }
         Standardiser { mean, scale }
     }
@@ -125,6 +141,16 @@ impl Standardiser {
 
     fn fuel(&self, standardised: f64) -> f64 {
         self.mean[0] + self.scale[0] * standardised
+    }
+
+    /// A Student-t term of fuel from its standardised location and variance.
+    fn fuel_term(&self, weight: f64, location: f64, variance: f64, dof: f64) -> StudentT {
+        StudentT {
+            weight,
+            location: self.fuel(location),
+            scale: self.scale[0] * variance.max(0.0).sqrt(),
+            dof,
+        }
     }
 }
 
@@ -143,6 +169,8 @@ struct Past {
 pub struct FuelMonitor {
     config: FuelMonitorConfig,
     channels: Vec<Channel>,
+    /// Channels computed from the speed, after `channels` in `y`.
+    derived: Vec<DerivedChannel>,
     /// Indices (into `channels`) of the channels whose past enters `psi`.
     lagged: Vec<usize>,
     spec: MixtureSpec,
@@ -152,8 +180,11 @@ pub struct FuelMonitor {
     standardiser: Option<Standardiser>,
     past: Past,
     mixture: Option<Mixture>,
-    /// Forecast path made at the previous step.
-    pending_forecast: Vec<f64>,
+    /// The single regression the forecasts are blended with (`forecast_blend`, `m_c > 1`).
+    baseline: Option<Mixture>,
+    blend: Blend,
+    /// Forecast path made at the previous step (blended).
+    pending_forecast: ForecastPath,
     /// The active regime and for how many samples in a row it has been active.
     active_streak: (usize, usize),
     estimate: FuelEstimate,
@@ -171,10 +202,13 @@ impl FuelMonitor {
                 .copied()
                 .filter(|c| *c != Channel::Fuel),
         );
-        let k_y = channels.len();
+        let derived = config.derived_channels.clone();
+        let k_y = channels.len() + derived.len();
         let lagged: Vec<usize> = match &config.lagged_channels {
-            Some(list) => (0..k_y).filter(|&i| list.contains(&channels[i])).collect(),
-            None => (0..k_y).collect(),
+            Some(list) => (0..channels.len())
+                .filter(|&i| list.contains(&channels[i]))
+                .collect(),
+            None => (0..channels.len()).collect(),
         };
         let categories = config
             .categorical
@@ -199,6 +233,7 @@ impl FuelMonitor {
         Ok(FuelMonitor {
             config: config.clone(),
             channels,
+            derived,
             lagged,
             spec,
             previous_time_s: None,
@@ -207,7 +242,9 @@ impl FuelMonitor {
             standardiser: None,
             past: Past::default(),
             mixture: None,
-            pending_forecast: Vec::new(),
+            baseline: None,
+            blend: Blend::new(config.forecast_horizon_steps),
+            pending_forecast: ForecastPath::default(),
             active_streak: (0, 0),
             estimate: FuelEstimate::default(),
         })
@@ -240,7 +277,7 @@ impl FuelMonitor {
                 previous_s: self.previous_time_s.unwrap_or(f64::NEG_INFINITY),
             });
         }
-        let y = self
+        let mut y = self
             .channels
             .iter()
             .map(|&c| sample.checked(c))
@@ -263,13 +300,16 @@ impl FuelMonitor {
             }
             None => (None, 0),
         };
-        let (acceleration_level, speed_m_s) = if self.config.acceleration_bins_m_s2.is_empty() {
-            (0, None)
-        } else {
+        let needs_speed =
+            !(self.config.acceleration_bins_m_s2.is_empty() && self.derived.is_empty());
+        let (acceleration_level, speed_m_s) = if needs_speed {
             let v = sample.checked(Channel::Speed)?;
             let dt = self.previous_time_s.map_or(1.0, |p| sample.time_s - p);
             let a = self.previous_speed_m_s.map_or(0.0, |p| (v - p) / dt);
+            y.extend(self.derived.iter().map(|d| d.value(v, a)));
             (bin_index(&self.config.acceleration_bins_m_s2, a), Some(v))
+        } else {
+            (0, None)
         };
         Ok(Prepared {
             acceleration_level,
@@ -353,7 +393,13 @@ impl FuelMonitor {
     /// Initial part of Algorithm 3.4 from the collected samples: the components start from a
     /// partition of the samples by fuel level (quantiles), refined by EM.
     fn initialise(&mut self) -> Result<(), FuelError> {
-        let st = Standardiser::from_samples(&self.channels, &self.initial);
+        let min_scales: Vec<f64> = self
+            .channels
+            .iter()
+            .map(|c| c.min_scale())
+            .chain(self.derived.iter().map(|d| d.min_scale()))
+            .collect();
+        let st = Standardiser::from_samples(&min_scales, &self.initial);
         let (m_y, m_alpha) = (self.config.regression_memory, self.config.switching_memory);
         let start = m_y.max(m_alpha);
         let mut past = Past::default();
@@ -396,10 +442,27 @@ impl FuelMonitor {
             self.config.init_iterations,
             self.config.init_weight,
         )?;
+        let baseline = if self.config.forecast_blend && m > 1 {
+            let spec = MixtureSpec {
+                components: 1,
+                ..self.spec.clone()
+            };
+            let zeros = vec![0; labels.len()];
+            Some(Mixture::from_batch(
+                spec,
+                &inputs,
+                &zeros,
+                0,
+                self.config.init_weight,
+            )?)
+        } else {
+            None
+        };
         self.past = past;
         self.standardiser = Some(st);
         self.mixture = Some(mixture);
-        self.pending_forecast = self.forecast_path();
+        self.baseline = baseline;
+        self.pending_forecast = self.blended_forecast();
         self.initial = Vec::new();
         Ok(())
     }
@@ -418,29 +481,45 @@ impl FuelMonitor {
         let mut log_pred = vec![0.0; m];
         mixture.predict_pointer_from(mixture.log_weights(), k, &mut log_pred);
         let y_other = y.rows(1, y.len() - 1).into_owned();
-        let mut cond = vec![0.0; m];
+        let mut cond = Vec::with_capacity(m);
         let mut log_v = vec![0.0; m];
-        for i in 0..m {
-            let (c, ld) = mixture.components()[i].condition_first_on_rest(
-                &psi,
-                &y_other,
-                self.config.parameter_uncertainty,
-            );
-            cond[i] = c;
-            log_v[i] = log_pred[i] + ld + mixture.log_category(i, category);
+        for (i, comp) in mixture.components().iter().enumerate() {
+            let c = comp.condition_first_on_rest(&psi, &y_other, self.config.parameter_uncertainty);
+            log_v[i] = log_pred[i] + c.log_density + mixture.log_category(i, category);
+            cond.push(c);
         }
         normalize_log_weights(&mut log_v)?;
-        let virtual_std: f64 = (0..m).map(|i| log_v[i].exp() * cond[i]).sum();
+        let virtual_std: f64 = (0..m).map(|i| log_v[i].exp() * cond[i].mean).sum();
         let virtual_sensor = st.fuel(virtual_std);
+        let virtual_terms: Vec<StudentT> = (0..m)
+            .map(|i| {
+                let dof = mixture.components()[i].predictive_dof();
+                st.fuel_term(log_v[i].exp(), cond[i].mean, cond[i].variance, dof)
+            })
+            .collect();
+        let virtual_sensor_interval = central_interval(&virtual_terms, INTERVAL_MASS);
 
-        // Mixture::step changes nothing when it fails, so the monitor stays consistent.
-        let mixture = self.mixture.as_mut().expect("checked above");
-        mixture.step(&MixtureInput {
+        let input = MixtureInput {
             y: &y,
             psi: &psi,
             category,
             switching_row: k,
-        })?;
+        };
+        // Mixture::step changes nothing when it fails; the baseline is stepped on a copy first
+        // so that a failure of either leaves the monitor as it was.
+        let baseline = match &self.baseline {
+            Some(b) => {
+                let mut b = b.clone();
+                b.step(&input)?;
+                Some(b)
+            }
+            None => None,
+        };
+        let mixture = self.mixture.as_mut().expect("checked above");
+        mixture.step(&input)?;
+        if baseline.is_some() {
+            self.baseline = baseline;
+        }
         let active = mixture.active();
         let zero_step = st.fuel(mixture.components()[active].mean(&psi)[0]);
         let regime_probabilities = mixture.weights();
@@ -448,8 +527,10 @@ impl FuelMonitor {
         // Commit the rest.
         let (m_y, m_alpha) = (self.config.regression_memory, self.config.switching_memory);
         Self::push_past(&mut self.past, y, p, m_y, m_alpha);
-        let one_step = self.pending_forecast.first().copied().unwrap_or(f64::NAN);
-        self.pending_forecast = self.forecast_path();
+        let one_step = self.pending_forecast.mean_cm3_s.first().copied();
+        let one_step_interval = self.pending_forecast.interval_cm3_s.first().copied();
+        self.blend.observe(p.y[0], self.config.blend_forgetting);
+        self.pending_forecast = self.blended_forecast();
         let previous = self.estimate.mixture.as_ref();
         self.active_streak = match self.active_streak {
             (regime, n) if regime == active => (regime, n + 1),
@@ -470,9 +551,15 @@ impl FuelMonitor {
             previous.map_or(0.0, |e| e.cumulative_virtual_fuel_cm3) + virtual_sensor * dt;
         Ok(MixtureEstimate {
             zero_step_cm3_s: zero_step,
-            one_step_forecast_cm3_s: one_step,
+            one_step_forecast_cm3_s: one_step.unwrap_or(f64::NAN),
+            one_step_interval_cm3_s: one_step_interval.unwrap_or(Interval {
+                lower: f64::NAN,
+                upper: f64::NAN,
+            }),
             virtual_sensor_cm3_s: virtual_sensor,
-            forecast_cm3_s: self.pending_forecast.clone(),
+            virtual_sensor_interval_cm3_s: virtual_sensor_interval,
+            forecast_cm3_s: self.pending_forecast.mean_cm3_s.clone(),
+            forecast_interval_cm3_s: self.pending_forecast.interval_cm3_s.clone(),
             regime_probabilities,
             active_regime: active,
             regime,
@@ -481,28 +568,81 @@ impl FuelMonitor {
         })
     }
 
-    /// Multi-step forecast of fuel from the current state (the paper's future work 2), by
-    /// propagating means: `p(c_{t+h})` with the switching model at the forecast fuel level,
-    /// `y_{t+h} = sum_i p_i theta_i' psi_{t+h}` with forecasts in the regressor.
-    fn forecast_path(&self) -> Vec<f64> {
-        let (Some(st), Some(mixture)) = (self.standardiser.as_ref(), self.mixture.as_ref()) else {
-            return Vec::new();
+    /// The forecast path of the mixture, blended with the baseline's (when there is one) by
+    /// the current blend weights; remembers both paths for the next weights.
+    fn blended_forecast(&mut self) -> ForecastPath {
+        let Some(mixture) = self.mixture.as_ref() else {
+            return ForecastPath::default();
         };
-        let m = self.config.components;
+        let own = self.forecast_path(mixture);
+        let Some(baseline) = self.baseline.as_ref() else {
+            return own.finish();
+        };
+        let single = self.forecast_path(baseline);
+        let blended = self.blend.combine(&own, &single);
+        self.blend.remember(own.mean_cm3_s, single.mean_cm3_s);
+        blended
+    }
+
+    /// Multi-step forecast of fuel from the current state of `mixture` (the paper's future
+    /// work 2), by propagating means: `p(c_{t+h})` with the switching model at the forecast
+    /// fuel level, `y_{t+h} = sum_i p_i theta_i' psi_{t+h}` with forecasts in the regressor.
+    /// The predictive of each step is the mixture over components of Student-t densities with
+    /// squared scale `r_i (1 + zeta_i) + theta_i' Sigma_psi theta_i`, where `Sigma_psi`, the
+    /// covariance of the forecast regressor, is propagated by moment matching: the mixture's
+    /// `Cov(y_{t+h}) = sum_i p_i (r_i (1 + zeta_i) + theta_i' Sigma_psi theta_i + d_i d_i')`,
+    /// `d_i` the component's mean minus the mixture's, and `Cov(psi, y) = Sigma_psi theta_bar`.
+    fn forecast_path(&self, mixture: &Mixture) -> ForecastPath {
+        let Some(st) = self.standardiser.as_ref() else {
+            return ForecastPath::default();
+        };
+        let horizon = self.config.forecast_horizon_steps;
+        let m = mixture.spec().components;
+        let (k_y, k_psi) = (self.spec.k_y, self.spec.k_psi);
         let mut past = self.past.clone();
         let mut log_p = mixture.log_weights().to_vec();
         let mut next = vec![0.0; m];
-        let mut path = Vec::with_capacity(self.config.forecast_horizon_steps);
-        for _ in 0..self.config.forecast_horizon_steps {
+        let mut sigma_psi = DMatrix::<f64>::zeros(k_psi, k_psi);
+        let mut path = ForecastPath::with_capacity(horizon);
+        for h in 0..horizon {
             mixture.predict_pointer_from(&log_p, self.switching_row(&past), &mut next);
             let psi = self.regressor(&past);
-            let mut y = DVector::zeros(self.spec.k_y);
-            for (i, comp) in mixture.components().iter().enumerate() {
-                y += comp.mean(&psi) * next[i].exp();
+            let p: Vec<f64> = next.iter().map(|l| l.exp()).collect();
+            let means: Vec<DVector<f64>> =
+                mixture.components().iter().map(|c| c.mean(&psi)).collect();
+            let mut y = DVector::zeros(k_y);
+            for (mean, p) in means.iter().zip(&p) {
+                y += mean * *p;
             }
-            let fuel = st.fuel(y[0]);
-            path.push(fuel);
-            let level = bin_index(&self.config.fuel_bins_cm3_s, fuel);
+            let last = h + 1 == horizon;
+            let mut c_yy = DMatrix::<f64>::zeros(k_y, k_y);
+            let mut theta_bar = DMatrix::<f64>::zeros(k_psi, k_y);
+            let mut terms = Vec::with_capacity(m);
+            for (i, comp) in mixture.components().iter().enumerate() {
+                let inflate = if self.config.parameter_uncertainty {
+                    1.0 + comp.zeta(&psi)
+                } else {
+                    1.0
+                };
+                let propagated = (h > 0).then(|| comp.theta().tr_mul(&sigma_psi) * comp.theta());
+                let fuel_var =
+                    comp.r()[(0, 0)] * inflate + propagated.as_ref().map_or(0.0, |c| c[(0, 0)]);
+                terms.push(st.fuel_term(p[i], means[i][0], fuel_var, comp.predictive_dof()));
+                if !last {
+                    let d = &means[i] - &y;
+                    c_yy += (comp.r() * inflate + &d * d.transpose()) * p[i];
+                    if let Some(c) = propagated {
+                        c_yy += c * p[i];
+                    }
+                    theta_bar += comp.theta() * p[i];
+                }
+            }
+            path.push(st.fuel(y[0]), terms);
+            if !last {
+                let c_psi_y = &sigma_psi * &theta_bar;
+                sigma_psi = self.shift_regressor_covariance(&sigma_psi, &c_psi_y, &c_yy);
+            }
+            let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(y[0]));
             past.y.push_front(y);
             past.y.truncate(self.config.regression_memory);
             past.fuel_levels.push_front(level);
@@ -510,6 +650,38 @@ impl FuelMonitor {
             std::mem::swap(&mut log_p, &mut next);
         }
         path
+    }
+
+    /// Covariance of the next forecast regressor `psi'` (the new `y` in its newest lag, the
+    /// older lags shifted, gear and constant known) from that of `psi`, `Cov(psi, y)` and
+    /// `Cov(y)`.
+    fn shift_regressor_covariance(
+        &self,
+        sigma_psi: &DMatrix<f64>,
+        c_psi_y: &DMatrix<f64>,
+        c_yy: &DMatrix<f64>,
+    ) -> DMatrix<f64> {
+        /// Where an element of the new regressor comes from.
+        #[derive(Clone, Copy)]
+        enum Source {
+            Y(usize),
+            Psi(usize),
+            Known,
+        }
+        let n_lag = self.lagged.len();
+        let lagged_len = n_lag * self.config.regression_memory;
+        let k_psi = sigma_psi.nrows();
+        let source = |a: usize| match (a < lagged_len, a / n_lag.max(1)) {
+            (false, _) => Source::Known,
+            (true, 0) => Source::Y(self.lagged[a % n_lag]),
+            (true, k) => Source::Psi((k - 1) * n_lag + a % n_lag),
+        };
+        DMatrix::from_fn(k_psi, k_psi, |a, b| match (source(a), source(b)) {
+            (Source::Known, _) | (_, Source::Known) => 0.0,
+            (Source::Y(u), Source::Y(v)) => c_yy[(u, v)],
+            (Source::Psi(u), Source::Y(v)) | (Source::Y(v), Source::Psi(u)) => c_psi_y[(u, v)],
+            (Source::Psi(u), Source::Psi(v)) => sigma_psi[(u, v)],
+        })
     }
 
     /// Index of the most probable component now (`None` before initialisation).
@@ -520,5 +692,112 @@ impl FuelMonitor {
     /// The reported (confirmed) regime of the last estimate (`None` before the first).
     pub fn regime(&self) -> Option<usize> {
         self.estimate.mixture.as_ref().map(|m| m.regime)
+    }
+}
+
+/// A fuel forecast path: mean and predictive per step (`t+1 .. t+H`), raw units.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+struct ForecastPath {
+    mean_cm3_s: Vec<f64>,
+    terms: Vec<Vec<StudentT>>,
+    interval_cm3_s: Vec<Interval>,
+}
+
+impl ForecastPath {
+    fn with_capacity(n: usize) -> Self {
+        ForecastPath {
+            mean_cm3_s: Vec::with_capacity(n),
+            terms: Vec::with_capacity(n),
+            interval_cm3_s: Vec::with_capacity(n),
+        }
+    }
+
+    fn push(&mut self, mean_cm3_s: f64, terms: Vec<StudentT>) {
+        self.mean_cm3_s.push(mean_cm3_s);
+        self.terms.push(terms);
+    }
+
+    /// Computes the intervals of the steps' predictives.
+    fn finish(mut self) -> Self {
+        self.interval_cm3_s = self
+            .terms
+            .iter()
+            .map(|t| central_interval(t, INTERVAL_MASS))
+            .collect();
+        self
+    }
+}
+
+/// Per-horizon blend of the mixture's forecast with the single regression's: running sums of
+/// squared errors (`e_m^2`, `e_s^2`, `e_m e_s`) of forecasts whose target has been measured,
+/// and the forecast paths still waiting for theirs (newest first).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+struct Blend {
+    sums: Vec<[f64; 3]>,
+    waiting: VecDeque<(Vec<f64>, Vec<f64>)>,
+}
+
+impl Blend {
+    fn new(horizon: usize) -> Self {
+        Blend {
+            sums: vec![[0.0; 3]; horizon],
+            waiting: VecDeque::with_capacity(horizon + 1),
+        }
+    }
+
+    /// Weight of the mixture at horizon `h` (1-based): the minimiser of
+    /// `sum (w e_m + (1 - w) e_s)^2` over `w in [0, 1]`; the mixture alone before any error.
+    fn weight(&self, h: usize) -> f64 {
+        let [mm, ss, ms] = self.sums[h - 1];
+        let denominator = mm + ss - 2.0 * ms;
+        if denominator > 1e-12 * (mm + ss) && denominator > 0.0 {
+            ((ss - ms) / denominator).clamp(0.0, 1.0)
+        } else {
+            1.0
+        }
+    }
+
+    /// Scores the waiting forecasts of this sample's measured fuel (forgetting older errors).
+    fn observe(&mut self, fuel_cm3_s: f64, forgetting: f64) {
+        for (age, (own, single)) in self.waiting.iter().enumerate() {
+            let (Some(m), Some(s)) = (own.get(age), single.get(age)) else {
+                continue;
+            };
+            let (em, es) = (m - fuel_cm3_s, s - fuel_cm3_s);
+            let sums = &mut self.sums[age];
+            for (sum, e) in sums.iter_mut().zip([em * em, es * es, em * es]) {
+                *sum = forgetting * *sum + e;
+            }
+        }
+    }
+
+    fn remember(&mut self, own: Vec<f64>, single: Vec<f64>) {
+        self.waiting.push_front((own, single));
+        self.waiting.truncate(self.sums.len());
+    }
+
+    /// The blended path: means `w m + (1 - w) s`, predictive the pool of both mixtures with
+    /// weights `w` and `1 - w`.
+    fn combine(&self, own: &ForecastPath, single: &ForecastPath) -> ForecastPath {
+        let mut out = ForecastPath::with_capacity(own.mean_cm3_s.len());
+        for h in 1..=own.mean_cm3_s.len() {
+            let w = self.weight(h);
+            let scaled = |terms: &[StudentT], by: f64| {
+                terms
+                    .iter()
+                    .map(move |t| StudentT {
+                        weight: t.weight * by,
+                        ..*t
+                    })
+                    .collect::<Vec<_>>()
+            };
+            let mut terms = scaled(&own.terms[h - 1], w);
+            terms.extend(scaled(&single.terms[h - 1], 1.0 - w));
+            out.push(
+                w * own.mean_cm3_s[h - 1] + (1.0 - w) * single.mean_cm3_s[h - 1],
+                terms,
+            );
+        }
+        out.finish()
     }
 }

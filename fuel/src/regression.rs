@@ -195,38 +195,65 @@ impl RegressionStats {
         -0.5 * (k * LN_2PI + self.r_log_det + k * inflate.ln() + q)
     }
 
-    /// Fuel (channel 0) conditioned on the other channels `y_other` (channels 1..k_y) now:
-    /// returns the conditional mean of `y_0` and the log-density of `y_other` under the marginal
-    /// of the component's predictive Gaussian, used to weight the components (virtual sensor).
+    /// Degrees of freedom of the Student-t predictive of one channel: `kappa - k_y + 1` (the
+    /// marginal of the inverse-Wishart part), at least 1.
+    pub fn predictive_dof(&self) -> f64 {
+        (self.kappa - self.k_y as f64 + 1.0).max(1.0)
+    }
+
+    /// Fuel (channel 0) conditioned on the other channels `y_other` (channels 1..k_y) now: the
+    /// conditional mean and variance of `y_0` and the log-density of `y_other` under the
+    /// marginal of the component's predictive Gaussian, used to weight the components (virtual
+    /// sensor). Without other channels: the 1-step predictive of `y_0`.
     pub fn condition_first_on_rest(
         &self,
         psi: &DVector<f64>,
         y_other: &DVector<f64>,
         parameter_uncertainty: bool,
-    ) -> (f64, f64) {
+    ) -> Conditional {
         let mean = self.mean(psi);
         let k = self.k_y;
-        if k == 1 {
-            return (mean[0], 0.0);
-        }
         let inflate = if parameter_uncertainty {
             1.0 + self.zeta(psi)
         } else {
             1.0
         };
+        let unconditional = Conditional {
+            mean: mean[0],
+            variance: self.r[(0, 0)] * inflate,
+            log_density: 0.0,
+        };
+        if k == 1 {
+            return unconditional;
+        }
         let r_oo = self.r.view((1, 1), (k - 1, k - 1)).into_owned() * inflate;
         let r_fo = self.r.view((0, 1), (1, k - 1)).into_owned() * inflate;
         let e = y_other - mean.rows(1, k - 1);
         let Some(chol) = Cholesky::new(r_oo) else {
             // Cannot happen: a principal block of an SPD matrix is SPD. Fall back to the mean.
-            return (mean[0], 0.0);
+            return unconditional;
         };
         let solved = chol.solve(&e);
-        let cond_mean = mean[0] + (r_fo * &solved)[0];
+        let gain = chol.solve(&r_fo.transpose());
         let log_det: f64 = chol.l().diagonal().iter().map(|l| 2.0 * l.ln()).sum();
-        let log_density = -0.5 * ((k - 1) as f64 * LN_2PI + log_det + e.dot(&solved));
-        (cond_mean, log_density)
+        Conditional {
+            mean: mean[0] + (r_fo.row(0) * &solved)[0],
+            // Schur complement r_ff - r_fo r_oo^-1 r_of; positive as r is PD (floored).
+            variance: (unconditional.variance - (r_fo.row(0) * gain)[0])
+                .max(self.min_variance * inflate),
+            log_density: -0.5 * ((k - 1) as f64 * LN_2PI + log_det + e.dot(&solved)),
+        }
     }
+}
+
+/// Channel 0 of a component's predictive given the other channels: see
+/// [`RegressionStats::condition_first_on_rest`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Conditional {
+    pub mean: f64,
+    pub variance: f64,
+    /// Log-density of the other channels under the component (0 without them).
+    pub log_density: f64,
 }
 
 /// Cholesky factor of a matrix that is positive definite in exact arithmetic but may not be in
@@ -285,9 +312,11 @@ mod tests {
         v[(2, 2)] = v_psi;
         let s = RegressionStats::new(2, v, 1.0, 1e-12).unwrap();
         let psi = DVector::from_element(1, 1.0);
-        let (m, ld) = s.condition_first_on_rest(&psi, &DVector::from_element(1, 3.0), false);
-        assert!((m - (1.0 + 0.5 / 2.0 * (3.0 - 2.0))).abs() < 1e-12);
+        let c = s.condition_first_on_rest(&psi, &DVector::from_element(1, 3.0), false);
+        assert!((c.mean - (1.0 + 0.5 / 2.0 * (3.0 - 2.0))).abs() < 1e-12);
+        // Var(a | b) = 1 - 0.5^2 / 2.
+        assert!((c.variance - (1.0 - 0.25 / 2.0)).abs() < 1e-12);
         let expected_ld = -0.5 * (LN_2PI + 2f64.ln() + 1.0 / 2.0);
-        assert!((ld - expected_ld).abs() < 1e-12);
+        assert!((c.log_density - expected_ld).abs() < 1e-12);
     }
 }

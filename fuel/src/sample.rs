@@ -73,6 +73,58 @@ impl std::fmt::Display for Channel {
     }
 }
 
+/// A channel computed from the speed now `v_t` and a sample ago (`a_t = (v_t - v_{t-1}) / dt`,
+/// 0 on the first sample): the terms of the tractive power a fuel map responds to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DerivedChannel {
+    /// `a_t`, m/s^2.
+    Acceleration,
+    /// `max(a_t, 0) v_t`, m^2/s^3: inertial power per unit mass while accelerating.
+    PowerDemand,
+    /// `v_t^2`, m^2/s^2.
+    SpeedSquared,
+    /// `v_t^3`, m^3/s^3: aerodynamic power per unit drag.
+    SpeedCubed,
+}
+
+impl DerivedChannel {
+    pub fn name(self) -> &'static str {
+        match self {
+            DerivedChannel::Acceleration => "acceleration",
+            DerivedChannel::PowerDemand => "power_demand",
+            DerivedChannel::SpeedSquared => "speed_squared",
+            DerivedChannel::SpeedCubed => "speed_cubed",
+        }
+    }
+
+    /// The value from speed `v` (m/s) and acceleration `a` (m/s^2).
+    pub fn value(self, v: f64, a: f64) -> f64 {
+        match self {
+            DerivedChannel::Acceleration => a,
+            DerivedChannel::PowerDemand => a.max(0.0) * v,
+            DerivedChannel::SpeedSquared => v * v,
+            DerivedChannel::SpeedCubed => v * v * v,
+        }
+    }
+
+    /// Smallest spread used when standardising (see [`Channel::min_scale`]).
+    pub(crate) fn min_scale(self) -> f64 {
+        match self {
+            DerivedChannel::Acceleration => 0.05,
+            DerivedChannel::PowerDemand => 0.5,
+            DerivedChannel::SpeedSquared => 1.0,
+            DerivedChannel::SpeedCubed => 10.0,
+        }
+    }
+}
+
+impl std::fmt::Display for DerivedChannel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// One sample of the vehicle, what a CAN logger or a dynamometer gives at 1 Hz. Channels a
 /// source does not have are `None` (the Camry files have only fuel and speed).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]

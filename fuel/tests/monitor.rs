@@ -322,8 +322,12 @@ fn horizon_one_forecast_is_the_next_one_step_forecast() {
 
 #[test]
 fn fuel_only_virtual_sensor_is_the_one_step_forecast() {
+    // Without the blend (which moves the forecast, not the virtual sensor) and without the
+    // channels derived from the speed.
     let config = FuelMonitorConfig {
         channels: vec![Channel::Fuel],
+        derived_channels: Vec::new(),
+        forecast_blend: false,
         ..Default::default()
     };
     let mut rng = ChaCha8Rng::seed_from_u64(4);

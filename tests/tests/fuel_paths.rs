@@ -109,7 +109,18 @@ fn replayed_events(settings: &[(&str, &str)], args: &[&str], n: usize) -> Vec<Ev
     service.wait_for_status("vehicle", Duration::from_secs(30), "every frame", |s| {
         s["estimator_steps"].as_u64() == Some(n as u64)
     });
-    let events = service_events(&service);
+    // Events reach the store after the estimate: wait until it holds as many as the stream
+    // counted.
+    let counted = service.get_json("/api/v1/vehicle")["regime_changes"]
+        .as_u64()
+        .unwrap() as usize;
+    let start = std::time::Instant::now();
+    let mut events = service_events(&service);
+    while events.len() < counted && start.elapsed() < Duration::from_secs(30) {
+        std::thread::sleep(Duration::from_millis(100));
+        events = service_events(&service);
+    }
+    assert_eq!(events.len(), counted, "stored events vs the stream's count");
     let exit = service.process.terminate(Duration::from_secs(10));
     assert!(exit.success(), "railmon serve exited with {exit}");
     events

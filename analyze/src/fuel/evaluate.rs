@@ -2,12 +2,21 @@
 //!
 //! Three estimators see the same samples in the same run: the mixture ([`FuelMonitor`] with the
 //! given config), the single recursive regression (the same config with one component) and
-//! persistence (`y_{t-1}`, or `y_t` for every horizon). Every score is computed over the same
+//! persistence (`y_{t-1}`, or `y_t` for every horizon); a fourth, the recursive least squares
+//! on speed, acceleration and power demand ([`RlsPeer`]), is the virtual sensor's peer. Every score is computed over the same
 //! target times for all methods: those after both estimators finished initialisation.
 
 use std::collections::VecDeque;
 
-use railmon_fuel::{FuelError, FuelMonitor, FuelMonitorConfig, RegimeChange, VehicleSample};
+use railmon_fuel::{
+    FuelError, FuelMonitor, FuelMonitorConfig, Interval, RegimeChange, VehicleSample,
+};
+
+use super::rls::RlsPeer;
+
+/// Forgetting and prior of the recursive-least-squares peer: none, and a weak prior.
+const RLS_FORGETTING: f64 = 1.0;
+const RLS_PRIOR_COVARIANCE: f64 = 1e4;
 
 /// One evaluated time step.
 #[derive(Clone, Debug, PartialEq)]
@@ -20,6 +29,9 @@ pub struct PredictionRow {
     pub single_one_step_cm3_s: f64,
     pub single_virtual_sensor_cm3_s: f64,
     pub persistence_cm3_s: f64,
+    pub rls_virtual_sensor_cm3_s: f64,
+    pub one_step_interval_cm3_s: Interval,
+    pub virtual_sensor_interval_cm3_s: Interval,
     pub regime_probabilities: Vec<f64>,
     pub active_regime: usize,
     /// The reported regime (active for `regime_confirm_samples` in a row).
@@ -38,6 +50,9 @@ pub struct ScoreRow {
     pub rmse: f64,
     pub mae: f64,
     pub n: usize,
+    /// Share of the measured values inside the method's 90 % predictive interval (`None`:
+    /// the method gives no interval).
+    pub coverage_90: Option<f64>,
 }
 
 /// Regime recognition against known labels.
@@ -102,6 +117,9 @@ struct ErrorSum {
     sq: f64,
     abs: f64,
     n: usize,
+    /// Values inside the interval, and values scored against one.
+    covered: usize,
+    with_interval: usize,
 }
 
 impl ErrorSum {
@@ -112,6 +130,12 @@ impl ErrorSum {
         self.n += 1;
     }
 
+    fn add_with_interval(&mut self, estimate: f64, interval: &Interval, truth: f64) {
+        self.add(estimate, truth);
+        self.with_interval += 1;
+        self.covered += usize::from(interval.contains(truth));
+    }
+
     fn row(&self, method: &'static str, horizon_s: usize) -> ScoreRow {
         let n = self.n.max(1) as f64;
         ScoreRow {
@@ -120,6 +144,23 @@ impl ErrorSum {
             rmse: (self.sq / n).sqrt(),
             mae: self.abs / n,
             n: self.n,
+            coverage_90: (self.with_interval > 0)
+                .then(|| self.covered as f64 / self.with_interval as f64),
+        }
+    }
+}
+
+/// A forecast path and its intervals, made at one step.
+struct Path {
+    mean: Vec<f64>,
+    interval: Vec<Interval>,
+}
+
+impl Path {
+    fn of(m: &railmon_fuel::MixtureEstimate) -> Self {
+        Path {
+            mean: m.forecast_cm3_s.clone(),
+            interval: m.forecast_interval_cm3_s.clone(),
         }
     }
 }
@@ -135,8 +176,10 @@ pub fn evaluate(
     let mut mixture = FuelMonitor::new(config)?;
     let mut single = FuelMonitor::new(&config.single_regression())?;
     let horizon = config.forecast_horizon_steps;
+    let mut rls = RlsPeer::new(RLS_FORGETTING, RLS_PRIOR_COVARIANCE);
+    let mut rls_sum = ErrorSum::default();
     // Forecast paths made at earlier steps, newest first: (mixture, single, persistence value).
-    let mut paths: VecDeque<(Vec<f64>, Vec<f64>, f64)> = VecDeque::with_capacity(horizon + 1);
+    let mut paths: VecDeque<(Path, Path, f64)> = VecDeque::with_capacity(horizon + 1);
     let mut mix_h: Vec<ErrorSum> = (0..=horizon).map(|_| ErrorSum::default()).collect();
     let mut single_h: Vec<ErrorSum> = (0..=horizon).map(|_| ErrorSum::default()).collect();
     let mut persist_h: Vec<ErrorSum> = (0..=horizon).map(|_| ErrorSum::default()).collect();
@@ -148,6 +191,12 @@ pub fn evaluate(
         let a = mixture.update(sample)?.mixture.clone();
         let b = single.update(sample)?.mixture.clone();
         let fuel = sample.fuel_cm3_s.unwrap_or(f64::NAN);
+        // The peer needs speed; without it (a fuel-only source) it is not scored.
+        let rls_estimate = sample.speed_m_s.map(|v| {
+            let estimate = rls.estimate(sample.time_s, v);
+            rls.update(sample.time_s, v, fuel);
+            estimate
+        });
         if let Some(change) = a.as_ref().and_then(|a| a.regime_change) {
             events.push(RegimeEvent {
                 time_s: sample.time_s,
@@ -158,15 +207,26 @@ pub fn evaluate(
             // Forecasts of this sample made h steps ago (h = 1 is element 0 of the newest path).
             for (age, (pm, ps, pp)) in paths.iter().enumerate() {
                 let h = age + 1;
-                mix_h[h].add(pm[h - 1], fuel);
-                single_h[h].add(ps[h - 1], fuel);
+                mix_h[h].add_with_interval(pm.mean[h - 1], &pm.interval[h - 1], fuel);
+                single_h[h].add_with_interval(ps.mean[h - 1], &ps.interval[h - 1], fuel);
                 persist_h[h].add(*pp, fuel);
             }
             mix_h[0].add(a.zero_step_cm3_s, fuel);
             single_h[0].add(b.zero_step_cm3_s, fuel);
-            virtual_mix.add(a.virtual_sensor_cm3_s, fuel);
-            virtual_single.add(b.virtual_sensor_cm3_s, fuel);
-            paths.push_front((a.forecast_cm3_s.clone(), b.forecast_cm3_s.clone(), fuel));
+            virtual_mix.add_with_interval(
+                a.virtual_sensor_cm3_s,
+                &a.virtual_sensor_interval_cm3_s,
+                fuel,
+            );
+            virtual_single.add_with_interval(
+                b.virtual_sensor_cm3_s,
+                &b.virtual_sensor_interval_cm3_s,
+                fuel,
+            );
+            if let Some(e) = rls_estimate {
+                rls_sum.add(e, fuel);
+            }
+            paths.push_front((Path::of(&a), Path::of(&b), fuel));
             paths.truncate(horizon);
             rows.push(PredictionRow {
                 time_s: sample.time_s,
@@ -177,6 +237,9 @@ pub fn evaluate(
                 single_one_step_cm3_s: b.one_step_forecast_cm3_s,
                 single_virtual_sensor_cm3_s: b.virtual_sensor_cm3_s,
                 persistence_cm3_s: previous_fuel.unwrap_or(fuel),
+                rls_virtual_sensor_cm3_s: rls_estimate.unwrap_or(f64::NAN),
+                one_step_interval_cm3_s: a.one_step_interval_cm3_s,
+                virtual_sensor_interval_cm3_s: a.virtual_sensor_interval_cm3_s,
                 regime_probabilities: a.regime_probabilities.clone(),
                 active_regime: a.active_regime,
                 regime: a.regime,
@@ -194,6 +257,9 @@ pub fn evaluate(
         single_h[0].row("single_regression", 0),
         virtual_single.row("single_regression_virtual_sensor", 0),
     ];
+    if rls_sum.n > 0 {
+        scores.push(rls_sum.row("rls_virtual_sensor", 0));
+    }
     for h in 1..=horizon {
         scores.push(mix_h[h].row("mixture", h));
         scores.push(single_h[h].row("single_regression", h));
@@ -304,6 +370,9 @@ mod tests {
             single_one_step_cm3_s: 0.0,
             single_virtual_sensor_cm3_s: 0.0,
             persistence_cm3_s: 0.0,
+            rls_virtual_sensor_cm3_s: 0.0,
+            one_step_interval_cm3_s: Interval::default(),
+            virtual_sensor_interval_cm3_s: Interval::default(),
             regime_probabilities: vec![],
             active_regime: active,
             regime: active,
