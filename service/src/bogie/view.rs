@@ -48,7 +48,8 @@ pub struct BogieView {
     #[schema(value_type = Option<f64>)]
     pub effective_sample_size: f64,
     /// Mean normalised innovation squared of the filter over its last 1 s window (5 when its
-    /// model explains the data).
+    /// model explains the data); null until its first window is complete.
+    #[schema(value_type = Option<f64>)]
     pub nis_window_mean: f64,
     /// `ok`, `no_samples`, or `model_mismatch`: the filter's model does not explain the data
     /// for a sustained time (a wrong vehicle, speed or sensor noise in the configuration; the
