@@ -7,7 +7,7 @@
 //! `zeta = psi' V_psi^-1 psi`, and `kappa - k_y + 1` degrees of freedom for one channel of a
 //! `k_y`-variate component (the marginal of an inverse-Wishart). The mixture's predictive is the
 //! sum of these weighted by the predicted pointer (Algorithm 3.4, step 2 one step ahead); its
-//! quantiles have no closed form and are found by bisection on the mixture's CDF.
+//! quantiles have no closed form and are found by safeguarded Newton steps on the mixture's CDF.
 
 use serde::{Deserialize, Serialize};
 
@@ -57,23 +57,35 @@ pub fn central_interval(terms: &[StudentT], mass: f64) -> Interval {
     }
 }
 
-/// The `p`-quantile of the mixture by bisection on its CDF (monotone), to 1e-7 of the bracket.
+/// The `p`-quantile of the mixture: Newton's method on its CDF with its density as the slope,
+/// kept inside a bracket that shrinks at every step and taking the bisection step whenever
+/// Newton's would leave it (safeguarded Newton, Numerical Recipes 3rd ed. 9.4 `rtsafe`); to
+/// 1e-7 of the first bracket. Plain bisection needed ~24 CDF evaluations of every term per
+/// quantile and made the monitor's step 12x slower; Newton converges in a handful.
 pub fn quantile(terms: &[StudentT], p: f64) -> f64 {
-    let live = || {
-        terms
-            .iter()
-            .filter(|t| t.weight > 0.0 && t.weight.is_finite())
-    };
-    let total: f64 = live().map(|t| t.weight).sum();
+    let live: Vec<(StudentT, f64)> = terms
+        .iter()
+        .filter(|t| t.weight > 0.0 && t.weight.is_finite())
+        .map(|t| (*t, ln_t_density_norm(t.dof)))
+        .collect();
+    let total: f64 = live.iter().map(|(t, _)| t.weight).sum();
     if total <= 0.0 || !total.is_finite() {
         return f64::NAN;
     }
-    let cdf = |x: f64| live().map(|t| t.weight * t.cdf(x)).sum::<f64>() / total;
+    // The mixture's CDF at `x` and its density (the CDF's slope).
+    let cdf_and_density = |x: f64| {
+        live.iter().fold((0.0, 0.0), |(f, d), (t, ln_norm)| {
+            let scale = t.scale.max(f64::MIN_POSITIVE);
+            let z = (x - t.location) / scale;
+            let density = (ln_norm - 0.5 * (t.dof + 1.0) * (z * z / t.dof).ln_1p()).exp() / scale;
+            (f + t.weight * t.cdf(x), d + t.weight * density)
+        })
+    };
     // A bracket: every term's own p-quantile lies between the extremes of the terms' quantiles,
     // and so does the mixture's. A term's quantile is within `location +- scale k`, with `k`
     // the quantile of a t with that term's dof, bounded here by a generous multiple.
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-    for t in live() {
+    for (t, _) in &live {
         let reach = t.scale * t_reach(p.min(1.0 - p), t.dof);
         lo = lo.min(t.location - reach);
         hi = hi.max(t.location + reach);
@@ -82,15 +94,34 @@ pub fn quantile(terms: &[StudentT], p: f64) -> f64 {
         return f64::NAN;
     }
     let tolerance = 1e-7 * (hi - lo).max(1e-12);
-    while hi - lo > tolerance {
-        let mid = 0.5 * (lo + hi);
-        if cdf(mid) < p {
-            lo = mid;
+    let mut x = 0.5 * (lo + hi);
+    // Bisection alone ends within ~60 steps; Newton's steps only shorten that.
+    for _ in 0..200 {
+        let (f, density) = cdf_and_density(x);
+        let miss = f / total - p;
+        if miss < 0.0 {
+            lo = x;
         } else {
-            hi = mid;
+            hi = x;
+        }
+        let newton = x - miss * total / density;
+        let next = match density > 0.0 && newton > lo && newton < hi {
+            true => newton,
+            false => 0.5 * (lo + hi),
+        };
+        let step = (next - x).abs();
+        x = next;
+        if step <= tolerance || hi - lo <= tolerance {
+            break;
         }
     }
-    0.5 * (lo + hi)
+    x
+}
+
+/// `ln` of the standard Student-t density's constant, `Gamma((dof + 1) / 2) / (Gamma(dof / 2)
+/// sqrt(dof pi))`.
+fn ln_t_density_norm(dof: f64) -> f64 {
+    ln_gamma(0.5 * (dof + 1.0)) - ln_gamma(0.5 * dof) - 0.5 * (dof * std::f64::consts::PI).ln()
 }
 
 /// A number `k` with `P(|T_dof| > k) <= 2 tail`: doubles from 1 until the tail is small enough.
@@ -304,5 +335,51 @@ mod tests {
         let cdf = |x: f64| terms.iter().map(|t| t.weight * t.cdf(x)).sum::<f64>();
         assert!((cdf(i.lower) - 0.05).abs() < 1e-7 && (cdf(i.upper) - 0.95).abs() < 1e-7);
         assert!(central_interval(&[], 0.9).lower.is_nan());
+    }
+
+    /// The safeguarded Newton quantile equals a plain bisection on the same CDF, for heavy
+    /// tails (1 degree of freedom), the normal approximation's range (> 100) and a mixture of
+    /// far-apart terms where Newton's first steps leave the bracket.
+    #[test]
+    fn newton_quantile_equals_bisection() {
+        let bisection = |terms: &[StudentT], p: f64| {
+            let total: f64 = terms.iter().map(|t| t.weight).sum();
+            let cdf = |x: f64| terms.iter().map(|t| t.weight * t.cdf(x)).sum::<f64>() / total;
+            let (mut lo, mut hi) = (-1e4, 1e4);
+            while hi - lo > 1e-10 {
+                let mid = 0.5 * (lo + hi);
+                if cdf(mid) < p {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            0.5 * (lo + hi)
+        };
+        let term = |weight, location, scale, dof| StudentT {
+            weight,
+            location,
+            scale,
+            dof,
+        };
+        let cases = [
+            vec![term(1.0, 0.3, 2.0, 1.0)],
+            vec![term(1.0, -4.0, 0.1, 500.0)],
+            vec![term(0.2, 0.0, 0.5, 3.0), term(0.8, 40.0, 0.2, 200.0)],
+            vec![
+                term(0.5, 1.0, 1.0, 4.0),
+                term(0.3, 1.5, 3.0, 12.0),
+                term(0.2, -2.0, 0.3, 1e6),
+            ],
+        ];
+        for terms in &cases {
+            for p in [0.05, 0.5, 0.95, 0.999] {
+                let (got, want) = (quantile(terms, p), bisection(terms, p));
+                assert!(
+                    (got - want).abs() < 1e-5 * (1.0 + want.abs()),
+                    "{terms:?} p {p}: {got} vs {want}"
+                );
+            }
+        }
     }
 }
