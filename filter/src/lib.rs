@@ -5,11 +5,13 @@
 //! wherever the logic is the same:
 //! - [`kalman`]: the measurement update in Joseph form and covariance hygiene;
 //! - [`logspace`]: log-sum-exp, normalising log-weights, effective sample size;
+//! - [`normal`]: the standard normal CDF (`erfc`);
 //! - [`resample`]: systematic resampling;
 //! - [`stats`]: order statistics and the summaries written to CSV reports.
 
 pub mod kalman;
 pub mod logspace;
+pub mod normal;
 pub mod resample;
 pub mod stats;
 

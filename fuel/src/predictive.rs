@@ -9,6 +9,7 @@
 //! sum of these weighted by the predicted pointer (Algorithm 3.4, step 2 one step ahead); its
 //! quantiles have no closed form and are found by safeguarded Newton steps on the mixture's CDF.
 
+use railmon_filter::normal::normal_cdf;
 use serde::{Deserialize, Serialize};
 
 /// One Student-t term of a predictive mixture.
@@ -153,34 +154,6 @@ pub fn student_t_cdf(t: f64, dof: f64) -> f64 {
         1.0 - tail
     } else {
         tail
-    }
-}
-
-/// Standard normal CDF, `erfc(-x / sqrt 2) / 2`.
-pub fn normal_cdf(x: f64) -> f64 {
-    0.5 * erfc(-x / std::f64::consts::SQRT_2)
-}
-
-/// Complementary error function: Numerical Recipes' Chebyshev fit (2nd ed., 6.2, `erfcc`),
-/// relative error below 1.2e-7, ample for the 5 % tails of an interval.
-fn erfc(x: f64) -> f64 {
-    let z = x.abs();
-    let t = 1.0 / (1.0 + 0.5 * z);
-    let r = t
-        * (-z * z - 1.265_512_23
-            + t * (1.000_023_68
-                + t * (0.374_091_96
-                    + t * (0.096_784_18
-                        + t * (-0.186_288_06
-                            + t * (0.278_868_07
-                                + t * (-1.135_203_98
-                                    + t * (1.488_515_87
-                                        + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
-            .exp();
-    if x >= 0.0 {
-        r
-    } else {
-        2.0 - r
     }
 }
 

@@ -192,30 +192,8 @@ fn flatten(
     }
 }
 
-/// Standard normal CDF, via `erfc` (Numerical Recipes' Chebyshev fit, relative error
-/// < 1.2e-7 everywhere: ample for evidence that is clipped).
-pub fn normal_cdf(z: f64) -> f64 {
-    0.5 * erfc(-z / std::f64::consts::SQRT_2)
-}
-
-fn erfc(x: f64) -> f64 {
-    let z = x.abs();
-    let t = 1.0 / (1.0 + 0.5 * z);
-    let poly = -z * z - 1.265_512_23
-        + t * (1.000_023_68
-            + t * (0.374_091_96
-                + t * (0.096_784_18
-                    + t * (-0.186_288_06
-                        + t * (0.278_868_07
-                            + t * (-1.135_203_98
-                                + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
-    let r = t * poly.exp();
-    if x >= 0.0 {
-        r
-    } else {
-        2.0 - r
-    }
-}
+/// Standard normal CDF (evidence that is clipped: the fit's 1.2e-7 is ample).
+pub use railmon_filter::normal::normal_cdf;
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TemporalEstimator {
@@ -317,13 +295,6 @@ impl TemporalEstimator {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn normal_cdf_reference_values() {
-        assert!((normal_cdf(0.0) - 0.5).abs() < 1e-7);
-        assert!((normal_cdf(1.959_963_985) - 0.975).abs() < 1e-7);
-        assert!((normal_cdf(-3.0) - 0.001_349_898).abs() < 1e-8);
-    }
 
     #[test]
     fn flattening_with_lambda_one_or_zero_returns_the_ends() {
