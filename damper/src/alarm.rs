@@ -200,6 +200,7 @@ mod tests {
             ekf: None,
             nis_window_mean: Some(5.0),
             model_mismatch: false,
+            noise_std_ratio: [1.0; 5],
         }
     }
 

@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::alarm::DamperAlarmConfig;
 use crate::consistency::ConsistencyConfig;
+use crate::noise_scale::NoiseScaleConfig;
 use crate::params::{non_negative, positive, BogieParams, Dampers};
 use crate::sample::SensorNoise;
 use crate::DamperError;
@@ -90,6 +91,8 @@ pub struct RbpfConfig {
     /// paper's `I + A T`) moves it by 20%.
     pub taylor_order: usize,
     pub gain_grid: GainGridConfig,
+    /// The online estimate of the sensors' noise (issue 9 item 2).
+    pub noise_scale: NoiseScaleConfig,
     /// Seed of the filter's own random numbers (kernel moves, resampling).
     pub seed: u64,
 }
@@ -109,6 +112,7 @@ impl Default for RbpfConfig {
             kernel: KernelSchedule::AtResampling,
             taylor_order: 8,
             gain_grid: GainGridConfig::default(),
+            noise_scale: NoiseScaleConfig::default(),
             seed: 0,
         }
     }
@@ -181,7 +185,7 @@ impl RbpfConfig {
                 reason: "must exceed min_ratio",
             });
         }
-        Ok(())
+        self.noise_scale.validate()
     }
 
     /// Liu-West shrinkage `a` and kernel variance factor `h^2` (eq. 24).

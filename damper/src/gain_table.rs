@@ -15,11 +15,13 @@ use crate::model::{BogieModel, N_OUTPUTS, N_STATES};
 use crate::params::Dampers;
 use crate::DamperError;
 
-/// Values stored per node: gain (17 x 5, row-major), `S^-1` (5 x 5, row-major), `ln det S`.
+/// Values stored per node: gain (17 x 5, row-major), `S^-1` (5 x 5, row-major), `ln det S`,
+/// `1 / S_ii` (5: the normalisers of the noise-scale estimate, `crate::noise_scale`).
 pub const GAIN_LEN: usize = N_STATES * N_OUTPUTS;
 pub const S_INV_OFFSET: usize = GAIN_LEN;
 pub const LN_DET_OFFSET: usize = GAIN_LEN + N_OUTPUTS * N_OUTPUTS;
-pub const NODE_LEN: usize = LN_DET_OFFSET + 1;
+pub const INV_S_DIAG_OFFSET: usize = LN_DET_OFFSET + 1;
+pub const NODE_LEN: usize = INV_S_DIAG_OFFSET + N_OUTPUTS;
 
 /// The tabulated steady states.
 #[derive(Debug, Clone, PartialEq)]
@@ -75,6 +77,9 @@ impl GainTable {
                     }
                 }
                 node[LN_DET_OFFSET] = ss.ln_det_s;
+                for (r, v) in ss.s_diag.iter().enumerate() {
+                    node[INV_S_DIAG_OFFSET + r] = 1.0 / v;
+                }
             }
         }
         Ok(Arc::new(GainTable {

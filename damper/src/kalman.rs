@@ -60,13 +60,15 @@ pub fn update(
 
 /// The steady state of the predict/update recursion for one parameter value: the predicted
 /// covariance `P-` solving the filter Riccati equation, the gain `K = P- H' S^-1` and the
-/// innovation covariance `S = H P- H' + Q_v` as `S^-1` and `ln det S`.
+/// innovation covariance `S = H P- H' + Q_v` as `S^-1`, `ln det S` and its diagonal (the
+/// innovation variance per sensor, which the noise-scale estimate normalises by).
 #[derive(Debug, Clone, PartialEq)]
 pub struct SteadyState {
     pub p_pred: Matrix17,
     pub gain: SMatrix<f64, N_STATES, N_OUTPUTS>,
     pub s_inv: Matrix5,
     pub ln_det_s: f64,
+    pub s_diag: Vector5,
 }
 
 impl SteadyState {
@@ -144,6 +146,7 @@ pub fn steady_from_p(
         p_pred,
         s_inv,
         ln_det_s,
+        s_diag: s.diagonal(),
     })
 }
 

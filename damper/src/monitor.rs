@@ -28,6 +28,10 @@ pub struct DamperEstimate {
     /// The filter's model does not explain the data (`consistency`): a wrong configuration
     /// (vehicle, speed, noise), not a damper fault. The health alarm does not judge meanwhile.
     pub model_mismatch: bool,
+    /// The sensors' noise standard deviation per channel as a ratio of the configured one, as
+    /// the RBPF estimates it (`crate::noise_scale`; eq. (4) order: wheelset 1, wheelset 2,
+    /// bogie, yaw gyro, body).
+    pub noise_std_ratio: [f64; crate::model::N_OUTPUTS],
 }
 
 /// A monitor's state for a snapshot ([`DamperMonitor::state`], [`DamperMonitor::resume`]):
@@ -110,6 +114,7 @@ impl DamperMonitor {
                 ekf: ekf.as_ref().map(|e| e.estimate()),
                 nis_window_mean: None,
                 model_mismatch: false,
+                noise_std_ratio: rbpf.noise_std_ratio(),
             },
             consistency: ConsistencyCheck::new(&config.consistency, config.dt_s),
             rbpf,
@@ -149,6 +154,7 @@ impl DamperMonitor {
             ekf,
             nis_window_mean: self.consistency.window_mean(),
             model_mismatch: self.consistency.mismatch(),
+            noise_std_ratio: self.rbpf.noise_std_ratio(),
         };
         Ok(&self.estimate)
     }
@@ -189,6 +195,7 @@ impl DamperMonitor {
                 ekf: ekf.as_ref().map(|e| e.estimate()),
                 nis_window_mean: consistency.window_mean(),
                 model_mismatch: consistency.mismatch(),
+                noise_std_ratio: rbpf.noise_std_ratio(),
             },
             rbpf,
             ekf,

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{DamperMonitorConfig, Propagation};
 use crate::expm::discretize;
-use crate::gain_table::{GainTable, LN_DET_OFFSET, NODE_LEN, S_INV_OFFSET};
+use crate::gain_table::{GainTable, INV_S_DIAG_OFFSET, LN_DET_OFFSET, NODE_LEN, S_INV_OFFSET};
 use crate::kalman::{self, initial_covariance, NoiseCovariances, StateEstimate};
 use crate::model::{BogieModel, Matrix17, Matrix5x17, Vector17, Vector5, N_OUTPUTS, N_STATES};
 use crate::params::Dampers;
@@ -151,34 +151,70 @@ pub(super) struct SteadyBank {
     block: Box<Block>,
 }
 
+/// The estimated noise scale as the particles use it: each innovation is weighed with
+/// `D^1/2 S D^1/2` (`crate::noise_scale`), i.e. `e_i / sqrt(d_i)` against `S`, plus `ln det D`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct Whitening {
+    pub(super) inv_sqrt: [f64; N_OUTPUTS],
+    pub(super) ln_det: f64,
+}
+
+impl Whitening {
+    pub(super) fn new(variance_scale: &[f64; N_OUTPUTS]) -> Self {
+        Whitening {
+            inv_sqrt: variance_scale.map(|d| 1.0 / d.sqrt()),
+            ln_det: variance_scale.iter().map(|d| d.ln()).sum(),
+        }
+    }
+}
+
+/// What a bank step writes per particle: the log-likelihoods, the (whitened) normalised
+/// innovations squared `e' S^-1 e`, and `z[channel * n + particle] = e_i^2 / S_ii` (with the
+/// configured noise, for the noise-scale estimate).
+pub(super) struct StepOutput<'a> {
+    pub(super) ll: &'a mut [f64],
+    pub(super) nis: &'a mut [f64],
+    pub(super) z: &'a mut [f64],
+}
+
 impl Bank {
-    /// Runs predict + update of every particle with its new parameters; writes the
-    /// log-likelihoods and the normalised innovations squared `e' S^-1 e`. Nothing is
-    /// committed (see `commit`).
+    /// Runs predict + update of every particle with its new parameters, weighing the
+    /// innovations with `whiten`. Nothing is committed (see `commit`).
     pub(super) fn step(
         &mut self,
         ln_theta: &[[f64; 2]],
         y: &Vector5,
-        ll: &mut [f64],
-        nis: &mut [f64],
+        whiten: &Whitening,
+        out: StepOutput<'_>,
     ) -> Result<(), DamperError> {
         match self {
             Bank::Exact(b) => {
+                let n = ln_theta.len();
                 let g = b.model.g_matrix();
+                let w = Vector5::from(whiten.inv_sqrt);
                 for (i, th) in ln_theta.iter().enumerate() {
                     let d = Dampers::from_ln(*th);
                     let disc = discretize(&b.model.a_matrix(&d), &g, b.dt_s)?;
                     let pred = kalman::predict(&b.est[i], &disc, &b.noise);
                     let e = y - b.h * pred.x;
                     let s_cov = b.h * pred.p * b.h.transpose() + b.noise.q_v;
-                    nis[i] = s_cov.cholesky().map_or(f64::NAN, |c| e.dot(&c.solve(&e)));
+                    let ew = e.component_mul(&w);
+                    let (nis_raw, nis_w) = s_cov.cholesky().map_or((f64::NAN, f64::NAN), |c| {
+                        (e.dot(&c.solve(&e)), ew.dot(&c.solve(&ew)))
+                    });
+                    for (ch, z) in out.z.iter_mut().skip(i).step_by(n).enumerate() {
+                        *z = e[ch] * e[ch] / s_cov[(ch, ch)];
+                    }
                     let (post, l) = kalman::update(&pred, y, &b.h, &b.noise.q_v)?;
                     b.next[i] = post;
-                    ll[i] = l;
+                    // ln N(e; 0, D^1/2 S D^1/2) from the update's ln N(e; 0, S); the
+                    // correction is exactly 0 at D = I.
+                    out.ll[i] = l - 0.5 * (whiten.ln_det + nis_w - nis_raw);
+                    out.nis[i] = nis_w;
                 }
-                Ok(())
+                check_finite(out.ll)
             }
-            Bank::Steady(b) => b.step(ln_theta, y, ll, nis),
+            Bank::Steady(b) => b.step(ln_theta, y, whiten, out),
         }
     }
 
@@ -235,8 +271,8 @@ impl SteadyBank {
         &mut self,
         ln_theta: &[[f64; 2]],
         y: &Vector5,
-        ll: &mut [f64],
-        nis: &mut [f64],
+        whiten: &Whitening,
+        mut out: StepOutput<'_>,
     ) -> Result<(), DamperError> {
         let n = self.n;
         // Parameters change only at kernel moves (or every step with `EveryStep`): refresh the
@@ -257,26 +293,28 @@ impl SteadyBank {
         {
             if std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: the CPU supports AVX2, checked just above.
-                unsafe { self.filter_all_avx2(y, ll, nis) };
-                return check_finite(ll);
+                unsafe { self.filter_all_avx2(y, whiten, &mut out) };
+                return check_finite(out.ll);
             }
         }
-        self.filter_all(y, ll, nis);
-        check_finite(ll)
+        self.filter_all(y, whiten, &mut out);
+        check_finite(out.ll)
     }
 
     /// [`SteadyBank::filter_all`] compiled for AVX2 (4-wide vectors instead of SSE2's 2).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn filter_all_avx2(&mut self, y: &Vector5, ll: &mut [f64], nis: &mut [f64]) {
-        self.filter_all(y, ll, nis)
+    unsafe fn filter_all_avx2(&mut self, y: &Vector5, whiten: &Whitening, out: &mut StepOutput) {
+        self.filter_all(y, whiten, out)
     }
 
     /// Predict, innovation, log-likelihood and update of every particle, block by block.
     #[inline(always)]
-    fn filter_all(&mut self, y: &Vector5, ll: &mut [f64], nis: &mut [f64]) {
+    fn filter_all(&mut self, y: &Vector5, whiten: &Whitening, out: &mut StepOutput) {
         let n = self.n;
-        let const_term = N_OUTPUTS as f64 * LN_2PI;
+        // ln det of D^1/2 S D^1/2 is ln det S + ln det D; exactly the old constant at D = I.
+        let const_term = N_OUTPUTS as f64 * LN_2PI + whiten.ln_det;
+        let mut ew = [[0.0; BLOCK]; N_OUTPUTS];
         let blk = &mut self.block;
         for i0 in (0..n).step_by(BLOCK) {
             let len = BLOCK.min(n - i0);
@@ -290,24 +328,35 @@ impl SteadyBank {
             self.prop.propagate_block(blk);
             self.prop.innovation_block(blk, y);
             let node = |k: usize| &self.nodes[k * n + i0..k * n + i0 + len];
-            // ln N(e; 0, S) with S^-1 and ln det S of each particle's parameters.
-            let lls = &mut ll[i0..i0 + len];
+            // z_i = e_i^2 / S_ii, for the noise-scale estimate.
+            for (r, e_row) in blk.e.iter().enumerate() {
+                let zs = &mut out.z[r * n + i0..r * n + i0 + len];
+                for ((z, e), inv_s) in zs.iter_mut().zip(e_row).zip(node(INV_S_DIAG_OFFSET + r)) {
+                    *z = e * e * inv_s;
+                }
+            }
+            // The whitened innovations e_i / sqrt(d_i) (bit for bit e at d = 1).
+            for ((w_row, e_row), w) in ew.iter_mut().zip(&blk.e).zip(whiten.inv_sqrt) {
+                for (wv, e) in w_row.iter_mut().zip(e_row) {
+                    *wv = e * w;
+                }
+            }
+            // ln N(e; 0, D^1/2 S D^1/2) with S^-1 and ln det S of each particle's parameters.
+            let lls = &mut out.ll[i0..i0 + len];
             for (l, d) in lls.iter_mut().zip(node(LN_DET_OFFSET)) {
                 *l = const_term + d;
             }
             for r in 0..N_OUTPUTS {
                 for c in 0..N_OUTPUTS {
                     let s_inv = node(S_INV_OFFSET + r * N_OUTPUTS + c);
-                    for (((l, si), er), ec) in
-                        lls.iter_mut().zip(s_inv).zip(&blk.e[r]).zip(&blk.e[c])
-                    {
+                    for (((l, si), er), ec) in lls.iter_mut().zip(s_inv).zip(&ew[r]).zip(&ew[c]) {
                         *l += si * er * ec;
                     }
                 }
             }
             // e' S^-1 e, for the filter's consistency check (taken from the sum so that the
             // likelihoods stay bit for bit what they were).
-            for ((q, l), d) in nis[i0..i0 + len]
+            for ((q, l), d) in out.nis[i0..i0 + len]
                 .iter_mut()
                 .zip(lls.iter())
                 .zip(node(LN_DET_OFFSET))

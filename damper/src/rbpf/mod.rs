@@ -26,14 +26,15 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{DamperMonitorConfig, KernelSchedule, Propagation, RbpfConfig};
 use crate::gain_table::GainTable;
-use crate::model::{BogieModel, Matrix17, Vector17, Vector5};
+use crate::model::{BogieModel, Matrix17, Vector17, Vector5, N_OUTPUTS};
+use crate::noise_scale::NoiseScale;
 use crate::params::Dampers;
 use crate::DamperError;
 use railmon_filter::logspace::{effective_sample_size, normalize_log_weights};
 use railmon_filter::resample::systematic_resample;
 
-use bank::Bank;
 pub use bank::BankState;
+use bank::{Bank, StepOutput, Whitening};
 use posterior::SortedParticles;
 pub use posterior::{DamperPosterior, RbpfEstimate};
 pub use propagator::{SparsePropagator, BLOCK};
@@ -52,6 +53,7 @@ pub struct RbpfState {
     log_evidence: f64,
     resamples: u64,
     nis_mean: f64,
+    noise_scale: NoiseScale,
 }
 
 /// The filter.
@@ -72,6 +74,10 @@ pub struct Rbpf {
     nis: Vec<f64>,
     /// Its mean over the particles' predictive weights.
     nis_mean: f64,
+    /// Per particle and sensor `e_i^2 / S_ii` (`z[channel * N + particle]`).
+    z: Vec<f64>,
+    /// The sensors' noise as estimated from the pooled `z` (`crate::noise_scale`).
+    noise_scale: NoiseScale,
     regeneration_penalty: Vec<f64>,
     indices: Vec<usize>,
     bank: Bank,
@@ -146,6 +152,8 @@ impl Rbpf {
             ll: vec![0.0; n],
             nis: vec![0.0; n],
             nis_mean: f64::NAN,
+            z: vec![0.0; N_OUTPUTS * n],
+            noise_scale: NoiseScale::new(&cfg.noise_scale, config.dt_s),
             regeneration_penalty: vec![0.0; n],
             indices: vec![0; n],
             bank,
@@ -172,6 +180,7 @@ impl Rbpf {
             log_evidence: self.log_evidence,
             resamples: self.resamples,
             nis_mean: self.nis_mean,
+            noise_scale: self.noise_scale,
         }
     }
 
@@ -208,6 +217,7 @@ impl Rbpf {
         f.log_evidence = state.log_evidence;
         f.resamples = state.resamples;
         f.nis_mean = state.nis_mean;
+        f.noise_scale = state.noise_scale;
         f.sorted.stale = true;
         Ok(f)
     }
@@ -232,16 +242,31 @@ impl Rbpf {
                 self.regeneration_penalty.fill(0.0);
             }
         }
-        self.bank
-            .step(&self.ln_theta_next, y, &mut self.ll, &mut self.nis)?;
-        // Under the filter's own model `e' S^-1 e` is chi-square with 5 degrees of freedom
-        // (mean 5) for the particles near the truth; weighted by the predictive weights.
-        self.nis_mean = self
-            .log_w
-            .iter()
-            .zip(&self.nis)
-            .map(|(w, q)| w.exp() * q)
-            .sum();
+        let whiten = Whitening::new(&self.noise_scale.variance_scale());
+        self.bank.step(
+            &self.ln_theta_next,
+            y,
+            &whiten,
+            StepOutput {
+                ll: &mut self.ll,
+                nis: &mut self.nis,
+                z: &mut self.z,
+            },
+        )?;
+        // Under the filter's own model (with the estimated noise) `e' S^-1 e` is chi-square
+        // with 5 degrees of freedom (mean 5) for the particles near the truth, and each
+        // `e_i^2 / S_ii` has mean `d_i`; both weighted by the predictive weights.
+        let n = self.n_particles();
+        let mut nis_mean = 0.0;
+        let mut z_mean = [0.0; N_OUTPUTS];
+        for (i, (lw, q)) in self.log_w.iter().zip(&self.nis).enumerate() {
+            let w = lw.exp();
+            nis_mean += w * q;
+            for (ch, zm) in z_mean.iter_mut().enumerate() {
+                *zm += w * self.z[ch * n + i];
+            }
+        }
+        self.nis_mean = nis_mean;
         for (((next, w), l), pen) in self
             .log_w_next
             .iter_mut()
@@ -254,6 +279,7 @@ impl Rbpf {
         let log_increment = normalize_log_weights(&mut self.log_w_next)?;
         // Commit.
         self.bank.commit();
+        self.noise_scale.update(&z_mean);
         if self.config.kernel == KernelSchedule::EveryStep {
             self.sorted.stale = true;
         }
@@ -261,7 +287,6 @@ impl Rbpf {
         std::mem::swap(&mut self.log_w, &mut self.log_w_next);
         self.log_evidence += log_increment;
         self.ess = effective_sample_size(&self.log_w);
-        let n = self.n_particles();
         if self.ess < self.config.resample_ess_fraction * n as f64 {
             systematic_resample(&self.log_w, &mut self.indices, &mut self.rng);
             self.bank.resample(&self.indices);
@@ -401,6 +426,12 @@ impl Rbpf {
     /// mean 5, when the filter's model (vehicle, noise, track) is the plant's.
     pub fn normalised_innovation_squared(&self) -> f64 {
         self.nis_mean
+    }
+
+    /// The sensors' noise standard deviation per channel as a ratio of the configured one, as
+    /// estimated so far (1 with `noise_scale.enabled = false`), in the order of eq. (4).
+    pub fn noise_std_ratio(&self) -> [f64; N_OUTPUTS] {
+        self.noise_scale.std_ratio()
     }
 
     /// `ln p(y_1..y_k)` estimated by the filter (sum of the weight normalisers).
