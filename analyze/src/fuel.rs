@@ -46,6 +46,8 @@ pub struct FuelInput {
     pub config: FuelMonitorConfig,
     /// What the data is (file name), for titles and errors.
     pub name: String,
+    /// Per sample, its 1-based line in `name` (empty: not from a file).
+    pub lines: Vec<u64>,
 }
 
 fn read_text(path: &Path) -> Result<String, FuelAnalysisError> {
@@ -102,6 +104,7 @@ pub fn load_recording(path: &Path) -> Result<FuelInput, FuelAnalysisError> {
             || path.display().to_string(),
             |n| n.to_string_lossy().into_owned(),
         ),
+        lines: rows.iter().map(|r| r.line).collect(),
     })
 }
 
@@ -116,6 +119,7 @@ pub fn simulate_scenario(path: &Path) -> Result<(FuelInput, Vec<VehicleRow>), Fu
         name: path.file_name().map_or(path.display().to_string(), |n| {
             n.to_string_lossy().into_owned()
         }),
+        lines: Vec::new(),
     };
     Ok((input, run.rows))
 }
@@ -153,13 +157,8 @@ pub fn analyse(input: &FuelInput, out: &Path) -> Result<Evaluation, FuelAnalysis
         .labels
         .as_ref()
         .map(|(l, names)| (l.as_slice(), names.len()));
-    let evaluation =
-        evaluate(&input.config, &input.samples, labels, || bar.inc(1)).map_err(|source| {
-            FuelAnalysisError::Estimator {
-                file: input.name.clone(),
-                source,
-            }
-        })?;
+    let evaluation = evaluate(&input.config, &input.samples, labels, || bar.inc(1))
+        .map_err(|source| refusal(input, source))?;
     bar.finish_and_clear();
     let label_names: Option<&[String]> = input.labels.as_ref().map(|(_, n)| n.as_slice());
     write_predictions(&out.join("predictions.csv"), &evaluation, label_names)?;
@@ -170,6 +169,28 @@ pub fn analyse(input: &FuelInput, out: &Path) -> Result<Evaluation, FuelAnalysis
     }
     plots::write_all(out, &input.name, &evaluation, label_names)?;
     Ok(evaluation)
+}
+
+/// The estimator's refusal of a sample as `file:line: field "column" = "value": reason` when
+/// the sample came from a file; otherwise as the estimator says it (with the time stamp).
+fn refusal(input: &FuelInput, source: FuelError) -> FuelAnalysisError {
+    let line = source.time_s().and_then(|t| {
+        let i = input.samples.iter().position(|s| s.time_s == t)?;
+        input.lines.get(i).copied()
+    });
+    match (line, source.field()) {
+        (Some(line), Some((field, value))) => FuelAnalysisError::Record(RecordError {
+            file: input.name.clone(),
+            line: Some(line),
+            field: Some(field.to_owned()),
+            value: Some(value),
+            reason: source.to_string(),
+        }),
+        _ => FuelAnalysisError::Estimator {
+            file: input.name.clone(),
+            source,
+        },
+    }
 }
 
 fn write_predictions(

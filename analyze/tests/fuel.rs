@@ -278,3 +278,90 @@ fn golden_headline_numbers() {
     let ev = evaluate(&input.config, &input.samples, None, || {}).unwrap();
     check_golden("fuel-camry-61811014.csv", &headline(&ev));
 }
+
+/// A locomotive-scale recording in the railmon layout: notch 0-8, fuel 5-200 cm^3/s, gradient;
+/// `time_unit` multiplies the time stamps (1000: ms), `speed_unit` the speeds (3.6: km/h).
+fn write_locomotive_csv(path: &Path, time_unit: f64, speed_unit: f64) {
+    let mut text = String::from("time_s,fuel_cm3_s,speed_m_s,gradient_permille,gear\n");
+    for t in 0..600 {
+        let x = f64::from(t);
+        let notch = (4.0 + 4.0 * (x / 90.0).sin()).round();
+        let fuel = 5.0 + 195.0 * notch / 8.0 + (x / 7.0).sin();
+        let speed = (17.0 + 16.0 * (x / 300.0).sin()) * speed_unit;
+        let gradient = 10.0 * (x / 500.0).cos();
+        text.push_str(&format!(
+            "{},{fuel},{speed},{gradient},{notch}\n",
+            x * time_unit
+        ));
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+fn analyze_with(input: &Path, config: Option<&Path>, out: &Path) -> Result<Evaluation, String> {
+    run(&Args {
+        run: RunArgs {
+            input: Some(input.to_owned()),
+            scenario: None,
+            config: config.map(Path::to_owned),
+            out: out.to_owned(),
+        },
+    })
+    .map_err(|e| e.to_string())
+}
+
+/// Issue 14 item 1: a locomotive-scale profile runs with the railcar channel ranges
+/// (`preset = "railcar"`); with a road car's it is refused naming file, line, field and value;
+/// km/h for m/s and ms for s are refused the same way (issue 11).
+#[test]
+fn a_locomotive_recording_runs_as_a_railcar_and_wrong_units_name_the_line() {
+    let dir = std::env::temp_dir().join(format!("railmon-fuel-loco-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("railcar.toml");
+    std::fs::write(&config, "preset = \"railcar\"\n").unwrap();
+    let loco = dir.join("loco.csv");
+    write_locomotive_csv(&loco, 1.0, 1.0);
+    let ev = analyze_with(&loco, Some(&config), &dir.join("out")).unwrap();
+    let n = ev
+        .scores
+        .iter()
+        .find(|s| s.method == "mixture" && s.horizon_s == 1);
+    // Scored from the end of initialisation (150 samples): no sample refused.
+    assert!(n.unwrap().n > 400, "{n:?}");
+
+    // The road car's default: fuel above 100 cm^3/s refused at its line (notch 3 at t = 12 s
+    // burns 78 cm^3/s; the first above 100 is notch 5, line 2 + t).
+    let msg = analyze_with(&loco, None, &dir.join("out-car")).unwrap_err();
+    assert!(
+        msg.contains("loco.csv:") && msg.contains("field \"fuel_cm3_s\"") && msg.contains("100"),
+        "{msg}"
+    );
+    let line: u64 = msg["loco.csv:".len()..]
+        .split(':')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    let text = std::fs::read_to_string(&loco).unwrap();
+    let row = text.lines().nth(line as usize - 1).unwrap();
+    let fuel: f64 = row.split(',').nth(1).unwrap().parse().unwrap();
+    assert!(
+        fuel > 100.0 && msg.contains(&format!("\"{fuel}\"")),
+        "{msg} / {row}"
+    );
+
+    let kmh = dir.join("kmh.csv");
+    write_locomotive_csv(&kmh, 1.0, 3.6);
+    let msg = analyze_with(&kmh, Some(&config), &dir.join("out-kmh")).unwrap_err();
+    assert!(
+        msg.contains("kmh.csv:") && msg.contains("field \"speed_m_s\"") && msg.contains("60]"),
+        "{msg}"
+    );
+    let ms = dir.join("ms.csv");
+    write_locomotive_csv(&ms, 1000.0, 1.0);
+    let msg = analyze_with(&ms, Some(&config), &dir.join("out-ms")).unwrap_err();
+    assert!(
+        msg.starts_with("ms.csv:3: field \"time_s\" = \"1000\"") && msg.contains("ms?"),
+        "{msg}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

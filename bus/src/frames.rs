@@ -204,7 +204,7 @@ impl DriveFrame {
 /// (the Camry dynamometer files have only fuel and speed) leaves its bit in `present` clear;
 /// the value of an absent channel is ignored.
 #[derive(Clone, Copy, Debug, Default, PartialEq, ZeroCopySend)]
-#[type_name("railmon::VehicleFrame.v1")]
+#[type_name("railmon::VehicleFrame.v2")]
 #[repr(C)]
 pub struct VehicleFrame {
     /// Bit set per channel present: [`VehicleFrame::FUEL`], [`VehicleFrame::SPEED`], ...
@@ -216,6 +216,8 @@ pub struct VehicleFrame {
     pub pedal_pct: f64,
     pub engine_torque_nm: f64,
     pub engine_speed_rpm: f64,
+    /// Track or road gradient, per mille (v2: a railcar's route).
+    pub gradient_permille: f64,
 }
 
 impl Frame for VehicleFrame {
@@ -229,7 +231,8 @@ impl VehicleFrame {
     pub const ENGINE_TORQUE: u32 = 1 << 3;
     pub const ENGINE_SPEED: u32 = 1 << 4;
     pub const GEAR: u32 = 1 << 5;
-    const ALL: u32 = (1 << 6) - 1;
+    pub const GRADIENT: u32 = 1 << 6;
+    const ALL: u32 = (1 << 7) - 1;
 
     /// The frame of a sample (its `time_s` travels in the header's `sample_time_ns`).
     pub fn from_sample(s: &railmon_fuel::VehicleSample) -> Self {
@@ -240,13 +243,15 @@ impl VehicleFrame {
                 | bit(Self::PEDAL, s.pedal_pct.is_some())
                 | bit(Self::ENGINE_TORQUE, s.engine_torque_nm.is_some())
                 | bit(Self::ENGINE_SPEED, s.engine_speed_rpm.is_some())
-                | bit(Self::GEAR, s.gear.is_some()),
+                | bit(Self::GEAR, s.gear.is_some())
+                | bit(Self::GRADIENT, s.gradient_permille.is_some()),
             gear: s.gear.unwrap_or(0),
             fuel_cm3_s: s.fuel_cm3_s.unwrap_or(0.0),
             speed_m_s: s.speed_m_s.unwrap_or(0.0),
             pedal_pct: s.pedal_pct.unwrap_or(0.0),
             engine_torque_nm: s.engine_torque_nm.unwrap_or(0.0),
             engine_speed_rpm: s.engine_speed_rpm.unwrap_or(0.0),
+            gradient_permille: s.gradient_permille.unwrap_or(0.0),
         }
     }
 
@@ -265,6 +270,7 @@ impl VehicleFrame {
             pedal_pct: value(Self::PEDAL, self.pedal_pct),
             engine_torque_nm: value(Self::ENGINE_TORQUE, self.engine_torque_nm),
             engine_speed_rpm: value(Self::ENGINE_SPEED, self.engine_speed_rpm),
+            gradient_permille: value(Self::GRADIENT, self.gradient_permille),
             gear: (self.present & Self::GEAR != 0).then_some(self.gear),
         };
         let present = |v: Option<f64>| v.unwrap_or(0.0);
@@ -276,6 +282,7 @@ impl VehicleFrame {
                 ("pedal_pct", present(sample.pedal_pct)),
                 ("engine_torque_nm", present(sample.engine_torque_nm)),
                 ("engine_speed_rpm", present(sample.engine_speed_rpm)),
+                ("gradient_permille", present(sample.gradient_permille)),
             ],
         )?;
         Ok(sample)
@@ -446,6 +453,7 @@ mod tests {
             pedal_pct: Some(12.0),
             engine_torque_nm: Some(-30.0),
             engine_speed_rpm: Some(2100.0),
+            gradient_permille: Some(-12.5),
             gear: Some(-1),
             ..sample
         };

@@ -17,6 +17,7 @@ fn sample(t: usize) -> VehicleSample {
         pedal_pct: Some(pedal),
         engine_torque_nm: Some(2.0 * pedal),
         engine_speed_rpm: Some(800.0 + 90.0 * speed),
+        gradient_permille: None,
         gear: Some(1 + (speed / 6.0) as i32),
     }
 }

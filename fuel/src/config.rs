@@ -8,13 +8,18 @@ use serde::{Deserialize, Deserializer, Serialize};
 use crate::sample::{Channel, DerivedChannel};
 use crate::FuelError;
 
-/// The categorical channel `z` (the gear, section 4.1) and how raw gears are grouped into
-/// categories. The paper groups `{-1, 0} -> 1, {1, 2, 3} -> 2, 4 -> 3, 5 -> 4, 6 -> 5` so that the
-/// categories are about equally frequent.
+/// The categorical channel `z` (the gear of a car, section 4.1, or the throttle notch of a
+/// diesel railcar) and how its raw values are grouped into categories. The paper groups gears
+/// `{-1, 0} -> 1, {1, 2, 3} -> 2, 4 -> 3, 5 -> 4, 6 -> 5` so that the categories are about equally
+/// frequent.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CategoricalConfig {
-    /// `gear_groups[l]` lists the raw gears of category `l`. A gear in no group is an error
+    /// What the channel is (`gear`, `notch`), as errors and reports name it. The values travel
+    /// in the sample's `gear` field and the recording's `gear` column whatever the name.
+    #[serde(default = "CategoricalConfig::default_name")]
+    pub name: String,
+    /// `gear_groups[l]` lists the raw values of category `l`. A value in no group is an error
     /// ([`FuelError::UnknownCategory`]); a category never observed keeps its Dirichlet prior.
     pub gear_groups: Vec<Vec<i32>>,
 }
@@ -22,17 +27,120 @@ pub struct CategoricalConfig {
 impl Default for CategoricalConfig {
     fn default() -> Self {
         CategoricalConfig {
+            name: Self::default_name(),
             gear_groups: vec![vec![-1, 0], vec![1, 2, 3], vec![4], vec![5], vec![6]],
         }
     }
 }
 
 impl CategoricalConfig {
+    fn default_name() -> String {
+        "gear".to_owned()
+    }
+
+    /// The throttle notch of a diesel railcar or locomotive, 0 (idle) to 8 (full power),
+    /// grouped into idle, low, middle and high power (a notch of its own would leave most
+    /// categories rare: a driver notches through 1-3 in seconds).
+    pub fn throttle_notch() -> Self {
+        CategoricalConfig {
+            name: "notch".to_owned(),
+            gear_groups: vec![vec![0], vec![1, 2, 3], vec![4, 5, 6], vec![7, 8]],
+        }
+    }
+
     /// Category index of a raw gear.
     pub fn category(&self, gear: i32) -> Option<usize> {
         self.gear_groups.iter().position(|g| g.contains(&gear))
     }
 }
+
+/// Plausible range `[min, max]` of every channel, in the channel's unit ([`Channel::unit`]): a
+/// value outside it is a sensor, unit or file fault and the sample is refused before it reaches
+/// the statistics (a single 1e200 would overflow `V` for good; speed in km/h read as m/s would
+/// be estimated as if it were right). A property of the vehicle, not of the estimator, so a
+/// table of its own: `Default` is a road car's ([`ChannelRanges::road_car`]),
+/// [`ChannelRanges::railcar`] a diesel railcar's or locomotive's.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ChannelRanges {
+    pub fuel_cm3_s: [f64; 2],
+    pub speed_m_s: [f64; 2],
+    pub pedal_pct: [f64; 2],
+    pub engine_torque_nm: [f64; 2],
+    pub engine_speed_rpm: [f64; 2],
+    pub gradient_permille: [f64; 2],
+}
+
+impl Default for ChannelRanges {
+    fn default() -> Self {
+        Self::road_car()
+    }
+}
+
+impl ChannelRanges {
+    /// A road car (the Camry files): a 2.5 l petrol engine at full load burns ~10 cm^3/s, so
+    /// 100 leaves a truck's worth of margin; small negative values are flow-meter noise around
+    /// zero. Speed up to 70 m/s (252 km/h): a file in km/h at motorway speed (100+) is refused
+    /// rather than read as 100 m/s. Gradients up to 35 % (350 per mille), the steepest roads.
+    pub fn road_car() -> Self {
+        ChannelRanges {
+            fuel_cm3_s: [-1.0, 100.0],
+            speed_m_s: [-5.0, 70.0],
+            pedal_pct: [-1.0, 101.0],
+            engine_torque_nm: [-1000.0, 5000.0],
+            engine_speed_rpm: [-100.0, 20000.0],
+            gradient_permille: [-350.0, 350.0],
+        }
+    }
+
+    /// A diesel railcar (DMU) or diesel locomotive. Fuel up to 300 cm^3/s: a Cummins QSK95
+    /// locomotive engine is rated 3281 kW (Cummins, Railway Age, 2 Oct 2015), which at an
+    /// assumed 205 g/kWh and diesel at 0.835 g/cm^3 burns 224 cm^3/s; a QSK19-R railcar engine
+    /// (567 kW, Cummins, 25 Apr 2014) 39 cm^3/s. Speed up to 60 m/s (216 km/h; DMUs run at
+    /// 120-200 km/h): km/h at line speed is refused. Gradients up to 80 per mille (adhesion
+    /// lines stay below ~70). Engine speed of a high-speed diesel (idle ~600, rated 1800-2100
+    /// rpm), torque of a 95 l engine (~17 kN m at rated power).
+    pub fn railcar() -> Self {
+        ChannelRanges {
+            fuel_cm3_s: [-1.0, 300.0],
+            speed_m_s: [-1.0, 60.0],
+            pedal_pct: [-1.0, 101.0],
+            engine_torque_nm: [-5000.0, 30000.0],
+            engine_speed_rpm: [-100.0, 3000.0],
+            gradient_permille: [-80.0, 80.0],
+        }
+    }
+
+    /// The range of one channel.
+    pub fn of(&self, channel: Channel) -> [f64; 2] {
+        match channel {
+            Channel::Fuel => self.fuel_cm3_s,
+            Channel::Speed => self.speed_m_s,
+            Channel::Pedal => self.pedal_pct,
+            Channel::EngineTorque => self.engine_torque_nm,
+            Channel::EngineSpeed => self.engine_speed_rpm,
+            Channel::Gradient => self.gradient_permille,
+        }
+    }
+
+    fn validate(&self) -> Result<(), FuelError> {
+        for c in Channel::ALL {
+            let [min, max] = self.of(c);
+            if !(min.is_finite() && max.is_finite() && min < max) {
+                return Err(FuelError::invalid(
+                    "ranges",
+                    format!("{} = [{min}, {max}]", c.column()),
+                    "each range must be finite with min < max",
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How far a time step may be from a whole number of sample periods, as a share of a period
+/// (the service's sample clock uses the same share).
+pub const SAMPLE_PERIOD_TOLERANCE: f64 = 0.01;
 
 /// How the initial samples are split among the components before EM.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -137,8 +245,14 @@ pub struct FuelMonitorConfig {
     /// driving style changes 4 times; confirming over 10 samples leaves 63 changes and the same
     /// accuracy (docs/fuel.md), so a regime-change event means a change of regime.
     pub regime_confirm_samples: usize,
-    /// Nominal sampling period (s), used to integrate the first sample's fuel.
+    /// Nominal sampling period (s): consecutive time stamps must lie a whole number of periods
+    /// apart (within 1 %), at most `max_gap_s`; used to integrate the first sample's fuel.
     pub sample_period_s: f64,
+    /// Longest gap between consecutive samples (s) the estimator bridges: beyond it a sample is
+    /// refused ([`FuelError::SamplePeriod`]). Time stamps in ms read as s give 1000 s steps.
+    pub max_gap_s: f64,
+    /// Plausible range of every channel (the vehicle's, not the estimator's).
+    pub ranges: ChannelRanges,
 }
 
 impl Default for FuelMonitorConfig {
@@ -176,6 +290,8 @@ impl Default for FuelMonitorConfig {
             forecast_horizon_steps: 10,
             regime_confirm_samples: 10,
             sample_period_s: 1.0,
+            max_gap_s: 60.0,
+            ranges: ChannelRanges::default(),
         }
     }
 }
@@ -185,7 +301,7 @@ impl FuelMonitorConfig {
     /// channel, 3 components, 150 initial samples.
     pub fn paper() -> Self {
         FuelMonitorConfig {
-            channels: Channel::ALL.to_vec(),
+            channels: Channel::PAPER.to_vec(),
             derived_channels: Vec::new(),
             forecast_blend: false,
             categorical: Some(CategoricalConfig::default()),
@@ -204,7 +320,7 @@ impl FuelMonitorConfig {
     /// Needs a source with all five channels and the gear, and prior data laid out that way.
     pub fn driving_style() -> Self {
         FuelMonitorConfig {
-            channels: Channel::ALL.to_vec(),
+            channels: Channel::PAPER.to_vec(),
             derived_channels: Vec::new(),
             categorical: Some(CategoricalConfig::default()),
             components: 2,
@@ -216,6 +332,28 @@ impl FuelMonitorConfig {
             acceleration_bins_m_s2: Vec::new(),
             switching_prior_stay: 10_000.0,
             switching_prior_move: 10.0,
+            ..Default::default()
+        }
+    }
+
+    /// A diesel railcar (DMU) or locomotive (preset `railcar`): fuel, speed and gradient, the
+    /// throttle notch as the categorical channel, acceleration, power demand and `v^2` derived
+    /// (no `v^3`: at railway speeds the aerodynamic share is small against rolling and grade
+    /// resistance), fuel levels of a railcar engine (idle below 3 cm^3/s, part load below 20),
+    /// the railcar's channel ranges. Otherwise the default's estimator settings.
+    pub fn railcar() -> Self {
+        FuelMonitorConfig {
+            channels: vec![Channel::Fuel, Channel::Speed, Channel::Gradient],
+            derived_channels: vec![
+                DerivedChannel::Acceleration,
+                DerivedChannel::PowerDemand,
+                DerivedChannel::SpeedSquared,
+            ],
+            categorical: Some(CategoricalConfig::throttle_notch()),
+            speed_bins_m_s: vec![0.5, 10.0, 25.0],
+            fuel_bins_cm3_s: vec![3.0, 20.0],
+            acceleration_bins_m_s2: vec![-0.1, 0.1],
+            ranges: ChannelRanges::railcar(),
             ..Default::default()
         }
     }
@@ -246,6 +384,31 @@ impl FuelMonitorConfig {
     /// Number of values of the discretised speed `s`.
     pub fn speed_levels(&self) -> usize {
         self.speed_bins_m_s.len() + 1
+    }
+
+    /// Whether a sample at `time_s` may follow one at `previous_s`: later by a whole number of
+    /// `sample_period_s` (within 1 %), at most `max_gap_s`. Data at another rate or with time
+    /// stamps in another unit (ms for s) would otherwise be estimated as if it were right (the
+    /// derived acceleration divides by the step). The service's sample clock applies the same
+    /// rule to frames (`service/src/ingest/clock.rs`), with its own, shorter gap limit.
+    pub fn check_sample_step(&self, previous_s: f64, time_s: f64) -> Result<(), FuelError> {
+        if !time_s.is_finite() || time_s <= previous_s {
+            return Err(FuelError::TimeNotIncreasing { time_s, previous_s });
+        }
+        let step_s = time_s - previous_s;
+        let periods = step_s / self.sample_period_s;
+        if step_s > self.max_gap_s
+            || periods.round() < 1.0
+            || (periods - periods.round()).abs() > SAMPLE_PERIOD_TOLERANCE
+        {
+            return Err(FuelError::SamplePeriod {
+                time_s,
+                step_s,
+                period_s: self.sample_period_s,
+                max_gap_s: self.max_gap_s,
+            });
+        }
+        Ok(())
     }
 
     /// Checks every field; the error names the first bad one.
@@ -382,6 +545,14 @@ impl FuelMonitorConfig {
             ));
         }
         check_positive("sample_period_s", self.sample_period_s)?;
+        if !(self.max_gap_s.is_finite() && self.max_gap_s >= self.sample_period_s) {
+            return Err(FuelError::invalid(
+                "max_gap_s",
+                self.max_gap_s,
+                "must be finite and at least `sample_period_s`",
+            ));
+        }
+        self.ranges.validate()?;
         Ok(())
     }
 }
@@ -403,12 +574,13 @@ fn check_open_unit(field: &'static str, v: f64) -> Result<(), FuelError> {
 }
 
 impl Presets for FuelMonitorConfig {
-    const PRESETS: &'static [&'static str] = &["paper", "driving_style"];
+    const PRESETS: &'static [&'static str] = &["paper", "driving_style", "railcar"];
 
     fn preset(name: &str) -> Option<Self> {
         match name {
             "paper" => Some(Self::paper()),
             "driving_style" => Some(Self::driving_style()),
+            "railcar" => Some(Self::railcar()),
             _ => None,
         }
     }

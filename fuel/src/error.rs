@@ -38,6 +38,18 @@ pub enum FuelError {
     /// The time stamp is not finite or does not increase.
     #[error("sample time {time_s} s does not follow the previous time {previous_s} s")]
     TimeNotIncreasing { time_s: f64, previous_s: f64 },
+    /// Consecutive time stamps not a whole number of sample periods apart, or further apart
+    /// than the longest gap: data at another rate, or time in another unit (ms for s).
+    #[error(
+        "sample at t = {time_s} s: {step_s} s after the previous one, not a whole number of \
+         the configured period {period_s} s within {max_gap_s} s (another rate, or time in ms?)"
+    )]
+    SamplePeriod {
+        time_s: f64,
+        step_s: f64,
+        period_s: f64,
+        max_gap_s: f64,
+    },
     /// A gear (categorical value) that the configured category groups do not contain.
     #[error("sample at t = {time_s} s: gear {gear} is in no configured category group")]
     UnknownCategory { gear: i32, time_s: f64 },
@@ -50,6 +62,37 @@ pub enum FuelError {
 }
 
 impl FuelError {
+    /// The time stamp of the sample refused, for errors about one sample.
+    pub fn time_s(&self) -> Option<f64> {
+        match self {
+            FuelError::MissingChannel { time_s, .. }
+            | FuelError::MissingGear { time_s }
+            | FuelError::NonFinite { time_s, .. }
+            | FuelError::OutOfRange { time_s, .. }
+            | FuelError::TimeNotIncreasing { time_s, .. }
+            | FuelError::SamplePeriod { time_s, .. }
+            | FuelError::UnknownCategory { time_s, .. } => Some(*time_s),
+            _ => None,
+        }
+    }
+
+    /// The column of the railmon vehicle layout the refusal is about and its value (empty when
+    /// the channel is missing), for errors about one sample.
+    pub fn field(&self) -> Option<(&'static str, String)> {
+        match self {
+            FuelError::MissingChannel { channel, .. } => Some((channel.column(), String::new())),
+            FuelError::MissingGear { .. } => Some(("gear", String::new())),
+            FuelError::NonFinite { channel, value, .. }
+            | FuelError::OutOfRange { channel, value, .. } => {
+                Some((channel.column(), value.to_string()))
+            }
+            FuelError::TimeNotIncreasing { time_s, .. }
+            | FuelError::SamplePeriod { time_s, .. } => Some(("time_s", time_s.to_string())),
+            FuelError::UnknownCategory { gear, .. } => Some(("gear", gear.to_string())),
+            _ => None,
+        }
+    }
+
     pub(crate) fn invalid(field: &'static str, value: impl ToString, reason: &'static str) -> Self {
         FuelError::InvalidParameter {
             field,

@@ -277,10 +277,14 @@ impl FuelMonitor {
                 previous_s: self.previous_time_s.unwrap_or(f64::NEG_INFINITY),
             });
         }
+        if let Some(previous_s) = self.previous_time_s {
+            self.config.check_sample_step(previous_s, sample.time_s)?;
+        }
+        let ranges = &self.config.ranges;
         let mut y = self
             .channels
             .iter()
-            .map(|&c| sample.checked(c))
+            .map(|&c| sample.checked(c, ranges))
             .collect::<Result<Vec<f64>, FuelError>>()?;
         let (category, speed_level) = match &self.config.categorical {
             Some(cat) => {
@@ -294,7 +298,10 @@ impl FuelMonitor {
                 let level = if self.config.speed_bins_m_s.is_empty() {
                     0
                 } else {
-                    bin_index(&self.config.speed_bins_m_s, sample.checked(Channel::Speed)?)
+                    bin_index(
+                        &self.config.speed_bins_m_s,
+                        sample.checked(Channel::Speed, ranges)?,
+                    )
                 };
                 (Some(l), level)
             }
@@ -303,7 +310,7 @@ impl FuelMonitor {
         let needs_speed =
             !(self.config.acceleration_bins_m_s2.is_empty() && self.derived.is_empty());
         let (acceleration_level, speed_m_s) = if needs_speed {
-            let v = sample.checked(Channel::Speed)?;
+            let v = sample.checked(Channel::Speed, ranges)?;
             let dt = self.previous_time_s.map_or(1.0, |p| sample.time_s - p);
             let a = self.previous_speed_m_s.map_or(0.0, |p| (v - p) / dt);
             y.extend(self.derived.iter().map(|d| d.value(v, a)));

@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::config::ChannelRanges;
 use crate::FuelError;
 
 /// A continuous channel of the vehicle (the paper's `y_{1..5;t}`, section 2).
@@ -18,10 +19,24 @@ pub enum Channel {
     EngineTorque,
     /// Engine speed, rpm.
     EngineSpeed,
+    /// Gradient of the track or road, per mille (rise per 1000 m run; positive uphill): the
+    /// grade resistance `m g i / 1000` a railcar's fuel follows on a route.
+    Gradient,
 }
 
 impl Channel {
-    pub const ALL: [Channel; 5] = [
+    /// Every channel a sample can carry.
+    pub const ALL: [Channel; 6] = [
+        Channel::Fuel,
+        Channel::Speed,
+        Channel::Pedal,
+        Channel::EngineTorque,
+        Channel::EngineSpeed,
+        Channel::Gradient,
+    ];
+
+    /// The paper's five channels (section 4.1: fuel, speed, pedal, torque, engine speed).
+    pub const PAPER: [Channel; 5] = [
         Channel::Fuel,
         Channel::Speed,
         Channel::Pedal,
@@ -37,20 +52,31 @@ impl Channel {
             Channel::Pedal => "pedal",
             Channel::EngineTorque => "engine_torque",
             Channel::EngineSpeed => "engine_speed",
+            Channel::Gradient => "gradient",
         }
     }
 
-    /// Physically plausible range: a value outside it is a sensor or file fault, rejected before it
-    /// reaches the statistics (a single 1e200 would overflow `V` for good).
-    pub fn plausible_range(self) -> (f64, f64) {
+    /// The unit every value of the channel is in (samples, frames and recordings alike).
+    pub fn unit(self) -> &'static str {
         match self {
-            // A 2.5 l petrol engine at full load burns ~10 cm^3/s; small negative values are
-            // flow-meter noise around zero (the Camry files have none, but other meters do).
-            Channel::Fuel => (-1.0, 100.0),
-            Channel::Speed => (-5.0, 100.0),
-            Channel::Pedal => (-1.0, 101.0),
-            Channel::EngineTorque => (-1000.0, 5000.0),
-            Channel::EngineSpeed => (-100.0, 20000.0),
+            Channel::Fuel => "cm^3/s",
+            Channel::Speed => "m/s",
+            Channel::Pedal => "%",
+            Channel::EngineTorque => "N m",
+            Channel::EngineSpeed => "rpm",
+            Channel::Gradient => "per mille",
+        }
+    }
+
+    /// The column of the channel in the railmon vehicle layout (name and unit).
+    pub fn column(self) -> &'static str {
+        match self {
+            Channel::Fuel => "fuel_cm3_s",
+            Channel::Speed => "speed_m_s",
+            Channel::Pedal => "pedal_pct",
+            Channel::EngineTorque => "engine_torque_nm",
+            Channel::EngineSpeed => "engine_speed_rpm",
+            Channel::Gradient => "gradient_permille",
         }
     }
 
@@ -63,6 +89,7 @@ impl Channel {
             Channel::Pedal => 1.0,
             Channel::EngineTorque => 5.0,
             Channel::EngineSpeed => 50.0,
+            Channel::Gradient => 1.0,
         }
     }
 }
@@ -135,7 +162,10 @@ pub struct VehicleSample {
     pub pedal_pct: Option<f64>,
     pub engine_torque_nm: Option<f64>,
     pub engine_speed_rpm: Option<f64>,
-    /// Selected gear as the vehicle reports it (-1 reverse, 0 neutral, 1..6).
+    /// Track or road gradient, per mille (positive uphill).
+    pub gradient_permille: Option<f64>,
+    /// The categorical channel as the vehicle reports it: the selected gear of a car (-1
+    /// reverse, 0 neutral, 1..6) or the throttle notch of a diesel railcar (0 idle .. 8).
     pub gear: Option<i32>,
 }
 
@@ -148,11 +178,13 @@ impl VehicleSample {
             Channel::Pedal => self.pedal_pct,
             Channel::EngineTorque => self.engine_torque_nm,
             Channel::EngineSpeed => self.engine_speed_rpm,
+            Channel::Gradient => self.gradient_permille,
         }
     }
 
-    /// The value of `channel`, checked: present, finite and inside its plausible range.
-    pub fn checked(&self, channel: Channel) -> Result<f64, FuelError> {
+    /// The value of `channel`, checked: present, finite and inside its plausible range
+    /// (`ranges`, from the configuration: a railcar's fuel is not a car's).
+    pub fn checked(&self, channel: Channel, ranges: &ChannelRanges) -> Result<f64, FuelError> {
         let time_s = self.time_s;
         let value = self
             .channel(channel)
@@ -164,7 +196,7 @@ impl VehicleSample {
                 time_s,
             });
         }
-        let (min, max) = channel.plausible_range();
+        let [min, max] = ranges.of(channel);
         if !(min..=max).contains(&value) {
             return Err(FuelError::OutOfRange {
                 channel,
@@ -207,28 +239,29 @@ mod tests {
             speed_m_s: Some(1e9),
             ..Default::default()
         };
+        let ranges = ChannelRanges::default();
         assert!(matches!(
-            s.checked(Channel::Fuel),
+            s.checked(Channel::Fuel, &ranges),
             Err(FuelError::NonFinite {
                 channel: Channel::Fuel,
                 ..
             })
         ));
         assert!(matches!(
-            s.checked(Channel::Speed),
+            s.checked(Channel::Speed, &ranges),
             Err(FuelError::OutOfRange {
                 channel: Channel::Speed,
                 ..
             })
         ));
         assert!(matches!(
-            s.checked(Channel::Pedal),
+            s.checked(Channel::Pedal, &ranges),
             Err(FuelError::MissingChannel {
                 channel: Channel::Pedal,
                 ..
             })
         ));
-        let msg = s.checked(Channel::Fuel).unwrap_err().to_string();
+        let msg = s.checked(Channel::Fuel, &ranges).unwrap_err().to_string();
         assert!(
             msg.contains("fuel") && msg.contains("NaN") && msg.contains("t = 3"),
             "{msg}"

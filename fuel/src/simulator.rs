@@ -475,6 +475,8 @@ impl VehicleSimulator {
             pedal_pct: Some(pedal),
             engine_torque_nm: Some(torque_nm),
             engine_speed_rpm: Some(rpm),
+            // The road car's estimator settings do not use the grade (the paper's channels).
+            gradient_permille: None,
             // Neutral while standing (the paper's gear 0).
             gear: Some(if stopped { 0 } else { self.gear as i32 }),
         };

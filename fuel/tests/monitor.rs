@@ -24,6 +24,7 @@ fn sample(t: usize, rng: &mut ChaCha8Rng) -> VehicleSample {
         pedal_pct: Some(pedal),
         engine_torque_nm: Some(3.0 * pedal + rng.random_range(-1.0..1.0)),
         engine_speed_rpm: Some(900.0 + 80.0 * speed),
+        gradient_permille: None,
         gear: Some(((speed / 4.0) as i32).clamp(1, 6)),
     }
 }
@@ -63,14 +64,25 @@ rejects!(rejects_duplicate_channels, "channels", |c| c.channels =
 rejects!(rejects_one_gear_group, "categorical.gear_groups", |c| c
     .categorical =
     Some(CategoricalConfig {
-        gear_groups: vec![vec![1]]
+        gear_groups: vec![vec![1]],
+        ..Default::default()
     }));
 rejects!(rejects_gear_in_two_groups, "categorical.gear_groups", |c| {
     c.categorical = Some(CategoricalConfig {
         gear_groups: vec![vec![1, 2], vec![2]],
+        ..Default::default()
     })
 });
 rejects!(rejects_zero_components, "components", |c| c.components = 0);
+rejects!(rejects_an_empty_range, "ranges", |c| c.ranges.fuel_cm3_s =
+    [5.0, 5.0]);
+rejects!(rejects_a_nan_range, "ranges", |c| c
+    .ranges
+    .gradient_permille[1] =
+    f64::NAN);
+rejects!(rejects_a_gap_below_the_period, "max_gap_s", |c| c
+    .max_gap_s =
+    0.5);
 rejects!(rejects_long_regression_memory, "regression_memory", |c| c
     .regression_memory =
     11);
@@ -156,6 +168,68 @@ fn config_parses_from_toml_and_rejects_unknown_fields() {
     assert!(toml::from_str::<FuelMonitorConfig>("component = 4").is_err());
 }
 
+/// A locomotive-scale drive: notch 0-8, fuel 5-200 cm^3/s (a ~3 MW engine from idle to full
+/// power), speed up to 33 m/s, gradient +-10 per mille.
+fn locomotive_sample(t: usize, time_scale: f64) -> VehicleSample {
+    let x = t as f64;
+    let notch = (4.0 + 4.0 * (x / 90.0).sin()).round() as i32;
+    VehicleSample {
+        time_s: x * time_scale,
+        fuel_cm3_s: Some(5.0 + 195.0 * f64::from(notch) / 8.0 + (x / 7.0).sin()),
+        speed_m_s: Some(17.0 + 16.0 * (x / 300.0).sin()),
+        gradient_permille: Some(10.0 * (x / 500.0).cos()),
+        gear: Some(notch),
+        ..Default::default()
+    }
+}
+
+#[test]
+fn a_locomotive_profile_runs_with_the_railcar_ranges_and_is_refused_with_a_cars() {
+    let mut railcar = FuelMonitor::new(&FuelMonitorConfig::railcar()).unwrap();
+    let mut max_fuel: f64 = 0.0;
+    for t in 0..600 {
+        let s = locomotive_sample(t, 1.0);
+        max_fuel = max_fuel.max(s.fuel_cm3_s.unwrap());
+        let e = railcar.update(&s).unwrap();
+        assert_eq!(e.samples, t as u64 + 1);
+    }
+    assert!(max_fuel > 190.0, "the profile reaches {max_fuel}");
+    let e = railcar.estimate().mixture.clone().unwrap();
+    assert!(e.virtual_sensor_cm3_s.is_finite() && e.forecast_cm3_s.iter().all(|f| f.is_finite()));
+    // The road car's ranges refuse it, naming the channel, the value and the range.
+    let car = FuelMonitorConfig {
+        channels: vec![Channel::Fuel, Channel::Speed, Channel::Gradient],
+        ..FuelMonitorConfig::default()
+    };
+    let mut monitor = FuelMonitor::new(&car).unwrap();
+    let refused = (0..600)
+        .filter(|&t| monitor.update(&locomotive_sample(t, 1.0)).is_err())
+        .count();
+    assert!(refused > 100, "{refused} refused");
+    let err = FuelMonitor::new(&car)
+        .unwrap()
+        .update(&locomotive_sample(780, 1.0))
+        .unwrap_err();
+    let msg = err.to_string();
+    assert!(msg.contains("`fuel`") && msg.contains("[-1, 100]"), "{msg}");
+}
+
+#[test]
+fn time_stamps_in_milliseconds_are_refused_after_the_first_sample() {
+    let mut monitor = FuelMonitor::new(&FuelMonitorConfig::railcar()).unwrap();
+    monitor.update(&locomotive_sample(0, 1000.0)).unwrap();
+    for t in 1..5 {
+        let err = monitor.update(&locomotive_sample(t, 1000.0)).unwrap_err();
+        assert!(
+            matches!(err, FuelError::SamplePeriod { step_s, .. } if step_s == 1000.0 * t as f64)
+        );
+        assert!(err.to_string().contains("ms?"), "{err}");
+    }
+    assert_eq!(monitor.estimate().samples, 1);
+    // A gap of whole periods within `max_gap_s` is bridged (a lost frame).
+    monitor.update(&locomotive_sample(3, 1.0)).unwrap();
+}
+
 #[test]
 fn bad_samples_are_errors_and_leave_the_state_untouched() {
     let config = FuelMonitorConfig::paper();
@@ -166,16 +240,19 @@ fn bad_samples_are_errors_and_leave_the_state_untouched() {
     for (t, s) in samples.iter().enumerate() {
         if t % 50 == 7 {
             let mut bad = *s;
-            match (t / 50) % 6 {
+            match (t / 50) % 8 {
                 0 => bad.fuel_cm3_s = Some(f64::NAN),
                 1 => bad.engine_torque_nm = Some(f64::INFINITY),
                 2 => bad.pedal_pct = None,
                 3 => bad.gear = Some(9),
                 4 => bad.gear = None,
+                5 => bad.time_s += 0.5,
+                // 320 km/h read as m/s: above the road car's 70 m/s.
+                6 => bad.speed_m_s = Some(320.0),
                 _ => bad.time_s = -1.0,
             }
             let err = faulty.update(&bad).unwrap_err();
-            match (t / 50) % 6 {
+            match (t / 50) % 8 {
                 0 => assert!(matches!(
                     err,
                     FuelError::NonFinite {
@@ -199,6 +276,15 @@ fn bad_samples_are_errors_and_leave_the_state_untouched() {
                 )),
                 3 => assert!(matches!(err, FuelError::UnknownCategory { gear: 9, .. })),
                 4 => assert!(matches!(err, FuelError::MissingGear { .. })),
+                5 => assert!(matches!(err, FuelError::SamplePeriod { .. }), "{err}"),
+                6 => assert!(matches!(
+                    err,
+                    FuelError::OutOfRange {
+                        channel: Channel::Speed,
+                        max: 70.0,
+                        ..
+                    }
+                )),
                 _ => assert!(matches!(err, FuelError::TimeNotIncreasing { .. })),
             }
         }
@@ -258,7 +344,7 @@ fn monitor_outputs_stay_finite_over_extreme_samples() {
     let mut monitor = FuelMonitor::new(&config).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(42);
     let pick = |rng: &mut ChaCha8Rng, ch: Channel, mode: u32| {
-        let (lo, hi) = ch.plausible_range();
+        let [lo, hi] = config.ranges.of(ch);
         match mode {
             0 => lo,
             1 => hi,

@@ -1,9 +1,11 @@
 //! Vehicle recordings (issue 5): the 1 Hz channels of a car, in two layouts.
 //!
 //! - **railmon layout** (what `sensors-replay --record` and `railmon analyze fuel` write):
-//!   `time_s,fuel_cm3_s,speed_m_s[,pedal_pct][,engine_torque_nm][,engine_speed_rpm][,gear][,regime]`.
-//!   Only `time_s` is required; absent channels are absent columns (not empty fields). `gear`
-//!   is an integer (-1 reverse, 0 neutral, 1..6), `regime` a label (simulated data only).
+//!   `time_s,fuel_cm3_s,speed_m_s[,pedal_pct][,engine_torque_nm][,engine_speed_rpm]
+//!   [,gradient_permille][,gear][,regime]`. Only `time_s` is required; absent channels are
+//!   absent columns (not empty fields). `gear` is the categorical channel, an integer (a car's
+//!   gear: -1 reverse, 0 neutral, 1..6; a railcar's throttle notch 0..8), `regime` a label
+//!   (simulated data only).
 //! - **ANL Camry layout**, as the dynamometer files ship:
 //!   `Time[s],Eng_FuelFlow_Direct_DI[ccps],Dyno_Spd[mph]`. Fuel is cm^3/s already; speed is
 //!   converted from mph to m/s. The first time stamp is written `-0.0`, which is 0.
@@ -30,6 +32,10 @@ pub use railmon_fuel::VehicleSample;
 pub struct VehicleRow {
     pub sample: VehicleSample,
     pub regime: Option<String>,
+    /// 1-based line of the row in the file it was read from (the header is line 1; for rows
+    /// not read from a file, the line [`write_vehicle_csv`] writes it on), so an estimator that
+    /// refuses the sample can name the line.
+    pub line: u64,
 }
 
 /// Which layout a file turned out to have.
@@ -40,13 +46,14 @@ pub enum VehicleLayout {
 }
 
 /// Column names of the railmon layout, in order.
-pub const RAILMON_COLUMNS: [&str; 8] = [
+pub const RAILMON_COLUMNS: [&str; 9] = [
     "time_s",
     "fuel_cm3_s",
     "speed_m_s",
     "pedal_pct",
     "engine_torque_nm",
     "engine_speed_rpm",
+    "gradient_permille",
     "gear",
     "regime",
 ];
@@ -98,10 +105,11 @@ fn read_vehicle_table<R: Read>(
             table.optional_column(name)
         }
     };
-    let (pedal, torque, rpm, gear, regime) = (
+    let (pedal, torque, rpm, gradient, gear, regime) = (
         optional("pedal_pct"),
         optional("engine_torque_nm"),
         optional("engine_speed_rpm"),
+        optional("gradient_permille"),
         optional("gear"),
         optional("regime"),
     );
@@ -139,9 +147,11 @@ fn read_vehicle_table<R: Read>(
                 pedal_pct: opt(&pedal)?,
                 engine_torque_nm: opt(&torque)?,
                 engine_speed_rpm: opt(&rpm)?,
+                gradient_permille: opt(&gradient)?,
                 gear,
             },
             regime: regime.as_ref().map(|c| row.text(c).to_owned()),
+            line: row.line(),
         });
     }
     if rows.is_empty() {
@@ -163,6 +173,7 @@ pub fn write_vehicle_csv(path: &Path, rows: &[VehicleRow]) -> Result<(), RecordE
         first.sample.pedal_pct.is_some(),
         first.sample.engine_torque_nm.is_some(),
         first.sample.engine_speed_rpm.is_some(),
+        first.sample.gradient_permille.is_some(),
         first.sample.gear.is_some(),
         first.regime.is_some(),
     ];
@@ -182,6 +193,7 @@ pub fn write_vehicle_csv(path: &Path, rows: &[VehicleRow]) -> Result<(), RecordE
             num(r.sample.pedal_pct),
             num(r.sample.engine_torque_nm),
             num(r.sample.engine_speed_rpm),
+            num(r.sample.gradient_permille),
             r.sample.gear.map_or(String::new(), |g| g.to_string()),
             r.regime.clone().unwrap_or_default(),
         ];
@@ -308,9 +320,11 @@ mod tests {
                     pedal_pct: Some(10.0),
                     engine_torque_nm: Some(-12.5),
                     engine_speed_rpm: Some(1500.0),
+                    gradient_permille: Some(4.5),
                     gear: Some(2),
                 },
                 regime: Some("city".into()),
+                line: 2,
             },
             VehicleRow {
                 sample: VehicleSample {
@@ -320,9 +334,11 @@ mod tests {
                     pedal_pct: Some(0.0),
                     engine_torque_nm: Some(-20.0),
                     engine_speed_rpm: Some(1600.0),
+                    gradient_permille: Some(-2.0),
                     gear: Some(0),
                 },
                 regime: Some("city".into()),
+                line: 3,
             },
         ];
         let dir = std::env::temp_dir().join(format!("railmon-vehicle-{}", std::process::id()));

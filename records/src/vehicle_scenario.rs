@@ -51,6 +51,8 @@ pub fn simulate_vehicle_scenario(path: &Path) -> Result<SimulatedVehicle, Record
         rows.push(VehicleRow {
             sample,
             regime: Some(names[truth.regime].clone()),
+            // As `simulated.csv` has it: after the header.
+            line: rows.len() as u64 + 2,
         });
         regimes.push(truth.regime);
     }

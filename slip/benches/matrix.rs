@@ -9,8 +9,10 @@
 //! `cargo bench -p railmon-slip --bench matrix [-- NAME]` (NAME: run only scenarios whose file
 //! name contains it). Takes a minute or two in release on one core.
 
-use std::path::{Path, PathBuf};
 use std::time::Instant;
+
+mod scenarios_dir;
+use scenarios_dir::scenario_paths;
 
 use railmon_slip::{
     AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveSimulator,
@@ -21,22 +23,6 @@ struct MethodCounters {
     method: AdhesionMethod,
     probability: Vec<DetectionCounter>,
     alarm: Vec<DetectionCounter>,
-}
-
-fn scenario_paths(filter: Option<&str>) -> Vec<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenarios");
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .expect("config/scenarios")
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
-            name.starts_with("adhesion-")
-                && name.ends_with(".toml")
-                && filter.is_none_or(|f| name.contains(f))
-        })
-        .collect();
-    paths.sort();
-    paths
 }
 
 fn opt(v: Option<f64>, digits: usize) -> String {

@@ -31,7 +31,7 @@ pub use monitor::{
     deserialize_with_preset, DriveEstimate, SlipEstimate, SlipMonitor, SlipMonitorConfig,
 };
 pub use pipeline::MultiMethodPipeline;
-pub use sample::{is_slipping, DriveSample, DriveTruth, SLIP_RULE_FRACTION};
+pub use sample::{is_slipping, DriveSample, DriveTruth, SLIP_RULE_FLOOR_NM, SLIP_RULE_FRACTION};
 pub use scenario::{AdhesionScenario, SlipEvent};
 pub use score::{DetectionCounter, DetectionScore};
 pub use simulator::DriveSimulator;

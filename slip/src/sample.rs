@@ -38,15 +38,24 @@ pub struct DriveTruth {
     pub slipping: bool,
 }
 
-/// The slip rule: a drive is slipping when `|T_L - T_healthy| > SLIP_RULE_FRACTION * |T_healthy|`.
+/// The slip rule: a drive is slipping when
+/// `|T_L - T_healthy| > max(SLIP_RULE_FRACTION * |T_healthy|, SLIP_RULE_FLOOR_NM)`.
 /// Adhesion loss shows as the wheel no longer carrying its share of the load; 10 % is well
 /// above the spread of healthy drives and well below the paper's events (drops to 0, a
 /// one-third dip).
 pub const SLIP_RULE_FRACTION: f64 = 0.1;
 
+/// The slip rule's absolute floor: near zero torque (coasting, the passage between traction
+/// and braking) 10 % of the load is below any torque estimate's resolution (the EKF's torque
+/// noise is 0.2-0.5 N m), and a departure smaller than this is not a loss of adhesion that
+/// matters. 0.5 N m is the 10 % rule at 5 N m, the lowest load of our scenarios, so that
+/// every departure above 5 N m is judged by the relative rule alone.
+pub const SLIP_RULE_FLOOR_NM: f64 = 0.5;
+
 /// Applies the slip rule to one drive.
 pub fn is_slipping(true_torque_nm: f64, healthy_torque_nm: f64) -> bool {
-    (true_torque_nm - healthy_torque_nm).abs() > SLIP_RULE_FRACTION * healthy_torque_nm.abs()
+    (true_torque_nm - healthy_torque_nm).abs()
+        > (SLIP_RULE_FRACTION * healthy_torque_nm.abs()).max(SLIP_RULE_FLOOR_NM)
 }
 
 /// Checks a frame before anything is changed: the right length and every value finite.

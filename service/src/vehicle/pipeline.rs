@@ -79,6 +79,8 @@ fn rejection_of(e: FuelError) -> Rejection {
         FuelError::OutOfRange { .. } => "out_of_range",
         FuelError::UnknownCategory { .. } => "unknown_category",
         FuelError::TimeNotIncreasing { .. } => "time_not_increasing",
+        // The sample clock refuses these first; the estimator's own check is the same rule.
+        FuelError::SamplePeriod { .. } => "period_mismatch",
         _ => "estimator",
     };
     Rejection {

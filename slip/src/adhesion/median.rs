@@ -57,10 +57,7 @@ impl MedianEstimator {
     }
 
     pub fn estimate(&mut self, x: &[f64]) -> &AdhesionOutput {
-        self.sorted.clear();
-        self.sorted.extend_from_slice(x);
-        self.sorted.sort_unstable_by(f64::total_cmp);
-        let med = railmon_filter::stats::quantile_sorted(&self.sorted, 0.5);
+        let med = median_with(&mut self.sorted, x);
         let limit = self.config.relative_threshold * med.abs();
         for (p, &xi) in self.out.slip_probability.iter_mut().zip(x) {
             *p = if (xi - med).abs() > limit { 1.0 } else { 0.0 };
@@ -70,6 +67,14 @@ impl MedianEstimator {
         self.out.iterations = 1;
         &self.out
     }
+}
+
+/// The median of `x`, sorting a copy in `scratch` (its allocation is reused).
+pub(crate) fn median_with(scratch: &mut Vec<f64>, x: &[f64]) -> f64 {
+    scratch.clear();
+    scratch.extend_from_slice(x);
+    scratch.sort_unstable_by(f64::total_cmp);
+    railmon_filter::stats::quantile_sorted(scratch, 0.5)
 }
 
 #[cfg(test)]

@@ -36,8 +36,9 @@ pub enum AdhesionMethod {
     KMeans,
     /// Median of the drives (paper's baseline).
     Median,
-    /// Our temporal method: VB with the flattened posterior as next prior, ELBO stopping, and
-    /// a two-state Markov chain per drive over the slip-rule evidence.
+    /// Our temporal method: a majority reference carried over time (kernel mean started from
+    /// the last reference), the slip rule above each drive's own resolution, and a two-state
+    /// Markov chain per drive over that evidence.
     Temporal,
 }
 

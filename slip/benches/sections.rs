@@ -1,0 +1,121 @@
+//! Where the offline pipeline's time goes, per section, in one run (issue 10 item 4): for each
+//! adhesion scenario of `config/scenarios/` (pre-simulated, so the plant is not timed), the
+//! thread CPU time of
+//! - the EKF bank alone,
+//! - each adhesion method alone, over the EKF torque estimates of the whole run,
+//! - the whole pipeline (EKFs, all five methods, their alarms: `MultiMethodPipeline`),
+//! - what the service runs: the EKFs and the default method (`SlipMonitor`, temporal),
+//!
+//! printed as drive-steps per second of CPU time (one core), with the sum of the sections next
+//! to the measured whole. CPU time (`/proc/thread-self/schedstat`) instead of wall clock: on the
+//! shared machine the wall clock includes waiting for a core.
+//!
+//! `cargo bench -p railmon-slip --bench sections [-- NAME]` (NAME: only scenarios whose file
+//! name contains it).
+
+use std::hint::black_box;
+
+mod scenarios_dir;
+use scenarios_dir::scenario_paths;
+
+use railmon_slip::{
+    AdhesionEstimator, AdhesionMethod, AdhesionScenario, DriveSample, DriveSimulator, EkfBank,
+    MultiMethodPipeline, SlipMonitor,
+};
+
+/// CPU time of this thread (ns), from `/proc/thread-self/schedstat` (Linux).
+fn thread_cpu_ns() -> u64 {
+    let text = std::fs::read_to_string("/proc/thread-self/schedstat").expect("schedstat");
+    text.split_whitespace()
+        .next()
+        .and_then(|t| t.parse().ok())
+        .expect("schedstat field")
+}
+
+/// CPU seconds of one run of `f`: the mean over as many runs as take 0.3 s of CPU time (at
+/// least one). The kernel updates the thread's CPU time at scheduler events, so a single
+/// short run can read as 0.
+fn cpu_seconds(mut f: impl FnMut()) -> f64 {
+    let start = thread_cpu_ns();
+    let mut runs = 0;
+    loop {
+        f();
+        runs += 1;
+        let spent = (thread_cpu_ns() - start) as f64 * 1e-9;
+        if spent >= 0.3 {
+            return spent / runs as f64;
+        }
+    }
+}
+
+fn main() {
+    let filter = std::env::args().skip(1).find(|a| !a.starts_with('-'));
+    print!("| scenario | drives | EKF bank |");
+    for m in AdhesionMethod::ALL {
+        print!(" {m} |");
+    }
+    println!(" sum of sections | whole pipeline | EKFs + temporal (service) |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    for path in scenario_paths(filter.as_deref()) {
+        let text = std::fs::read_to_string(&path).expect("scenario file");
+        let scenario = AdhesionScenario::from_toml_str(&text)
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let n = scenario.n_drives();
+        let config = scenario.monitor_config();
+        let mut sim = DriveSimulator::new(&scenario).expect("simulator");
+        let mut frames: Vec<Vec<DriveSample>> = Vec::with_capacity(scenario.n_steps());
+        while let Some((samples, _)) = sim.step() {
+            frames.push(samples.to_vec());
+        }
+        let drive_steps = (frames.len() * n) as f64;
+        let model = config.model().expect("model");
+        // The torque estimates of the whole run, step after step (one allocation).
+        let mut torque = vec![0.0; frames.len() * n];
+        let ekf_s = cpu_seconds(|| {
+            let mut bank = EkfBank::new(model, &config.ekf, n).expect("bank");
+            for (f, t) in frames.iter().zip(torque.chunks_exact_mut(n)) {
+                bank.step(f).expect("step");
+                for (tk, filter) in t.iter_mut().zip(bank.filters()) {
+                    *tk = filter.torque_nm();
+                }
+            }
+        });
+        let method_s: Vec<f64> = AdhesionMethod::ALL
+            .iter()
+            .map(|&m| {
+                cpu_seconds(|| {
+                    let mut e = AdhesionEstimator::new(m, &config.adhesion, n).expect("method");
+                    for t in torque.chunks_exact(n) {
+                        black_box(e.estimate(t).expect("estimate").global_torque_nm);
+                    }
+                })
+            })
+            .collect();
+        let whole_s = cpu_seconds(|| {
+            let mut pipe = MultiMethodPipeline::new(&config, n).expect("pipeline");
+            for f in &frames {
+                pipe.step(f).expect("step");
+            }
+            black_box(pipe.torque_nm()[0]);
+        });
+        let service_s = cpu_seconds(|| {
+            let mut monitor = SlipMonitor::new(&config, n).expect("monitor");
+            for f in &frames {
+                black_box(monitor.step(f).expect("step").global_torque_nm);
+            }
+        });
+        let rate = |s: f64| format!("{:.2}", drive_steps / s / 1e6);
+        print!("| {} | {n} | {} |", scenario.name, rate(ekf_s));
+        for s in &method_s {
+            print!(" {} |", rate(*s));
+        }
+        println!(
+            " {} | {} | {} |",
+            rate(ekf_s + method_s.iter().sum::<f64>()),
+            rate(whole_s),
+            rate(service_s)
+        );
+    }
+    println!();
+    println!("M drive-steps per second of one core's CPU time (each: mean over >= 0.3 s of CPU).");
+}
