@@ -114,8 +114,8 @@ pub fn simulate_scenario(path: &Path) -> Result<(FuelInput, Vec<VehicleRow>), Fu
     let run = simulate_vehicle_scenario(path)?;
     let input = FuelInput {
         samples: samples_from_rows(&run.rows),
-        labels: Some((run.regimes, run.scenario.regimes())),
-        config: run.scenario.monitor.clone(),
+        labels: Some((run.regimes, run.regime_names)),
+        config: run.monitor,
         name: path.file_name().map_or(path.display().to_string(), |n| {
             n.to_string_lossy().into_owned()
         }),

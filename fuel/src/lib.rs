@@ -12,7 +12,10 @@
 //!   a virtual fuel sensor, regime probabilities and cumulative fuel ([`FuelEstimate`]);
 //! - [`VehicleSimulator`]: a car following drive-cycle speed traces (passed in as data) with an
 //!   eco or sporty driver, road load, a 6-speed gearbox and a fuel map with cut-off on overrun,
-//!   giving the paper's channels at 1 Hz and the regime label of a [`VehicleScenario`].
+//!   giving the paper's channels at 1 Hz and the regime label of a [`VehicleScenario`];
+//! - [`RailcarSimulator`]: a diesel multiple unit on a route (gradients, speed limits, station
+//!   stops), notch traction and an engine fuel map, labelled idle / accelerating / cruising /
+//!   coasting / braking ([`RailcarScenario`]).
 //!
 //! Results, commands and CSV layouts: `docs/fuel.md`.
 
@@ -22,6 +25,7 @@ pub mod error;
 pub mod mixture;
 pub mod monitor;
 pub mod predictive;
+pub mod railcar;
 pub mod regression;
 pub mod sample;
 pub mod simulator;
@@ -32,6 +36,7 @@ pub use error::FuelError;
 pub use mixture::{Mixture, MixtureInput, MixtureSpec};
 pub use monitor::{FuelEstimate, FuelMonitor, MixtureEstimate, RegimeChange, REGIME_CHANGED};
 pub use predictive::{central_interval, Interval, StudentT};
+pub use railcar::{RailcarParameters, RailcarScenario, RailcarSimulator, RailcarTruth};
 pub use regression::RegressionStats;
 pub use sample::{bin_index, Channel, DerivedChannel, VehicleSample};
 pub use simulator::{

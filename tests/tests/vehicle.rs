@@ -220,3 +220,53 @@ fn bad_vehicle_sources_fail_with_the_culprit_named() {
     );
     let _ = std::fs::remove_file(csv);
 }
+
+/// Issue 14 item 1: a railcar's fuel (idle ~10 to full power ~116 cm^3/s, above the road
+/// car's 100 cm^3/s) runs live with `preset = "railcar"`: every frame of the route estimated,
+/// none refused, the estimate the library's.
+#[test]
+fn the_railcar_route_runs_live_with_the_railcar_preset() {
+    let bus = PrivateBus::new();
+    let env = [
+        VEHICLE_ONLY[0],
+        VEHICLE_ONLY[1],
+        ("RAILMON_VEHICLE__ESTIMATOR__PRESET", "railcar"),
+    ];
+    let mut service = Service::start(&bus, &env);
+    let record = std::env::temp_dir().join(format!("railmon-e2e-railcar-{}.csv", bus.prefix));
+    let record_arg = record.to_str().unwrap();
+    let args = [
+        "--scenario",
+        "config/scenarios/fuel-railcar.toml",
+        "--speed",
+        "max",
+        "--record",
+        record_arg,
+    ];
+    let mut replay = start_replay(&bus, "vehicle", &args);
+    assert!(replay.wait(Duration::from_secs(120)).success());
+    let (_, rows) = read_vehicle_csv(&record).unwrap();
+    let max_fuel = rows
+        .iter()
+        .map(|r| r.sample.fuel_cm3_s.unwrap())
+        .fold(0.0, f64::max);
+    assert!(max_fuel > 100.0, "{max_fuel}");
+    let mut monitor = FuelMonitor::new(&FuelMonitorConfig::railcar()).unwrap();
+    for sample in samples_from_rows(&rows) {
+        monitor.update(&sample).unwrap();
+    }
+    let n = rows.len() as u64;
+    let status = service.wait_for_status("vehicle", Duration::from_secs(20), "every frame", |s| {
+        s["estimator_steps"].as_u64() == Some(n)
+    });
+    assert_eq!(status["samples_rejected"], 0, "{status}");
+    let v = service.get_json("/api/v1/vehicle");
+    let m = monitor.estimate().mixture.clone().unwrap();
+    assert_eq!(
+        v["virtual_sensor_cm3_s"].as_f64(),
+        Some(m.virtual_sensor_cm3_s)
+    );
+    let _ = std::fs::remove_file(record);
+    let exit = service.process.terminate(Duration::from_secs(10));
+    assert!(exit.success(), "railmon serve exited with {exit}");
+}

@@ -32,6 +32,10 @@ pub struct BogieConfig {
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
     pub history_capacity: usize,
+    /// Threads stepping the bogies' filters besides the ingest thread (the frames of one
+    /// sample time are stepped side by side). Unset: one fewer than the cores, at most one
+    /// fewer than the bogies ([`BogieConfig::worker_threads`]); 0: all on the ingest thread.
+    pub worker_threads: Option<usize>,
     /// The estimator (`railmon_damper::DamperMonitorConfig`); keys given override single
     /// defaults (e.g. `RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES=100`). Each bogie's RBPF is
     /// seeded with `rbpf.seed + bogie id - 1`; `alarm` is the degraded / recovered rule.
@@ -49,12 +53,21 @@ impl Default for BogieConfig {
             max_abs_yaw_rate_rad_s: 5.0,
             history_interval_ms: 100,
             history_capacity: 72_000,
+            worker_threads: None,
             estimator: DamperMonitorConfig::default(),
         }
     }
 }
 
 impl BogieConfig {
+    /// The worker threads to start (see the field).
+    pub fn worker_threads(&self) -> usize {
+        self.worker_threads.unwrap_or_else(|| {
+            let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+            cores.min(self.bogies.len()).saturating_sub(1)
+        })
+    }
+
     pub(crate) fn validate(&self) -> Result<(), ConfigError> {
         validate_stream_keys(
             "bogie",
@@ -72,6 +85,12 @@ impl BogieConfig {
                     format!("{value} is not in (0, 1e6]"),
                 ));
             }
+        }
+        if let Some(n) = self.worker_threads.filter(|&n| n >= MAX_BOGIES) {
+            return Err(invalid(
+                "bogie.worker_threads",
+                format!("{n}, expected 0..{MAX_BOGIES} (one per bogie at most)"),
+            ));
         }
         let ids = &self.bogies;
         if ids.is_empty() || ids.len() > MAX_BOGIES {

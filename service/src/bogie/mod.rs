@@ -3,13 +3,15 @@
 //! the secondary lateral (`csy`) and anti-yaw (`csay`) dampers with their 90% intervals, health
 //! ratios, effective sample size, degraded / recovered events, history.
 //! Settings in [`config`], the JSON in [`view`], the ingest side in [`pipeline`], the
-//! endpoints in [`routes`], the metric families in [`metrics`].
+//! endpoints in [`routes`], the metric families in [`metrics`]; the bogies' filters step in
+//! parallel on a few worker threads (`workers`, `bogie.worker_threads`).
 
 pub mod config;
 pub mod metrics;
 pub mod pipeline;
 pub mod routes;
 pub mod view;
+mod workers;
 
 pub use config::{BogieConfig, MAX_BOGIES};
 pub use metrics::BogieMetrics;

@@ -20,6 +20,7 @@ use super::view::{
     BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, DamperEventDetail,
     DamperView, DAMPERS,
 };
+use super::workers::{BogieWorkers, Done, Job};
 use super::BogieConfig;
 use crate::ingest::{Pipeline, Rejection};
 use crate::metrics::{EstimateGauge, EstimateIntGauge, Metrics};
@@ -39,7 +40,8 @@ struct DamperGauges {
 /// One configured bogie: its monitor (from the first frame of a source), health flags, gauges.
 struct BogieSlot {
     id: u32,
-    monitor: Option<DamperMonitor>,
+    /// Boxed: it travels to a worker thread and back at each step.
+    monitor: Option<Box<DamperMonitor>>,
     /// The health flags of `csy` and `csay` (the damper crate's rule).
     alarms: [DamperAlarm; 2],
     last_stamp: Option<Stamp>,
@@ -104,6 +106,14 @@ pub struct BogiePipeline {
     /// backpressure limit and lose frames.
     table: Result<Option<Arc<GainTable>>, Rejection>,
     track: Track<BogieHistoryPoint>,
+    /// Frames checked and accepted whose step waits for the rest of their sample time, in
+    /// arrival order: stepped together when every bogie has one, a bogie comes twice, or the
+    /// batch ends ([`BogiePipeline::flush`]).
+    pending: Vec<(FrameHeader, CheckedBogieSample)>,
+    workers: BogieWorkers,
+    done: Vec<Done>,
+    /// Deferred steps that failed, for the ingest loop to count ([`Pipeline::take_rejections`]).
+    rejections: Vec<(FrameHeader, Rejection)>,
 }
 
 impl BogiePipeline {
@@ -146,12 +156,17 @@ impl BogiePipeline {
                 e.message
             );
         }
+        let workers = BogieWorkers::new(config.worker_threads());
         let pipeline = Self {
             config,
             shared,
             slots,
             table,
             track,
+            pending: Vec::new(),
+            workers,
+            done: Vec::new(),
+            rejections: Vec::new(),
         };
         // The configured bogies are listed (without samples) before the first frame.
         pipeline
@@ -180,10 +195,55 @@ impl BogiePipeline {
         let slot = &mut self.slots[k];
         if slot.monitor.is_none() {
             let table = self.table.clone()?;
-            slot.monitor =
-                Some(DamperMonitor::for_bogie(estimator, slot.id, table).map_err(rejection_of)?);
+            slot.monitor = Some(Box::new(
+                DamperMonitor::for_bogie(estimator, slot.id, table).map_err(rejection_of)?,
+            ));
         }
         Ok(slot.monitor.as_mut().expect("created above"))
+    }
+
+    /// Steps the pending frames, the bogies in parallel (each bogie's frames in order), then
+    /// follows each in arrival order as a serial run would: the same estimates and events.
+    fn flush(&mut self) {
+        if self.pending.is_empty() {
+            return;
+        }
+        let pending = std::mem::take(&mut self.pending);
+        let jobs: Vec<Job> = pending
+            .iter()
+            .map(|(_, p)| Job {
+                slot: p.slot,
+                monitor: self.slots[p.slot]
+                    .monitor
+                    .take()
+                    .expect("created when the frame was accepted"),
+                sample: p.sample,
+            })
+            .collect();
+        let mut done = std::mem::take(&mut self.done);
+        self.workers.step_all(jobs, &mut done);
+        let mut results: Vec<Option<Result<(), DamperError>>> =
+            (0..self.slots.len()).map(|_| None).collect();
+        for d in done.drain(..) {
+            self.slots[d.slot].monitor = Some(d.monitor);
+            results[d.slot] = Some(d.result);
+        }
+        self.done = done;
+        for (header, p) in pending {
+            match results[p.slot].take() {
+                Some(Ok(())) => {
+                    let stamp = self.track.stamp(&header);
+                    self.slots[p.slot].last_stamp = Some(stamp);
+                    self.follow(p.slot, &stamp);
+                }
+                Some(Err(e)) => self.rejections.push((header, rejection_of(e))),
+                // A worker that stopped took the monitor: the bogie restarts from its prior.
+                None => self.rejections.push((
+                    header,
+                    Rejection::new("estimator", "the bogie's worker thread stopped"),
+                )),
+            }
+        }
     }
 
     /// Health flags and events of slot `k` after its step (`railmon_damper::DamperAlarm`).
@@ -406,6 +466,8 @@ impl Pipeline for BogiePipeline {
     }
 
     fn restart(&mut self) {
+        // The old source's accepted frames first.
+        self.flush();
         // Health flags carry over (never a silent clear): the new filter's estimates clear
         // them, with an event, once they say so.
         for slot in &mut self.slots {
@@ -418,14 +480,24 @@ impl Pipeline for BogiePipeline {
         self.track.restart();
     }
 
+    /// Accepts the frame and defers its step until its sample time is complete (every
+    /// configured bogie has a frame) or the batch ends; a deferred step that fails is counted
+    /// through [`Pipeline::take_rejections`].
     fn step(&mut self, header: &FrameHeader, input: CheckedBogieSample) -> Result<(), Rejection> {
-        let CheckedBogieSample { slot: k, sample } = input;
-        // `step` validates the sample first: on error the monitor is unchanged.
-        self.monitor(k)?.step(&sample).map_err(rejection_of)?;
-        let stamp = self.track.stamp(header);
-        self.slots[k].last_stamp = Some(stamp);
-        self.follow(k, &stamp);
+        let k = input.slot;
+        if self.pending.iter().any(|(_, p)| p.slot == k) {
+            self.flush();
+        }
+        self.monitor(k)?;
+        self.pending.push((*header, input));
+        if self.pending.len() == self.slots.len() {
+            self.flush();
+        }
         Ok(())
+    }
+
+    fn take_rejections(&mut self) -> Vec<(FrameHeader, Rejection)> {
+        std::mem::take(&mut self.rejections)
     }
 
     fn settings(&self) -> String {
@@ -440,7 +512,7 @@ impl Pipeline for BogiePipeline {
             bogies: self
                 .slots
                 .iter()
-                .map(|s| (s.id, s.monitor.as_ref().map(DamperMonitor::state)))
+                .map(|s| (s.id, s.monitor.as_ref().map(|m| m.state())))
                 .collect(),
             clock: self.track.clock(),
         };
@@ -460,10 +532,10 @@ impl Pipeline for BogiePipeline {
                 .find(|(id, _)| *id == slot.id)
                 .and_then(|(_, m)| m.clone());
             monitors.push(match state {
-                Some(state) => Some(
+                Some(state) => Some(Box::new(
                     DamperMonitor::resume(&self.config.estimator, table.clone(), state)
                         .map_err(|e| format!("bogie {}: {e}", slot.id))?,
-                ),
+                )),
                 None => None,
             });
         }
@@ -475,6 +547,7 @@ impl Pipeline for BogiePipeline {
     }
 
     fn publish(&mut self) {
+        self.flush();
         let Some(stamp) = self.track.flush(&self.shared) else {
             return;
         };

@@ -61,6 +61,11 @@ pub trait Pipeline {
     fn step(&mut self, header: &FrameHeader, input: Self::Checked) -> Result<(), Rejection>;
     /// Makes the latest results visible (HTTP snapshot, gauges); called once per batch.
     fn publish(&mut self);
+    /// Frames whose step was deferred (`step` accepted them, a later call stepped them) and
+    /// failed, with why: counted as rejections. Asked after every `step` and `publish`.
+    fn take_rejections(&mut self) -> Vec<(FrameHeader, Rejection)> {
+        Vec::new()
+    }
     /// The estimator settings a saved state is only valid for (their serialised text).
     fn settings(&self) -> String {
         String::new()
@@ -176,6 +181,9 @@ fn handle_frame<P: Pipeline>(
             status.record_realtime(lag_ns, load);
         }
         Err(rejection) => status.reject(header, rejection),
+    }
+    for (header, rejection) in pipeline.take_rejections() {
+        status.reject(&header, rejection);
     }
 }
 
@@ -316,6 +324,9 @@ fn ingest_loop<P: Pipeline>(
             })?;
             if handled > 0 {
                 pipeline.publish();
+                for (header, rejection) in pipeline.take_rejections() {
+                    status.reject(&header, rejection);
+                }
             }
             if handled < ingest.max_batch || shutdown.load(Ordering::Relaxed) {
                 break;
