@@ -64,6 +64,9 @@ pub struct RunArgs {
     /// Output directory (created if needed).
     #[arg(long)]
     pub out: PathBuf,
+    /// Skip the PNG plots (CSV reports only).
+    #[arg(long)]
+    pub no_plots: bool,
 }
 
 /// Creates `dir` (and parents) if needed.
