@@ -12,20 +12,21 @@ struct Cleanup(BusConfig);
 impl Drop for Cleanup {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0.root_path);
-        for entry in std::fs::read_dir("/dev/shm")
-            .into_iter()
-            .flatten()
-            .flatten()
-        {
-            if entry
-                .file_name()
-                .to_string_lossy()
-                .starts_with(&self.0.prefix)
-            {
-                let _ = std::fs::remove_file(entry.path());
-            }
+        for segment in shm_segments(&self.0.prefix) {
+            let _ = std::fs::remove_file(segment);
         }
     }
+}
+
+/// The files in /dev/shm (iceoryx2's segments) whose names start with `prefix`.
+fn shm_segments(prefix: &str) -> Vec<std::path::PathBuf> {
+    std::fs::read_dir("/dev/shm")
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|entry| entry.file_name().to_string_lossy().starts_with(prefix))
+        .map(|entry| entry.path())
+        .collect()
 }
 
 /// A bus of its own (tests run in parallel); keep the `Cleanup` until the nodes are gone.
@@ -186,19 +187,9 @@ fn bus_files(config: &BusConfig) -> Vec<(String, u32)> {
     }
     let mut files = Vec::new();
     walk(std::path::Path::new(&config.root_path), &mut files);
-    for entry in std::fs::read_dir("/dev/shm")
-        .into_iter()
-        .flatten()
-        .flatten()
-    {
-        if entry
-            .file_name()
-            .to_string_lossy()
-            .starts_with(&config.prefix)
-        {
-            let mode = entry.metadata().unwrap().permissions().mode() & 0o7777;
-            files.push((entry.path().display().to_string(), mode));
-        }
+    for segment in shm_segments(&config.prefix) {
+        let mode = std::fs::metadata(&segment).unwrap().permissions().mode() & 0o7777;
+        files.push((segment.display().to_string(), mode));
     }
     files
 }
