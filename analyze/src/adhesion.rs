@@ -38,9 +38,6 @@ use crate::report::{create_out_dir, progress_bar, ReportError, RunArgs};
 pub struct Args {
     #[command(flatten)]
     pub run: RunArgs,
-    /// Skip the PNG plots (CSV reports only).
-    #[arg(long)]
-    pub no_plots: bool,
     /// Leave the first N steps (the EKFs locking on) out of `table1.csv`; 0 (the paper's
     /// way) takes every step. Detection is always scored over every step.
     #[arg(long, default_value_t = 0)]
@@ -230,7 +227,7 @@ pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
     )?;
     let report = write_tables(&run, args.table1_skip_steps, &args.run.out)?;
     write_events(&run, &args.run.out)?;
-    if !args.no_plots {
+    if !args.run.no_plots {
         plots::write_all(&run, &report, &args.run.out)?;
     }
     print_summary(&run, &report);
@@ -630,8 +627,8 @@ mod tests {
                 scenario,
                 config,
                 out,
+                no_plots,
             },
-            no_plots,
             table1_skip_steps: 0,
         }
     }

@@ -63,9 +63,6 @@ pub struct Args {
     /// Write a row of `estimates.csv` (and a plot point) every this many steps.
     #[arg(long, default_value_t = 10)]
     pub csv_every: usize,
-    /// Skip the PNG plots (CSV reports only).
-    #[arg(long)]
-    pub no_plots: bool,
 }
 
 fn parse_propagation(s: &str) -> Result<Propagation, String> {
@@ -272,7 +269,7 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
     } else {
         vec![]
     };
-    if !args.no_plots {
+    if !args.run.no_plots {
         plots(&args.run.out, &trace)?;
     }
     let mean_step_us = elapsed.as_secs_f64() * 1e6 / steps.max(1) as f64;

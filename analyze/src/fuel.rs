@@ -147,11 +147,15 @@ pub fn run(args: &Args) -> Result<Evaluation, FuelAnalysisError> {
     if let Some(rows) = simulated {
         write_vehicle_csv(&args.run.out.join("simulated.csv"), &rows)?;
     }
-    analyse(&input, &args.run.out)
+    analyse(&input, &args.run.out, !args.run.no_plots)
 }
 
 /// Evaluates `input` and writes the report files into `out`.
-pub fn analyse(input: &FuelInput, out: &Path) -> Result<Evaluation, FuelAnalysisError> {
+pub fn analyse(
+    input: &FuelInput,
+    out: &Path,
+    plots: bool,
+) -> Result<Evaluation, FuelAnalysisError> {
     let bar = progress_bar(input.samples.len() as u64, "fuel");
     let labels = input
         .labels
@@ -167,7 +171,9 @@ pub fn analyse(input: &FuelInput, out: &Path) -> Result<Evaluation, FuelAnalysis
     if let (Some(score), Some(names)) = (&evaluation.regimes, label_names) {
         write_regimes(&out.join("regimes.csv"), score, names)?;
     }
-    plots::write_all(out, &input.name, &evaluation, label_names)?;
+    if plots {
+        plots::write_all(out, &input.name, &evaluation, label_names)?;
+    }
     Ok(evaluation)
 }
 

@@ -64,6 +64,9 @@ pub struct RunArgs {
     /// Output directory (created if needed).
     #[arg(long)]
     pub out: PathBuf,
+    /// Skip the PNG plots (CSV reports only).
+    #[arg(long)]
+    pub no_plots: bool,
 }
 
 /// Creates `dir` (and parents) if needed.
@@ -138,6 +141,22 @@ fn padded_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
     (lo - pad)..(hi + pad)
 }
 
+/// DejaVu Sans 2.37 (Debian's fonts-dejavu-core; licence in `fonts/DejaVuSans-LICENSE`), the
+/// font of every plot's text: plotters' `ab_glyph` text needs its fonts registered, and an
+/// embedded one makes plots the same on every machine with no system font library.
+const EMBEDDED_FONT: &[u8] = include_bytes!("../fonts/DejaVuSans.ttf");
+
+/// Registers [`EMBEDDED_FONT`] as `sans-serif` (the family plotters' labels default to), once.
+fn register_embedded_font() -> Result<(), String> {
+    static REGISTERED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    REGISTERED
+        .get_or_init(|| {
+            plotters::style::register_font("sans-serif", FontStyle::Normal, EMBEDDED_FONT)
+                .map_err(|_| "the embedded font DejaVuSans.ttf is not a valid font".to_string())
+        })
+        .clone()
+}
+
 type Chart<'a> = ChartContext<'a, BitMapBackend<'a>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 
 /// Draws the white background, caption and labelled mesh every plot shares, then hands the
@@ -154,6 +173,7 @@ fn draw_chart(
     let file =
         railmon_records::AtomicFile::create(path).map_err(|e| ReportError::new(path, e.reason))?;
     let err = |e: &dyn std::fmt::Display| ReportError::new(path, e);
+    register_embedded_font().map_err(|e| err(&e))?;
     let root = BitMapBackend::new(file.temporary_path(), size).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
     let mut chart = ChartBuilder::on(&root)

@@ -94,8 +94,8 @@ fn seed_scenario_headline_numbers_match_the_golden_file() {
             scenario: Some(root().join("config/scenarios/adhesion-seed.toml")),
             config: None,
             out: out.clone(),
+            no_plots: true,
         },
-        no_plots: true,
         table1_skip_steps: 0,
     })
     .unwrap();

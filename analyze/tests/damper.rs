@@ -24,13 +24,13 @@ fn args(out: &Path) -> Args {
             scenario: None,
             config: None,
             out: out.to_owned(),
+            no_plots: false,
         },
         particles: Some(100),
         propagation: None,
         duration_s: Some(3.0),
         bogie: 1,
         csv_every: 10,
-        no_plots: false,
     }
 }
 

@@ -71,6 +71,51 @@ fn small_scenario(dir: &Path) -> PathBuf {
     path
 }
 
+/// `--no-plots` (every domain's flag): the same tables, no PNG.
+#[test]
+fn no_plots_writes_the_same_tables_and_no_png() {
+    let dir = std::env::temp_dir().join(format!("railmon-fuel-no-plots-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scenario = small_scenario(&dir);
+    let run_into = |out: &std::path::Path, no_plots: bool| {
+        run(&Args {
+            run: RunArgs {
+                input: None,
+                scenario: Some(scenario.clone()),
+                config: None,
+                out: out.to_owned(),
+                no_plots,
+            },
+        })
+        .unwrap()
+    };
+    let (with, without) = (dir.join("with"), dir.join("without"));
+    run_into(&with, false);
+    run_into(&without, true);
+    let pngs = |out: &std::path::Path| {
+        std::fs::read_dir(out)
+            .unwrap()
+            .flatten()
+            .filter(|e| e.path().extension().is_some_and(|x| x == "png"))
+            .count()
+    };
+    assert!(pngs(&with) >= 5);
+    assert_eq!(pngs(&without), 0);
+    for table in [
+        "predictions.csv",
+        "summary.csv",
+        "events.csv",
+        "regimes.csv",
+    ] {
+        assert_eq!(
+            std::fs::read(with.join(table)).unwrap(),
+            std::fs::read(without.join(table)).unwrap(),
+            "{table}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn scenario_run_writes_every_report() {
     let dir = std::env::temp_dir().join(format!("railmon-fuel-analyze-{}", std::process::id()));
@@ -83,6 +128,7 @@ fn scenario_run_writes_every_report() {
             scenario: Some(scenario.clone()),
             config: None,
             out: out.clone(),
+            no_plots: false,
         },
     })
     .unwrap();

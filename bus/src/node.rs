@@ -70,6 +70,58 @@ pub fn iceoryx2_config(bus: &BusConfig, root_path: &str) -> Result<Config, BusEr
     Ok(config)
 }
 
+/// Where POSIX shared memory (`shm_open`) lives on Linux: iceoryx2's segments.
+const SHM_DIR: &str = "/dev/shm";
+
+/// Whether `file_name` is the global management segment of the bus with `prefix`:
+/// `<prefix><40 hex digits>_node.<major>_<minor>_<patch>.global_mgmt` (iceoryx2 0.10,
+/// `node/global_management_segment.rs`). Exact, so that prefix `railmon_` does not match the
+/// segment of prefix `railmon_demo_`.
+fn is_global_management_segment(file_name: &str, prefix: &str) -> bool {
+    let Some(rest) = file_name.strip_prefix(prefix) else {
+        return false;
+    };
+    let Some((hash, rest)) = rest.split_once("_node.") else {
+        return false;
+    };
+    hash.len() == 40
+        && hash.bytes().all(|b| b.is_ascii_hexdigit())
+        && rest
+            .strip_suffix(".global_mgmt")
+            .is_some_and(|version| version.split('_').all(|n| n.parse::<u32>().is_ok()))
+}
+
+/// iceoryx2 creates its global management segment (16 bytes in /dev/shm: the node counter)
+/// with `enable_global_access(true)`, i.e. `fchmod` to 0666 after creation (so a umask does
+/// not help), and keeps it when the last node ends (`has_ownership(false)`). Every other file
+/// of the bus is 0600 or under the private root path (crate::root_path): railmon's bus
+/// belongs to one user, so this one is made 0600 too, right after the node opened it. Only
+/// our own file is changed (one of another user is left alone: `chmod` would fail anyway).
+fn make_global_management_segment_private(prefix: &str) -> Result<(), BusError> {
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    let entries = match std::fs::read_dir(SHM_DIR) {
+        Ok(entries) => entries,
+        // Not Linux's /dev/shm: nothing we know how to fix.
+        Err(_) => return Ok(()),
+    };
+    // SAFETY: geteuid(2) has no preconditions and cannot fail.
+    let euid = unsafe { libc::geteuid() };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        if !is_global_management_segment(&name.to_string_lossy(), prefix) {
+            continue;
+        }
+        let Ok(meta) = entry.metadata() else { continue };
+        if meta.uid() != euid || meta.mode() & 0o077 == 0 {
+            continue;
+        }
+        std::fs::set_permissions(entry.path(), std::fs::Permissions::from_mode(0o600)).map_err(
+            |e| BusError::ipc(format!("make {} private (0600)", entry.path().display()), e),
+        )?;
+    }
+    Ok(())
+}
+
 impl BusNode {
     /// Creates a node that installs no signal handler and first removes what dead nodes (a
     /// SIGKILLed service or replay) left in shared memory and under the root path.
@@ -86,6 +138,7 @@ impl BusNode {
             .config(&ipc_config)
             .create::<ipc::Service>()
             .map_err(|e| BusError::ipc(format!("create node `{name}`"), e))?;
+        make_global_management_segment_private(&config.prefix)?;
         // Node creation already cleans dead nodes (config/iceoryx2.toml); the explicit call
         // catches nodes that died in between and gives the caller a number to log.
         let cleaned_at_start = node.try_cleanup_dead_nodes().cleanups;
@@ -206,5 +259,23 @@ impl BusNode {
             ready,
             taken,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_global_management_segment_is_recognised_for_its_prefix_only() {
+        let name = "railmon_9204dd183d1c4d8e1ff592a30766ffa6765aa8b5_node.0_10_0.global_mgmt";
+        assert!(is_global_management_segment(name, "railmon_"));
+        let demo = "railmon_demo_9204dd183d1c4d8e1ff592a30766ffa6765aa8b5_node.0_10_0.global_mgmt";
+        assert!(!is_global_management_segment(demo, "railmon_"));
+        assert!(is_global_management_segment(demo, "railmon_demo_"));
+        let dynamic = "railmon_112437a14a36c452eeea7e2aefc2af954fc5a3f2_1584568348.dynamic";
+        assert!(!is_global_management_segment(dynamic, "railmon_"));
+        let other = "railmon_9204dd183d1c4d8e1ff592a30766ffa6765aa8b5_node.0_10_0.event_mgmt";
+        assert!(!is_global_management_segment(other, "railmon_"));
     }
 }

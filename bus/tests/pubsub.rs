@@ -12,20 +12,21 @@ struct Cleanup(BusConfig);
 impl Drop for Cleanup {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0.root_path);
-        for entry in std::fs::read_dir("/dev/shm")
-            .into_iter()
-            .flatten()
-            .flatten()
-        {
-            if entry
-                .file_name()
-                .to_string_lossy()
-                .starts_with(&self.0.prefix)
-            {
-                let _ = std::fs::remove_file(entry.path());
-            }
+        for segment in shm_segments(&self.0.prefix) {
+            let _ = std::fs::remove_file(segment);
         }
     }
+}
+
+/// The files in /dev/shm (iceoryx2's segments) whose names start with `prefix`.
+fn shm_segments(prefix: &str) -> Vec<std::path::PathBuf> {
+    std::fs::read_dir("/dev/shm")
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|entry| entry.file_name().to_string_lossy().starts_with(prefix))
+        .map(|entry| entry.path())
+        .collect()
 }
 
 /// A bus of its own (tests run in parallel); keep the `Cleanup` until the nodes are gone.
@@ -167,4 +168,61 @@ fn waiting_for_a_subscriber_times_out_with_the_service_name() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("railmon/drive"), "{err}");
+}
+
+/// Every file of the bus with `config`'s prefix and root path: (path, mode).
+fn bus_files(config: &BusConfig) -> Vec<(String, u32)> {
+    use std::os::unix::fs::PermissionsExt;
+    fn walk(dir: &std::path::Path, out: &mut Vec<(String, u32)>) {
+        for entry in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+            let meta = std::fs::symlink_metadata(entry.path()).unwrap();
+            out.push((
+                entry.path().display().to_string(),
+                meta.permissions().mode() & 0o7777,
+            ));
+            if meta.is_dir() {
+                walk(&entry.path(), out);
+            }
+        }
+    }
+    let mut files = Vec::new();
+    walk(std::path::Path::new(&config.root_path), &mut files);
+    for segment in shm_segments(&config.prefix) {
+        let mode = std::fs::metadata(&segment).unwrap().permissions().mode() & 0o7777;
+        files.push((segment.display().to_string(), mode));
+    }
+    files
+}
+
+/// Issue 11: iceoryx2 makes its global management segment 0666 and leaves it after the last
+/// node; `BusNode::create` makes it 0600. No file of a service's or replay's bus (nodes,
+/// publisher, subscriber, their services) may be writable by others, while running and after.
+#[test]
+fn no_file_of_the_bus_is_writable_by_others_while_running_or_after() {
+    let (config, _cleanup) = private_bus(8, 2_000);
+    {
+        let subscriber_node = BusNode::create(&config, "sub").unwrap();
+        let _subscriber = subscriber_node.subscriber::<DriveFrame>().unwrap();
+        let publisher_node = BusNode::create(&config, "pub").unwrap();
+        let mut publisher = publisher_node.publisher::<DriveFrame>().unwrap();
+        publisher.send(&frame(0), 0).unwrap();
+        let running = bus_files(&config);
+        assert!(
+            running
+                .iter()
+                .any(|(path, _)| path.ends_with(".global_mgmt")),
+            "the management segment exists while nodes run: {running:?}"
+        );
+        let open: Vec<_> = running
+            .iter()
+            .filter(|(_, mode)| mode & 0o002 != 0)
+            .collect();
+        assert!(open.is_empty(), "world-writable while running: {open:?}");
+    }
+    let after = bus_files(&config);
+    let open: Vec<_> = after.iter().filter(|(_, mode)| mode & 0o002 != 0).collect();
+    assert!(
+        open.is_empty(),
+        "world-writable after the nodes ended: {open:?}"
+    );
 }

@@ -59,3 +59,26 @@ fn alert_rules_use_exported_metrics() {
         );
     }
 }
+
+/// compose.yaml's Prometheus and Alertmanager configs are valid for the packaged versions
+/// (`promtool check config --syntax-only`: the rule file's path is the container's;
+/// `amtool check-config`, Debian package `prometheus-alertmanager`, or set `AMTOOL`).
+#[test]
+fn compose_prometheus_and_alertmanager_configs_are_valid() {
+    let (ok, out) = promtool(&["check", "config", "--syntax-only", "prometheus.yml"]);
+    assert!(ok, "promtool check config:\n{out}");
+    let binary = std::env::var("AMTOOL").unwrap_or_else(|_| "amtool".into());
+    let out = Command::new(&binary)
+        .args(["check-config", "alertmanager.yml"])
+        .current_dir(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../dashboards/alertmanager"))
+        .output()
+        .unwrap_or_else(|e| {
+            panic!("cannot run `{binary}` ({e}): run scripts/install-test-deps, or set AMTOOL")
+        });
+    assert!(
+        out.status.success(),
+        "amtool check-config:\n{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
