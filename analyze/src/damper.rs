@@ -146,7 +146,9 @@ struct TracePoint {
 
 enum Source {
     Simulator(Box<BogieSimulator>),
-    Recording(Box<BogieCsvReader<std::fs::File>>),
+    /// A recording, and the speed assumed for a file without a `speed_m_s` column (the
+    /// monitor configuration's vehicle speed).
+    Recording(Box<BogieCsvReader<std::fs::File>>, f64),
 }
 
 /// A sample, its time (s) and, for simulated or recorded-with-truth data, the true
@@ -164,16 +166,12 @@ impl Source {
                     Some([t.dampers.csy_ns_per_m, t.dampers.csay_ns_per_m]),
                 )
             })),
-            Source::Recording(r) => Ok(r.next_record()?.map(|rec| {
-                let s = rec.sensors;
+            Source::Recording(r, assumed_speed_m_s) => Ok(r.next_record()?.map(|rec| {
                 (
-                    BogieSample {
-                        wheelset1_accel_m_s2: s[0],
-                        wheelset2_accel_m_s2: s[1],
-                        bogie_accel_m_s2: s[2],
-                        bogie_yaw_rate_rad_s: s[3],
-                        body_accel_m_s2: s[4],
-                    },
+                    BogieSample::from_vector(
+                        &rec.sensors.into(),
+                        rec.speed_m_s.unwrap_or(*assumed_speed_m_s),
+                    ),
                     rec.time_s,
                     rec.truth_ns_per_m,
                 )
@@ -185,7 +183,7 @@ impl Source {
 /// Runs the analysis the arguments ask for and writes every report file.
 pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
     create_out_dir(&args.run.out)?;
-    let (name, mut config, source, n_steps, faults, record) =
+    let (name, mut config, mut source, n_steps, faults, record) =
         match (&args.run.input, &args.run.scenario) {
             (Some(path), _) => {
                 let reader = BogieCsvReader::open(path)?.only_bogie(args.bogie);
@@ -193,7 +191,7 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
                 (
                     name,
                     DamperMonitorConfig::default(),
-                    Source::Recording(Box::new(reader)),
+                    Source::Recording(Box::new(reader), f64::NAN),
                     None,
                     vec![],
                     None,
@@ -228,6 +226,16 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
         let file = path.display().to_string();
         config = DamperMonitorConfig::from_toml_str(&read_text(path)?)
             .map_err(estimator_error(&file))?;
+    }
+    if let Source::Recording(reader, assumed_speed_m_s) = &mut source {
+        *assumed_speed_m_s = config.vehicle.speed_m_s;
+        if !reader.has_speed() {
+            eprintln!(
+                "railmon analyze damper: warning: {name} has no speed_m_s column: assuming the \
+                 configured constant speed, vehicle.speed_m_s = {} m/s",
+                config.vehicle.speed_m_s
+            );
+        }
     }
     if let Some(n) = args.particles {
         config.rbpf.particles = n;
@@ -349,6 +357,7 @@ fn run_monitor(
             w.write(&BogieRecord {
                 time_s: estimate.time_s,
                 sensors: sample_array(&sample),
+                speed_m_s: Some(sample.speed_m_s),
                 truth_ns_per_m: truth,
             })?;
         }
@@ -537,8 +546,16 @@ fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), RecordError>
             header.push(format!("{n}_{col}"));
         }
     }
-    header
-        .extend(["effective_sample_size", "nis_window_mean", "model_mismatch"].map(str::to_owned));
+    header.extend(
+        [
+            "effective_sample_size",
+            "nis_window_mean",
+            "model_mismatch",
+            "speed_m_s",
+            "paused",
+        ]
+        .map(str::to_owned),
+    );
     let rows = trace.iter().map(|p| {
         let mut row = vec![format!("{:.3}", p.time_s)];
         for d in DamperId::ALL {
@@ -569,6 +586,8 @@ fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), RecordError>
                 .map_or_else(String::new, |v| format!("{v:.4}")),
         );
         row.push(p.estimate.model_mismatch.to_string());
+        row.push(format!("{:.3}", p.estimate.speed_m_s));
+        row.push(p.estimate.paused.map_or("", |r| r.as_str()).to_owned());
         row
     });
     write_csv_table(path, &header, rows)

@@ -350,6 +350,7 @@ fn analyze_with(input: &Path, config: Option<&Path>, out: &Path) -> Result<Evalu
             scenario: None,
             config: config.map(Path::to_owned),
             out: out.to_owned(),
+            no_plots: true,
         },
     })
     .map_err(|e| e.to_string())

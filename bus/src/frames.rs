@@ -7,7 +7,7 @@ use iceoryx2::prelude::ZeroCopySend;
 use crate::StreamKind;
 
 /// Bumped whenever a payload layout changes (also part of every type name).
-pub const FRAME_LAYOUT_VERSION: u32 = 2;
+pub const FRAME_LAYOUT_VERSION: u32 = 3;
 
 /// Capacity of a [`DriveFrame`]: the most drives one vehicle publishes in one frame.
 pub const MAX_DRIVES: usize = 32;
@@ -15,7 +15,7 @@ pub const MAX_DRIVES: usize = 32;
 /// User header of every frame. iceoryx2's own sample header has no sequence number, so the
 /// publisher numbers its frames here; the subscriber counts gaps per `publisher_instance`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ZeroCopySend)]
-#[type_name("railmon::FrameHeader.v2")]
+#[type_name("railmon::FrameHeader.v3")]
 #[repr(C)]
 pub struct FrameHeader {
     /// [`FRAME_LAYOUT_VERSION`] of the publisher.
@@ -112,6 +112,11 @@ pub enum FrameError {
     },
     #[error("channel bits {bits:#x} name channels this layout does not have")]
     UnknownChannels { bits: u32 },
+    #[error(
+        "bogie {bogie_id} speed_m_s is {speed_m_s} (must be in 0..={})",
+        railmon_damper::sample::MAX_SPEED_M_S
+    )]
+    SpeedOutOfRange { bogie_id: u32, speed_m_s: f64 },
 }
 
 /// The first NaN or infinity among `values`, as a [`FrameError::NotFinite`] at `place`.
@@ -138,6 +143,7 @@ impl FrameError {
             FrameError::NoDrives => "no_drives",
             FrameError::NotFinite { .. } => "not_finite",
             FrameError::UnknownChannels { .. } => "unknown_channels",
+            FrameError::SpeedOutOfRange { .. } => "speed_out_of_range",
         }
     }
 }
@@ -290,10 +296,11 @@ impl VehicleFrame {
 }
 
 /// One 1 kHz sample of one bogie's five inertial sensors (damper monitoring), in the order of
-/// the damper paper's eq. (4). A vehicle has several bogies: each publishes its own frames on
-/// the one `bogie` stream, told apart by `bogie_id`; the sample time is the header's.
+/// the damper paper's eq. (4), and the vehicle's forward speed (layout 3; the model depends on
+/// it). A vehicle has several bogies: each publishes its own frames on the one `bogie`
+/// stream, told apart by `bogie_id`; the sample time is the header's.
 #[derive(Clone, Copy, Debug, Default, PartialEq, ZeroCopySend)]
-#[type_name("railmon::BogieFrame.v1")]
+#[type_name("railmon::BogieFrame.v2")]
 #[repr(C)]
 pub struct BogieFrame {
     /// Which bogie of the vehicle (the ids the service is configured with, `[bogie] bogies`).
@@ -305,6 +312,8 @@ pub struct BogieFrame {
     pub bogie_accel_m_s2: f64,
     pub bogie_yaw_rate_rad_s: f64,
     pub body_accel_m_s2: f64,
+    /// Forward speed of the vehicle (m/s), in `0..=railmon_damper::sample::MAX_SPEED_M_S`.
+    pub speed_m_s: f64,
 }
 
 impl Frame for BogieFrame {
@@ -321,11 +330,12 @@ impl BogieFrame {
             bogie_accel_m_s2: s.bogie_accel_m_s2,
             bogie_yaw_rate_rad_s: s.bogie_yaw_rate_rad_s,
             body_accel_m_s2: s.body_accel_m_s2,
+            speed_m_s: s.speed_m_s,
         }
     }
 
-    /// The sample, after checking that every value is finite (which bogie ids are known is
-    /// the service's configuration).
+    /// The sample, after checking that every value is finite and the speed in
+    /// `0..=MAX_SPEED_M_S` (which bogie ids are known is the service's configuration).
     pub fn checked_sample(&self) -> Result<railmon_damper::BogieSample, FrameError> {
         check_finite(
             || format!("bogie {}", self.bogie_id),
@@ -335,14 +345,23 @@ impl BogieFrame {
                 ("bogie_accel_m_s2", self.bogie_accel_m_s2),
                 ("bogie_yaw_rate_rad_s", self.bogie_yaw_rate_rad_s),
                 ("body_accel_m_s2", self.body_accel_m_s2),
+                ("speed_m_s", self.speed_m_s),
             ],
         )?;
+        let max = railmon_damper::sample::MAX_SPEED_M_S;
+        if !(0.0..=max).contains(&self.speed_m_s) {
+            return Err(FrameError::SpeedOutOfRange {
+                bogie_id: self.bogie_id,
+                speed_m_s: self.speed_m_s,
+            });
+        }
         Ok(railmon_damper::BogieSample {
             wheelset1_accel_m_s2: self.wheelset1_accel_m_s2,
             wheelset2_accel_m_s2: self.wheelset2_accel_m_s2,
             bogie_accel_m_s2: self.bogie_accel_m_s2,
             bogie_yaw_rate_rad_s: self.bogie_yaw_rate_rad_s,
             body_accel_m_s2: self.body_accel_m_s2,
+            speed_m_s: self.speed_m_s,
         })
     }
 }
@@ -497,10 +516,27 @@ mod tests {
             bogie_accel_m_s2: 0.3,
             bogie_yaw_rate_rad_s: -0.004,
             body_accel_m_s2: 0.05,
+            speed_m_s: 31.5,
         };
         let frame = BogieFrame::from_sample(3, &sample);
-        assert_eq!(std::mem::size_of::<BogieFrame>(), 48);
+        assert_eq!(std::mem::size_of::<BogieFrame>(), 56);
         assert_eq!(frame.checked_sample().unwrap(), sample);
+        for (speed_m_s, reason) in [
+            (f64::NAN, "not_finite"),
+            (f64::INFINITY, "not_finite"),
+            (-0.5, "speed_out_of_range"),
+            (151.0, "speed_out_of_range"),
+        ] {
+            let bad = BogieFrame { speed_m_s, ..frame };
+            let err = bad.checked_sample().unwrap_err();
+            assert_eq!(err.reason(), reason, "{speed_m_s}");
+            assert!(err.to_string().contains("bogie 3"), "{err}");
+        }
+        let standstill = BogieFrame {
+            speed_m_s: 0.0,
+            ..frame
+        };
+        assert_eq!(standstill.checked_sample().unwrap().speed_m_s, 0.0);
         let mut bad = frame;
         bad.bogie_yaw_rate_rad_s = f64::NAN;
         let err = bad.checked_sample().unwrap_err();

@@ -140,9 +140,11 @@ impl DamperAlarm {
     /// by tens of percent while its interval is still wide (spurious degraded/recovered pairs
     /// at 0.05-0.12 s in the e2e test when the mean was judged). Not judged while the filter
     /// reports `model_mismatch` (its posterior is then of a model that is not the plant: a
-    /// warning, not a damper fault); the time beyond the threshold holds meanwhile.
+    /// warning, not a damper fault) or is paused (`paused`, speed out of range); the time
+    /// beyond the threshold holds meanwhile.
     pub fn update(&mut self, estimate: &DamperEstimate) -> Option<DamperEvent> {
-        if estimate.model_mismatch {
+        // Paused (speed outside the model's range): the posterior is held, not new evidence.
+        if estimate.model_mismatch || estimate.paused.is_some() {
             return None;
         }
         let posterior = match self.damper {
@@ -201,6 +203,8 @@ mod tests {
             nis_window_mean: Some(5.0),
             model_mismatch: false,
             noise_std_ratio: [1.0; 5],
+            paused: None,
+            speed_m_s: 45.3,
         }
     }
 
@@ -266,6 +270,24 @@ mod tests {
         assert!(feed(&mut csay, 0.0, 50, [1.0, 0.5, 1.5]).is_empty());
         assert!(csay.degraded());
         assert_eq!(feed(&mut csay, 5.0, 10, [1.0, 0.95, 1.05]).len(), 1);
+    }
+
+    /// Paused (low speed): the judgement holds, as with a mismatch.
+    #[test]
+    fn a_paused_filter_holds_the_judgement() {
+        let mut csay = DamperAlarm::new(DamperId::Csay, &config(), false);
+        assert!(feed(&mut csay, 0.0, 9, [0.4, 0.35, 0.45]).is_empty());
+        let paused = DamperEstimate {
+            paused: Some(crate::config::PauseReason::LowSpeed),
+            speed_m_s: 2.0,
+            ..estimate(0.9, [0.4, 0.35, 0.45])
+        };
+        for _ in 0..100 {
+            assert_eq!(csay.update(&paused), None);
+        }
+        assert!(!csay.degraded());
+        // The 9 steps before the pause still count: the 10th raises it.
+        assert_eq!(feed(&mut csay, 11.0, 1, [0.4, 0.35, 0.45]).len(), 1);
     }
 
     #[test]

@@ -59,6 +59,92 @@ impl Default for GainGridConfig {
     }
 }
 
+/// The speeds the filter's model is valid at, and its speed schedule (`gain_table` docs).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SpeedConfig {
+    /// Below this speed (standstill, shunting) the filter holds its parameter posterior and
+    /// reports `paused: low_speed`: the creep model `~ 1 / v` is not valid there (m/s).
+    pub min_m_s: f64,
+    /// Above it the filter holds likewise (`paused: high_speed`): the range the gain table
+    /// covers (m/s).
+    pub max_m_s: f64,
+    /// Ratio of neighbouring speed nodes of the gain table (geometric grid about the
+    /// vehicle's configured speed).
+    pub grid_ratio: f64,
+    /// After a pause the per-particle state estimates are those of the last valid sample:
+    /// for this long they are run (predict and update) without weighting the particles, so
+    /// that the transient of stale states does not move the posterior (s).
+    pub resume_settle_s: f64,
+}
+
+impl Default for SpeedConfig {
+    fn default() -> Self {
+        SpeedConfig {
+            min_m_s: 5.0,
+            max_m_s: 70.0,
+            grid_ratio: 1.05,
+            resume_settle_s: 1.0,
+        }
+    }
+}
+
+impl SpeedConfig {
+    pub fn validate(&self) -> Result<(), DamperError> {
+        positive("speed.min_m_s", self.min_m_s)?;
+        positive("speed.max_m_s", self.max_m_s)?;
+        if self.max_m_s <= self.min_m_s {
+            return Err(DamperError::InvalidParameter {
+                field: "speed.max_m_s",
+                value: self.max_m_s,
+                reason: "must exceed speed.min_m_s",
+            });
+        }
+        // At most 2 (a node every factor of 2 would be no schedule); at least 1.001 (a
+        // thousand nodes between 5 and 70 m/s would be a gigabyte of grids).
+        if !(self.grid_ratio >= 1.001 && self.grid_ratio <= 2.0) {
+            return Err(DamperError::InvalidParameter {
+                field: "speed.grid_ratio",
+                value: self.grid_ratio,
+                reason: "must be in [1.001, 2]",
+            });
+        }
+        non_negative("speed.resume_settle_s", self.resume_settle_s)
+    }
+
+    /// Why the filter pauses at `speed_m_s`, if it does.
+    pub fn pause_reason(&self, speed_m_s: f64) -> Option<PauseReason> {
+        if speed_m_s < self.min_m_s {
+            Some(PauseReason::LowSpeed)
+        } else if speed_m_s > self.max_m_s {
+            Some(PauseReason::HighSpeed)
+        } else {
+            None
+        }
+    }
+}
+
+/// Why a damper monitor holds its posterior.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PauseReason {
+    /// Below `speed.min_m_s`.
+    LowSpeed,
+    /// Above `speed.max_m_s`.
+    HighSpeed,
+}
+
+impl PauseReason {
+    pub const ALL: [PauseReason; 2] = [PauseReason::LowSpeed, PauseReason::HighSpeed];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            PauseReason::LowSpeed => "low_speed",
+            PauseReason::HighSpeed => "high_speed",
+        }
+    }
+}
+
 /// The Rao-Blackwellised particle filter (section 4).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -260,6 +346,8 @@ pub struct DamperMonitorConfig {
     pub alarm: DamperAlarmConfig,
     /// The filter's check of its own model (`model_mismatch`).
     pub consistency: ConsistencyConfig,
+    /// Valid speed range and speed schedule.
+    pub speed: SpeedConfig,
 }
 
 impl Default for DamperMonitorConfig {
@@ -279,6 +367,7 @@ impl Default for DamperMonitorConfig {
             ekf: EkfConfig::default(),
             alarm: DamperAlarmConfig::default(),
             consistency: ConsistencyConfig::default(),
+            speed: SpeedConfig::default(),
         }
     }
 }
@@ -332,7 +421,8 @@ impl DamperMonitorConfig {
         self.rbpf.validate()?;
         self.ekf.validate()?;
         self.alarm.validate()?;
-        self.consistency.validate()
+        self.consistency.validate()?;
+        self.speed.validate()
     }
 
     /// `Q_w` and `Q_v` of the filter model.
@@ -453,5 +543,17 @@ mod tests {
         let mut c = d();
         c.vehicle.conicity = 0.0;
         rejects(c, "conicity");
+        let mut c = d();
+        c.speed.min_m_s = f64::NAN;
+        rejects(c, "speed.min_m_s");
+        let mut c = d();
+        c.speed.max_m_s = 4.0;
+        rejects(c, "speed.max_m_s");
+        let mut c = d();
+        c.speed.grid_ratio = 1.0;
+        rejects(c, "speed.grid_ratio");
+        let mut c = d();
+        c.speed.resume_settle_s = -1.0;
+        rejects(c, "speed.resume_settle_s");
     }
 }

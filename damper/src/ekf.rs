@@ -85,6 +85,17 @@ impl AugmentedEkf {
         })
     }
 
+    /// The forward speed of the next steps (m/s): `A` and `H` at it (`BogieModel::set_speed`).
+    pub fn set_speed(&mut self, speed_m_s: f64) -> Result<(), DamperError> {
+        if self.model.params().speed_m_s != speed_m_s {
+            self.model.set_speed(speed_m_s)?;
+            self.h
+                .fixed_view_mut::<N_OUTPUTS, N_STATES>(0, 0)
+                .copy_from(&self.model.h_matrix());
+        }
+        Ok(())
+    }
+
     fn dampers(&self, xi: &Vector19) -> Dampers {
         Dampers {
             csy_ns_per_m: xi[N_STATES] * self.nominal.csy_ns_per_m,

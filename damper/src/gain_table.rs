@@ -1,4 +1,5 @@
-//! Steady-state Kalman gains on a grid of `(ln C_sy, ln C_say)`, interpolated bilinearly.
+//! Steady-state Kalman gains on a grid of `(ln C_sy, ln C_say)`, interpolated bilinearly,
+//! one grid per node of a geometric grid of forward speeds (nearest node).
 //!
 //! Once a particle's Kalman filter has run for a few seconds with (nearly) fixed parameters,
 //! its covariance is the Riccati solution of its `theta` (`kalman::steady_state`); the
@@ -6,9 +7,9 @@
 //! are smooth functions of `theta` that can be tabulated once. The fast filter then carries
 //! only the 17-vector state per particle.
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
-use crate::config::GainGridConfig;
+use crate::config::{GainGridConfig, SpeedConfig};
 use crate::expm::discretize;
 use crate::kalman::{steady_state, NoiseCovariances};
 use crate::model::{BogieModel, N_OUTPUTS, N_STATES};
@@ -23,9 +24,9 @@ pub const LN_DET_OFFSET: usize = GAIN_LEN + N_OUTPUTS * N_OUTPUTS;
 pub const INV_S_DIAG_OFFSET: usize = LN_DET_OFFSET + 1;
 pub const NODE_LEN: usize = INV_S_DIAG_OFFSET + N_OUTPUTS;
 
-/// The tabulated steady states.
+/// The tabulated steady states at one speed.
 #[derive(Debug, Clone, PartialEq)]
-pub struct GainTable {
+pub struct GainGrid {
     ln_min: [f64; 2],
     ln_step: [f64; 2],
     n: usize,
@@ -40,8 +41,9 @@ pub struct Cell {
     pub frac: [f64; 2],
 }
 
-impl GainTable {
-    /// Solves the Riccati equation at every node: `points_per_axis^2` solutions.
+impl GainGrid {
+    /// Solves the Riccati equation at every node: `points_per_axis^2` solutions, at the
+    /// model's speed.
     pub fn build(
         model: &BogieModel,
         noise: &NoiseCovariances,
@@ -82,7 +84,7 @@ impl GainTable {
                 }
             }
         }
-        Ok(Arc::new(GainTable {
+        Ok(Arc::new(GainGrid {
             ln_min,
             ln_step,
             n,
@@ -127,5 +129,92 @@ impl GainTable {
         for k in 0..NODE_LEN {
             out[k] = w[0] * c00[k] + w[1] * c01[k] + w[2] * c10[k] + w[3] * c11[k];
         }
+    }
+}
+
+/// The gain grids of one vehicle over its speed range, built on first use and shared by
+/// every filter of that vehicle (`Arc`, thread-safe).
+///
+/// The creep forces make the model depend on `1 / v` (`model::SPEED_ENTRIES`), so the speed
+/// nodes are geometric, `v_k = v_0 r^k` about the configured speed `v_0`
+/// (`speed.grid_ratio = r`), covering `[speed.min_m_s, speed.max_m_s]`. A filter uses the
+/// grid of the node nearest in `ln v` (a relative speed error of at most `sqrt(r) - 1`):
+/// it changes only when the speed crosses into another node's cell, and at the configured
+/// speed itself it is that speed's own grid. The propagation and `H` always use the exact
+/// measured speed; only the gain, `S^-1` and `ln det S` come from the node (their error in
+/// likelihood is measured in `docs/damper.md`).
+#[derive(Debug)]
+pub struct GainTable {
+    model: BogieModel,
+    noise: NoiseCovariances,
+    nominal: Dampers,
+    grid: GainGridConfig,
+    dt_s: f64,
+    ln_ratio: f64,
+    /// `k` of the first node (`v_0 r^k_min`).
+    k_min: i32,
+    nodes: Vec<OnceLock<Arc<GainGrid>>>,
+}
+
+impl GainTable {
+    /// The table of `model`'s vehicle; builds the grid of the model's (configured) speed now,
+    /// the others when first asked for.
+    pub fn build(
+        model: &BogieModel,
+        noise: &NoiseCovariances,
+        nominal: &Dampers,
+        grid: &GainGridConfig,
+        speed: &SpeedConfig,
+        dt_s: f64,
+    ) -> Result<Arc<Self>, DamperError> {
+        let v0 = model.params().speed_m_s;
+        let ln_ratio = speed.grid_ratio.ln();
+        let k_of = |v: f64| ((v / v0).ln() / ln_ratio).round() as i32;
+        let k_min = k_of(speed.min_m_s).min(0);
+        let k_max = k_of(speed.max_m_s).max(0);
+        let table = GainTable {
+            model: model.clone(),
+            noise: *noise,
+            nominal: *nominal,
+            grid: *grid,
+            dt_s,
+            ln_ratio,
+            k_min,
+            nodes: (k_min..=k_max).map(|_| OnceLock::new()).collect(),
+        };
+        table.grid_at(table.node_of(v0))?;
+        Ok(Arc::new(table))
+    }
+
+    /// The node whose cell holds `speed_m_s` (clamped to the table).
+    pub fn node_of(&self, speed_m_s: f64) -> usize {
+        let v0 = self.model.params().speed_m_s;
+        let k = ((speed_m_s / v0).ln() / self.ln_ratio).round();
+        let last = (self.nodes.len() - 1) as f64;
+        (k - self.k_min as f64).clamp(0.0, last) as usize
+    }
+
+    /// The speed of node `node` (m/s).
+    pub fn node_speed_m_s(&self, node: usize) -> f64 {
+        let k = node as i32 + self.k_min;
+        self.model.params().speed_m_s * (self.ln_ratio * k as f64).exp()
+    }
+
+    pub fn n_nodes(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// The grid of node `node`, solved on first use (about a second for 33 x 33 in the dev
+    /// profile).
+    pub fn grid_at(&self, node: usize) -> Result<Arc<GainGrid>, DamperError> {
+        let cell = &self.nodes[node];
+        if let Some(g) = cell.get() {
+            return Ok(g.clone());
+        }
+        let mut model = self.model.clone();
+        model.set_speed(self.node_speed_m_s(node))?;
+        let built = GainGrid::build(&model, &self.noise, &self.nominal, &self.grid, self.dt_s)?;
+        // Another thread may have built it meanwhile: both are the same numbers.
+        Ok(cell.get_or_init(|| built).clone())
     }
 }

@@ -27,11 +27,13 @@ pub mod rbpf;
 pub mod sample;
 pub mod scenario;
 pub mod simulator;
+pub mod speed_profile;
 pub mod track;
 
 pub use alarm::{DamperAlarm, DamperAlarmConfig, DamperEvent, DamperEventKind};
 pub use config::{
-    DamperMonitorConfig, EkfConfig, GainGridConfig, KernelSchedule, Propagation, RbpfConfig,
+    DamperMonitorConfig, EkfConfig, GainGridConfig, KernelSchedule, PauseReason, Propagation,
+    RbpfConfig, SpeedConfig,
 };
 pub use consistency::{ConsistencyCheck, ConsistencyConfig};
 pub use ekf::{AugmentedEkf, EkfEstimate};
@@ -39,9 +41,10 @@ pub use error::DamperError;
 pub use faults::{DamperFault, DamperId, FaultKind};
 pub use monitor::{DamperEstimate, DamperMonitor, DamperMonitorState};
 pub use noise_scale::{NoiseScale, NoiseScaleConfig};
-pub use params::{BogieParams, Dampers};
+pub use params::{BogieParams, Dampers, DEFAULT_SPEED_M_S};
 pub use rbpf::{DamperPosterior, Rbpf, RbpfEstimate, RbpfState};
 pub use sample::{BogieSample, SensorNoise};
 pub use scenario::DamperScenario;
 pub use simulator::{BogieSimulator, BogieTruth};
+pub use speed_profile::SpeedProfile;
 pub use track::{ErriLevel, TrackSpec};

@@ -30,7 +30,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use crate::params::{BogieParams, Dampers};
+use crate::params::{positive, BogieParams, Dampers};
 use crate::DamperError;
 
 pub const N_STATES: usize = 17;
@@ -128,12 +128,7 @@ impl BogieModel {
             p.secondary_end_stiffness_n_per_m,
         );
         let (f11, f22) = (p.longitudinal_creep_n, p.lateral_creep_n);
-        let (a, l, v, r0) = (
-            p.semi_wheelbase_m,
-            p.half_gauge_m,
-            p.speed_m_s,
-            p.wheel_radius_m,
-        );
+        let (a, l, r0) = (p.semi_wheelbase_m, p.half_gauge_m, p.wheel_radius_m);
         let lambda = p.conicity;
         let (mb, ib, mbd) = (
             p.bogie_mass_kg,
@@ -161,12 +156,10 @@ impl BogieModel {
             (YW1_DOT, YW1, PSIW1_DOT, PSIW1, D1, 1.0),
             (YW2_DOT, YW2, PSIW2_DOT, PSIW2, D2, -1.0),
         ] {
-            m[(y_dot, y_dot)] = -2.0 * f22 / (mw * v);
             m[(y_dot, y)] = -ky / mw;
             m[(y_dot, psi)] = 2.0 * f22 / mw;
             m[(y_dot, YB)] = ky / mw;
             m[(y_dot, PSIB)] = sign * a * ky / mw;
-            m[(psi_dot, psi_dot)] = -2.0 * f11 * l * l / (iw * v);
             m[(psi_dot, psi)] = -kx * l * l / iw;
             m[(psi_dot, PSIB)] = kx * l * l / iw;
             // (1) has `2 f11 lambda l / r0 (y_w - y_t)` = `... d`.
@@ -192,6 +185,10 @@ impl BogieModel {
         m[(YBD_DOT, YSR)] = -ksry / mbd;
         // Series node, line 7: y_sr' = y_bd' + K_sry / C_sy (y_b - y_sr).
         m[(YSR, YBD_DOT)] = 1.0;
+        // The creep damping of the wheelsets, the only place the speed enters.
+        for (r, c, value) in speed_entries(p) {
+            m[(r, c)] = value;
+        }
         let mut model = BogieModel {
             params: *params,
             base: m,
@@ -212,6 +209,24 @@ impl BogieModel {
         model.base -= model.drift_basis * track_position_rows() * drift_leak_per_s;
         model.drift_leak_per_s = drift_leak_per_s;
         Ok(model)
+    }
+
+    /// The same vehicle at another forward speed: only the creep damping entries of `A`
+    /// ([`SPEED_ENTRIES`], `-2 f_22 / (m_w v)` and `-2 f_11 l^2 / (I_w v)`) and their copies in
+    /// `H` (the wheelset accelerometers' rows) change. `V` does not: the null vectors are
+    /// static deflections, on which the velocity terms vanish, and the leak `eps V W` touches
+    /// only position rows and columns. Cheap (no factorisation): the filters call it whenever
+    /// the measured speed changes.
+    pub fn set_speed(&mut self, speed_m_s: f64) -> Result<(), DamperError> {
+        positive("speed_m_s", speed_m_s)?;
+        self.params.speed_m_s = speed_m_s;
+        for (r, c, value) in speed_entries(&self.params) {
+            self.base[(r, c)] = value;
+            if let Some(row) = OUTPUT_ROWS.iter().position(|&o| o == r) {
+                self.h[(row, c)] = value;
+            }
+        }
+        Ok(())
     }
 
     /// `V` with `W V = I` (see module docs).
@@ -272,6 +287,27 @@ impl BogieModel {
     pub fn h_matrix(&self) -> Matrix5x17 {
         self.h
     }
+}
+
+/// The entries of `A` that depend on the forward speed `v`, as `(row, column)`: the creep
+/// damping of each wheelset's lateral and yaw velocity (lines 1-4 of (1)), all `~ 1 / v`.
+pub const SPEED_ENTRIES: [(usize, usize); 4] = [
+    (state::YW1_DOT, state::YW1_DOT),
+    (state::PSIW1_DOT, state::PSIW1_DOT),
+    (state::YW2_DOT, state::YW2_DOT),
+    (state::PSIW2_DOT, state::PSIW2_DOT),
+];
+
+/// [`SPEED_ENTRIES`] with their values at `p.speed_m_s`: `-2 f_22 / (m_w v)` (lateral) and
+/// `-2 f_11 l^2 / (I_w v)` (yaw).
+fn speed_entries(p: &BogieParams) -> [(usize, usize, f64); 4] {
+    let v = p.speed_m_s;
+    let lateral = -2.0 * p.lateral_creep_n / (p.wheelset_mass_kg * v);
+    let l = p.half_gauge_m;
+    // In this order, as the model was always built (the default path stays bit for bit).
+    let yaw = -2.0 * p.longitudinal_creep_n * l * l / (p.wheelset_yaw_inertia_kg_m2 * v);
+    let value = [lateral, yaw, lateral, yaw];
+    std::array::from_fn(|k| (SPEED_ENTRIES[k].0, SPEED_ENTRIES[k].1, value[k]))
 }
 
 /// The right null space of `a` (without damper terms: they vanish on static states, so the

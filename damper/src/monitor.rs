@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use crate::config::{DamperMonitorConfig, Propagation};
+use crate::config::{DamperMonitorConfig, PauseReason, Propagation, SpeedConfig};
 use crate::consistency::ConsistencyCheck;
 use crate::ekf::{AugmentedEkf, EkfEstimate, EkfState};
 use crate::gain_table::GainTable;
@@ -32,6 +32,12 @@ pub struct DamperEstimate {
     /// the RBPF estimates it (`crate::noise_scale`; eq. (4) order: wheelset 1, wheelset 2,
     /// bogie, yaw gyro, body).
     pub noise_std_ratio: [f64; crate::model::N_OUTPUTS],
+    /// The last sample's speed was outside `speed`'s range (or the filter is settling after
+    /// such a stretch): the posterior is held as it was, not learnt from a model that is not
+    /// valid there; the alarm does not judge meanwhile.
+    pub paused: Option<PauseReason>,
+    /// The last sample's speed (m/s).
+    pub speed_m_s: f64,
 }
 
 /// A monitor's state for a snapshot ([`DamperMonitor::state`], [`DamperMonitor::resume`]):
@@ -44,6 +50,17 @@ pub struct DamperMonitorState {
     ekf_diverged_at_s: Option<f64>,
     steps: u64,
     consistency: ConsistencyCheck,
+    pause: PauseState,
+}
+
+/// Where a monitor is with respect to its valid speed range.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+struct PauseState {
+    /// Why it is paused (and still settling after the pause), if it is.
+    reason: Option<PauseReason>,
+    /// Samples left to run the states without weighting after a pause.
+    settle_steps_left: u64,
+    speed_m_s: f64,
 }
 
 #[derive(Debug, Clone)]
@@ -54,6 +71,8 @@ pub struct DamperMonitor {
     dt_s: f64,
     steps: u64,
     consistency: ConsistencyCheck,
+    speed: SpeedConfig,
+    pause: PauseState,
     estimate: DamperEstimate,
 }
 
@@ -115,6 +134,8 @@ impl DamperMonitor {
                 nis_window_mean: None,
                 model_mismatch: false,
                 noise_std_ratio: rbpf.noise_std_ratio(),
+                paused: None,
+                speed_m_s: config.vehicle.speed_m_s,
             },
             consistency: ConsistencyCheck::new(&config.consistency, config.dt_s),
             rbpf,
@@ -122,17 +143,49 @@ impl DamperMonitor {
             ekf_diverged_at_s: None,
             dt_s: config.dt_s,
             steps: 0,
+            speed: config.speed,
+            pause: PauseState {
+                reason: None,
+                settle_steps_left: 0,
+                speed_m_s: config.vehicle.speed_m_s,
+            },
         })
     }
 
     /// Validates the sample (every field finite: else an error naming the field, and nothing
     /// changes), then steps both filters.
+    /// Outside the valid speed range (`speed`) the filters are not stepped: the posterior,
+    /// the particles and their states stay bit for bit as they were, and the estimate says
+    /// `paused`. Back inside, the per-particle states run `speed.resume_settle_s` without
+    /// weighting (still `paused`) before the posterior learns again.
     pub fn step(&mut self, sample: &BogieSample) -> Result<&DamperEstimate, DamperError> {
         let y = sample.validate()?;
-        self.rbpf.step(&y)?;
+        let speed_m_s = sample.speed_m_s;
+        if let Some(reason) = self.speed.pause_reason(speed_m_s) {
+            self.steps += 1;
+            self.pause = PauseState {
+                reason: Some(reason),
+                settle_steps_left: (self.speed.resume_settle_s / self.dt_s).round() as u64,
+                speed_m_s,
+            };
+            self.estimate.time_s = self.steps as f64 * self.dt_s;
+            self.estimate.paused = Some(reason);
+            self.estimate.speed_m_s = speed_m_s;
+            return Ok(&self.estimate);
+        }
+        self.rbpf.set_speed(speed_m_s)?;
+        if self.pause.settle_steps_left > 0 {
+            self.rbpf.step_states(&y)?;
+            self.pause.settle_steps_left -= 1;
+        } else {
+            self.rbpf.step(&y)?;
+            self.pause.reason = None;
+        }
+        self.pause.speed_m_s = speed_m_s;
         self.steps += 1;
         let time_s = self.steps as f64 * self.dt_s;
-        let ekf = match self.ekf.as_mut().map(|e| e.step(&y)) {
+        let ekf_step = |e: &mut AugmentedEkf| e.set_speed(speed_m_s).and_then(|_| e.step(&y));
+        let ekf = match self.ekf.as_mut().map(ekf_step) {
             Some(Ok(e)) => Some(e),
             Some(Err(_)) => {
                 // The baseline diverged (the paper's figures 4-5 show it doing so): stop it,
@@ -143,8 +196,10 @@ impl DamperMonitor {
             }
             None => None,
         };
-        self.consistency
-            .update(self.rbpf.normalised_innovation_squared());
+        if self.pause.reason.is_none() {
+            self.consistency
+                .update(self.rbpf.normalised_innovation_squared());
+        }
         let r = self.rbpf.estimate();
         self.estimate = DamperEstimate {
             time_s,
@@ -155,6 +210,8 @@ impl DamperMonitor {
             nis_window_mean: self.consistency.window_mean(),
             model_mismatch: self.consistency.mismatch(),
             noise_std_ratio: self.rbpf.noise_std_ratio(),
+            paused: self.pause.reason,
+            speed_m_s,
         };
         Ok(&self.estimate)
     }
@@ -166,6 +223,7 @@ impl DamperMonitor {
             ekf_diverged_at_s: self.ekf_diverged_at_s,
             steps: self.steps,
             consistency: self.consistency,
+            pause: self.pause,
         }
     }
 
@@ -180,6 +238,10 @@ impl DamperMonitor {
     ) -> Result<Self, DamperError> {
         config.validate()?;
         let mut rbpf = Rbpf::resume(config, table, state.rbpf)?;
+        let pause = state.pause;
+        if config.speed.pause_reason(pause.speed_m_s).is_none() {
+            rbpf.set_speed(pause.speed_m_s)?;
+        }
         let ekf = match (config.ekf.enabled, state.ekf) {
             (true, Some(s)) => Some(AugmentedEkf::resume(config, s)?),
             _ => None,
@@ -196,6 +258,8 @@ impl DamperMonitor {
                 nis_window_mean: consistency.window_mean(),
                 model_mismatch: consistency.mismatch(),
                 noise_std_ratio: rbpf.noise_std_ratio(),
+                paused: pause.reason,
+                speed_m_s: pause.speed_m_s,
             },
             rbpf,
             ekf,
@@ -203,6 +267,8 @@ impl DamperMonitor {
             dt_s: config.dt_s,
             steps: state.steps,
             consistency,
+            speed: config.speed,
+            pause,
         })
     }
 

@@ -48,6 +48,10 @@ impl Default for Dampers {
     }
 }
 
+/// The paper's forward speed `v` (appendix, 45.3 m/s): the vehicle's speed when nothing
+/// says otherwise (a scenario without `[speed]`, a recording without a `speed_m_s` column).
+pub const DEFAULT_SPEED_M_S: f64 = 45.3;
+
 /// Everything in equations (1) except the two dampers. Defaults are the paper's appendix;
 /// the conicity, which the paper does not print, defaults to 0.15 (seed notes).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -81,7 +85,8 @@ pub struct BogieParams {
     pub half_gauge_m: f64,
     /// `lambda`, effective conicity (dimensionless).
     pub conicity: f64,
-    /// `v`, forward speed (m/s).
+    /// `v`, forward speed (m/s). The filters take the measured speed of each sample
+    /// ([`crate::BogieSample::speed_m_s`]); this one anchors their speed grid.
     pub speed_m_s: f64,
     /// `r_0`, rolling radius (m).
     pub wheel_radius_m: f64,
@@ -106,7 +111,7 @@ impl Default for BogieParams {
             semi_wheelbase_m: 1.3,
             half_gauge_m: 0.717,
             conicity: 0.15,
-            speed_m_s: 45.3,
+            speed_m_s: DEFAULT_SPEED_M_S,
             wheel_radius_m: 0.455,
             semi_bogie_width_m: 1.3,
         }

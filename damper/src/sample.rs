@@ -5,11 +5,15 @@
 use serde::{Deserialize, Serialize};
 
 use crate::model::{Matrix5, Vector5, OUTPUT_NAMES};
-use crate::params::positive;
+use crate::params::{positive, DEFAULT_SPEED_M_S};
 use crate::DamperError;
 
-/// One 1 kHz sample of the five sensors (paper fig. 1, eq. 4), what a real bogie gives.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+/// No train in service runs faster (540 km/h): a larger speed is a broken input (m/s).
+pub const MAX_SPEED_M_S: f64 = 150.0;
+
+/// One 1 kHz sample of the five sensors (paper fig. 1, eq. 4), what a real bogie gives, and
+/// the vehicle's forward speed at that moment.
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BogieSample {
     /// Lateral acceleration of the leading wheelset `y_w1''` (m/s^2).
     pub wheelset1_accel_m_s2: f64,
@@ -21,6 +25,15 @@ pub struct BogieSample {
     pub bogie_yaw_rate_rad_s: f64,
     /// Lateral acceleration of the body above the bogie `y_bd''` (m/s^2).
     pub body_accel_m_s2: f64,
+    /// Forward speed of the vehicle `v` (m/s), in `0..=MAX_SPEED_M_S`.
+    pub speed_m_s: f64,
+}
+
+impl Default for BogieSample {
+    /// All sensors zero at the paper's speed.
+    fn default() -> Self {
+        BogieSample::from_vector(&Vector5::zeros(), DEFAULT_SPEED_M_S)
+    }
 }
 
 impl BogieSample {
@@ -35,18 +48,26 @@ impl BogieSample {
         )
     }
 
-    pub fn from_vector(y: &Vector5) -> Self {
+    pub fn from_vector(y: &Vector5, speed_m_s: f64) -> Self {
         BogieSample {
             wheelset1_accel_m_s2: y[0],
             wheelset2_accel_m_s2: y[1],
             bogie_accel_m_s2: y[2],
             bogie_yaw_rate_rad_s: y[3],
             body_accel_m_s2: y[4],
+            speed_m_s,
         }
     }
 
-    /// Every field finite, else an error naming the first bad one.
+    /// Every sensor finite and the speed in `0..=MAX_SPEED_M_S`, else an error naming the
+    /// first bad field.
     pub fn validate(&self) -> Result<Vector5, DamperError> {
+        if !(0.0..=MAX_SPEED_M_S).contains(&self.speed_m_s) {
+            return Err(DamperError::InvalidSample {
+                field: "speed_m_s",
+                value: self.speed_m_s,
+            });
+        }
         let y = self.to_vector();
         for (i, v) in y.iter().enumerate() {
             if !v.is_finite() {
@@ -115,5 +136,23 @@ mod tests {
                 ..
             })
         ));
+        for speed_m_s in [f64::NAN, -0.1, f64::INFINITY, MAX_SPEED_M_S * 1.01] {
+            let s = BogieSample {
+                speed_m_s,
+                ..BogieSample::default()
+            };
+            assert!(matches!(
+                s.validate(),
+                Err(DamperError::InvalidSample {
+                    field: "speed_m_s",
+                    ..
+                })
+            ));
+        }
+        let standstill = BogieSample {
+            speed_m_s: 0.0,
+            ..BogieSample::default()
+        };
+        assert!(standstill.validate().is_ok());
     }
 }

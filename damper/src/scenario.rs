@@ -6,6 +6,7 @@ use crate::config::DamperMonitorConfig;
 use crate::faults::DamperFault;
 use crate::params::{positive, BogieParams, Dampers};
 use crate::sample::SensorNoise;
+use crate::speed_profile::SpeedProfile;
 use crate::track::TrackSpec;
 use crate::DamperError;
 
@@ -31,6 +32,10 @@ pub struct DamperScenario {
     pub sensors: SensorNoise,
     #[serde(default)]
     pub faults: Vec<DamperFault>,
+    /// The plant's forward speed over time (`[speed] profile_m_s`); without it the vehicle's
+    /// `speed_m_s`, constant. Giving both is refused.
+    #[serde(default)]
+    pub speed: Option<SpeedProfile>,
     /// The estimator settings to run on it (`DamperMonitorConfig::default()` with the keys
     /// given; `preset = "paper"` starts from `DamperMonitorConfig::paper()` instead). Its
     /// `dt_s` is the scenario's (a different one is refused). Its vehicle is
@@ -52,6 +57,17 @@ impl DamperScenario {
     pub fn from_toml_str(text: &str) -> Result<Self, DamperError> {
         let config = |e: &dyn std::fmt::Display| DamperError::Config(e.to_string());
         let mut table: toml::Table = text.parse().map_err(|e| config(&e))?;
+        let vehicle_speed_given = table
+            .get("vehicle")
+            .and_then(|v| v.as_table())
+            .is_some_and(|v| v.contains_key("speed_m_s"));
+        if vehicle_speed_given && table.contains_key("speed") {
+            return Err(DamperError::Config(
+                "vehicle.speed_m_s and [speed] both given: say the speed once (a constant \
+                 speed is `profile_m_s = [[0, v]]`)"
+                    .into(),
+            ));
+        }
         let mut monitor_vehicle_given = false;
         if let Some(monitor) = table.remove("monitor") {
             let toml::Value::Table(monitor) = monitor else {
@@ -96,7 +112,26 @@ impl DamperScenario {
         for f in &self.faults {
             f.validate()?;
         }
+        if let Some(profile) = &self.speed {
+            profile.validate()?;
+            // The ERRI generator is a spatial filter realised in time at one speed, with a
+            // fixed wheelset delay `2a / v`.
+            if !profile.is_constant() && !matches!(self.track, TrackSpec::White { .. }) {
+                return Err(DamperError::Config(
+                    "speed.profile_m_s: a varying speed needs the white track (the ERRI \
+                     generator runs at one speed)"
+                        .into(),
+                ));
+            }
+        }
         self.monitor_config().validate()
+    }
+
+    /// The plant's speed over time: `[speed]`, else the vehicle's constant speed.
+    pub fn speed_profile(&self) -> SpeedProfile {
+        self.speed
+            .clone()
+            .unwrap_or_else(|| SpeedProfile::constant(self.vehicle.speed_m_s))
     }
 
     pub fn n_steps(&self) -> usize {
@@ -141,10 +176,39 @@ mod tests {
                 "damper-spectral-high",
                 include_str!("../../config/scenarios/damper-spectral-high.toml"),
             ),
+            (
+                "damper-speed-profile",
+                include_str!("../../config/scenarios/damper-speed-profile.toml"),
+            ),
         ] {
             let s = DamperScenario::from_toml_str(text).unwrap();
             assert_eq!(s.name, name);
         }
+    }
+
+    /// `[speed]` is the plant's speed; without it the vehicle's, constant; both is refused,
+    /// as is a varying speed on the ERRI track, and a bad profile names its point.
+    #[test]
+    fn speed_profile_is_given_once_and_checked() {
+        let s = DamperScenario::from_toml_str(MINIMAL).unwrap();
+        assert_eq!(s.speed_profile(), SpeedProfile::constant(45.3));
+        let with = format!("{MINIMAL}[speed]\nprofile_m_s = [[0, 0], [10, 20]]\n");
+        let s = DamperScenario::from_toml_str(&with).unwrap();
+        assert_eq!(s.speed_profile().at(5.0), 10.0);
+        let both = format!("{with}[vehicle]\nspeed_m_s = 30.0\n");
+        let err = DamperScenario::from_toml_str(&both)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("both given"), "{err}");
+        let unsorted = format!("{MINIMAL}[speed]\nprofile_m_s = [[0, 10], [5, 20], [3, 1]]\n");
+        let err = DamperScenario::from_toml_str(&unsorted)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("profile_m_s[2]"), "{err}");
+        let erri = "name = \"x\"\nseed = 1\nduration_s = 1.0\n[track]\nkind = \"erri\"\n\
+                    level = \"low\"\n[speed]\nprofile_m_s = [[0, 10], [1, 20]]\n";
+        let err = DamperScenario::from_toml_str(erri).unwrap_err().to_string();
+        assert!(err.contains("white track"), "{err}");
     }
 
     const MINIMAL: &str = "name = \"x\"\nseed = 1\nduration_s = 1.0\n[track]\nkind = \"white\"\nvelocity_std_m_s = 0.05\n";

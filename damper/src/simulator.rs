@@ -12,6 +12,7 @@ use crate::model::{BogieModel, Vector17, Vector5};
 use crate::params::Dampers;
 use crate::sample::BogieSample;
 use crate::scenario::DamperScenario;
+use crate::speed_profile::SpeedProfile;
 use crate::track::TrackGenerator;
 use crate::DamperError;
 
@@ -34,6 +35,8 @@ pub struct BogieSimulator {
     scenario: DamperScenario,
     disc: Discrete,
     disc_dampers: Dampers,
+    disc_speed_m_s: f64,
+    speed: SpeedProfile,
     x: Vector17,
     track: TrackGenerator,
     noise_std: Vector5,
@@ -47,12 +50,15 @@ pub struct BogieSimulator {
 impl BogieSimulator {
     pub fn new(scenario: &DamperScenario) -> Result<Self, DamperError> {
         scenario.validate()?;
-        let plant = BogieModel::new(&scenario.vehicle, 0.0)?;
+        let speed = scenario.speed_profile();
+        let mut vehicle = scenario.vehicle;
+        vehicle.speed_m_s = plant_speed(speed.at(0.0));
+        let plant = BogieModel::new(&vehicle, 0.0)?;
         let mut rng = ChaCha8Rng::seed_from_u64(scenario.seed);
         let track = TrackGenerator::new(
             &scenario.track,
-            scenario.vehicle.speed_m_s,
-            scenario.vehicle.wheelset_delay_s(),
+            vehicle.speed_m_s,
+            vehicle.wheelset_delay_s(),
             scenario.dt_s,
             &mut rng,
         )?;
@@ -63,6 +69,8 @@ impl BogieSimulator {
             plant,
             disc,
             disc_dampers: d0,
+            disc_speed_m_s: vehicle.speed_m_s,
+            speed,
             x: Vector17::zeros(),
             track,
             noise_std: scenario.sensors.std_vector(),
@@ -86,11 +94,21 @@ impl BogieSimulator {
         let dt = self.scenario.dt_s;
         let t_start = self.step as f64 * dt;
         let d = dampers_at(&self.scenario.dampers, &self.scenario.faults, t_start);
-        if d != self.disc_dampers {
-            // Only during faults; the exponential of a valid model cannot fail.
-            if let Ok(disc) = discretize(&self.plant.a_matrix(&d), &self.plant.g_matrix(), dt) {
+        // The speed over the step is the profile's at its start (held, as the track input).
+        let speed_m_s = self.speed.at(t_start);
+        let v = plant_speed(speed_m_s);
+        if d != self.disc_dampers || v != self.disc_speed_m_s {
+            // Only during faults and speed changes; the exponential of a valid model (positive
+            // speed, positive dampers) cannot fail.
+            let rediscretised = self
+                .plant
+                .set_speed(v)
+                .and_then(|_| discretize(&self.plant.a_matrix(&d), &self.plant.g_matrix(), dt));
+            if let Ok(disc) = rediscretised {
                 self.disc = disc;
                 self.disc_dampers = d;
+                self.disc_speed_m_s = v;
+                self.h = self.plant.h_matrix();
             }
         }
         let beta = self.track.next(&mut self.rng);
@@ -101,7 +119,7 @@ impl BogieSimulator {
         let y = self.h * self.x + noise;
         self.step += 1;
         self.last = Some((
-            BogieSample::from_vector(&y),
+            BogieSample::from_vector(&y, speed_m_s),
             BogieTruth {
                 time_s: self.step as f64 * dt,
                 dampers: d,
@@ -111,6 +129,15 @@ impl BogieSimulator {
         ));
         self.last.as_ref().map(|(s, t)| (s, t))
     }
+}
+
+/// The creep forces have `1 / v`: below this speed (standstill) the plant is simulated at it
+/// (the wheelsets' lateral and yaw velocities are then pinned to the rail by creep damping of
+/// 1.6e5/s, which the exact discretisation handles); the samples carry the true speed.
+const PLANT_MIN_SPEED_M_S: f64 = 0.1;
+
+fn plant_speed(speed_m_s: f64) -> f64 {
+    speed_m_s.max(PLANT_MIN_SPEED_M_S)
 }
 
 #[cfg(test)]

@@ -5,9 +5,9 @@
 //! One row per sample of one bogie, in time order:
 //!
 //! ```text
-//! time_s[,bogie],wheelset1_accel_m_s2,wheelset2_accel_m_s2,bogie_accel_m_s2,bogie_yaw_rate_rad_s,body_accel_m_s2[,true_csy_ns_per_m,true_csay_ns_per_m]
-//! 0.001,1,0.213,-0.112,0.051,0.0031,0.0127,16000,160000
-//! 0.001,2,0.198,-0.087,0.047,0.0029,0.0131,16000,160000
+//! time_s[,bogie],wheelset1_accel_m_s2,wheelset2_accel_m_s2,bogie_accel_m_s2,bogie_yaw_rate_rad_s,body_accel_m_s2[,speed_m_s][,true_csy_ns_per_m,true_csay_ns_per_m]
+//! 0.001,1,0.213,-0.112,0.051,0.0031,0.0127,45.3,16000,160000
+//! 0.001,2,0.198,-0.087,0.047,0.0029,0.0131,45.3,16000,160000
 //! ```
 //!
 //! - `time_s`: time of the sample (s); never decreases from one row to the next, and strictly
@@ -18,6 +18,10 @@
 //! - the five sensors in the paper's order (eq. 4): lateral accelerations of the leading and
 //!   trailing wheelsets, of the bogie frame, the bogie yaw rate, the lateral acceleration of
 //!   the body above the bogie.
+//! - `speed_m_s` (optional): the vehicle's forward speed (m/s, `0..=MAX_SPEED_M_S`), what the
+//!   damper model depends on. Files written before it existed have none: their reader
+//!   ([`BogieRecord::speed_m_s`] `None`) assumes the configured constant speed, with a warning.
+//!   Written on every new file, after the sensors.
 //! - Optional truth (simulated data): both damper coefficients (N s/m), both or neither.
 //!
 //! A NaN, an infinity, an empty field, a missing column, a bogie id that is not a positive
@@ -33,6 +37,8 @@ use std::fs::File;
 use std::io::Read;
 use std::path::Path;
 
+use railmon_damper::sample::MAX_SPEED_M_S;
+
 use crate::{create_csv, finish_csv, AtomicFile, Column, CsvTable, RecordError};
 
 /// Time and sensor columns, in order.
@@ -46,6 +52,8 @@ pub const BOGIE_COLUMNS: [&str; 6] = [
 ];
 /// Truth columns of simulated recordings.
 pub const BOGIE_TRUTH_COLUMNS: [&str; 2] = ["true_csy_ns_per_m", "true_csay_ns_per_m"];
+/// The vehicle's speed (m/s), optional when reading, written after the sensors.
+pub const BOGIE_SPEED_COLUMN: &str = "speed_m_s";
 /// The optional bogie id column (written after `time_s`).
 pub const BOGIE_ID_COLUMN: &str = "bogie";
 /// The bogie a file without a [`BOGIE_ID_COLUMN`] holds.
@@ -57,6 +65,8 @@ pub struct BogieRecord {
     pub time_s: f64,
     /// The five sensors in the order of [`BOGIE_COLUMNS`]`[1..]`.
     pub sensors: [f64; 5],
+    /// Forward speed (m/s); `None` when the file has no [`BOGIE_SPEED_COLUMN`].
+    pub speed_m_s: Option<f64>,
     /// `[C_sy, C_say]` (N s/m) when the file has truth.
     pub truth_ns_per_m: Option<[f64; 2]>,
 }
@@ -67,6 +77,7 @@ pub struct BogieCsvReader<R: Read> {
     time: Column,
     bogie: Option<Column>,
     sensors: [Column; 5],
+    speed: Option<Column>,
     truth: Option<[Column; 2]>,
     /// Time of the previous row, whichever bogie it was.
     previous_time_s: Option<f64>,
@@ -101,6 +112,7 @@ impl<R: Read> BogieCsvReader<R> {
         Ok(BogieCsvReader {
             time: table.column(BOGIE_COLUMNS[0])?,
             bogie: table.optional_column(BOGIE_ID_COLUMN),
+            speed: table.optional_column(BOGIE_SPEED_COLUMN),
             sensors: [
                 table.column(BOGIE_COLUMNS[1])?,
                 table.column(BOGIE_COLUMNS[2])?,
@@ -126,6 +138,11 @@ impl<R: Read> BogieCsvReader<R> {
 
     pub fn has_truth(&self) -> bool {
         self.truth.is_some()
+    }
+
+    /// Whether the file has the vehicle's speed (else the reader's user assumes one).
+    pub fn has_speed(&self) -> bool {
+        self.speed.is_some()
     }
 
     /// Whether the file names the bogie of each row (else it holds [`DEFAULT_BOGIE_ID`] only).
@@ -239,6 +256,10 @@ impl<R: Read> BogieCsvReader<R> {
         for (v, c) in sensors.iter_mut().zip(&self.sensors) {
             *v = row.f64(c)?;
         }
+        let speed_m_s = match &self.speed {
+            Some(c) => Some(row.f64_in(c, 0.0, MAX_SPEED_M_S, "m/s")?),
+            None => None,
+        };
         let truth_ns_per_m = match &self.truth {
             Some([csy, csay]) => Some([
                 row.f64_in(csy, 0.0, f64::MAX, "N s/m")?,
@@ -257,6 +278,7 @@ impl<R: Read> BogieCsvReader<R> {
             BogieRecord {
                 time_s,
                 sensors,
+                speed_m_s,
                 truth_ns_per_m,
             },
         )))
@@ -294,6 +316,7 @@ impl BogieCsvWriter {
         if bogie_column {
             header.insert(1, BOGIE_ID_COLUMN);
         }
+        header.push(BOGIE_SPEED_COLUMN);
         if with_truth {
             header.extend(BOGIE_TRUTH_COLUMNS);
         }
@@ -328,6 +351,10 @@ impl BogieCsvWriter {
             false => {}
         }
         fields.extend(record.sensors.iter().map(|v| v.to_string()));
+        let speed = record.speed_m_s.ok_or_else(|| {
+            RecordError::file(&self.file, "a row without speed_m_s (every row needs it)")
+        })?;
+        fields.push(speed.to_string());
         if self.with_truth {
             let t = record.truth_ns_per_m.ok_or_else(|| {
                 RecordError::file(
@@ -372,11 +399,13 @@ mod tests {
             BogieRecord {
                 time_s: 0.001,
                 sensors: [0.1, -0.2, 0.3, 0.004, 0.05],
+                speed_m_s: Some(45.3),
                 truth_ns_per_m: Some([16e3, 160e3]),
             },
             BogieRecord {
                 time_s: 0.002,
                 sensors: [1e-17, 2.5, -3.0, 0.0, 1.0 / 3.0],
+                speed_m_s: Some(0.0),
                 truth_ns_per_m: Some([9.6e3, 64e3]),
             },
         ];
@@ -431,10 +460,37 @@ mod tests {
         );
     }
 
+    /// Without a `speed_m_s` column every row has none (the caller assumes its configured
+    /// speed); with it, each row's speed, range-checked and named on error.
+    #[test]
+    fn speed_column_is_optional_and_checked() {
+        let rows = read_all(&format!("{HEADER}\n0.001,1,2,3,4,5\n")).unwrap();
+        assert_eq!(rows[0].speed_m_s, None);
+        let header_only = format!("{HEADER}\n");
+        let r = BogieCsvReader::from_reader("b.csv", header_only.as_bytes()).unwrap();
+        assert!(!r.has_speed());
+        let with = format!("{HEADER},speed_m_s\n0.001,1,2,3,4,5,12.5\n0.002,1,2,3,4,5,0\n");
+        let rows = read_all(&with).unwrap();
+        assert_eq!(
+            rows.iter().map(|r| r.speed_m_s).collect::<Vec<_>>(),
+            [Some(12.5), Some(0.0)]
+        );
+        for bad in ["NaN", "-1", "151", ""] {
+            let err =
+                read_all(&format!("{HEADER},speed_m_s\n0.001,1,2,3,4,5,{bad}\n")).unwrap_err();
+            assert_eq!(
+                (err.line, err.field.as_deref()),
+                (Some(2), Some("speed_m_s")),
+                "{bad}: {err}"
+            );
+        }
+    }
+
     fn record(time_s: f64, k: f64) -> BogieRecord {
         BogieRecord {
             time_s,
             sensors: [0.1 * k, -0.2 * k, 1e-17 * k, 0.004, 1.0 / (3.0 + k)],
+            speed_m_s: Some(30.0 + k),
             truth_ns_per_m: Some([16e3, 160e3 * (1.0 - 0.01 * k)]),
         }
     }

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 use railmon_bus::BogieFrame;
-use railmon_damper::{BogieSample, BogieSimulator, DamperScenario};
+use railmon_damper::{BogieSample, BogieSimulator, DamperScenario, DEFAULT_SPEED_M_S};
 use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord, DEFAULT_BOGIE_ID};
 
 use crate::replay::{publish, Outcome, Source};
@@ -20,7 +20,7 @@ pub struct BogieArgs {
     /// Damper scenario (e.g. config/scenarios/damper-fault.toml): simulated bogies with truth.
     #[arg(long, conflicts_with = "csv", required_unless_present = "csv")]
     scenario: Option<PathBuf>,
-    /// Bogie CSV: `time_s[,bogie],wheelset1_accel_m_s2,...,body_accel_m_s2[,true_csy_ns_per_m,true_csay_ns_per_m]`
+    /// Bogie CSV: `time_s[,bogie],wheelset1_accel_m_s2,...,body_accel_m_s2[,speed_m_s][,true_csy_ns_per_m,true_csay_ns_per_m]`
     /// (every bogie of its `bogie` column; without one, one bogie).
     #[arg(long)]
     csv: Option<PathBuf>,
@@ -33,6 +33,10 @@ pub struct BogieArgs {
     /// Simulate only this much of the scenario, s (scenario only; the scenario's bounds apply).
     #[arg(long)]
     duration_s: Option<f64>,
+    /// Vehicle speed to send with a CSV that has no `speed_m_s` column, m/s (with a warning)
+    /// [default: the damper model's, 45.3].
+    #[arg(long)]
+    assume_speed_m_s: Option<f64>,
     #[command(flatten)]
     replay: ReplayArgs,
 }
@@ -63,6 +67,8 @@ struct BogieSource {
     /// Every bogie id sent, for the summary.
     ids_sent: Vec<u32>,
     writer: Option<BogieCsvWriter>,
+    /// The speed of a recording without a `speed_m_s` column.
+    assumed_speed_m_s: f64,
 }
 
 /// The id of the last of `n` simulated bogies numbered from `first`: an error, not a wrap to
@@ -74,6 +80,10 @@ fn last_bogie_id(first: u32, n: u32) -> anyhow::Result<u32> {
             u32::MAX
         )
     })
+}
+
+fn assumed_speed_m_s(args: &BogieArgs) -> f64 {
+    args.assume_speed_m_s.unwrap_or(DEFAULT_SPEED_M_S)
 }
 
 fn simulators(scenario: &DamperScenario, n: u32) -> anyhow::Result<Vec<BogieSimulator>> {
@@ -124,6 +134,14 @@ impl BogieSource {
                     );
                 }
                 let with_truth = reader.has_truth();
+                if !reader.has_speed() {
+                    eprintln!(
+                        "sensors-replay: warning: {} has no speed_m_s column: sending {} m/s \
+                         (--assume-speed-m-s)",
+                        path.display(),
+                        assumed_speed_m_s(args)
+                    );
+                }
                 let samples = Samples::Recorded {
                     path: path.clone(),
                     reader,
@@ -145,6 +163,7 @@ impl BogieSource {
             last: None,
             ids_sent: Vec::new(),
             writer,
+            assumed_speed_m_s: assumed_speed_m_s(args),
         })
     }
 
@@ -165,6 +184,7 @@ impl BogieSource {
                         let record = BogieRecord {
                             time_s: truth.time_s,
                             sensors: y.to_vector().into(),
+                            speed_m_s: Some(y.speed_m_s),
                             truth_ns_per_m: Some([
                                 truth.dampers.csy_ns_per_m,
                                 truth.dampers.csay_ns_per_m,
@@ -208,7 +228,13 @@ impl Source for BogieSource {
         if !self.ids_sent.contains(&id) {
             self.ids_sent.push(id);
         }
-        let sample = BogieSample::from_vector(&record.sensors.into());
+        let speed_m_s = record.speed_m_s.unwrap_or(self.assumed_speed_m_s);
+        let sample = BogieSample::from_vector(&record.sensors.into(), speed_m_s);
+        // Recorded as sent: with the speed the frame carried.
+        let record = BogieRecord {
+            speed_m_s: Some(speed_m_s),
+            ..record
+        };
         self.last = Some((id, record));
         Ok(Some((
             BogieFrame::from_sample(id, &sample),
@@ -323,7 +349,7 @@ mod tests {
         assert!(reader.has_bogie_column() && reader.has_truth());
         for (frame, time_ns) in &sent {
             let (id, r) = reader.next_bogie_record().unwrap().unwrap();
-            let sample = BogieSample::from_vector(&r.sensors.into());
+            let sample = BogieSample::from_vector(&r.sensors.into(), r.speed_m_s.unwrap());
             assert_eq!(BogieFrame::from_sample(id, &sample), *frame);
             assert_eq!((r.time_s * 1e9).round() as u64, *time_ns);
         }
@@ -342,31 +368,33 @@ mod tests {
     #[test]
     fn a_csv_without_bogie_column_is_one_bogie_of_the_given_id() {
         let dir = temp_dir("one-bogie");
+        // The layout before bogie ids and speed.
         let old = dir.join("old.csv");
-        let mut w = BogieCsvWriter::create(&old, false).unwrap();
+        let mut text = railmon_records::bogie::BOGIE_COLUMNS.join(",");
         for k in 1..=3 {
-            let record = BogieRecord {
-                time_s: 1e-3 * f64::from(k),
-                sensors: [0.1, 0.2, 0.3, 0.004, f64::from(k)],
-                truth_ns_per_m: None,
-            };
-            w.write(&record).unwrap();
+            text += &format!("\n{},0.1,0.2,0.3,0.004,{k}", 1e-3 * f64::from(k));
         }
-        w.finish().unwrap();
+        std::fs::write(&old, text + "\n").unwrap();
         let args = |id: &'static str| ["--csv", old.to_str().unwrap(), "--bogie-id", id];
         let sent = replay_offline(&mut source(&args("2")).unwrap(), 1).unwrap();
-        let got: Vec<(u32, f64, u64)> = sent
+        let got: Vec<(u32, f64, u64, f64)> = sent
             .iter()
-            .map(|(f, t)| (f.bogie_id, f.body_accel_m_s2, *t))
+            .map(|(f, t)| (f.bogie_id, f.body_accel_m_s2, *t, f.speed_m_s))
             .collect();
+        // Without a speed column: the assumed speed, the damper model's default.
+        let v = DEFAULT_SPEED_M_S;
         assert_eq!(
             got,
             [
-                (2, 1.0, 1_000_000),
-                (2, 2.0, 2_000_000),
-                (2, 3.0, 3_000_000)
+                (2, 1.0, 1_000_000, v),
+                (2, 2.0, 2_000_000, v),
+                (2, 3.0, 3_000_000, v)
             ]
         );
+        let path = old.to_str().unwrap();
+        let assumed = ["--csv", path, "--assume-speed-m-s", "30"];
+        let sent = replay_offline(&mut source(&assumed).unwrap(), 1).unwrap();
+        assert!(sent.iter().all(|(f, _)| f.speed_m_s == 30.0));
         assert!(source(&args("0")).is_err());
         let err = source(&[
             "--scenario",

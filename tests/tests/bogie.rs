@@ -34,7 +34,10 @@ fn reference(record: &Path) -> DamperEstimate {
     let mut monitor = monitor(1);
     while let Some(r) = reader.next_record().unwrap() {
         monitor
-            .step(&BogieSample::from_vector(&r.sensors.into()))
+            .step(&BogieSample::from_vector(
+                &r.sensors.into(),
+                r.speed_m_s.expect("recordings carry the speed"),
+            ))
             .unwrap();
     }
     *monitor.estimate()
@@ -180,6 +183,7 @@ fn bad_bogie_frames_are_rejected_counted_and_leave_the_estimate_alone() {
         bogie_accel_m_s2: 0.05,
         bogie_yaw_rate_rad_s: 0.001,
         body_accel_m_s2: -0.02,
+        speed_m_s: 40.0,
     };
     let mut reference = monitor(1);
     for k in 0..10 {
@@ -205,21 +209,34 @@ fn bad_bogie_frames_are_rejected_counted_and_leave_the_estimate_alone() {
         bogie_accel_m_s2: 1000.0 * s.bogie_accel_m_s2,
         bogie_yaw_rate_rad_s: 1000.0 * s.bogie_yaw_rate_rad_s,
         body_accel_m_s2: 1000.0 * s.body_accel_m_s2,
+        ..s
     };
+    // A speed in km/h (or a broken speed sensor): refused, counted by its own reason.
+    let mut too_fast = BogieFrame::from_sample(1, &sample(13));
+    too_fast.speed_m_s = 300.0;
     publisher.send(&nan, 10_000_000).unwrap();
     publisher
         .send(&BogieFrame::from_sample(1, &scaled), 11_000_000)
         .unwrap();
     publisher.send(&unknown, 12_000_000).unwrap();
+    publisher.send(&too_fast, 13_000_000).unwrap();
     publisher.notify().unwrap();
     service.assert_rejections(
         "bogie",
         10,
-        &["not_finite", "out_of_range", "unknown_bogie"],
+        &[
+            "not_finite",
+            "out_of_range",
+            "unknown_bogie",
+            "speed_out_of_range",
+        ],
     );
     assert_eq!(service.get_json("/api/v1/bogies/1"), before);
     let last = service.status("bogie")["last_rejection"]["message"].clone();
-    assert!(last.as_str().unwrap().contains("bogie 9"), "{last}");
+    assert!(
+        last.as_str().unwrap().contains("speed_m_s is 300"),
+        "{last}"
+    );
 }
 
 #[test]

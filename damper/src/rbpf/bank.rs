@@ -7,7 +7,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{DamperMonitorConfig, Propagation};
 use crate::expm::discretize;
-use crate::gain_table::{GainTable, INV_S_DIAG_OFFSET, LN_DET_OFFSET, NODE_LEN, S_INV_OFFSET};
+use crate::gain_table::{
+    GainGrid, GainTable, INV_S_DIAG_OFFSET, LN_DET_OFFSET, NODE_LEN, S_INV_OFFSET,
+};
 use crate::kalman::{self, initial_covariance, NoiseCovariances, StateEstimate};
 use crate::model::{BogieModel, Matrix17, Matrix5x17, Vector17, Vector5, N_OUTPUTS, N_STATES};
 use crate::params::Dampers;
@@ -94,10 +96,14 @@ impl Bank {
                     csy_ns_per_m: 1.0,
                     csay_ns_per_m: 1.0,
                 });
+                let grid_node = table.node_of(model.params().speed_m_s);
                 Bank::Steady(Box::new(SteadyBank {
                     n,
                     prop: SparsePropagator::new(&model, config.dt_s, cfg.taylor_order)?,
+                    grid: table.grid_at(grid_node)?,
+                    grid_node,
                     table,
+                    model,
                     csay_gain: entries.yaw_damping_per_s,
                     end_stiffness: entries.series_rate_per_s,
                     x: vec![0.0; N_STATES * n],
@@ -134,7 +140,12 @@ pub(super) struct ExactBank {
 pub(super) struct SteadyBank {
     n: usize,
     prop: SparsePropagator,
+    /// The filter model at the current speed.
+    model: BogieModel,
     table: Arc<GainTable>,
+    /// The gain grid of the current speed's node, and that node.
+    grid: Arc<GainGrid>,
+    grid_node: usize,
     csay_gain: f64,
     end_stiffness: f64,
     /// Posterior states, structure-of-arrays `x[state * n + particle]`.
@@ -218,6 +229,35 @@ impl Bank {
         }
     }
 
+    /// The forward speed of the next steps (m/s, positive): the model, `H` and the Taylor
+    /// order at exactly this speed; the steady-state gains of the nearest speed node (every
+    /// particle's gain is looked up again when the node changes).
+    pub(super) fn set_speed(&mut self, speed_m_s: f64) -> Result<(), DamperError> {
+        match self {
+            Bank::Exact(b) => {
+                if b.model.params().speed_m_s != speed_m_s {
+                    b.model.set_speed(speed_m_s)?;
+                    b.h = b.model.h_matrix();
+                }
+                Ok(())
+            }
+            Bank::Steady(b) => {
+                if b.model.params().speed_m_s == speed_m_s {
+                    return Ok(());
+                }
+                b.model.set_speed(speed_m_s)?;
+                b.prop.set_speed(&b.model);
+                let node = b.table.node_of(speed_m_s);
+                if node != b.grid_node {
+                    b.grid = b.table.grid_at(node)?;
+                    b.grid_node = node;
+                    b.node_theta.fill([f64::NAN; 2]);
+                }
+                Ok(())
+            }
+        }
+    }
+
     pub(super) fn commit(&mut self) {
         match self {
             Bank::Exact(b) => std::mem::swap(&mut b.est, &mut b.next),
@@ -282,7 +322,7 @@ impl SteadyBank {
             if self.node_theta[i] != *th {
                 self.yaw[i] = self.csay_gain * th[1].exp();
                 self.series[i] = self.end_stiffness * (-th[0]).exp();
-                self.table.interpolate(&self.table.cell(*th), &mut node);
+                self.grid.interpolate(&self.grid.cell(*th), &mut node);
                 for (k, v) in node.iter().enumerate() {
                     self.nodes[k * n + i] = *v;
                 }

@@ -110,6 +110,7 @@ impl Rbpf {
             &config.noise(),
             &config.nominal,
             &config.rbpf.gain_grid,
+            &config.speed,
             config.dt_s,
         )
     }
@@ -307,6 +308,29 @@ impl Rbpf {
                 self.ess = effective_sample_size(&self.log_w);
             }
         }
+        Ok(())
+    }
+
+    /// The vehicle's forward speed for the next steps (m/s; the caller keeps it within
+    /// `speed`'s range: outside it the filter is paused, not stepped). Until the first call
+    /// the filter assumes the configured vehicle speed.
+    pub fn set_speed(&mut self, speed_m_s: f64) -> Result<(), DamperError> {
+        self.bank.set_speed(speed_m_s)
+    }
+
+    /// Runs every particle's Kalman filter on `y` without weighting, resampling or moving the
+    /// particles: the parameter posterior stays exactly as it was. For the first samples after
+    /// a pause, when the state estimates are stale and their innovations say nothing about
+    /// the parameters.
+    pub fn step_states(&mut self, y: &Vector5) -> Result<(), DamperError> {
+        if y.iter().any(|v| !v.is_finite()) {
+            return Err(DamperError::NonFinite {
+                what: "measurement",
+            });
+        }
+        self.bank
+            .step(&self.ln_theta, y, &mut self.ll, &mut self.nis)?;
+        self.bank.commit();
         Ok(())
     }
 

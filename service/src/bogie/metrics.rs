@@ -10,6 +10,8 @@ pub struct BogieMetrics {
     pub degraded: EstimateIntGaugeVec,
     pub effective_sample_size: EstimateGaugeVec,
     pub events: IntCounterVec,
+    pub paused: EstimateIntGaugeVec,
+    pub speed: EstimateGaugeVec,
 }
 
 impl BogieMetrics {
@@ -40,6 +42,17 @@ impl BogieMetrics {
                 "bogie_damper_events_total",
                 "Damper degraded / recovered events.",
                 &["bogie", "damper", "kind"],
+            )?,
+            paused: f.estimate_gauge_vec(
+                "bogie_damper_paused",
+                "1 while the bogie's filter holds its posterior because the speed is outside its \
+                 valid range (reason: low_speed, high_speed).",
+                &["bogie", "reason"],
+            )?,
+            speed: f.estimate_gauge_vec(
+                "bogie_speed_meters_per_second",
+                "Vehicle speed of the bogie's last sample.",
+                &["bogie"],
             )?,
         })
     }

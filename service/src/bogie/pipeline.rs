@@ -11,7 +11,7 @@ use railmon_bus::{BogieFrame, FrameHeader};
 use railmon_damper::gain_table::GainTable;
 use railmon_damper::{
     BogieSample, DamperAlarm, DamperError, DamperEventKind, DamperMonitor, DamperMonitorState,
-    DamperPosterior, Propagation, Rbpf,
+    DamperPosterior, PauseReason, Propagation, Rbpf,
 };
 
 use railmon_bus::StreamKind;
@@ -47,6 +47,9 @@ struct BogieSlot {
     last_stamp: Option<Stamp>,
     dampers: [DamperGauges; 2],
     ess: EstimateGauge,
+    /// `paused` gauges, one per reason (`PauseReason::ALL` order), and the speed.
+    paused: [EstimateIntGauge; 2],
+    speed: EstimateGauge,
 }
 
 impl BogieSlot {
@@ -81,12 +84,22 @@ impl BogieSlot {
                 .bogie
                 .effective_sample_size
                 .with_label_values(&[bogie.as_str()]),
+            paused: PauseReason::ALL.map(|r| {
+                metrics
+                    .bogie
+                    .paused
+                    .with_label_values(&[bogie.as_str(), r.as_str()])
+            }),
+            speed: metrics.bogie.speed.with_label_values(&[bogie.as_str()]),
         }
     }
 }
 
 fn rejection_of(e: DamperError) -> Rejection {
     let reason = match &e {
+        DamperError::InvalidSample {
+            field: "speed_m_s", ..
+        } => "speed_out_of_range",
         DamperError::InvalidSample { .. } => "not_finite",
         _ => "estimator",
     };
@@ -346,10 +359,13 @@ impl BogiePipeline {
                     nis_window_mean: estimate.and_then(|e| e.nis_window_mean).unwrap_or(f64::NAN),
                     status: match estimate {
                         None => "no_samples",
+                        Some(e) if e.paused.is_some() => "paused",
                         Some(e) if e.model_mismatch => "model_mismatch",
                         Some(_) => "ok",
                     }
                     .into(),
+                    paused: estimate.and_then(|e| e.paused).map(|r| r.as_str().into()),
+                    speed_m_s: estimate.map(|e| e.speed_m_s),
                 }
             })
             .collect();
@@ -376,6 +392,10 @@ impl BogiePipeline {
                 g.degraded.set(i64::from(d.degraded));
             }
             slot.ess.set(b.effective_sample_size);
+            for (gauge, reason) in slot.paused.iter().zip(PauseReason::ALL) {
+                gauge.set(i64::from(b.paused.as_deref() == Some(reason.as_str())));
+            }
+            slot.speed.set(b.speed_m_s.unwrap_or(f64::NAN));
         }
     }
 }
@@ -399,8 +419,12 @@ struct SavedBogies {
 impl Pipeline for BogiePipeline {
     type Frame = BogieFrame;
     type Checked = CheckedBogieSample;
-    const REJECTION_REASONS: &'static [&'static str] =
-        &["not_finite", "unknown_bogie", "out_of_range"];
+    const REJECTION_REASONS: &'static [&'static str] = &[
+        "not_finite",
+        "unknown_bogie",
+        "out_of_range",
+        "speed_out_of_range",
+    ];
     /// The bogies of one step share its time.
     const REPEATED_TIMES: bool = true;
 

@@ -51,10 +51,16 @@ pub struct BogieView {
     /// model explains the data); null until its first window is complete.
     #[schema(value_type = Option<f64>)]
     pub nis_window_mean: f64,
-    /// `ok`, `no_samples`, or `model_mismatch`: the filter's model does not explain the data
-    /// for a sustained time (a wrong vehicle, speed or sensor noise in the configuration; the
-    /// health flags are not judged meanwhile).
+    /// `ok`, `no_samples`, `paused` (the speed is outside the filter's valid range,
+    /// `estimator.speed`: the posterior is held and the health flags are not judged; the
+    /// reason in `paused`), or `model_mismatch`: the filter's model does not explain the data
+    /// for a sustained time (a wrong vehicle or sensor noise in the configuration; the health
+    /// flags are not judged meanwhile).
     pub status: String,
+    /// Why the filter is paused: `low_speed` or `high_speed`; null when it is not.
+    pub paused: Option<String>,
+    /// Vehicle speed of the last sample, m/s; null before the first.
+    pub speed_m_s: Option<f64>,
 }
 
 /// `GET /api/v1/bogies`: every configured bogie.
