@@ -328,8 +328,18 @@ impl Rbpf {
                 what: "measurement",
             });
         }
-        self.bank
-            .step(&self.ln_theta, y, &mut self.ll, &mut self.nis)?;
+        // The noise estimate is held too: its innovations would be the stale states'.
+        let whiten = Whitening::new(&self.noise_scale.variance_scale());
+        self.bank.step(
+            &self.ln_theta,
+            y,
+            &whiten,
+            StepOutput {
+                ll: &mut self.ll,
+                nis: &mut self.nis,
+                z: &mut self.z,
+            },
+        )?;
         self.bank.commit();
         Ok(())
     }
