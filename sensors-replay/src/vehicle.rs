@@ -176,6 +176,8 @@ mod tests {
         for (k, row) in recorded.iter().enumerate() {
             let mut want = input_rows[k % 3].clone();
             want.sample.time_s = times[k] as f64;
+            // The recording's own line: after its header, one row per sample.
+            want.line = k as u64 + 2;
             assert_eq!(*row, want);
         }
         let replayed = replay_offline(&mut open(&["--csv", record_arg]), 1).unwrap();
