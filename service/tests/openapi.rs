@@ -174,3 +174,31 @@ async fn parameter_bounds_are_the_servers() {
         assert!(bogie.to_string().contains("null"), "{field}: {bogie}");
     }
 }
+
+/// Every key of a live answer is in its schema: the `vehicle_id` and `fleet` that every JSON
+/// answer starts with included (issue 13).
+#[tokio::test]
+async fn answers_name_their_vehicle_in_the_schema_too() {
+    let api = document().await;
+    let state = AppState::new(test_config()).unwrap();
+    for (uri, schema) in [
+        ("/api/v1/status", "StatusView"),
+        ("/api/v1/events", "EventsPage"),
+        ("/api/v1/nowhere", "ErrorBody"),
+    ] {
+        let (_, _, body) = get(&state, uri).await;
+        let body: Value = serde_json::from_str(&body).unwrap();
+        let properties = api["components"]["schemas"][schema]["properties"]
+            .as_object()
+            .unwrap_or_else(|| panic!("{schema}: no properties"));
+        for key in body.as_object().unwrap().keys() {
+            assert!(
+                properties.contains_key(key),
+                "{uri}: `{key}` not in {schema}"
+            );
+        }
+        for key in ["vehicle_id", "fleet"] {
+            assert!(body.get(key).is_some(), "{uri}: no `{key}`");
+        }
+    }
+}

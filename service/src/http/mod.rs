@@ -64,7 +64,67 @@ pub fn api_doc() -> utoipa::openapi::OpenApi {
         .merge_from(crate::bogie::BogieApi::openapi())
         .merge_from(crate::vehicle::VehicleApi::openapi());
     only_own_event_filters(&mut doc);
+    named_response_bodies(&mut doc);
     doc
+}
+
+/// [`identify`] puts `vehicle_id` and `fleet` first in every JSON object the routes answer;
+/// the derived schemas cannot know, so each response body's schema gets them here. Not
+/// `required`: the answers of the outer `server::limits` layer (timeouts, oversized headers)
+/// do not pass through `identify`.
+fn named_response_bodies(doc: &mut utoipa::openapi::OpenApi) {
+    use utoipa::openapi::schema::{ObjectBuilder, Type};
+    use utoipa::openapi::{RefOr, Schema};
+    const COMPONENT: &str = "#/components/schemas/";
+    let mut bodies = std::collections::BTreeSet::new();
+    for item in doc.paths.paths.values() {
+        let operations = [&item.get, &item.post, &item.put, &item.delete, &item.patch];
+        for operation in operations.into_iter().flatten() {
+            for response in operation.responses.responses.values() {
+                let RefOr::T(response) = response else {
+                    continue;
+                };
+                for content in response.content.values() {
+                    let RefOr::T(content) = content else {
+                        continue;
+                    };
+                    if let Some(RefOr::Ref(body)) = &content.schema {
+                        if let Some(name) = body.ref_location.strip_prefix(COMPONENT) {
+                            bodies.insert(name.to_owned());
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let Some(components) = doc.components.as_mut() else {
+        return;
+    };
+    let fields = [
+        (
+            "vehicle_id",
+            "The vehicle this service monitors (`[identity] vehicle_id`, else the host name).",
+            "unit-4711",
+        ),
+        (
+            "fleet",
+            "The fleet it belongs to (`[identity] fleet`; may be empty).",
+            "regional-north",
+        ),
+    ];
+    for name in bodies {
+        let Some(RefOr::T(Schema::Object(body))) = components.schemas.get_mut(&name) else {
+            continue;
+        };
+        for (field, description, example) in fields {
+            let schema = ObjectBuilder::new()
+                .schema_type(Type::String)
+                .description(Some(description))
+                .pattern(Some("^[A-Za-z0-9._-]{0,64}$"))
+                .examples([example]);
+            body.properties.insert(field.into(), schema.into());
+        }
+    }
 }
 
 /// The events endpoints share one query type ([`events::EventsQuery`]), whose `stream`,
