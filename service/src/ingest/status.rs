@@ -190,12 +190,18 @@ impl StreamStatus {
         let lagging = load > 1.0 || lag_ns as u128 > self.stale_after.as_nanos();
         if self.lagging.swap(lagging, Ordering::Relaxed) != lagging {
             self.lagging_gauge.set(i64::from(lagging));
+            // Before a second of samples has been timed there is no load: the log says
+            // `unmeasured`, not `NaN`.
+            let load = match load.is_finite() {
+                true => format!("{load:.3}"),
+                false => "unmeasured".to_owned(),
+            };
             match lagging {
                 true => {
-                    tracing::warn!(stream = %self.kind, load, lag_s = lag_ns as f64 * 1e-9, "estimator cannot keep up with real time")
+                    tracing::warn!(stream = %self.kind, %load, lag_s = lag_ns as f64 * 1e-9, "estimator cannot keep up with real time")
                 }
                 false => {
-                    tracing::info!(stream = %self.kind, load, "estimator keeps up with real time again")
+                    tracing::info!(stream = %self.kind, %load, "estimator keeps up with real time again")
                 }
             }
         }
