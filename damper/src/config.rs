@@ -67,7 +67,12 @@ pub struct SpeedConfig {
     /// reports `paused: low_speed`: the creep model `~ 1 / v` is not valid there (m/s).
     pub min_m_s: f64,
     /// Above it the filter holds likewise (`paused: high_speed`): the range the gain table
-    /// covers (m/s).
+    /// covers (m/s). The default stays below the linear model's critical speed: with the
+    /// paper's parameters an eigenvalue of `A` crosses into the right half-plane (hunting)
+    /// between 58 and 60 m/s with nominal dampers, and between 50 and 55 m/s with `C_say` at
+    /// 40 % (`tests::the_default_top_speed_is_below_the_critical_speed`). Beyond it the linear
+    /// plant grows without bound, which no real bogie does (it hunts in a limit cycle the
+    /// linear model cannot represent), so a filter built on it would learn nonsense.
     pub max_m_s: f64,
     /// Ratio of neighbouring speed nodes of the gain table (geometric grid about the
     /// vehicle's configured speed).
@@ -82,7 +87,7 @@ impl Default for SpeedConfig {
     fn default() -> Self {
         SpeedConfig {
             min_m_s: 5.0,
-            max_m_s: 70.0,
+            max_m_s: 55.0,
             grid_ratio: 1.05,
             resume_settle_s: 1.0,
         }
@@ -438,6 +443,41 @@ impl DamperMonitorConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The largest real part of the eigenvalues of `A` at `speed_m_s`, leaving out the two
+    /// drift modes (eigenvalue 0 up to rounding).
+    fn growth_rate_per_s(dampers: &crate::Dampers, speed_m_s: f64) -> f64 {
+        let params = crate::BogieParams::default();
+        let mut model = crate::model::BogieModel::new(&params, 0.0).unwrap();
+        model.set_speed(speed_m_s).unwrap();
+        let a = model.a_matrix(dampers);
+        a.complex_eigenvalues()
+            .iter()
+            .map(|e| e.re)
+            .fold(f64::MIN, f64::max)
+    }
+
+    /// Hunting: above the critical speed the linear model is unstable (an eigenvalue of `A`
+    /// in the right half-plane), so the filter's valid range must end below it.
+    #[test]
+    fn the_default_top_speed_is_below_the_critical_speed() {
+        let top = SpeedConfig::default().max_m_s;
+        let nominal = crate::Dampers::NOMINAL;
+        assert!(
+            growth_rate_per_s(&nominal, top) < 1e-6,
+            "unstable at {top} m/s"
+        );
+        assert!(growth_rate_per_s(&nominal, 58.0) < 1e-6);
+        // The critical speed exists and lies just above: the check above can fail.
+        assert!(growth_rate_per_s(&nominal, 60.0) > 0.1);
+        // A failed anti-yaw damper lowers it (why such a bogie is dangerous at speed).
+        let failed = crate::Dampers {
+            csay_ns_per_m: 0.4 * nominal.csay_ns_per_m,
+            ..nominal
+        };
+        assert!(growth_rate_per_s(&failed, 50.0) < 1e-6);
+        assert!(growth_rate_per_s(&failed, 55.0) > 0.1);
+    }
 
     fn rejects(cfg: DamperMonitorConfig, name: &str) {
         match cfg.validate() {
