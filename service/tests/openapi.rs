@@ -2,7 +2,7 @@
 //! `scripts/install-test-deps`: `target-venv`, or `$RAILMON_TEST_VENV`) and usable: every
 //! operation has a summary, a tag of its stream, and a description for every response; every
 //! `f64` that the server may send as `null` is nullable; the history bound is the server's.
-//! `GET /` leads to the docs. The server's answers against the document: `tests/tests/schemathesis.rs`.
+//! `GET /` leads to the docs; every JSON answer has a real example, valid against its schema. The server's answers against the document: `tests/tests/schemathesis.rs`.
 
 mod common;
 
@@ -38,32 +38,79 @@ async fn document() -> Value {
     serde_json::from_str(&body).unwrap()
 }
 
-#[tokio::test]
-async fn the_document_passes_the_openapi_validator() {
+/// Runs `tool` of the test Python environment on the document (written to a file, whose path
+/// is the last argument) and panics with its output unless it succeeds.
+async fn check_document_with(tool: &str, args: &[&str]) {
     let venv = std::env::var("RAILMON_TEST_VENV")
         .map(std::path::PathBuf::from)
         .unwrap_or_else(|_| {
             std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target-venv")
         });
-    let validator = venv.join("bin/openapi-spec-validator");
+    let tool = venv.join("bin").join(tool);
     assert!(
-        validator.exists(),
+        tool.exists(),
         "{} missing: run scripts/install-test-deps",
-        validator.display()
+        tool.display()
     );
-    let file = std::env::temp_dir().join(format!("railmon-openapi-{}.json", std::process::id()));
+    static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let file = std::env::temp_dir().join(format!(
+        "railmon-openapi-{}-{}.json",
+        std::process::id(),
+        N.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+    ));
     std::fs::write(&file, document().await.to_string()).unwrap();
-    let out = std::process::Command::new(&validator)
+    let out = std::process::Command::new(&tool)
+        .args(args)
         .arg(&file)
         .output()
         .unwrap();
     let _ = std::fs::remove_file(&file);
     assert!(
         out.status.success(),
-        "openapi-spec-validator:\n{}{}",
+        "{}:\n{}{}",
+        tool.display(),
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+#[tokio::test]
+async fn the_document_passes_the_openapi_validator() {
+    check_document_with("openapi-spec-validator", &[]).await;
+}
+
+/// Checks that each `GET` has an example on one of its JSON answers, and each example against
+/// its answer's schema (OpenAPI 3.1 dialect, `$ref`s resolved in the document); argument: the
+/// document's file.
+const VALIDATE_EXAMPLES_PY: &str = r#"
+import json, sys
+import openapi_schema_validator as v
+doc = json.load(open(sys.argv[1]))
+bad = []
+for path, item in doc["paths"].items():
+    examples, json_answers = 0, 0
+    for status, response in item.get("get", {}).get("responses", {}).items():
+        body = response.get("content", {}).get("application/json")
+        json_answers += body is not None
+        if body is None or "example" not in body:
+            continue
+        examples += 1
+        schema = dict(body["schema"], components=doc["components"])
+        try:
+            v.validate(body["example"], schema, cls=v.OAS31Validator)
+        except v.ValidationError as e:
+            bad.append(f"{path} {status}: {e.message} at {list(e.absolute_path)}")
+    if json_answers and not examples:
+        bad.append(f"{path}: no example")
+print("\n".join(bad))
+sys.exit(1 if bad else 0)
+"#;
+
+/// Every JSON answer of a `GET` has an example (a real answer, captured by the system test
+/// `schemathesis_finds_no_failure`), and the example is valid against the answer's schema.
+#[tokio::test]
+async fn every_answer_has_an_example_valid_against_its_schema() {
+    check_document_with("python", &["-c", VALIDATE_EXAMPLES_PY]).await;
 }
 
 #[tokio::test]

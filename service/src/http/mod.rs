@@ -65,7 +65,41 @@ pub fn api_doc() -> utoipa::openapi::OpenApi {
         .merge_from(crate::vehicle::VehicleApi::openapi());
     only_own_event_filters(&mut doc);
     named_response_bodies(&mut doc);
+    real_examples(&mut doc);
     doc
+}
+
+/// Answers of this service captured from a live run of the three demo scenarios (drive seed,
+/// damper fault, fuel cycles), arrays cut to a few items, keyed by path template, followed by
+/// the status code when it is not 200 (`/readyz 503`: the replays have ended). The system test
+/// `schemathesis_finds_no_failure` checks every live answer against them and rewrites the file
+/// under `RAILMON_UPDATE_GOLDEN=1` (`scripts/regen-golden`); `service/tests/openapi.rs` checks
+/// that every `GET` has one and that each is valid against its schema.
+pub const API_EXAMPLES_JSON: &str = include_str!("../../assets/api-examples.json");
+
+/// Puts each captured answer ([`API_EXAMPLES_JSON`]) as the example of its `GET`'s JSON body
+/// for its status code, so the docs show what the server really sends.
+fn real_examples(doc: &mut utoipa::openapi::OpenApi) {
+    use utoipa::openapi::RefOr;
+    let examples: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_str(API_EXAMPLES_JSON).expect("service/assets/api-examples.json");
+    for (key, example) in examples {
+        let (path, status) = key.split_once(' ').unwrap_or((&key, "200"));
+        let Some(get) = doc
+            .paths
+            .paths
+            .get_mut(path)
+            .and_then(|item| item.get.as_mut())
+        else {
+            continue;
+        };
+        let Some(RefOr::T(response)) = get.responses.responses.get_mut(status) else {
+            continue;
+        };
+        if let Some(RefOr::T(json)) = response.content.get_mut("application/json") {
+            json.example = Some(example);
+        }
+    }
 }
 
 /// [`identify`] puts `vehicle_id` and `fleet` first in every JSON object the routes answer;
