@@ -5,8 +5,12 @@
 //! plant only. Per cell, over the seeds: false `damper_degraded` events per hour (healthy runs;
 //! `railmon_damper::DamperAlarm`), share of time after 30 s with both RBPF means within 5 % of
 //! the truth, 90 % interval coverage of each damper after 30 s, the share of time the filter
-//! reports `model_mismatch`, and for the fault runs the detection delay and the C_say error
-//! 10 s after the step.
+//! reports `model_mismatch`, and for the fault runs (a C_say step to 40 % at 30 s; a C_sy ramp
+//! to 60 % over 30-50 s) the detection delay (from the step; for the ramp, from when the truth
+//! crosses the alarm's `degraded_below_ratio`) and the error 10 s after the step / the ramp's end.
+//! False `damper_degraded` events of the fault runs (the damper without a fault, or before the
+//! fault) count with the healthy runs' hours. `off_nominal_starts` runs dampers far from
+//! nominal from t = 0 (every pair of 0.5x, 1x, 1.5x): both means within 5 % at 30 s?
 //!
 //! `cargo test --release -p railmon-damper --test robustness -- --ignored --nocapture` runs the
 //! issue's matrix (600 s per run, 3 seeds, N = 1000: hours on two cores; not in CI). Smaller runs by environment:
@@ -21,7 +25,8 @@ use std::time::Instant;
 
 use railmon_damper::{
     BogieSimulator, DamperAlarm, DamperEventKind, DamperFault, DamperId, DamperMonitor,
-    DamperMonitorConfig, DamperScenario, ErriLevel, FaultKind, Rbpf, TrackSpec,
+    DamperMonitorConfig, DamperScenario, Dampers, ErriLevel, FaultKind, Rbpf, SpeedProfile,
+    TrackSpec,
 };
 
 fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
@@ -32,6 +37,28 @@ fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
 }
 
 const BASE: &str = "name = \"robust\"\nseed = 1\nduration_s = 60.0\n[track]\nkind = \"white\"\nvelocity_std_m_s = 0.1\n";
+
+/// The profile of `config/scenarios/damper-speed-profile.toml` (from rest; 20, 45, 30, 55 m/s;
+/// a stop; 30 m/s), repeated every 300 s over `duration_s`.
+fn repeated_speed_profile(duration_s: f64) -> SpeedProfile {
+    let file = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../config/scenarios/damper-speed-profile.toml"
+    );
+    let scenario = DamperScenario::from_toml_str(&std::fs::read_to_string(file).unwrap()).unwrap();
+    let one = scenario
+        .speed
+        .expect("the scenario has a [speed] profile")
+        .profile_m_s;
+    const PERIOD_S: f64 = 300.0;
+    assert!(one.last().unwrap()[0] < PERIOD_S);
+    let periods = (duration_s / PERIOD_S).ceil().max(1.0) as usize;
+    SpeedProfile {
+        profile_m_s: (0..periods)
+            .flat_map(|k| one.iter().map(move |[t, v]| [t + k as f64 * PERIOD_S, *v]))
+            .collect(),
+    }
+}
 
 /// One cell: a name and how it changes the plant.
 struct Cell {
@@ -44,12 +71,16 @@ fn cells() -> Vec<Cell> {
         name: "base".into(),
         apply: Box::new(|_| {}),
     }];
-    for v in [10.0, 30.0, 70.0] {
+    for v in [10.0, 30.0, 55.0, 70.0] {
         cells.push(Cell {
             name: format!("speed {v} m/s"),
             apply: Box::new(move |s| s.vehicle.speed_m_s = v),
         });
     }
+    cells.push(Cell {
+        name: "speed profile with stops".into(),
+        apply: Box::new(|s| s.speed = Some(repeated_speed_profile(s.duration_s))),
+    });
     for k in [0.5, 1.5, 2.0, 3.0] {
         cells.push(Cell {
             name: format!("noise {k}x"),
@@ -74,6 +105,88 @@ fn cells() -> Vec<Cell> {
     cells
 }
 
+/// A fault run: the fault, when its effect should be found, and when its error is read.
+struct FaultRun {
+    fault: DamperFault,
+    /// From here a `damper_degraded` of `fault.damper` is a detection (earlier: a false alarm).
+    starts_s: f64,
+    /// The delay is counted from here: the step, or where the ramp's truth crosses the alarm's
+    /// `degraded_below_ratio`.
+    crosses_s: f64,
+    /// The posterior mean is compared with the truth here.
+    error_at_s: f64,
+    duration_s: f64,
+}
+
+impl FaultRun {
+    /// C_say steps to 40 % at 30 s (read 10 s after).
+    fn csay_step() -> Self {
+        FaultRun {
+            fault: DamperFault {
+                damper: DamperId::Csay,
+                kind: FaultKind::Step,
+                at_s: 30.0,
+                end_s: None,
+                ratio: 0.4,
+            },
+            starts_s: 30.0,
+            crosses_s: 30.0,
+            error_at_s: 40.0,
+            duration_s: 60.0,
+        }
+    }
+
+    /// C_sy ramps from nominal to 60 % over 30-50 s (read 10 s after the ramp's end).
+    fn csy_ramp(degraded_below_ratio: f64) -> Self {
+        let (at, end, ratio) = (30.0, 50.0, 0.6);
+        FaultRun {
+            fault: DamperFault {
+                damper: DamperId::Csy,
+                kind: FaultKind::Ramp,
+                at_s: at,
+                end_s: Some(end),
+                ratio,
+            },
+            starts_s: at,
+            crosses_s: at + (end - at) * (1.0 - degraded_below_ratio) / (1.0 - ratio),
+            error_at_s: end + 10.0,
+            duration_s: 75.0,
+        }
+    }
+}
+
+/// What the fault runs of one kind found.
+#[derive(Default)]
+struct FaultTally {
+    delays: Vec<Option<f64>>,
+    errors: Vec<f64>,
+}
+
+impl FaultTally {
+    fn add(&mut self, (delay, error): (Option<f64>, Option<f64>)) {
+        self.delays.push(delay);
+        self.errors.extend(error);
+    }
+
+    fn delays(&self) -> String {
+        let d: Vec<String> = self
+            .delays
+            .iter()
+            .map(|d| d.map_or("missed".into(), |d| format!("{d:.2}")))
+            .collect();
+        d.join(", ")
+    }
+
+    fn errors(&self) -> String {
+        let e: Vec<String> = self
+            .errors
+            .iter()
+            .map(|e| format!("{:+.1} %", 100.0 * e))
+            .collect();
+        e.join(", ")
+    }
+}
+
 #[derive(Default)]
 struct Tally {
     runs: usize,
@@ -84,50 +197,63 @@ struct Tally {
     covered: [usize; 2],
     mismatch: usize,
     nis_sum: f64,
-    delays: Vec<Option<f64>>,
-    errors_10s: Vec<f64>,
+    step: FaultTally,
+    ramp: FaultTally,
     /// The estimated noise std ratio (accelerometer 1, gyro) at the end of each healthy run.
     noise_ratio_end: Vec<[f64; 2]>,
 }
 
+/// Runs `scenario` (healthy when `fault` is `None`; else with its fault): alarms and, after
+/// 30 s of a healthy run, the accuracy and coverage counts. A fault run gives its detection
+/// delay and its error (for [`FaultTally::add`]).
 fn run(
     scenario: &DamperScenario,
     config: &DamperMonitorConfig,
     table: &Arc<railmon_damper::gain_table::GainTable>,
-    fault: bool,
+    fault: Option<&FaultRun>,
     t: &mut Tally,
-) {
+) -> (Option<f64>, Option<f64>) {
     let config = *config;
     let mut monitor = DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
     let mut alarms = DamperAlarm::pair(&config, [false; 2]);
-    let mut sim = BogieSimulator::new(scenario).unwrap();
+    let mut scenario = scenario.clone();
+    let spec = fault;
+    if let Some(f) = spec {
+        scenario.duration_s = f.duration_s;
+        scenario.faults = vec![f.fault];
+    }
+    let mut sim = BogieSimulator::new(&scenario).unwrap();
     let mut detected = None;
-    let fault_at = scenario.faults.first().map(|f| f.at_s);
+    let mut error = None;
     let mut noise_ratio = [f64::NAN; 2];
     while let Some((sample, truth)) = sim.step() {
         let e = *monitor.step(sample).unwrap();
         noise_ratio = [e.noise_std_ratio[0], e.noise_std_ratio[3]];
         let time = truth.time_s;
         for event in alarms.iter_mut().filter_map(|a| a.update(&e)) {
-            let real = fault_at.is_some_and(|at| time >= at) && event.damper == DamperId::Csay;
-            if event.kind == DamperEventKind::DamperDegraded {
-                if real {
-                    detected.get_or_insert(time - fault_at.unwrap_or(0.0));
-                } else {
-                    t.false_degraded += 1;
+            if event.kind != DamperEventKind::DamperDegraded {
+                continue;
+            }
+            match spec {
+                Some(f) if event.damper == f.fault.damper && time >= f.starts_s => {
+                    detected.get_or_insert(time - f.crosses_s);
                 }
+                _ => t.false_degraded += 1,
             }
         }
-        if fault_at.is_some_and(|at| (time - at - 10.0).abs() < 0.5e-3) {
-            t.errors_10s
-                .push(e.csay.mean_ns_per_m / truth.dampers.csay_ns_per_m - 1.0);
+        let truths = [truth.dampers.csy_ns_per_m, truth.dampers.csay_ns_per_m];
+        let posts = [e.csy, e.csay];
+        if let Some(f) = spec {
+            if (time - f.error_at_s).abs() < 0.5e-3 {
+                let k = f.fault.damper.index();
+                error = Some(posts[k].mean_ns_per_m / truths[k] - 1.0);
+            }
+            continue;
         }
         if time <= 30.0 || !(time * 1e3).round().rem_euclid(10.0).eq(&0.0) {
             continue;
         }
         // Every 10 ms after 30 s.
-        let truths = [truth.dampers.csy_ns_per_m, truth.dampers.csay_ns_per_m];
-        let posts = [e.csy, e.csay];
         t.judged += 1;
         t.within += usize::from(
             posts
@@ -143,13 +269,12 @@ fn run(
         t.mismatch += usize::from(e.model_mismatch);
         t.nis_sum += e.nis_window_mean.unwrap_or(0.0);
     }
-    t.runs += 1;
     t.hours += scenario.duration_s / 3600.0;
-    if fault {
-        t.delays.push(detected);
-    } else {
+    if spec.is_none() {
+        t.runs += 1;
         t.noise_ratio_end.push(noise_ratio);
     }
+    (detected, error)
 }
 
 #[test]
@@ -169,7 +294,11 @@ fn robustness_matrix() {
     let table = Rbpf::gain_table(&config).unwrap();
     println!(
         "robustness: {duration_s} s per run, {seeds} seeds, N = {particles}{}, noise estimate {}{}",
-        if fault { ", with C_say step runs" } else { "" },
+        if fault {
+            ", with C_say step and C_sy ramp runs"
+        } else {
+            ""
+        },
         if config.rbpf.noise_scale.enabled {
             "on"
         } else {
@@ -182,9 +311,9 @@ fn robustness_matrix() {
         },
     );
     println!(
-        "| cell | false degraded / h | both means within 5 % | csy covered | csay covered | model_mismatch | mean NIS / 5 | C_say step: detected (delay s) | error 10 s after | noise std ratio at end (accel 1, gyro) |"
+        "| cell | false degraded / h | both means within 5 % | csy covered | csay covered | model_mismatch | mean NIS / 5 | C_say step: delay s | error 10 s after | C_sy ramp: delay s after crossing | error 10 s after its end | noise std ratio at end (accel 1, gyro) |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for cell in cells() {
         if !only.is_empty() && !only.iter().any(|o| cell.name.starts_with(o.as_str())) {
             continue;
@@ -203,41 +332,24 @@ fn robustness_matrix() {
             } else {
                 (config, table.clone())
             };
-            run(&s, &config, &table, false, &mut t);
+            run(&s, &config, &table, None, &mut t);
             if fault {
-                let mut f = s.clone();
-                f.duration_s = duration_s.clamp(45.0, 60.0);
-                f.faults = vec![DamperFault {
-                    damper: DamperId::Csay,
-                    kind: FaultKind::Step,
-                    at_s: 30.0,
-                    end_s: None,
-                    ratio: 0.4,
-                }];
-                let mut ft = Tally::default();
-                run(&f, &config, &table, true, &mut ft);
-                t.delays.extend(ft.delays);
-                t.errors_10s.extend(ft.errors_10s);
+                let step = run(&s, &config, &table, Some(&FaultRun::csay_step()), &mut t);
+                t.step.add(step);
+                let ramp = FaultRun::csy_ramp(config.alarm.degraded_below_ratio);
+                let ramp = run(&s, &config, &table, Some(&ramp), &mut t);
+                t.ramp.add(ramp);
             }
         }
         let pct = |n: usize| 100.0 * n as f64 / t.judged.max(1) as f64;
-        let delays: Vec<String> = t
-            .delays
-            .iter()
-            .map(|d| d.map_or("missed".into(), |d| format!("{d:.2}")))
-            .collect();
-        let errors: Vec<String> = t
-            .errors_10s
-            .iter()
-            .map(|e| format!("{:+.1} %", 100.0 * e))
-            .collect();
         let ratios: Vec<String> = t
             .noise_ratio_end
             .iter()
             .map(|r| format!("{:.2} / {:.2}", r[0], r[1]))
             .collect();
+        let or_dash = |text: String| if fault { text } else { "-".into() };
         println!(
-            "| {} | {:.1} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} | {} | {} | {} | ({:.0} s)",
+            "| {} | {:.1} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} | {} | {} | {} | {} | {} | ({:.0} s)",
             cell.name,
             t.false_degraded as f64 / t.hours,
             pct(t.within),
@@ -245,10 +357,68 @@ fn robustness_matrix() {
             pct(t.covered[1]),
             pct(t.mismatch),
             t.nis_sum / t.judged.max(1) as f64 / 5.0,
-            if fault { delays.join(", ") } else { "-".into() },
-            if fault { errors.join(", ") } else { "-".into() },
+            or_dash(t.step.delays()),
+            or_dash(t.step.errors()),
+            or_dash(t.ramp.delays()),
+            or_dash(t.ramp.errors()),
             ratios.join(", "),
             started.elapsed().as_secs_f64(),
         );
     }
+}
+
+/// Issue 9: dampers far from nominal from t = 0 (each of C_sy, C_say at 0.5x, 1x, 1.5x of
+/// nominal, every pair but nominal-nominal), on the validated cell: both RBPF means within 5 %
+/// of the truth at 30 s? Prints a row per pair and seed (`ROBUST_SEEDS`, 3; `ROBUST_PARTICLES`).
+/// `cargo test --release -p railmon-damper --test robustness off_nominal -- --ignored --nocapture`
+#[test]
+#[ignore = "minutes: see the header"]
+fn off_nominal_starts() {
+    let seeds: u64 = env_or("ROBUST_SEEDS", 3);
+    let mut config = DamperMonitorConfig::default();
+    config.rbpf.particles = env_or("ROBUST_PARTICLES", 1000);
+    let table = Rbpf::gain_table(&config).unwrap();
+    println!("| C_sy / nominal | C_say / nominal | seed | C_sy error at 30 s | C_say error at 30 s | both within 5 % |");
+    println!("|---|---|---|---|---|---|");
+    let mut within = 0;
+    let mut runs = 0;
+    for csy in [0.5, 1.0, 1.5] {
+        for csay in [0.5, 1.0, 1.5] {
+            if (csy, csay) == (1.0, 1.0) {
+                continue;
+            }
+            for seed in 0..seeds {
+                let mut s = DamperScenario::from_toml_str(BASE).unwrap();
+                s.duration_s = 30.0;
+                s.seed = 9100 + seed;
+                let nominal = Dampers::NOMINAL;
+                s.dampers = Dampers {
+                    csy_ns_per_m: csy * nominal.csy_ns_per_m,
+                    csay_ns_per_m: csay * nominal.csay_ns_per_m,
+                };
+                let mut monitor =
+                    DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
+                let mut sim = BogieSimulator::new(&s).unwrap();
+                let mut last = None;
+                while let Some((sample, truth)) = sim.step() {
+                    let e = *monitor.step(sample).unwrap();
+                    last = Some([
+                        e.csy.mean_ns_per_m / truth.dampers.csy_ns_per_m - 1.0,
+                        e.csay.mean_ns_per_m / truth.dampers.csay_ns_per_m - 1.0,
+                    ]);
+                }
+                let [ey, eay] = last.unwrap();
+                let ok = ey.abs() <= 0.05 && eay.abs() <= 0.05;
+                within += usize::from(ok);
+                runs += 1;
+                println!(
+                    "| {csy} | {csay} | {seed} | {:+.1} % | {:+.1} % | {} |",
+                    100.0 * ey,
+                    100.0 * eay,
+                    if ok { "yes" } else { "**no**" }
+                );
+            }
+        }
+    }
+    println!("both within 5 % at 30 s: {within} of {runs} runs");
 }
