@@ -9,9 +9,8 @@
 //! - `ekf_step`: one step of the 19-state augmented EKF.
 //!
 //! After criterion, prints a table of time per step and real-time factor at 1 kHz
-//! (`1 ms / time per step`) measured over 3000 further steps, and the cost of the noise-scale
-//! estimate (issue 9 item 2): N = 1000 with and without it, interleaved in blocks of 250 steps
-//! so that both see the same machine load, as a ratio.
+//! (`1 ms / time per step`) measured over 3000 further steps. The cost of speed scheduling and
+//! of the noise-scale estimate: `benches/rbpf_variants.rs`.
 //!
 //! Run: `CARGO_TARGET_DIR=... cargo bench -p railmon-damper --bench rbpf`.
 
@@ -129,42 +128,10 @@ fn real_time_table() {
     }
 }
 
-/// The RBPF step at N = 1000 with the noise-scale estimate against the same filter without it
-/// (the configured noise taken as exact), alternating blocks on the same data.
-fn noise_estimate_cost() {
-    const BLOCK: usize = 250;
-    const ROUNDS: usize = 12;
-    let (config, ys) = samples(WARM_UP_STEPS + BLOCK * ROUNDS);
-    let mut fixed = config;
-    fixed.rbpf.noise_scale.enabled = false;
-    let mut filters = [
-        warmed_up(&fixed, &ys, 1000, Propagation::SteadyState),
-        warmed_up(&config, &ys, 1000, Propagation::SteadyState),
-    ];
-    let mut seconds = [0.0; 2];
-    for round in 0..ROUNDS {
-        let block = &ys[WARM_UP_STEPS + round * BLOCK..WARM_UP_STEPS + (round + 1) * BLOCK];
-        // Alternate which goes first.
-        for k in [round % 2, 1 - round % 2] {
-            let start = Instant::now();
-            for y in block {
-                filters[k].step(y).expect("step");
-            }
-            seconds[k] += start.elapsed().as_secs_f64();
-        }
-    }
-    let us = seconds.map(|s| s * 1e6 / (BLOCK * ROUNDS) as f64);
-    println!("\nRBPF step, N = 1000, {ROUNDS} x {BLOCK} steps interleaved:");
-    println!("  configured noise (no estimate): {:>8.1} us/step", us[0]);
-    println!("  noise-scale estimate:           {:>8.1} us/step", us[1]);
-    println!("  ratio:                          {:>8.3}", us[1] / us[0]);
-}
-
 criterion_group!(benches, bench_rbpf);
 
 fn main() {
     benches();
     Criterion::default().configure_from_args().final_summary();
     real_time_table();
-    noise_estimate_cost();
 }

@@ -160,3 +160,36 @@ fn a_low_speed_stretch_holds_the_parameter_particles_bit_for_bit() {
         "the filter never learnt again after the pause"
     );
 }
+
+/// Solving speed nodes ahead of the filters (issue 9 item 4): `missing_near` names the
+/// unsolved nodes nearest the speed first (the slower side first on a tie) and skips the
+/// solved ones; a node solved on another thread is the very grid a filter then gets.
+#[test]
+fn nodes_solved_ahead_are_named_nearest_first_and_shared() {
+    let c = DamperMonitorConfig::default();
+    let table = Rbpf::gain_table(&c).unwrap();
+    let v0 = c.vehicle.speed_m_s;
+    let k = table.node_of(v0);
+    // Built with the table: the configured speed's node, and no other.
+    assert!(table.is_solved(k));
+    assert!(!table.is_solved(k - 1) && !table.is_solved(k + 1));
+    assert_eq!(table.missing_near(v0, 0), None);
+    assert_eq!(table.missing_near(v0, 2), Some(k - 1));
+    let warmer = table.clone();
+    let solved = std::thread::spawn(move || warmer.grid_at(k - 1).unwrap())
+        .join()
+        .unwrap();
+    assert!(table.is_solved(k - 1));
+    assert_eq!(table.missing_near(v0, 2), Some(k + 1));
+    // A slower speed: its own node is now solved, the next missing one is below it.
+    let v_low = table.node_speed_m_s(k - 1);
+    assert_eq!(table.missing_near(v_low, 1), Some(k - 2));
+    assert!(std::sync::Arc::ptr_eq(
+        &table.grid_at(k - 1).unwrap(),
+        &solved
+    ));
+    // The range ends: nothing beyond the last node is named.
+    let last = table.n_nodes() - 1;
+    let top = table.node_speed_m_s(last);
+    assert!(table.missing_near(top * 10.0, 0).is_some_and(|n| n == last));
+}

@@ -16,7 +16,7 @@ use crate::params::Dampers;
 use crate::DamperError;
 use railmon_filter::kalman::LN_2PI;
 
-use super::propagator::{Block, SparsePropagator, BLOCK};
+use super::propagator::{Block, Row, SparsePropagator, BLOCK};
 use super::Rbpf;
 
 /// The per-particle filters' states, for a snapshot ([`Bank::save`], [`Bank::restore`]).
@@ -33,7 +33,16 @@ impl Bank {
     pub(super) fn save(&self) -> BankState {
         match self {
             Bank::Exact(b) => BankState::Exact(b.est.iter().map(|e| (e.x, e.p)).collect()),
-            Bank::Steady(b) => BankState::Steady(b.x.clone()),
+            Bank::Steady(b) => {
+                let n = b.n;
+                let mut x = vec![0.0; N_STATES * n];
+                for s in 0..N_STATES {
+                    for (i, v) in x[s * n..(s + 1) * n].iter_mut().enumerate() {
+                        *v = at(&b.x, N_STATES, s, i);
+                    }
+                }
+                BankState::Steady(x)
+            }
         }
     }
 
@@ -51,10 +60,15 @@ impl Bank {
                 Ok(())
             }
             (Bank::Steady(b), BankState::Steady(x)) => {
-                if x.len() != b.x.len() {
+                let n = b.n;
+                if x.len() != N_STATES * n {
                     return Err(mismatch("another particle count"));
                 }
-                b.x = x;
+                for s in 0..N_STATES {
+                    for (i, v) in x[s * n..(s + 1) * n].iter().enumerate() {
+                        *at_mut(&mut b.x, N_STATES, s, i) = *v;
+                    }
+                }
                 Ok(())
             }
             _ => Err(mismatch("another propagation")),
@@ -97,6 +111,8 @@ impl Bank {
                     csay_ns_per_m: 1.0,
                 });
                 let grid_node = table.node_of(model.params().speed_m_s);
+                // Whole blocks: the padding particles stay at zero and are never output.
+                let blocks = n.div_ceil(BLOCK);
                 Bank::Steady(Box::new(SteadyBank {
                     n,
                     prop: SparsePropagator::new(&model, config.dt_s, cfg.taylor_order)?,
@@ -106,11 +122,11 @@ impl Bank {
                     model,
                     csay_gain: entries.yaw_damping_per_s,
                     end_stiffness: entries.series_rate_per_s,
-                    x: vec![0.0; N_STATES * n],
-                    next: vec![0.0; N_STATES * n],
-                    yaw: vec![0.0; n],
-                    series: vec![0.0; n],
-                    nodes: vec![0.0; NODE_LEN * n],
+                    x: vec![Row::ZERO; N_STATES * blocks],
+                    next: vec![Row::ZERO; N_STATES * blocks],
+                    yaw: vec![Row::ZERO; blocks],
+                    series: vec![Row::ZERO; blocks],
+                    nodes: vec![Row::ZERO; NODE_LEN * blocks],
                     node_theta: vec![[f64::NAN; 2]; n],
                     block: Block::new(),
                 }))
@@ -148,16 +164,19 @@ pub(super) struct SteadyBank {
     grid_node: usize,
     csay_gain: f64,
     end_stiffness: f64,
-    /// Posterior states, structure-of-arrays `x[state * n + particle]`.
-    x: Vec<f64>,
+    /// Posterior states, blocked structure-of-arrays (`at(&x, N_STATES, state, particle)`:
+    /// each block of [`BLOCK`] particles holds its states row by row, contiguous), the
+    /// particle count rounded up to whole blocks.
+    x: Vec<Row>,
     /// The step's new posterior states (committed by swapping with `x`).
-    next: Vec<f64>,
-    yaw: Vec<f64>,
-    series: Vec<f64>,
-    /// Per particle: the interpolated gain node, structure-of-arrays
-    /// `nodes[value * n + particle]`, and the `ln theta` it was computed for (recomputed
-    /// only when the particle's parameters changed).
-    nodes: Vec<f64>,
+    next: Vec<Row>,
+    /// The damper entries (`DamperEntries`), one row per block.
+    yaw: Vec<Row>,
+    series: Vec<Row>,
+    /// Per particle: the interpolated gain node, blocked like `x`
+    /// (`at(&nodes, NODE_LEN, value, particle)`), and the `ln theta` it was computed for
+    /// (recomputed only when the particle's parameters changed).
+    nodes: Vec<Row>,
     node_theta: Vec<[f64; 2]>,
     block: Box<Block>,
 }
@@ -275,12 +294,9 @@ impl Bank {
                 std::mem::swap(&mut b.est, &mut b.next);
             }
             Bank::Steady(b) => {
-                let n = b.n;
-                for s in 0..N_STATES {
-                    let src = &b.x[s * n..(s + 1) * n];
-                    let dst = &mut b.next[s * n..(s + 1) * n];
-                    for (d, &i) in dst.iter_mut().zip(indices) {
-                        *d = src[i];
+                for (j, &i) in indices.iter().enumerate() {
+                    for s in 0..N_STATES {
+                        *at_mut(&mut b.next, N_STATES, s, j) = at(&b.x, N_STATES, s, i);
                     }
                 }
                 std::mem::swap(&mut b.x, &mut b.next);
@@ -292,7 +308,7 @@ impl Bank {
     pub(super) fn state(&self, i: usize) -> Vector17 {
         match self {
             Bank::Exact(b) => b.est[i].x,
-            Bank::Steady(b) => Vector17::from_fn(|s, _| b.x[s * b.n + i]),
+            Bank::Steady(b) => Vector17::from_fn(|s, _| at(&b.x, N_STATES, s, i)),
         }
     }
 
@@ -314,23 +330,27 @@ impl SteadyBank {
         whiten: &Whitening,
         mut out: StepOutput<'_>,
     ) -> Result<(), DamperError> {
-        let n = self.n;
         // Parameters change only at kernel moves (or every step with `EveryStep`): refresh the
         // damper entries and the interpolated gain of the particles that moved.
         let mut node = [0.0; NODE_LEN];
         for (i, th) in ln_theta.iter().enumerate() {
             if self.node_theta[i] != *th {
-                self.yaw[i] = self.csay_gain * th[1].exp();
-                self.series[i] = self.end_stiffness * (-th[0]).exp();
+                self.yaw[i / BLOCK][i % BLOCK] = self.csay_gain * th[1].exp();
+                self.series[i / BLOCK][i % BLOCK] = self.end_stiffness * (-th[0]).exp();
                 self.grid.interpolate(&self.grid.cell(*th), &mut node);
                 for (k, v) in node.iter().enumerate() {
-                    self.nodes[k * n + i] = *v;
+                    *at_mut(&mut self.nodes, NODE_LEN, k, i) = *v;
                 }
                 self.node_theta[i] = *th;
             }
         }
         #[cfg(target_arch = "x86_64")]
         {
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU supports AVX-512F, checked just above.
+                unsafe { self.filter_all_avx512(y, whiten, &mut out) };
+                return check_finite(out.ll);
+            }
             if std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: the CPU supports AVX2, checked just above.
                 unsafe { self.filter_all_avx2(y, whiten, &mut out) };
@@ -341,6 +361,14 @@ impl SteadyBank {
         check_finite(out.ll)
     }
 
+    /// [`SteadyBank::filter_all`] compiled for AVX-512 (8-wide vectors). The particles are
+    /// independent lanes and no sum runs across them, so every width gives the same bits.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn filter_all_avx512(&mut self, y: &Vector5, whiten: &Whitening, out: &mut StepOutput) {
+        self.filter_all(y, whiten, out)
+    }
+
     /// [`SteadyBank::filter_all`] compiled for AVX2 (4-wide vectors instead of SSE2's 2).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
@@ -348,76 +376,86 @@ impl SteadyBank {
         self.filter_all(y, whiten, out)
     }
 
-    /// Predict, innovation, log-likelihood and update of every particle, block by block.
+    /// Predict, innovation, log-likelihood and update of every particle, block by block,
+    /// each sum in the order the per-particle formula gives it.
     #[inline(always)]
     fn filter_all(&mut self, y: &Vector5, whiten: &Whitening, out: &mut StepOutput) {
         let n = self.n;
         // ln det of D^1/2 S D^1/2 is ln det S + ln det D; exactly the old constant at D = I.
         let const_term = N_OUTPUTS as f64 * LN_2PI + whiten.ln_det;
-        let mut ew = [[0.0; BLOCK]; N_OUTPUTS];
         let blk = &mut self.block;
-        for i0 in (0..n).step_by(BLOCK) {
+        for (b, i0) in (0..n).step_by(BLOCK).enumerate() {
             let len = BLOCK.min(n - i0);
-            blk.load(
-                &self.x,
-                &self.yaw[i0..i0 + len],
-                &self.series[i0..i0 + len],
-                n,
-                i0,
-            );
-            self.prop.propagate_block(blk);
-            self.prop.innovation_block(blk, y);
-            let node = |k: usize| &self.nodes[k * n + i0..k * n + i0 + len];
-            // z_i = e_i^2 / S_ii, for the noise-scale estimate.
-            for (r, e_row) in blk.e.iter().enumerate() {
-                let zs = &mut out.z[r * n + i0..r * n + i0 + len];
-                for ((z, e), inv_s) in zs.iter_mut().zip(e_row).zip(node(INV_S_DIAG_OFFSET + r)) {
-                    *z = e * e * inv_s;
-                }
-            }
+            // Propagated and updated in place in the new posterior's rows.
+            let states = b * N_STATES..(b + 1) * N_STATES;
+            let x: &[Row; N_STATES] = self.x[states.clone()].try_into().expect("whole block");
+            let acc: &mut [Row; N_STATES] =
+                (&mut self.next[states]).try_into().expect("whole block");
+            self.prop
+                .propagate_block(x, &self.yaw[b], &self.series[b], acc, blk);
+            self.prop.innovation_block(acc, &mut blk.e, y);
+            let nodes = &self.nodes[b * NODE_LEN..(b + 1) * NODE_LEN];
+            let node = |k: usize| &nodes[k].0;
+            let e = &blk.e;
             // The whitened innovations e_i / sqrt(d_i) (bit for bit e at d = 1).
-            for ((w_row, e_row), w) in ew.iter_mut().zip(&blk.e).zip(whiten.inv_sqrt) {
-                for (wv, e) in w_row.iter_mut().zip(e_row) {
-                    *wv = e * w;
-                }
-            }
-            // ln N(e; 0, D^1/2 S D^1/2) with S^-1 and ln det S of each particle's parameters.
-            let lls = &mut out.ll[i0..i0 + len];
-            for (l, d) in lls.iter_mut().zip(node(LN_DET_OFFSET)) {
-                *l = const_term + d;
-            }
+            let ew: [[f64; BLOCK]; N_OUTPUTS] =
+                std::array::from_fn(|r| e[r].map(|v| v * whiten.inv_sqrt[r]));
+            // ln N(e; 0, D^1/2 S D^1/2) with S^-1 and ln det S of each particle's parameters:
+            // the quadratic form summed entry by entry in row-major order.
+            let ln_det = node(LN_DET_OFFSET);
+            let mut l: [f64; BLOCK] = std::array::from_fn(|j| const_term + ln_det[j]);
             for r in 0..N_OUTPUTS {
                 for c in 0..N_OUTPUTS {
                     let s_inv = node(S_INV_OFFSET + r * N_OUTPUTS + c);
-                    for (((l, si), er), ec) in lls.iter_mut().zip(s_inv).zip(&ew[r]).zip(&ew[c]) {
-                        *l += si * er * ec;
+                    for j in 0..BLOCK {
+                        l[j] += s_inv[j] * ew[r][j] * ew[c][j];
                     }
                 }
             }
             // e' S^-1 e, for the filter's consistency check (taken from the sum so that the
             // likelihoods stay bit for bit what they were).
-            for ((q, l), d) in out.nis[i0..i0 + len]
-                .iter_mut()
-                .zip(lls.iter())
-                .zip(node(LN_DET_OFFSET))
-            {
-                *q = l - (const_term + d);
-            }
-            for l in lls.iter_mut() {
-                *l *= -0.5;
-            }
-            // x+ = x- + K e.
-            for (s, acc_row) in blk.acc.iter_mut().enumerate() {
-                for (m, e_row) in blk.e.iter().enumerate() {
+            let nis: [f64; BLOCK] = std::array::from_fn(|j| l[j] - (const_term + ln_det[j]));
+            let ll = l.map(|v| -0.5 * v);
+            // x+ = x- + K e, each state's corrections added in the order of the outputs.
+            for (s, acc_row) in acc.iter_mut().enumerate() {
+                let mut a = acc_row.0;
+                for (m, e_m) in e.iter().enumerate() {
                     let k = node(s * N_OUTPUTS + m);
-                    for ((a, kj), ej) in acc_row.iter_mut().zip(k).zip(e_row) {
-                        *a += kj * ej;
+                    for j in 0..BLOCK {
+                        a[j] += k[j] * e_m[j];
                     }
                 }
+                acc_row.0 = a;
             }
-            blk.store(&mut self.next, n, i0, len);
+            // z_i = e_i^2 / S_ii, for the noise-scale estimate.
+            for (r, e_row) in blk.e.iter().enumerate() {
+                let zs = &mut out.z[r * n + i0..r * n + i0 + len];
+                for ((z, e), inv_s) in zs
+                    .iter_mut()
+                    .zip(e_row.iter())
+                    .zip(node(INV_S_DIAG_OFFSET + r))
+                {
+                    *z = e * e * inv_s;
+                }
+            }
+            out.ll[i0..i0 + len].copy_from_slice(&ll[..len]);
+            out.nis[i0..i0 + len].copy_from_slice(&nis[..len]);
         }
     }
+}
+
+/// Value `k` of particle `i` in a blocked structure-of-arrays of `values` values per
+/// particle: each block of [`BLOCK`] particles holds its values as `values` rows, so a
+/// block's data are one contiguous stretch (the prefetcher follows one stream, not one per
+/// value) of cache-aligned rows.
+#[inline(always)]
+fn at(rows: &[Row], values: usize, k: usize, i: usize) -> f64 {
+    rows[(i / BLOCK) * values + k][i % BLOCK]
+}
+
+#[inline(always)]
+fn at_mut(rows: &mut [Row], values: usize, k: usize, i: usize) -> &mut f64 {
+    &mut rows[(i / BLOCK) * values + k][i % BLOCK]
 }
 
 fn check_finite(ll: &[f64]) -> Result<(), DamperError> {

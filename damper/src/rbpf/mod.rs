@@ -236,16 +236,19 @@ impl Rbpf {
             });
         }
         self.steps_since_move += 1;
-        match self.config.kernel {
-            KernelSchedule::EveryStep => self.kernel_move(),
-            KernelSchedule::AtResampling => {
-                self.ln_theta_next.clone_from(&self.ln_theta);
-                self.regeneration_penalty.fill(0.0);
-            }
+        // With `AtResampling` the parameters stay as they are until a resampling (no copy,
+        // no penalty: the step's particles are `ln_theta`).
+        let every_step = self.config.kernel == KernelSchedule::EveryStep;
+        if every_step {
+            self.kernel_move();
         }
         let whiten = Whitening::new(&self.noise_scale.variance_scale());
         self.bank.step(
-            &self.ln_theta_next,
+            if every_step {
+                &self.ln_theta_next
+            } else {
+                &self.ln_theta
+            },
             y,
             &whiten,
             StepOutput {
@@ -268,23 +271,29 @@ impl Rbpf {
             }
         }
         self.nis_mean = nis_mean;
-        for (((next, w), l), pen) in self
-            .log_w_next
-            .iter_mut()
-            .zip(&self.log_w)
-            .zip(&self.ll)
-            .zip(&self.regeneration_penalty)
-        {
-            *next = w + l + pen;
+        if every_step {
+            for (((next, w), l), pen) in self
+                .log_w_next
+                .iter_mut()
+                .zip(&self.log_w)
+                .zip(&self.ll)
+                .zip(&self.regeneration_penalty)
+            {
+                *next = w + l + pen;
+            }
+        } else {
+            for ((next, w), l) in self.log_w_next.iter_mut().zip(&self.log_w).zip(&self.ll) {
+                *next = w + l;
+            }
         }
         let log_increment = normalize_log_weights(&mut self.log_w_next)?;
         // Commit.
         self.bank.commit();
         self.noise_scale.update(&z_mean);
-        if self.config.kernel == KernelSchedule::EveryStep {
+        if every_step {
             self.sorted.stale = true;
+            std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
         }
-        std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
         std::mem::swap(&mut self.log_w, &mut self.log_w_next);
         self.log_evidence += log_increment;
         self.ess = effective_sample_size(&self.log_w);

@@ -4,13 +4,15 @@
 //! ratios, effective sample size, degraded / recovered events, history.
 //! Settings in [`config`], the JSON in [`view`], the ingest side in [`pipeline`], the
 //! endpoints in [`routes`], the metric families in [`metrics`]; the bogies' filters step in
-//! parallel on a few worker threads (`workers`, `bogie.worker_threads`).
+//! parallel on a few worker threads (`workers`, `bogie.worker_threads`); one more thread solves
+//! the gain table's speed nodes ahead of them (`warm`).
 
 pub mod config;
 pub mod metrics;
 pub mod pipeline;
 pub mod routes;
 pub mod view;
+mod warm;
 mod workers;
 
 pub use config::{BogieConfig, MAX_BOGIES};

@@ -20,6 +20,7 @@ use super::view::{
     BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, DamperEventDetail,
     DamperView, DAMPERS,
 };
+use super::warm::NodeWarmer;
 use super::workers::{BogieWorkers, Done, Job};
 use super::BogieConfig;
 use crate::ingest::{Pipeline, Rejection};
@@ -124,6 +125,9 @@ pub struct BogiePipeline {
     /// batch ends ([`BogiePipeline::flush`]).
     pending: Vec<(FrameHeader, CheckedBogieSample)>,
     workers: BogieWorkers,
+    /// Solves the gain table's speed nodes near the vehicle's speed before a filter needs
+    /// them (`super::warm`; none for exact propagation).
+    warmer: Option<NodeWarmer>,
     done: Vec<Done>,
     /// Deferred steps that failed, for the ingest loop to count ([`Pipeline::take_rejections`]).
     rejections: Vec<(FrameHeader, Rejection)>,
@@ -170,6 +174,10 @@ impl BogiePipeline {
             );
         }
         let workers = BogieWorkers::new(config.worker_threads());
+        let warmer = match &table {
+            Ok(Some(t)) => Some(NodeWarmer::new(t.clone(), estimator.vehicle.speed_m_s)),
+            _ => None,
+        };
         let pipeline = Self {
             config,
             shared,
@@ -178,6 +186,7 @@ impl BogiePipeline {
             track,
             pending: Vec::new(),
             workers,
+            warmer,
             done: Vec::new(),
             rejections: Vec::new(),
         };
@@ -513,6 +522,9 @@ impl Pipeline for BogiePipeline {
             self.flush();
         }
         self.monitor(k)?;
+        if let Some(w) = &self.warmer {
+            w.follow(input.sample.speed_m_s);
+        }
         self.pending.push((*header, input));
         if self.pending.len() == self.slots.len() {
             self.flush();

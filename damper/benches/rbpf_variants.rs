@@ -1,0 +1,198 @@
+//! The RBPF step at N = 1000 (issue 9 item 4: <= 150 us with speed scheduling and the noise
+//! estimate), per variant, as ratios measured in one run:
+//!
+//! - `plain`: the configured speed (45.3 m/s, no `set_speed`), configured noise taken as exact;
+//! - `+noise`: the same with the noise-scale estimate (`[monitor.rbpf.noise_scale]`);
+//! - `+speed`: data simulated on a speed ramp 28 -> 34 m/s, `set_speed` every sample (the
+//!   model and `H` at the exact speed, the gains of the nearest node, the Taylor order the
+//!   speed needs), configured noise;
+//! - `+speed+noise`: both (the issue's target);
+//! - `monitor`: `DamperMonitor::step` of the last (adds the EKF, the consistency check and the
+//!   posterior summary).
+//!
+//! Every filter first runs 3 s of its data (posterior narrowed, as in service; the speed
+//! nodes the ramp visits are solved before timing), then all variants run alternately in
+//! blocks of 250 samples over the same stretch, so that they see the same machine load; the
+//! table gives the thread's CPU time per step (`CLOCK_THREAD_CPUTIME_ID`: on a machine shared
+//! with builds the wall time also counts the time the thread waited for a core; caches and
+//! the other hyperthread are still shared) and wall time per step, and the ratio of CPU times
+//! to the first variant.
+//!
+//! Run: `cargo bench -p railmon-damper --bench rbpf_variants` (about 40 s);
+//! `RBPF_VARIANTS_ROUNDS` (default 12) blocks per variant, `RBPF_VARIANTS_PARTICLES` (1000),
+//! `RBPF_VARIANTS_ONLY=plain,+noise` (only the variants named, e.g. under `perf record`).
+
+use std::time::Instant;
+
+/// CPU time of the calling thread (s).
+fn thread_cpu_s() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid timespec to write into; the clock id is a constant.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    assert_eq!(rc, 0, "clock_gettime");
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
+
+use railmon_damper::{
+    BogieSample, BogieSimulator, DamperMonitor, DamperMonitorConfig, DamperScenario, Rbpf,
+    SpeedProfile,
+};
+
+const SEED: &str = include_str!("../../config/scenarios/damper-seed.toml");
+const WARM_UP_STEPS: usize = 3000;
+const BLOCK: usize = 250;
+
+fn env_usize(name: &str, default: usize) -> usize {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// `n` samples of the seed scenario, at the configured speed or on `profile`.
+fn samples(n: usize, profile: Option<SpeedProfile>) -> (DamperMonitorConfig, Vec<BogieSample>) {
+    let mut scenario = DamperScenario::from_toml_str(SEED).expect("seed scenario");
+    scenario.duration_s = n as f64 * scenario.dt_s;
+    scenario.speed = profile;
+    let mut sim = BogieSimulator::new(&scenario).expect("simulator");
+    let mut out = Vec::with_capacity(n);
+    while let Some((s, _)) = sim.step() {
+        out.push(*s);
+    }
+    (scenario.monitor_config(), out)
+}
+
+/// One variant: a filter (or monitor) and its data.
+enum Runner {
+    Rbpf { filter: Box<Rbpf>, scheduled: bool },
+    Monitor(Box<DamperMonitor>),
+}
+
+impl Runner {
+    fn step(&mut self, s: &BogieSample) {
+        match self {
+            Runner::Rbpf { filter, scheduled } => {
+                if *scheduled {
+                    filter.set_speed(s.speed_m_s).expect("speed");
+                }
+                filter.step(&s.to_vector()).expect("step");
+            }
+            Runner::Monitor(m) => {
+                m.step(s).expect("step");
+            }
+        }
+    }
+
+    fn resamples(&self) -> u64 {
+        match self {
+            Runner::Rbpf { filter, .. } => filter.resample_count(),
+            Runner::Monitor(m) => m.rbpf().resample_count(),
+        }
+    }
+}
+
+fn main() {
+    // `cargo bench` passes `--bench`; nothing to parse.
+    let rounds = env_usize("RBPF_VARIANTS_ROUNDS", 12);
+    let particles = env_usize("RBPF_VARIANTS_PARTICLES", 1000);
+    let n = WARM_UP_STEPS + BLOCK * rounds;
+    let (config, constant) = samples(n, None);
+    let ramp = SpeedProfile {
+        profile_m_s: vec![[0.0, 28.0], [n as f64 * config.dt_s, 34.0]],
+    };
+    let (_, ramped) = samples(n, Some(ramp));
+    let mut with_noise = config;
+    with_noise.rbpf.particles = particles;
+    let mut fixed = with_noise;
+    fixed.rbpf.noise_scale.enabled = false;
+    let start = Instant::now();
+    let table = Rbpf::gain_table(&config).expect("table");
+    let first_s = start.elapsed().as_secs_f64();
+    // Solve the nodes the ramp visits now: their first use is not what is timed.
+    let (lo, hi) = (table.node_of(28.0), table.node_of(34.0));
+    let start = Instant::now();
+    for node in lo..=hi {
+        table.grid_at(node).expect("grid");
+    }
+    let per_node_s = start.elapsed().as_secs_f64() / (hi - lo + 1) as f64;
+    println!(
+        "gain table: the configured speed's grid {first_s:.3} s (with the table), then \
+         {per_node_s:.3} s per speed node ({} nodes over the speed range: {:.1} s for all)",
+        table.n_nodes(),
+        per_node_s * table.n_nodes() as f64
+    );
+    let rbpf = |c: &DamperMonitorConfig, scheduled| Runner::Rbpf {
+        filter: Box::new(Rbpf::with_gain_table(c, Some(table.clone())).expect("rbpf")),
+        scheduled,
+    };
+    let mut variants: Vec<(&str, Runner, &[BogieSample])> = vec![
+        ("plain", rbpf(&fixed, false), &constant),
+        ("+noise", rbpf(&with_noise, false), &constant),
+        ("+speed", rbpf(&fixed, true), &ramped),
+        ("+speed+noise", rbpf(&with_noise, true), &ramped),
+        (
+            "monitor",
+            Runner::Monitor(Box::new(
+                DamperMonitor::with_gain_table(
+                    &with_noise,
+                    with_noise.rbpf.seed,
+                    Some(table.clone()),
+                )
+                .expect("monitor"),
+            )),
+            &ramped,
+        ),
+    ];
+    if let Ok(only) = std::env::var("RBPF_VARIANTS_ONLY") {
+        variants.retain(|v| only.split(',').any(|o| o == v.0));
+        assert!(
+            !variants.is_empty(),
+            "RBPF_VARIANTS_ONLY={only}: no such variant"
+        );
+    }
+    for (_, runner, data) in &mut variants {
+        for s in &data[..WARM_UP_STEPS] {
+            runner.step(s);
+        }
+    }
+    let resamples_before: Vec<u64> = variants.iter().map(|v| v.1.resamples()).collect();
+    let mut seconds = vec![0.0; variants.len()];
+    let mut cpu_seconds = vec![0.0; variants.len()];
+    for round in 0..rounds {
+        let range = WARM_UP_STEPS + round * BLOCK..WARM_UP_STEPS + (round + 1) * BLOCK;
+        // Rotate which variant goes first.
+        for k in 0..variants.len() {
+            let v = (k + round) % variants.len();
+            let (_, runner, data) = &mut variants[v];
+            let start = Instant::now();
+            let cpu_start = thread_cpu_s();
+            for s in &data[range.clone()] {
+                runner.step(s);
+            }
+            cpu_seconds[v] += thread_cpu_s() - cpu_start;
+            seconds[v] += start.elapsed().as_secs_f64();
+        }
+    }
+    let steps = (BLOCK * rounds) as f64;
+    println!("\nRBPF step, N = {particles}, {rounds} x {BLOCK} steps per variant, interleaved:");
+    println!(
+        "{:>14} {:>12} {:>10} {:>12} {:>10}",
+        "variant", "cpu us/step", "/ first", "wall us/step", "resamples"
+    );
+    for (((name, runner, _), (s, cpu)), r0) in variants
+        .iter()
+        .zip(seconds.iter().zip(&cpu_seconds))
+        .zip(&resamples_before)
+    {
+        let resamples = runner.resamples() - r0;
+        println!(
+            "{name:>14} {:>12.1} {:>10.3} {:>12.1} {resamples:>10}",
+            cpu * 1e6 / steps,
+            cpu / cpu_seconds[0],
+            s * 1e6 / steps,
+        );
+    }
+}

@@ -1,0 +1,121 @@
+//! Solving the gain table's speed nodes ahead of the filters (issue 9 item 4).
+//!
+//! A filter reaching a speed node nobody has solved yet solves it itself, in its step: about
+//! half a second (`cargo bench -p railmon-damper --bench rbpf_variants`) in which its bogie,
+//! and the others of that sample time, stall. One thread here follows the vehicle's speed and
+//! solves the unsolved nodes within [`REACH`] of it, nearest first, so that the filters find
+//! them ready; a filter that gets there first waits for the solution under way instead of
+//! solving it again (`GainTable::grid_at`). All nodes at start would cost about 26 s of a core
+//! (50 nodes) for speeds the vehicle may never run at.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use railmon_damper::gain_table::GainTable;
+
+/// Nodes solved ahead either side of the current speed's: two nodes are 10 % of the speed
+/// (`speed.grid_ratio` 1.05), e.g. 3 m/s at 30 m/s, more than a second of braking or
+/// accelerating, while a node takes about half a second.
+pub(super) const REACH: usize = 2;
+
+/// How often the thread looks at the speed when every node near it is solved.
+const POLL: Duration = Duration::from_millis(100);
+
+pub(super) struct NodeWarmer {
+    speed_bits: Arc<AtomicU64>,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl NodeWarmer {
+    /// Starts the thread, first around `speed_m_s`.
+    pub(super) fn new(table: Arc<GainTable>, speed_m_s: f64) -> Self {
+        let speed_bits = Arc::new(AtomicU64::new(speed_m_s.to_bits()));
+        let stop = Arc::new(AtomicBool::new(false));
+        let (speed, halt) = (speed_bits.clone(), stop.clone());
+        let thread = std::thread::Builder::new()
+            .name("bogie-gain-nodes".into())
+            .spawn(move || {
+                while !halt.load(Ordering::Relaxed) {
+                    let v = f64::from_bits(speed.load(Ordering::Relaxed));
+                    let Some(node) = table.missing_near(v, REACH) else {
+                        std::thread::park_timeout(POLL);
+                        continue;
+                    };
+                    if let Err(e) = table.grid_at(node) {
+                        // The filter reaching it will fail the same way and say so per frame.
+                        tracing::error!(
+                            "bogie gain table: the node of {:.1} m/s cannot be solved ({e}); \
+                             no more nodes are solved ahead",
+                            table.node_speed_m_s(node)
+                        );
+                        return;
+                    }
+                    tracing::debug!(
+                        "bogie gain table: node {node} ({:.1} m/s) solved ahead",
+                        table.node_speed_m_s(node)
+                    );
+                }
+            })
+            .expect("spawn the gain-node thread");
+        Self {
+            speed_bits,
+            stop,
+            thread: Some(thread),
+        }
+    }
+
+    /// The vehicle's latest speed (m/s); non-finite or non-positive values are ignored.
+    pub(super) fn follow(&self, speed_m_s: f64) {
+        if speed_m_s.is_finite() && speed_m_s > 0.0 {
+            self.speed_bits
+                .store(speed_m_s.to_bits(), Ordering::Relaxed);
+        }
+    }
+}
+
+impl Drop for NodeWarmer {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            t.thread().unpark();
+            // A node being solved finishes first (under a second).
+            let _ = t.join();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use railmon_damper::{DamperMonitorConfig, Rbpf};
+    use std::time::Instant;
+
+    /// The thread solves the node next to the vehicle's speed on its own, and a new speed
+    /// moves it there; dropping it stops it.
+    #[test]
+    fn solves_the_nodes_near_the_speed_before_a_filter_asks() {
+        let c = DamperMonitorConfig::default();
+        let table = Rbpf::gain_table(&c).unwrap();
+        let v0 = c.vehicle.speed_m_s;
+        let k = table.node_of(v0);
+        let far = k - 6;
+        let warmer = NodeWarmer::new(table.clone(), v0);
+        let wait_for = |node: usize| {
+            let start = Instant::now();
+            while !table.is_solved(node) {
+                assert!(start.elapsed() < Duration::from_secs(60), "node {node}");
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        };
+        wait_for(k - 1);
+        warmer.follow(table.node_speed_m_s(far));
+        wait_for(far);
+        drop(warmer);
+        // Stopped: nothing more is solved (three nodes from `far` stay unsolved).
+        std::thread::sleep(POLL * 2);
+        assert!(!table.is_solved(far - 3) && !table.is_solved(far + 3));
+    }
+}
