@@ -163,6 +163,23 @@ fn damper_fault_replay_equals_the_library_and_raises_the_health_event() {
         series("railmon_stream_lagging", "stream=\"bogie\""),
         Some(0.0)
     );
+    // Each bogie's step is timed alone, once per frame: the bogies of one sample time are
+    // stepped together, and the frame that waited for the other used to be timed at ~0 s.
+    let steps = series(
+        "railmon_estimator_step_duration_seconds_count",
+        "stream=\"bogie\"",
+    );
+    let status = service.status("bogie");
+    assert_eq!(steps, status["estimator_steps"].as_f64(), "{status}");
+    assert_eq!(steps, status["samples_received"].as_f64(), "{status}");
+    assert_eq!(
+        series(
+            "railmon_estimator_step_duration_seconds_bucket",
+            "stream=\"bogie\",le=\"0.000001\""
+        ),
+        Some(0.0),
+        "an RBPF step of 100 particles takes more than 1 us"
+    );
 
     let exit = service.process.terminate(Duration::from_secs(10));
     assert!(exit.success(), "railmon serve exited with {exit}");

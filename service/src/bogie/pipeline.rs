@@ -21,9 +21,9 @@ use super::view::{
     DamperView, DAMPERS,
 };
 use super::warm::NodeWarmer;
-use super::workers::{BogieWorkers, Done, Job};
+use super::workers::{BogieWorkers, Done, Job, StepOutcome};
 use super::BogieConfig;
-use crate::ingest::{Pipeline, Rejection};
+use crate::ingest::{CompletedStep, Pipeline, Rejection};
 use crate::metrics::{EstimateGauge, EstimateIntGauge, Metrics};
 use crate::outbox::{Stamp, Track};
 use crate::store::ActiveAlarm;
@@ -131,6 +131,8 @@ pub struct BogiePipeline {
     done: Vec<Done>,
     /// Deferred steps that failed, for the ingest loop to count ([`Pipeline::take_rejections`]).
     rejections: Vec<(FrameHeader, Rejection)>,
+    /// Deferred steps done, for the ingest loop's step times ([`Pipeline::take_completed`]).
+    completed: Vec<CompletedStep>,
 }
 
 impl BogiePipeline {
@@ -189,6 +191,7 @@ impl BogiePipeline {
             warmer,
             done: Vec::new(),
             rejections: Vec::new(),
+            completed: Vec::new(),
         };
         // The configured bogies are listed (without samples) before the first frame.
         pipeline
@@ -244,21 +247,31 @@ impl BogiePipeline {
             .collect();
         let mut done = std::mem::take(&mut self.done);
         self.workers.step_all(jobs, &mut done);
-        let mut results: Vec<Option<Result<(), DamperError>>> =
-            (0..self.slots.len()).map(|_| None).collect();
+        let mut results: Vec<Option<StepOutcome>> = (0..self.slots.len()).map(|_| None).collect();
         for d in done.drain(..) {
             self.slots[d.slot].monitor = Some(d.monitor);
-            results[d.slot] = Some(d.result);
+            results[d.slot] = Some(d.outcome);
         }
         self.done = done;
         for (header, p) in pending {
             match results[p.slot].take() {
-                Some(Ok(())) => {
+                Some(StepOutcome {
+                    result: Ok(()),
+                    step_ns,
+                    done_at_ns,
+                }) => {
+                    self.completed.push(CompletedStep {
+                        published_at_ns: header.published_at_ns,
+                        step_ns,
+                        done_at_ns,
+                    });
                     let stamp = self.track.stamp(&header);
                     self.slots[p.slot].last_stamp = Some(stamp);
                     self.follow(p.slot, &stamp);
                 }
-                Some(Err(e)) => self.rejections.push((header, rejection_of(e))),
+                Some(StepOutcome { result: Err(e), .. }) => {
+                    self.rejections.push((header, rejection_of(e)))
+                }
                 // A worker that stopped took the monitor: the bogie restarts from its prior.
                 None => self.rejections.push((
                     header,
@@ -436,6 +449,7 @@ impl Pipeline for BogiePipeline {
     ];
     /// The bogies of one step share its time.
     const REPEATED_TIMES: bool = true;
+    const DEFERS_STEPS: bool = true;
 
     fn sample_period_ns(&self) -> u64 {
         (self.config.estimator.dt_s * 1e9).round() as u64
@@ -534,6 +548,10 @@ impl Pipeline for BogiePipeline {
 
     fn take_rejections(&mut self) -> Vec<(FrameHeader, Rejection)> {
         std::mem::take(&mut self.rejections)
+    }
+
+    fn take_completed(&mut self) -> Option<Vec<CompletedStep>> {
+        Some(std::mem::take(&mut self.completed))
     }
 
     fn settings(&self) -> String {

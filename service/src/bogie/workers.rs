@@ -21,16 +21,28 @@ pub(super) struct Job {
 pub(super) struct Done {
     pub(super) slot: usize,
     pub(super) monitor: Box<DamperMonitor>,
+    pub(super) outcome: StepOutcome,
+}
+
+/// How one bogie's step went: its result, its time alone, and when it was done (monotonic).
+pub(super) struct StepOutcome {
     pub(super) result: Result<(), DamperError>,
+    pub(super) step_ns: u64,
+    pub(super) done_at_ns: u64,
 }
 
 fn run(mut job: Job) -> Done {
+    let start = std::time::Instant::now();
     // `step` validates first: on error the monitor is unchanged.
     let result = job.monitor.step(&job.sample).map(|_| ());
     Done {
         slot: job.slot,
         monitor: job.monitor,
-        result,
+        outcome: StepOutcome {
+            result,
+            step_ns: start.elapsed().as_nanos() as u64,
+            done_at_ns: railmon_bus::monotonic_ns(),
+        },
     }
 }
 

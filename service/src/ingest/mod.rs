@@ -51,6 +51,9 @@ pub trait Pipeline {
     const REJECTION_REASONS: &'static [&'static str];
     /// Several frames of one source may carry the same sample time (the bogies of one step).
     const REPEATED_TIMES: bool = false;
+    /// `step` may defer a frame's estimate to a later call, which reports it through
+    /// `take_completed` (the bogies of one sample time are stepped together, in parallel).
+    const DEFERS_STEPS: bool = false;
     /// The period the estimator is configured for: sample times advance by whole multiples.
     fn sample_period_ns(&self) -> u64;
     /// Checks a frame without changing anything.
@@ -66,6 +69,12 @@ pub trait Pipeline {
     fn take_rejections(&mut self) -> Vec<(FrameHeader, Rejection)> {
         Vec::new()
     }
+    /// Frames whose deferred step has completed since the last call, each with its own step
+    /// time; `None` (the default): `step` estimates its frame itself and the loop times it.
+    /// Asked after every `step` and `publish`, with `take_rejections`.
+    fn take_completed(&mut self) -> Option<Vec<CompletedStep>> {
+        None
+    }
     /// The estimator settings a saved state is only valid for (their serialised text).
     fn settings(&self) -> String {
         String::new()
@@ -79,6 +88,30 @@ pub trait Pipeline {
     /// changed.
     fn resume_state(&mut self, _state: &[u8]) -> Result<(), String> {
         Err("this stream does not resume from snapshots".into())
+    }
+}
+
+/// A deferred step, done: the estimator time of its own frame (not of the call that ran it,
+/// which may have stepped several bogies in parallel) and when its estimate was done.
+#[derive(Clone, Copy, Debug)]
+pub struct CompletedStep {
+    pub published_at_ns: u64,
+    pub step_ns: u64,
+    pub done_at_ns: u64,
+}
+
+/// Counts what deferred steps did since the last call: their rejections, and the step time and
+/// latency of each completed one.
+fn record_deferred<P: Pipeline>(pipeline: &mut P, status: &StreamStatus) {
+    for (header, rejection) in pipeline.take_rejections() {
+        status.reject(&header, rejection);
+    }
+    for c in pipeline.take_completed().into_iter().flatten() {
+        status.record_step(
+            c.step_ns,
+            c.done_at_ns,
+            c.done_at_ns.saturating_sub(c.published_at_ns),
+        );
     }
 }
 
@@ -169,11 +202,13 @@ fn handle_frame<P: Pipeline>(
         Ok(()) => {
             source.clock.accept(header.sample_time_ns);
             let done_at_ns = monotonic_ns();
-            status.record_step(
-                step_ns,
-                done_at_ns,
-                done_at_ns.saturating_sub(header.published_at_ns),
-            );
+            if !P::DEFERS_STEPS {
+                status.record_step(
+                    step_ns,
+                    done_at_ns,
+                    done_at_ns.saturating_sub(header.published_at_ns),
+                );
+            }
             let (lag_ns, load) =
                 source
                     .realtime
@@ -182,9 +217,7 @@ fn handle_frame<P: Pipeline>(
         }
         Err(rejection) => status.reject(header, rejection),
     }
-    for (header, rejection) in pipeline.take_rejections() {
-        status.reject(&header, rejection);
-    }
+    record_deferred(pipeline, status);
 }
 
 /// The ingest loop of one stream; returns when `shutdown` is set (or on a bus error, which is
@@ -324,9 +357,7 @@ fn ingest_loop<P: Pipeline>(
             })?;
             if handled > 0 {
                 pipeline.publish();
-                for (header, rejection) in pipeline.take_rejections() {
-                    status.reject(&header, rejection);
-                }
+                record_deferred(pipeline, status);
             }
             if handled < ingest.max_batch || shutdown.load(Ordering::Relaxed) {
                 break;
