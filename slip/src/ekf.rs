@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use railmon_filter::kalman::{symmetrize, update_joseph};
 
 use crate::error::{check_finite, check_positive, SlipError};
+use crate::jump::{JumpConfig, JumpDetector};
 use crate::model::{idx, wrap_angle, DriveMatrix, DriveModel, DriveState};
 use crate::sample::{validate_frame, DriveSample};
 
@@ -36,6 +37,8 @@ pub struct EkfConfig {
     /// `initial_speed_rad_s` (forward when 0). Without it a filter started far from the true
     /// speed may lock on the mirrored solution `(-omega, theta + pi)`.
     pub start_from_back_emf: bool,
+    /// The load-jump test on the innovations ([`crate::jump`]); off in the paper's filter.
+    pub jump: JumpConfig,
 }
 
 /// The validated setting (docs/adhesion.md, "EKF process noise"): the paper's measurement
@@ -58,6 +61,7 @@ impl Default for EkfConfig {
             initial_angle_rad: 0.0,
             initial_torque_nm: 0.0,
             start_from_back_emf: true,
+            jump: JumpConfig::default(),
         }
     }
 }
@@ -99,7 +103,7 @@ impl EkfConfig {
             &format!("{prefix}.initial_torque_nm"),
             self.initial_torque_nm,
         )?;
-        Ok(())
+        self.jump.validate(&format!("{prefix}.jump"))
     }
 
     fn q(&self) -> DriveMatrix {
@@ -161,6 +165,17 @@ fn measurement_matrix() -> SMatrix<f64, 2, 5> {
     c
 }
 
+/// What the jump test needs from one EKF step.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct StepParts {
+    /// Jacobian of the prediction to this step (identity on the first frame).
+    pub a: DriveMatrix,
+    /// Kalman gain `K = P- C' S^-1` of this step's update.
+    pub gain: SMatrix<f64, 5, 2>,
+    /// Measured minus predicted currents.
+    pub innovation: Vector2<f64>,
+}
+
 /// One EKF step (eq. 3-9) of one drive; returns the new filter, leaving `f` untouched.
 pub fn ekf_step(
     model: &DriveModel,
@@ -169,15 +184,27 @@ pub fn ekf_step(
     f: &DriveFilter,
     sample: &DriveSample,
 ) -> Result<DriveFilter, railmon_filter::FilterError> {
+    ekf_step_parts(model, q, r, f, sample, false).map(|(f, _)| f)
+}
+
+/// [`ekf_step`], with the Jacobian, gain and innovation when `parts` is asked for.
+pub fn ekf_step_parts(
+    model: &DriveModel,
+    q: &DriveMatrix,
+    r: &Matrix2<f64>,
+    f: &DriveFilter,
+    sample: &DriveSample,
+    parts: bool,
+) -> Result<(DriveFilter, Option<StepParts>), railmon_filter::FilterError> {
     // Prediction (3)-(4), with the Jacobian at the previous posterior (8).
-    let (x_pred, p_pred) = match f.u_prev {
+    let (x_pred, p_pred, a) = match f.u_prev {
         Some(u) => {
             let a = model.jacobian(&f.x);
             let mut p = a * f.p * a.transpose() + q;
             symmetrize(&mut p);
-            (model.transition(&f.x, &u), p)
+            (model.transition(&f.x, &u), p, a)
         }
-        None => (f.x, f.p),
+        None => (f.x, f.p, DriveMatrix::identity()),
     };
     // Update (5)-(7) in Joseph form; h(x) = C x is linear (14).
     let c = measurement_matrix();
@@ -186,15 +213,31 @@ pub fn ekf_step(
         sample.i_beta_a - x_pred[idx::I_BETA],
     );
     let upd = update_joseph(&x_pred, &p_pred, &innovation, &c, r)?;
+    let parts = parts.then(|| {
+        // The gain of the update above, K = P- C' (C P- C' + R)^-1; C selects the currents.
+        let pc = p_pred.fixed_columns::<2>(idx::I_ALPHA).into_owned();
+        let s = pc.fixed_rows::<2>(idx::I_ALPHA).into_owned() + r;
+        let gain = s
+            .try_inverse()
+            .map_or_else(SMatrix::<f64, 5, 2>::zeros, |s_inv| pc * s_inv);
+        StepParts {
+            a,
+            gain,
+            innovation,
+        }
+    });
     let mut x = upd.x;
     x[idx::THETA] = wrap_angle(x[idx::THETA]);
-    Ok(DriveFilter {
-        x,
-        p: upd.p,
-        u_prev: Some(Vector2::new(sample.u_alpha_v, sample.u_beta_v)),
-        log_likelihood: upd.log_likelihood,
-        frames: f.frames + 1,
-    })
+    Ok((
+        DriveFilter {
+            x,
+            p: upd.p,
+            u_prev: Some(Vector2::new(sample.u_alpha_v, sample.u_beta_v)),
+            log_likelihood: upd.log_likelihood,
+            frames: f.frames + 1,
+        },
+        parts,
+    ))
 }
 
 /// Electrical speed and angle at step t from the currents at t and t+1 and the voltage over
@@ -245,6 +288,10 @@ pub struct EkfBank {
     scratch: Vec<DriveFilter>,
     /// `Some(forward)` when the second frame restarts speed and angle from the back-EMF.
     back_emf_start: Option<bool>,
+    /// One load-jump test per drive; empty when `[ekf.jump]` is off.
+    detectors: Vec<JumpDetector>,
+    /// Per drive, the parts of the last step the jump test reads.
+    parts: Vec<StepParts>,
 }
 
 impl Clone for EkfBank {
@@ -256,6 +303,8 @@ impl Clone for EkfBank {
             filters: self.filters.clone(),
             scratch: self.scratch.clone(),
             back_emf_start: self.back_emf_start,
+            detectors: self.detectors.clone(),
+            parts: self.parts.clone(),
         }
     }
 
@@ -267,6 +316,8 @@ impl Clone for EkfBank {
         self.filters.clone_from(&source.filters);
         self.scratch.clone_from(&source.scratch);
         self.back_emf_start = source.back_emf_start;
+        self.detectors.clone_from(&source.detectors);
+        self.parts.clone_from(&source.parts);
     }
 }
 
@@ -286,6 +337,12 @@ impl EkfBank {
             back_emf_start: config
                 .start_from_back_emf
                 .then_some(config.initial_speed_rad_s >= 0.0),
+            detectors: if config.jump.enabled {
+                vec![JumpDetector::new(config.jump); n_drives]
+            } else {
+                Vec::new()
+            },
+            parts: vec![StepParts::default(); n_drives],
         })
     }
 
@@ -301,15 +358,22 @@ impl EkfBank {
         &self.model
     }
 
+    /// The load-jump test of each drive (empty when off).
+    pub fn jump_detectors(&self) -> &[JumpDetector] {
+        &self.detectors
+    }
+
     /// One step of every drive. The frame is validated first and all filters are computed
     /// before any is committed: on error the bank is unchanged.
     pub fn step(&mut self, samples: &[DriveSample]) -> Result<(), SlipError> {
         validate_frame(samples, self.filters.len())?;
-        for (k, ((f, s), out)) in self
+        let test_jumps = !self.detectors.is_empty();
+        for (k, (((f, s), out), parts)) in self
             .filters
             .iter()
             .zip(samples)
             .zip(self.scratch.iter_mut())
+            .zip(self.parts.iter_mut())
             .enumerate()
         {
             let start;
@@ -320,12 +384,31 @@ impl EkfBank {
                 }
                 _ => f,
             };
-            *out = ekf_step(&self.model, &self.q, &self.r, f, s).map_err(|source| {
-                SlipError::Filter {
-                    drive: k + 1,
-                    source,
-                }
-            })?;
+            let (next, step_parts) =
+                ekf_step_parts(&self.model, &self.q, &self.r, f, s, test_jumps).map_err(
+                    |source| SlipError::Filter {
+                        drive: k + 1,
+                        source,
+                    },
+                )?;
+            *out = next;
+            if let Some(p) = step_parts {
+                *parts = p;
+            }
+        }
+        // Every update succeeded: only now may the tests change state.
+        for ((det, out), parts) in self
+            .detectors
+            .iter_mut()
+            .zip(self.scratch.iter_mut())
+            .zip(&self.parts)
+        {
+            if let Some(jump) = det.observe(out.frames, &parts.a, &parts.gain, &parts.innovation) {
+                out.x += jump.state_correction;
+                out.x[idx::THETA] = wrap_angle(out.x[idx::THETA]);
+                out.p += jump.covariance_added;
+                symmetrize(&mut out.p);
+            }
         }
         std::mem::swap(&mut self.filters, &mut self.scratch);
         Ok(())
