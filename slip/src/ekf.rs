@@ -5,10 +5,10 @@
 //! block diagonal, the stacked filter is exactly N independent 5-state filters; we run them as
 //! such (O(N) work and memory, never a dense 5N x 5N matrix).
 
-use nalgebra::{Matrix2, SMatrix, Vector2};
+use nalgebra::{Cholesky, Matrix2, SMatrix, Vector2};
 use serde::{Deserialize, Serialize};
 
-use railmon_filter::kalman::{symmetrize, update_joseph};
+use railmon_filter::kalman::{symmetrize, update_joseph, LN_2PI};
 
 use crate::error::{check_finite, check_positive, SlipError};
 use crate::jump::{JumpConfig, JumpDetector};
@@ -188,6 +188,12 @@ pub fn ekf_step(
 }
 
 /// [`ekf_step`], with the Jacobian, gain and innovation when `parts` is asked for.
+///
+/// The update skips the zeros of `I - K C` (`C` selects the two currents: 2 x 5 x 5 products
+/// instead of 5 x 5 x 5, twice) but adds the remaining terms in the order of the dense
+/// products of [`ekf_step_dense`], so the result is the same to the bit (test
+/// `sparse_step_equals_the_dense_one_bit_for_bit`); speed ratio in `cargo bench -p
+/// railmon-slip --bench sections`.
 pub fn ekf_step_parts(
     model: &DriveModel,
     q: &DriveMatrix,
@@ -199,33 +205,19 @@ pub fn ekf_step_parts(
     // Prediction (3)-(4), with the Jacobian at the previous posterior (8).
     let (x_pred, p_pred, a) = match f.u_prev {
         Some(u) => {
-            let a = model.jacobian(&f.x);
+            let (x_pred, a) = model.transition_and_jacobian(&f.x, &u);
             let mut p = a * f.p * a.transpose() + q;
             symmetrize(&mut p);
-            (model.transition(&f.x, &u), p, a)
+            (x_pred, p, a)
         }
         None => (f.x, f.p, DriveMatrix::identity()),
     };
     // Update (5)-(7) in Joseph form; h(x) = C x is linear (14).
-    let c = measurement_matrix();
     let innovation = Vector2::new(
         sample.i_alpha_a - x_pred[idx::I_ALPHA],
         sample.i_beta_a - x_pred[idx::I_BETA],
     );
-    let upd = update_joseph(&x_pred, &p_pred, &innovation, &c, r)?;
-    let parts = parts.then(|| {
-        // The gain of the update above, K = P- C' (C P- C' + R)^-1; C selects the currents.
-        let pc = p_pred.fixed_columns::<2>(idx::I_ALPHA).into_owned();
-        let s = pc.fixed_rows::<2>(idx::I_ALPHA).into_owned() + r;
-        let gain = s
-            .try_inverse()
-            .map_or_else(SMatrix::<f64, 5, 2>::zeros, |s_inv| pc * s_inv);
-        StepParts {
-            a,
-            gain,
-            innovation,
-        }
-    });
+    let upd = update_currents(&x_pred, &p_pred, &innovation, r)?;
     let mut x = upd.x;
     x[idx::THETA] = wrap_angle(x[idx::THETA]);
     Ok((
@@ -236,8 +228,107 @@ pub fn ekf_step_parts(
             log_likelihood: upd.log_likelihood,
             frames: f.frames + 1,
         },
-        parts,
+        parts.then_some(StepParts {
+            a,
+            gain: upd.gain,
+            innovation,
+        }),
     ))
+}
+
+/// The posterior, likelihood and gain of the update with `C = [I_2 0]`.
+struct CurrentUpdate {
+    x: DriveState,
+    p: DriveMatrix,
+    log_likelihood: f64,
+    gain: SMatrix<f64, 5, 2>,
+}
+
+/// `railmon_filter::kalman::update_joseph` for `C = [I_2 0]`: `P C'` is the first two columns
+/// of `P`, and `I - K C` differs from `I` in its first two columns only.
+fn update_currents(
+    x: &DriveState,
+    p: &DriveMatrix,
+    innovation: &Vector2<f64>,
+    r: &Matrix2<f64>,
+) -> Result<CurrentUpdate, railmon_filter::FilterError> {
+    use railmon_filter::FilterError;
+    let ph_t = p.fixed_columns::<2>(idx::I_ALPHA).into_owned();
+    let mut s = ph_t.fixed_rows::<2>(idx::I_ALPHA).into_owned() + r;
+    symmetrize(&mut s);
+    let chol = Cholesky::new(s).ok_or(FilterError::InnovationNotPositiveDefinite)?;
+    let k = chol.solve(&ph_t.transpose()).transpose();
+    let x_post = x + k * innovation;
+    // The first two columns of I - K C (the others are those of I).
+    let mut i_kh = -k;
+    i_kh[(0, 0)] += 1.0;
+    i_kh[(1, 1)] += 1.0;
+    // (I - K C) P: the first two columns of I - K C times the first two rows of P, plus the
+    // rows 2-4 of P (the identity's part), term for term the dense product's sum.
+    let mut t = i_kh * p.fixed_rows::<2>(idx::I_ALPHA);
+    t.fixed_rows_mut::<3>(idx::OMEGA)
+        .iter_mut()
+        .zip(p.fixed_rows::<3>(idx::OMEGA).iter())
+        .for_each(|(t, p)| *t += p);
+    // ((I - K C) P) (I - K C)', the same way.
+    let mut p_post = t.fixed_columns::<2>(idx::I_ALPHA) * i_kh.transpose();
+    p_post
+        .fixed_columns_mut::<3>(idx::OMEGA)
+        .iter_mut()
+        .zip(t.fixed_columns::<3>(idx::OMEGA).iter())
+        .for_each(|(q, t)| *q += t);
+    p_post += k * r * k.transpose();
+    symmetrize(&mut p_post);
+
+    let log_det_s: f64 = 2.0 * chol.l().diagonal().iter().map(|d| d.ln()).sum::<f64>();
+    let mahalanobis = innovation.dot(&chol.solve(innovation));
+    let log_likelihood = -0.5 * (2.0 * LN_2PI + log_det_s + mahalanobis);
+    if !log_likelihood.is_finite() || x_post.iter().any(|v| !v.is_finite()) {
+        return Err(FilterError::NonFinite {
+            what: "Kalman update",
+        });
+    }
+    Ok(CurrentUpdate {
+        x: x_post,
+        p: p_post,
+        log_likelihood,
+        gain: k,
+    })
+}
+
+/// The same step with dense products and the general Joseph update
+/// (`railmon_filter::kalman::update_joseph`): the textbook form, kept as the reference the
+/// fast [`ekf_step_parts`] is tested and benchmarked against.
+pub fn ekf_step_dense(
+    model: &DriveModel,
+    q: &DriveMatrix,
+    r: &Matrix2<f64>,
+    f: &DriveFilter,
+    sample: &DriveSample,
+) -> Result<DriveFilter, railmon_filter::FilterError> {
+    let (x_pred, p_pred) = match f.u_prev {
+        Some(u) => {
+            let a = model.jacobian(&f.x);
+            let mut p = a * f.p * a.transpose() + q;
+            symmetrize(&mut p);
+            (model.transition(&f.x, &u), p)
+        }
+        None => (f.x, f.p),
+    };
+    let innovation = Vector2::new(
+        sample.i_alpha_a - x_pred[idx::I_ALPHA],
+        sample.i_beta_a - x_pred[idx::I_BETA],
+    );
+    let upd = update_joseph(&x_pred, &p_pred, &innovation, &measurement_matrix(), r)?;
+    let mut x = upd.x;
+    x[idx::THETA] = wrap_angle(x[idx::THETA]);
+    Ok(DriveFilter {
+        x,
+        p: upd.p,
+        u_prev: Some(Vector2::new(sample.u_alpha_v, sample.u_beta_v)),
+        log_likelihood: upd.log_likelihood,
+        frames: f.frames + 1,
+    })
 }
 
 /// Electrical speed and angle at step t from the currents at t and t+1 and the voltage over
@@ -308,16 +399,22 @@ impl Clone for EkfBank {
         }
     }
 
-    /// Copies without allocating when the sizes match (the monitor's per-frame backup).
+    /// Copies without allocating when the sizes match (the monitor's per-frame backup). The
+    /// scratch space (`scratch`, `parts`) is written before it is read at every step, so only
+    /// its size is copied.
     fn clone_from(&mut self, source: &Self) {
         self.model = source.model;
         self.q = source.q;
         self.r = source.r;
         self.filters.clone_from(&source.filters);
-        self.scratch.clone_from(&source.scratch);
+        if self.scratch.len() != source.scratch.len() {
+            self.scratch.clone_from(&source.scratch);
+        }
+        if self.parts.len() != source.parts.len() {
+            self.parts.clone_from(&source.parts);
+        }
         self.back_emf_start = source.back_emf_start;
         self.detectors.clone_from(&source.detectors);
-        self.parts.clone_from(&source.parts);
     }
 }
 

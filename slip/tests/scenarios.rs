@@ -218,3 +218,33 @@ fn the_jump_test_finds_both_edges_of_a_slide_and_nothing_on_a_healthy_drive() {
         "settling steps with the test {with_test:?}, without {plain:?}"
     );
 }
+
+/// The EKF step that skips the zeros of its products equals the dense textbook step to the
+/// bit, on every drive of the hard scenario (noise, model mismatch, slips), and so does every
+/// figure computed from it (Table 1 and the golden file).
+#[test]
+fn sparse_step_equals_the_dense_one_bit_for_bit() {
+    use railmon_slip::ekf::{ekf_step_dense, ekf_step_parts};
+    let text = include_str!("../../config/scenarios/adhesion-hard.toml");
+    let mut scenario = AdhesionScenario::from_toml_str(text).unwrap();
+    scenario.n_steps = 6000;
+    let config = scenario.monitor_config();
+    let model = config.model().unwrap();
+    let q = nalgebra::SMatrix::<f64, 5, 5>::from_diagonal(&config.ekf.process_noise_diag.into());
+    let r = nalgebra::Matrix2::identity() * config.ekf.measurement_noise_a2;
+    let mut sim = DriveSimulator::new(&scenario).unwrap();
+    let mut bank = EkfBank::new(model, &config.ekf, scenario.n_drives()).unwrap();
+    // Two frames through the bank (the back-EMF start), then both steps side by side.
+    for _ in 0..2 {
+        bank.step(sim.step().unwrap().0).unwrap();
+    }
+    let mut sparse = bank.filters().to_vec();
+    let mut dense = sparse.clone();
+    while let Some((samples, _)) = sim.step() {
+        for ((fs, fd), s) in sparse.iter_mut().zip(dense.iter_mut()).zip(samples) {
+            *fs = ekf_step_parts(&model, &q, &r, fs, s, false).unwrap().0;
+            *fd = ekf_step_dense(&model, &q, &r, fd, s).unwrap();
+            assert_eq!(fs, fd);
+        }
+    }
+}
