@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use railmon_filter::kalman::{symmetrize, update_joseph, LN_2PI};
 
 use crate::error::{check_finite, check_positive, SlipError};
-use crate::jump::{JumpConfig, JumpDetector};
+use crate::jump::{is_common_mode, Jump, JumpConfig, JumpDetector};
 use crate::model::{idx, wrap_angle, DriveMatrix, DriveModel, DriveState};
 use crate::sample::{validate_frame, DriveSample};
 
@@ -383,6 +383,11 @@ pub struct EkfBank {
     detectors: Vec<JumpDetector>,
     /// Per drive, the parts of the last step the jump test reads.
     parts: Vec<StepParts>,
+    /// Per drive, the jump its test found at the last step (scratch).
+    jumps: Vec<Option<Jump>>,
+    /// Per drive, the jumps applied to its filter (found and not common to the drives).
+    corrections: Vec<u64>,
+    jump_config: JumpConfig,
 }
 
 impl Clone for EkfBank {
@@ -396,6 +401,9 @@ impl Clone for EkfBank {
             back_emf_start: self.back_emf_start,
             detectors: self.detectors.clone(),
             parts: self.parts.clone(),
+            jumps: self.jumps.clone(),
+            corrections: self.corrections.clone(),
+            jump_config: self.jump_config,
         }
     }
 
@@ -413,6 +421,11 @@ impl Clone for EkfBank {
         if self.parts.len() != source.parts.len() {
             self.parts.clone_from(&source.parts);
         }
+        if self.jumps.len() != source.jumps.len() {
+            self.jumps.clone_from(&source.jumps);
+        }
+        self.corrections.clone_from(&source.corrections);
+        self.jump_config = source.jump_config;
         self.back_emf_start = source.back_emf_start;
         self.detectors.clone_from(&source.detectors);
     }
@@ -440,6 +453,9 @@ impl EkfBank {
                 Vec::new()
             },
             parts: vec![StepParts::default(); n_drives],
+            jumps: vec![None; n_drives],
+            corrections: vec![0; n_drives],
+            jump_config: config.jump,
         })
     }
 
@@ -458,6 +474,12 @@ impl EkfBank {
     /// The load-jump test of each drive (empty when off).
     pub fn jump_detectors(&self) -> &[JumpDetector] {
         &self.detectors
+    }
+
+    /// Per drive, the jumps applied to its filter so far (found by its test and not common
+    /// to the drives).
+    pub fn jump_corrections(&self) -> &[u64] {
+        &self.corrections
     }
 
     /// One step of every drive. The frame is validated first and all filters are computed
@@ -493,19 +515,40 @@ impl EkfBank {
                 *parts = p;
             }
         }
-        // Every update succeeded: only now may the tests change state.
-        for ((det, out), parts) in self
+        // Every update succeeded: only now may the tests change state. All drives are tested
+        // first, then each jump is checked against the others' tests (a load change common
+        // to the drives is left to the filters) and applied.
+        for ((det, out), (parts, jump)) in self
             .detectors
             .iter_mut()
-            .zip(self.scratch.iter_mut())
-            .zip(&self.parts)
+            .zip(&self.scratch)
+            .zip(self.parts.iter().zip(self.jumps.iter_mut()))
         {
-            if let Some(jump) = det.observe(out.frames, &parts.a, &parts.gain, &parts.innovation) {
-                out.x += jump.state_correction;
-                out.x[idx::THETA] = wrap_angle(out.x[idx::THETA]);
-                out.p += jump.covariance_added;
-                symmetrize(&mut out.p);
+            *jump = det.observe(out.frames, &parts.a, &parts.gain, &parts.innovation);
+        }
+        let threshold = self.jump_config.common_mode_threshold;
+        for (k, ((out, jump), corrections)) in self
+            .scratch
+            .iter_mut()
+            .zip(&self.jumps)
+            .zip(self.corrections.iter_mut())
+            .enumerate()
+        {
+            let Some(jump) = jump else { continue };
+            let others = self
+                .detectors
+                .iter()
+                .enumerate()
+                .filter(|&(i, _)| i != k)
+                .map(|(_, d)| d.lead());
+            if threshold > 0.0 && is_common_mode(jump.torque_nm, others, threshold) {
+                continue;
             }
+            out.x += jump.state_correction;
+            out.x[idx::THETA] = wrap_angle(out.x[idx::THETA]);
+            out.p += jump.covariance_added;
+            symmetrize(&mut out.p);
+            *corrections += 1;
         }
         std::mem::swap(&mut self.filters, &mut self.scratch);
         Ok(())
