@@ -6,8 +6,8 @@
 //! - per scenario and method, over the drives that never lose adhesion: false-alarm steps
 //!   (probability > 0.5, and alarm on), the largest of one drive and the share of all steps.
 //!
-//! `cargo bench -p railmon-slip --bench matrix [-- NAME]` (NAME: run only scenarios whose file
-//! name contains it). Takes a minute or two in release on one core.
+//! `cargo bench -p railmon-slip --bench matrix [-- [--jump] NAME]` (NAME: run only scenarios
+//! whose file name contains it; `--jump`: every EKF with its load-jump test on). Takes a minute or two in release on one core.
 
 use std::time::Instant;
 
@@ -31,6 +31,7 @@ fn opt(v: Option<f64>, digits: usize) -> String {
 
 fn main() {
     let filter = std::env::args().skip(1).find(|a| !a.starts_with('-'));
+    let jump = std::env::args().any(|a| a == "--jump");
     let mut per_drive = Vec::new();
     let mut healthy = Vec::new();
     for path in scenario_paths(filter.as_deref()) {
@@ -39,7 +40,10 @@ fn main() {
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         let n = scenario.n_drives();
         let mut sim = DriveSimulator::new(&scenario).expect("simulator");
-        let mut pipe = MultiMethodPipeline::new(&scenario.monitor_config(), n).expect("pipeline");
+        let mut cfg = scenario.monitor_config();
+        // `--jump`: the same with the load-jump test of the EKFs on (`[ekf.jump]`).
+        cfg.ekf.jump.enabled |= jump;
+        let mut pipe = MultiMethodPipeline::new(&cfg, n).expect("pipeline");
         let mut counters: Vec<MethodCounters> = AdhesionMethod::ALL
             .iter()
             .map(|&method| MethodCounters {

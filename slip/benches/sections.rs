@@ -2,6 +2,9 @@
 //! adhesion scenario of `config/scenarios/` (pre-simulated, so the plant is not timed), the
 //! thread CPU time of
 //! - the EKF bank alone,
+//! - the EKF step with dense products (`ekf_step_dense`, the reference) against the one the
+//!   bank runs (`ekf_step_parts`, which skips the zeros), over the same frames: their speed
+//!   ratio (same run, so the machine's load cancels),
 //! - each adhesion method alone, over the EKF torque estimates of the whole run,
 //! - the whole pipeline (EKFs, all five methods, their alarms: `MultiMethodPipeline`),
 //! - what the service runs: the EKFs and the default method (`SlipMonitor`, temporal),
@@ -18,6 +21,8 @@ use std::hint::black_box;
 mod scenarios_dir;
 use scenarios_dir::scenario_paths;
 
+use railmon_slip::ekf::{ekf_step_dense, ekf_step_parts};
+use railmon_slip::model::DriveMatrix;
 use railmon_slip::{
     AdhesionEstimator, AdhesionMethod, AdhesionScenario, DriveSample, DriveSimulator, EkfBank,
     MultiMethodPipeline, SlipMonitor,
@@ -54,8 +59,10 @@ fn main() {
     for m in AdhesionMethod::ALL {
         print!(" {m} |");
     }
-    println!(" sum of sections | whole pipeline | EKFs + temporal (service) |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    println!(
+        " sum of sections | whole pipeline | EKFs + temporal (service) | EKF step sparse / dense |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for path in scenario_paths(filter.as_deref()) {
         let text = std::fs::read_to_string(&path).expect("scenario file");
         let scenario = AdhesionScenario::from_toml_str(&text)
@@ -80,6 +87,31 @@ fn main() {
                 }
             }
         });
+        // Both EKF steps from the bank's filters after its first two frames (the back-EMF
+        // start), drive by drive over the remaining frames.
+        let mut started = EkfBank::new(model, &config.ekf, n).expect("bank");
+        for f in &frames[..2] {
+            started.step(f).expect("step");
+        }
+        let q = DriveMatrix::from_diagonal(&config.ekf.process_noise_diag.into());
+        let r = nalgebra::Matrix2::identity() * config.ekf.measurement_noise_a2;
+        let chain_s = |dense: bool| {
+            cpu_seconds(|| {
+                let mut filters = started.filters().to_vec();
+                for frame in &frames[2..] {
+                    for (f, s) in filters.iter_mut().zip(frame) {
+                        *f = if dense {
+                            ekf_step_dense(&model, &q, &r, f, s).expect("step")
+                        } else {
+                            ekf_step_parts(&model, &q, &r, f, s, false).expect("step").0
+                        };
+                    }
+                }
+                black_box(filters[0].x[0]);
+            })
+        };
+        let dense_s = chain_s(true);
+        let sparse_s = chain_s(false);
         let method_s: Vec<f64> = AdhesionMethod::ALL
             .iter()
             .map(|&m| {
@@ -110,10 +142,11 @@ fn main() {
             print!(" {} |", rate(*s));
         }
         println!(
-            " {} | {} | {} |",
+            " {} | {} | {} | {:.2} |",
             rate(ekf_s + method_s.iter().sum::<f64>()),
             rate(whole_s),
-            rate(service_s)
+            rate(service_s),
+            dense_s / sparse_s
         );
     }
     println!();

@@ -5,12 +5,13 @@
 //! block diagonal, the stacked filter is exactly N independent 5-state filters; we run them as
 //! such (O(N) work and memory, never a dense 5N x 5N matrix).
 
-use nalgebra::{Matrix2, SMatrix, Vector2};
+use nalgebra::{Cholesky, Matrix2, SMatrix, Vector2};
 use serde::{Deserialize, Serialize};
 
-use railmon_filter::kalman::{symmetrize, update_joseph};
+use railmon_filter::kalman::{symmetrize, update_joseph, LN_2PI};
 
 use crate::error::{check_finite, check_positive, SlipError};
+use crate::jump::{is_common_mode, Jump, JumpConfig, JumpDetector};
 use crate::model::{idx, wrap_angle, DriveMatrix, DriveModel, DriveState};
 use crate::sample::{validate_frame, DriveSample};
 
@@ -36,6 +37,8 @@ pub struct EkfConfig {
     /// `initial_speed_rad_s` (forward when 0). Without it a filter started far from the true
     /// speed may lock on the mirrored solution `(-omega, theta + pi)`.
     pub start_from_back_emf: bool,
+    /// The load-jump test on the innovations ([`crate::jump`]); off in the paper's filter.
+    pub jump: JumpConfig,
 }
 
 /// The validated setting (docs/adhesion.md, "EKF process noise"): the paper's measurement
@@ -58,6 +61,7 @@ impl Default for EkfConfig {
             initial_angle_rad: 0.0,
             initial_torque_nm: 0.0,
             start_from_back_emf: true,
+            jump: JumpConfig::default(),
         }
     }
 }
@@ -99,7 +103,7 @@ impl EkfConfig {
             &format!("{prefix}.initial_torque_nm"),
             self.initial_torque_nm,
         )?;
-        Ok(())
+        self.jump.validate(&format!("{prefix}.jump"))
     }
 
     fn q(&self) -> DriveMatrix {
@@ -161,6 +165,17 @@ fn measurement_matrix() -> SMatrix<f64, 2, 5> {
     c
 }
 
+/// What the jump test needs from one EKF step.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct StepParts {
+    /// Jacobian of the prediction to this step (identity on the first frame).
+    pub a: DriveMatrix,
+    /// Kalman gain `K = P- C' S^-1` of this step's update.
+    pub gain: SMatrix<f64, 5, 2>,
+    /// Measured minus predicted currents.
+    pub innovation: Vector2<f64>,
+}
+
 /// One EKF step (eq. 3-9) of one drive; returns the new filter, leaving `f` untouched.
 pub fn ekf_step(
     model: &DriveModel,
@@ -169,7 +184,128 @@ pub fn ekf_step(
     f: &DriveFilter,
     sample: &DriveSample,
 ) -> Result<DriveFilter, railmon_filter::FilterError> {
+    ekf_step_parts(model, q, r, f, sample, false).map(|(f, _)| f)
+}
+
+/// [`ekf_step`], with the Jacobian, gain and innovation when `parts` is asked for.
+///
+/// The update skips the zeros of `I - K C` (`C` selects the two currents: 2 x 5 x 5 products
+/// instead of 5 x 5 x 5, twice) but adds the remaining terms in the order of the dense
+/// products of [`ekf_step_dense`], so the result is the same to the bit (test
+/// `sparse_step_equals_the_dense_one_bit_for_bit`); speed ratio in `cargo bench -p
+/// railmon-slip --bench sections`.
+pub fn ekf_step_parts(
+    model: &DriveModel,
+    q: &DriveMatrix,
+    r: &Matrix2<f64>,
+    f: &DriveFilter,
+    sample: &DriveSample,
+    parts: bool,
+) -> Result<(DriveFilter, Option<StepParts>), railmon_filter::FilterError> {
     // Prediction (3)-(4), with the Jacobian at the previous posterior (8).
+    let (x_pred, p_pred, a) = match f.u_prev {
+        Some(u) => {
+            let (x_pred, a) = model.transition_and_jacobian(&f.x, &u);
+            let mut p = a * f.p * a.transpose() + q;
+            symmetrize(&mut p);
+            (x_pred, p, a)
+        }
+        None => (f.x, f.p, DriveMatrix::identity()),
+    };
+    // Update (5)-(7) in Joseph form; h(x) = C x is linear (14).
+    let innovation = Vector2::new(
+        sample.i_alpha_a - x_pred[idx::I_ALPHA],
+        sample.i_beta_a - x_pred[idx::I_BETA],
+    );
+    let upd = update_currents(&x_pred, &p_pred, &innovation, r)?;
+    let mut x = upd.x;
+    x[idx::THETA] = wrap_angle(x[idx::THETA]);
+    Ok((
+        DriveFilter {
+            x,
+            p: upd.p,
+            u_prev: Some(Vector2::new(sample.u_alpha_v, sample.u_beta_v)),
+            log_likelihood: upd.log_likelihood,
+            frames: f.frames + 1,
+        },
+        parts.then_some(StepParts {
+            a,
+            gain: upd.gain,
+            innovation,
+        }),
+    ))
+}
+
+/// The posterior, likelihood and gain of the update with `C = [I_2 0]`.
+struct CurrentUpdate {
+    x: DriveState,
+    p: DriveMatrix,
+    log_likelihood: f64,
+    gain: SMatrix<f64, 5, 2>,
+}
+
+/// `railmon_filter::kalman::update_joseph` for `C = [I_2 0]`: `P C'` is the first two columns
+/// of `P`, and `I - K C` differs from `I` in its first two columns only.
+fn update_currents(
+    x: &DriveState,
+    p: &DriveMatrix,
+    innovation: &Vector2<f64>,
+    r: &Matrix2<f64>,
+) -> Result<CurrentUpdate, railmon_filter::FilterError> {
+    use railmon_filter::FilterError;
+    let ph_t = p.fixed_columns::<2>(idx::I_ALPHA).into_owned();
+    let mut s = ph_t.fixed_rows::<2>(idx::I_ALPHA).into_owned() + r;
+    symmetrize(&mut s);
+    let chol = Cholesky::new(s).ok_or(FilterError::InnovationNotPositiveDefinite)?;
+    let k = chol.solve(&ph_t.transpose()).transpose();
+    let x_post = x + k * innovation;
+    // The first two columns of I - K C (the others are those of I).
+    let mut i_kh = -k;
+    i_kh[(0, 0)] += 1.0;
+    i_kh[(1, 1)] += 1.0;
+    // (I - K C) P: the first two columns of I - K C times the first two rows of P, plus the
+    // rows 2-4 of P (the identity's part), term for term the dense product's sum.
+    let mut t = i_kh * p.fixed_rows::<2>(idx::I_ALPHA);
+    t.fixed_rows_mut::<3>(idx::OMEGA)
+        .iter_mut()
+        .zip(p.fixed_rows::<3>(idx::OMEGA).iter())
+        .for_each(|(t, p)| *t += p);
+    // ((I - K C) P) (I - K C)', the same way.
+    let mut p_post = t.fixed_columns::<2>(idx::I_ALPHA) * i_kh.transpose();
+    p_post
+        .fixed_columns_mut::<3>(idx::OMEGA)
+        .iter_mut()
+        .zip(t.fixed_columns::<3>(idx::OMEGA).iter())
+        .for_each(|(q, t)| *q += t);
+    p_post += k * r * k.transpose();
+    symmetrize(&mut p_post);
+
+    let log_det_s: f64 = 2.0 * chol.l().diagonal().iter().map(|d| d.ln()).sum::<f64>();
+    let mahalanobis = innovation.dot(&chol.solve(innovation));
+    let log_likelihood = -0.5 * (2.0 * LN_2PI + log_det_s + mahalanobis);
+    if !log_likelihood.is_finite() || x_post.iter().any(|v| !v.is_finite()) {
+        return Err(FilterError::NonFinite {
+            what: "Kalman update",
+        });
+    }
+    Ok(CurrentUpdate {
+        x: x_post,
+        p: p_post,
+        log_likelihood,
+        gain: k,
+    })
+}
+
+/// The same step with dense products and the general Joseph update
+/// (`railmon_filter::kalman::update_joseph`): the textbook form, kept as the reference the
+/// fast [`ekf_step_parts`] is tested and benchmarked against.
+pub fn ekf_step_dense(
+    model: &DriveModel,
+    q: &DriveMatrix,
+    r: &Matrix2<f64>,
+    f: &DriveFilter,
+    sample: &DriveSample,
+) -> Result<DriveFilter, railmon_filter::FilterError> {
     let (x_pred, p_pred) = match f.u_prev {
         Some(u) => {
             let a = model.jacobian(&f.x);
@@ -179,13 +315,11 @@ pub fn ekf_step(
         }
         None => (f.x, f.p),
     };
-    // Update (5)-(7) in Joseph form; h(x) = C x is linear (14).
-    let c = measurement_matrix();
     let innovation = Vector2::new(
         sample.i_alpha_a - x_pred[idx::I_ALPHA],
         sample.i_beta_a - x_pred[idx::I_BETA],
     );
-    let upd = update_joseph(&x_pred, &p_pred, &innovation, &c, r)?;
+    let upd = update_joseph(&x_pred, &p_pred, &innovation, &measurement_matrix(), r)?;
     let mut x = upd.x;
     x[idx::THETA] = wrap_angle(x[idx::THETA]);
     Ok(DriveFilter {
@@ -245,6 +379,15 @@ pub struct EkfBank {
     scratch: Vec<DriveFilter>,
     /// `Some(forward)` when the second frame restarts speed and angle from the back-EMF.
     back_emf_start: Option<bool>,
+    /// One load-jump test per drive; empty when `[ekf.jump]` is off.
+    detectors: Vec<JumpDetector>,
+    /// Per drive, the parts of the last step the jump test reads.
+    parts: Vec<StepParts>,
+    /// Per drive, the jump its test found at the last step (scratch).
+    jumps: Vec<Option<Jump>>,
+    /// Per drive, the jumps applied to its filter (found and not common to the drives).
+    corrections: Vec<u64>,
+    jump_config: JumpConfig,
 }
 
 impl Clone for EkfBank {
@@ -256,17 +399,35 @@ impl Clone for EkfBank {
             filters: self.filters.clone(),
             scratch: self.scratch.clone(),
             back_emf_start: self.back_emf_start,
+            detectors: self.detectors.clone(),
+            parts: self.parts.clone(),
+            jumps: self.jumps.clone(),
+            corrections: self.corrections.clone(),
+            jump_config: self.jump_config,
         }
     }
 
-    /// Copies without allocating when the sizes match (the monitor's per-frame backup).
+    /// Copies without allocating when the sizes match (the monitor's per-frame backup). The
+    /// scratch space (`scratch`, `parts`) is written before it is read at every step, so only
+    /// its size is copied.
     fn clone_from(&mut self, source: &Self) {
         self.model = source.model;
         self.q = source.q;
         self.r = source.r;
         self.filters.clone_from(&source.filters);
-        self.scratch.clone_from(&source.scratch);
+        if self.scratch.len() != source.scratch.len() {
+            self.scratch.clone_from(&source.scratch);
+        }
+        if self.parts.len() != source.parts.len() {
+            self.parts.clone_from(&source.parts);
+        }
+        if self.jumps.len() != source.jumps.len() {
+            self.jumps.clone_from(&source.jumps);
+        }
+        self.corrections.clone_from(&source.corrections);
+        self.jump_config = source.jump_config;
         self.back_emf_start = source.back_emf_start;
+        self.detectors.clone_from(&source.detectors);
     }
 }
 
@@ -286,6 +447,15 @@ impl EkfBank {
             back_emf_start: config
                 .start_from_back_emf
                 .then_some(config.initial_speed_rad_s >= 0.0),
+            detectors: if config.jump.enabled {
+                vec![JumpDetector::new(config.jump); n_drives]
+            } else {
+                Vec::new()
+            },
+            parts: vec![StepParts::default(); n_drives],
+            jumps: vec![None; n_drives],
+            corrections: vec![0; n_drives],
+            jump_config: config.jump,
         })
     }
 
@@ -301,15 +471,28 @@ impl EkfBank {
         &self.model
     }
 
+    /// The load-jump test of each drive (empty when off).
+    pub fn jump_detectors(&self) -> &[JumpDetector] {
+        &self.detectors
+    }
+
+    /// Per drive, the jumps applied to its filter so far (found by its test and not common
+    /// to the drives).
+    pub fn jump_corrections(&self) -> &[u64] {
+        &self.corrections
+    }
+
     /// One step of every drive. The frame is validated first and all filters are computed
     /// before any is committed: on error the bank is unchanged.
     pub fn step(&mut self, samples: &[DriveSample]) -> Result<(), SlipError> {
         validate_frame(samples, self.filters.len())?;
-        for (k, ((f, s), out)) in self
+        let test_jumps = !self.detectors.is_empty();
+        for (k, (((f, s), out), parts)) in self
             .filters
             .iter()
             .zip(samples)
             .zip(self.scratch.iter_mut())
+            .zip(self.parts.iter_mut())
             .enumerate()
         {
             let start;
@@ -320,12 +503,52 @@ impl EkfBank {
                 }
                 _ => f,
             };
-            *out = ekf_step(&self.model, &self.q, &self.r, f, s).map_err(|source| {
-                SlipError::Filter {
-                    drive: k + 1,
-                    source,
-                }
-            })?;
+            let (next, step_parts) =
+                ekf_step_parts(&self.model, &self.q, &self.r, f, s, test_jumps).map_err(
+                    |source| SlipError::Filter {
+                        drive: k + 1,
+                        source,
+                    },
+                )?;
+            *out = next;
+            if let Some(p) = step_parts {
+                *parts = p;
+            }
+        }
+        // Every update succeeded: only now may the tests change state. All drives are tested
+        // first, then each jump is checked against the others' tests (a load change common
+        // to the drives is left to the filters) and applied.
+        for ((det, out), (parts, jump)) in self
+            .detectors
+            .iter_mut()
+            .zip(&self.scratch)
+            .zip(self.parts.iter().zip(self.jumps.iter_mut()))
+        {
+            *jump = det.observe(out.frames, &parts.a, &parts.gain, &parts.innovation);
+        }
+        let threshold = self.jump_config.common_mode_threshold;
+        for (k, ((out, jump), corrections)) in self
+            .scratch
+            .iter_mut()
+            .zip(&self.jumps)
+            .zip(self.corrections.iter_mut())
+            .enumerate()
+        {
+            let Some(jump) = jump else { continue };
+            let others = self
+                .detectors
+                .iter()
+                .enumerate()
+                .filter(|&(i, _)| i != k)
+                .map(|(_, d)| d.lead());
+            if threshold > 0.0 && is_common_mode(jump.torque_nm, others, threshold) {
+                continue;
+            }
+            out.x += jump.state_correction;
+            out.x[idx::THETA] = wrap_angle(out.x[idx::THETA]);
+            out.p += jump.covariance_added;
+            symmetrize(&mut out.p);
+            *corrections += 1;
         }
         std::mem::swap(&mut self.filters, &mut self.scratch);
         Ok(())

@@ -118,7 +118,24 @@ impl DriveModel {
 
     /// `f(x, u)` of eq. (11) without noise; the angle is left unwrapped (callers wrap).
     pub fn transition(&self, x: &DriveState, u: &Vector2<f64>) -> DriveState {
-        let (s, c) = x[idx::THETA].sin_cos();
+        self.transition_with(x, u, x[idx::THETA].sin_cos())
+    }
+
+    /// [`DriveModel::transition`] and [`DriveModel::jacobian`] at the same state, with one
+    /// `sin_cos` of the angle for both (the EKF's prediction needs both).
+    pub fn transition_and_jacobian(
+        &self,
+        x: &DriveState,
+        u: &Vector2<f64>,
+    ) -> (DriveState, DriveMatrix) {
+        let sin_cos = x[idx::THETA].sin_cos();
+        (
+            self.transition_with(x, u, sin_cos),
+            self.jacobian_with(x, sin_cos),
+        )
+    }
+
+    fn transition_with(&self, x: &DriveState, u: &Vector2<f64>, (s, c): (f64, f64)) -> DriveState {
         let (i_a, i_b, w) = (x[idx::I_ALPHA], x[idx::I_BETA], x[idx::OMEGA]);
         DriveState::new(
             self.theta_a * i_a + self.theta_b * w * s + self.theta_c * u[0],
@@ -137,7 +154,10 @@ impl DriveModel {
     /// `d omega+/d theta = -theta_e (i_beta sin + i_alpha cos)`, `d omega+/d T_L = -p_p dt / J`.
     /// The test `jacobian_matches_finite_differences` proves it.
     pub fn jacobian(&self, x: &DriveState) -> DriveMatrix {
-        let (s, c) = x[idx::THETA].sin_cos();
+        self.jacobian_with(x, x[idx::THETA].sin_cos())
+    }
+
+    fn jacobian_with(&self, x: &DriveState, (s, c): (f64, f64)) -> DriveMatrix {
         let (i_a, i_b, w) = (x[idx::I_ALPHA], x[idx::I_BETA], x[idx::OMEGA]);
         let (ta, tb, td, te) = (self.theta_a, self.theta_b, self.theta_d, self.theta_e);
         #[rustfmt::skip]
@@ -155,6 +175,11 @@ impl DriveModel {
 /// Wraps an angle to `(-pi, pi]`.
 pub fn wrap_angle(theta_rad: f64) -> f64 {
     use std::f64::consts::{PI, TAU};
+    // Nearly every call (the EKF's angle after one step) is already in range: skip the
+    // `fmod`, which returns such an angle unchanged anyway.
+    if theta_rad > -PI && theta_rad <= PI {
+        return theta_rad;
+    }
     let mut t = theta_rad % TAU;
     if t > PI {
         t -= TAU;
