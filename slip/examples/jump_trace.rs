@@ -5,18 +5,13 @@
 //!
 //! `cargo run --release -p railmon-slip --example jump_trace -- SCENARIO.toml DRIVE FROM TO`
 
-use railmon_slip::{AdhesionScenario, DriveSimulator, EkfBank};
+mod trace_args;
+use trace_args::trace_args;
+
+use railmon_slip::{DriveSimulator, EkfBank};
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let [path, drive, from, to] = args.as_slice() else {
-        eprintln!("usage: jump_trace SCENARIO.toml DRIVE FROM TO");
-        std::process::exit(2);
-    };
-    let text = std::fs::read_to_string(path).expect("scenario file");
-    let scenario = AdhesionScenario::from_toml_str(&text).expect("scenario");
-    let k = drive.parse::<usize>().expect("DRIVE") - 1;
-    let range = from.parse::<usize>().expect("FROM")..=to.parse::<usize>().expect("TO");
+    let (scenario, k, range) = trace_args("jump_trace");
     let mut config = scenario.monitor_config();
     config.ekf.jump.enabled = true;
     let mut sim = DriveSimulator::new(&scenario).expect("simulator");
