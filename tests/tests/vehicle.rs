@@ -46,7 +46,15 @@ fn f64s(value: &Value) -> Vec<f64> {
 #[test]
 fn fuel_cycles_replay_reaches_the_service_complete_and_equal_to_the_library() {
     let bus = PrivateBus::new();
-    let mut service = Service::start(&bus, &VEHICLE_ONLY);
+    // Stale only after 10 min: `/readyz` is checked after the library has re-run the whole
+    // recording, which took longer than the default 3 s on a loaded machine (a 503 `stale`).
+    // Staleness itself: `killed_replay_makes_readyz_fail_within_a_second_and_a_new_one_recovers`.
+    let settings = [
+        VEHICLE_ONLY[0],
+        VEHICLE_ONLY[1],
+        ("RAILMON_VEHICLE__STALE_AFTER_MS", "600000"),
+    ];
+    let mut service = Service::start(&bus, &settings);
     let record = std::env::temp_dir().join(format!("railmon-e2e-vehicle-{}.csv", bus.prefix));
     let record_arg = record.to_str().unwrap();
     let args = [
