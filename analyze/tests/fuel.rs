@@ -138,6 +138,7 @@ fn scenario_run_writes_every_report() {
         "summary.csv",
         "events.csv",
         "regimes.csv",
+        "components.csv",
         "simulated.csv",
         "fuel_predictions.png",
         "fuel_predictions_zoom.png",
@@ -168,6 +169,30 @@ fn scenario_run_writes_every_report() {
             && last_two[0].starts_with("all_confirmed,one_to_one,400,"),
         "{regimes}"
     );
+    // Each component's operating point and name (issue 14 item 3), the names those of the
+    // last estimate.
+    let components = std::fs::read_to_string(out.join("components.csv")).unwrap();
+    assert!(
+        components.starts_with("component,name,samples,fuel_cm3_s,speed_m_s,acceleration_m_s2\n")
+    );
+    assert_eq!(
+        components.lines().count(),
+        ev.components + 1,
+        "{components}"
+    );
+    let predictions = std::fs::read_to_string(out.join("predictions.csv")).unwrap();
+    let header: Vec<&str> = predictions.lines().next().unwrap().split(',').collect();
+    let column = header.iter().position(|h| *h == "regime_name").unwrap();
+    let last_name = predictions
+        .lines()
+        .last()
+        .unwrap()
+        .split(',')
+        .nth(column)
+        .unwrap();
+    assert_eq!(last_name, ev.rows.last().unwrap().regime_name.as_str());
+    // The labels (city, aggressive) are not regime names: no named score.
+    assert!(ev.named_regimes.is_none() && !out.join("regime_names.csv").exists());
     // The simulated samples read back as a labelled recording and give the same evaluation.
     let again = load_recording(&out.join("simulated.csv")).unwrap();
     let (direct, _) = simulate_scenario(&scenario).unwrap();
@@ -228,7 +253,7 @@ fn fuel_cycles_regime_accuracy_is_at_least_85_percent() {
     let ev = evaluate(
         &input.config,
         &input.samples,
-        Some((labels, names.len())),
+        Some((labels, names.as_slice())),
         || {},
     )
     .unwrap();
@@ -313,7 +338,7 @@ fn golden_headline_numbers() {
     let ev = evaluate(
         &input.config,
         &input.samples,
-        Some((labels, names.len())),
+        Some((labels, names.as_slice())),
         || {},
     )
     .unwrap();

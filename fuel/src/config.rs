@@ -5,6 +5,7 @@
 use railmon_settings::{with_preset, Presets};
 use serde::{Deserialize, Deserializer, Serialize};
 
+use crate::regime::RegimeNaming;
 use crate::sample::{Channel, DerivedChannel};
 use crate::FuelError;
 
@@ -253,6 +254,9 @@ pub struct FuelMonitorConfig {
     pub max_gap_s: f64,
     /// Plausible range of every channel (the vehicle's, not the estimator's).
     pub ranges: ChannelRanges,
+    /// Thresholds of the rule naming each component from its operating point (idle,
+    /// accelerating, cruising, coasting, braking; `crate::regime`), the vehicle's.
+    pub naming: RegimeNaming,
 }
 
 impl Default for FuelMonitorConfig {
@@ -292,6 +296,7 @@ impl Default for FuelMonitorConfig {
             sample_period_s: 1.0,
             max_gap_s: 60.0,
             ranges: ChannelRanges::default(),
+            naming: RegimeNaming::default(),
         }
     }
 }
@@ -354,6 +359,7 @@ impl FuelMonitorConfig {
             fuel_bins_cm3_s: vec![3.0, 20.0],
             acceleration_bins_m_s2: vec![-0.1, 0.1],
             ranges: ChannelRanges::railcar(),
+            naming: RegimeNaming::railcar(),
             ..Default::default()
         }
     }
@@ -553,6 +559,7 @@ impl FuelMonitorConfig {
             ));
         }
         self.ranges.validate()?;
+        self.naming.validate()?;
         Ok(())
     }
 }
