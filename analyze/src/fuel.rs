@@ -20,14 +20,16 @@ pub mod rls;
 use std::path::Path;
 
 use railmon_fuel::config::deserialize_with_preset;
-use railmon_fuel::{FuelError, FuelMonitorConfig, VehicleSample, REGIME_CHANGED};
+use railmon_fuel::{FuelError, FuelMonitorConfig, RegimeName, VehicleSample, REGIME_CHANGED};
 use railmon_records::vehicle::{read_vehicle_csv, write_vehicle_csv, VehicleRow};
 use railmon_records::vehicle_scenario::simulate_vehicle_scenario;
 use railmon_records::{write_csv_table, RecordError};
 
 use crate::report::AnalysisError;
 use crate::report::{create_out_dir, progress_bar, RunArgs};
-pub use evaluate::{evaluate, Evaluation, PredictionRow, RegimeEvent, RegimeScore, ScoreRow};
+pub use evaluate::{
+    evaluate, Evaluation, NamedRegimeScore, PredictionRow, RegimeEvent, RegimeScore, ScoreRow,
+};
 
 /// Arguments of `railmon analyze fuel`.
 #[derive(clap::Args, Debug, Clone)]
@@ -160,7 +162,7 @@ pub fn analyse(
     let labels = input
         .labels
         .as_ref()
-        .map(|(l, names)| (l.as_slice(), names.len()));
+        .map(|(l, names)| (l.as_slice(), names.as_slice()));
     let evaluation = evaluate(&input.config, &input.samples, labels, || bar.inc(1))
         .map_err(|source| refusal(input, source))?;
     bar.finish_and_clear();
@@ -171,6 +173,10 @@ pub fn analyse(
     if let (Some(score), Some(names)) = (&evaluation.regimes, label_names) {
         write_regimes(&out.join("regimes.csv"), score, names)?;
     }
+    if let (Some(score), Some(names)) = (&evaluation.named_regimes, label_names) {
+        write_named_regimes(&out.join("regime_names.csv"), score, names)?;
+    }
+    write_components(&out.join("components.csv"), &evaluation)?;
     if plots {
         plots::write_all(out, &input.name, &evaluation, label_names)?;
     }
@@ -220,6 +226,8 @@ fn write_predictions(
         "mixture_1step_upper_90_cm3_s",
         "virtual_sensor_lower_90_cm3_s",
         "virtual_sensor_upper_90_cm3_s",
+        "active_regime_name",
+        "regime_name",
     ]
     .map(String::from)
     .to_vec();
@@ -254,6 +262,8 @@ fn write_predictions(
             .iter()
             .map(|v| format!("{v:.6}")),
         );
+        f.push(r.active_regime_name.to_string());
+        f.push(r.regime_name.to_string());
         f.extend(r.regime_probabilities.iter().map(|p| format!("{p:.6}")));
         if let (Some(names), Some(l)) = (labels, r.label) {
             f.push(names[l].clone());
@@ -296,6 +306,65 @@ fn write_events(path: &Path, events: &[RegimeEvent]) -> Result<(), RecordError> 
     write_csv_table(
         path,
         &["id", "kind", "stream_time_s", "subject", "detail"],
+        rows,
+    )
+}
+
+/// `regime_names.csv`: per regime name, the samples under each label for the active and the
+/// reported regime (`n_<label>`, `confirmed_n_<label>`); last rows the accuracy of both.
+fn write_named_regimes(
+    path: &Path,
+    score: &NamedRegimeScore,
+    labels: &[String],
+) -> Result<(), RecordError> {
+    let mut header = vec!["name".to_string()];
+    header.extend(labels.iter().map(|l| format!("n_{l}")));
+    header.extend(labels.iter().map(|l| format!("confirmed_n_{l}")));
+    let rows = RegimeName::ALL.iter().enumerate().map(|(i, name)| {
+        let mut f = vec![name.to_string()];
+        f.extend(score.confusion[i].iter().map(|v| v.to_string()));
+        f.extend(score.confirmed_confusion[i].iter().map(|v| v.to_string()));
+        f
+    });
+    let accuracy = |label: &str, value: f64| {
+        let mut f = vec![label.to_string(), format!("{value:.4}")];
+        f.extend((1..2 * labels.len()).map(|_| String::new()));
+        f
+    };
+    let last = [
+        accuracy("accuracy", score.accuracy()),
+        accuracy("confirmed_accuracy", score.confirmed_accuracy()),
+    ];
+    write_csv_table(path, &header, rows.chain(last))
+}
+
+/// `components.csv`: each component's operating point and name at the end of the run.
+fn write_components(path: &Path, ev: &Evaluation) -> Result<(), RecordError> {
+    let optional = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6}"));
+    let rows = ev
+        .operating_points
+        .iter()
+        .enumerate()
+        .map(|(i, (p, name))| {
+            vec![
+                i.to_string(),
+                name.to_string(),
+                format!("{:.3}", p.samples),
+                format!("{:.6}", p.fuel_cm3_s),
+                optional(p.speed_m_s),
+                optional(p.acceleration_m_s2),
+            ]
+        });
+    write_csv_table(
+        path,
+        &[
+            "component",
+            "name",
+            "samples",
+            "fuel_cm3_s",
+            "speed_m_s",
+            "acceleration_m_s2",
+        ],
         rows,
     )
 }

@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 
 use railmon_analyze::fuel::{evaluate, load_recording, run, simulate_scenario, Args, Evaluation};
 use railmon_analyze::report::RunArgs;
+use railmon_fuel::RegimeName;
 
 fn shared_data() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../data")
@@ -138,6 +139,7 @@ fn scenario_run_writes_every_report() {
         "summary.csv",
         "events.csv",
         "regimes.csv",
+        "components.csv",
         "simulated.csv",
         "fuel_predictions.png",
         "fuel_predictions_zoom.png",
@@ -168,6 +170,30 @@ fn scenario_run_writes_every_report() {
             && last_two[0].starts_with("all_confirmed,one_to_one,400,"),
         "{regimes}"
     );
+    // Each component's operating point and name (issue 14 item 3), the names those of the
+    // last estimate.
+    let components = std::fs::read_to_string(out.join("components.csv")).unwrap();
+    assert!(
+        components.starts_with("component,name,samples,fuel_cm3_s,speed_m_s,acceleration_m_s2\n")
+    );
+    assert_eq!(
+        components.lines().count(),
+        ev.components + 1,
+        "{components}"
+    );
+    let predictions = std::fs::read_to_string(out.join("predictions.csv")).unwrap();
+    let header: Vec<&str> = predictions.lines().next().unwrap().split(',').collect();
+    let column = header.iter().position(|h| *h == "regime_name").unwrap();
+    let last_name = predictions
+        .lines()
+        .last()
+        .unwrap()
+        .split(',')
+        .nth(column)
+        .unwrap();
+    assert_eq!(last_name, ev.rows.last().unwrap().regime_name.as_str());
+    // The labels (city, aggressive) are not regime names: no named score.
+    assert!(ev.named_regimes.is_none() && !out.join("regime_names.csv").exists());
     // The simulated samples read back as a labelled recording and give the same evaluation.
     let again = load_recording(&out.join("simulated.csv")).unwrap();
     let (direct, _) = simulate_scenario(&scenario).unwrap();
@@ -228,7 +254,7 @@ fn fuel_cycles_regime_accuracy_is_at_least_85_percent() {
     let ev = evaluate(
         &input.config,
         &input.samples,
-        Some((labels, names.len())),
+        Some((labels, names.as_slice())),
         || {},
     )
     .unwrap();
@@ -313,7 +339,7 @@ fn golden_headline_numbers() {
     let ev = evaluate(
         &input.config,
         &input.samples,
-        Some((labels, names.len())),
+        Some((labels, names.as_slice())),
         || {},
     )
     .unwrap();
@@ -411,4 +437,48 @@ fn a_locomotive_recording_runs_as_a_railcar_and_wrong_units_name_the_line() {
         "{msg}"
     );
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Issue 14 item 3: on the railcar routes (the one the preset was set on and a hillier, faster
+/// one), the named regimes against the simulator's labels, without any matching: the share
+/// named right well above the 36 % (17 % by name) the mixture reached with the gradient
+/// channel, standing recognised, and hardly a standing second called braking or accelerating
+/// (the cells a false alarm would come from). Measured (docs/fuel.md): 66.3 % and 67.3 %;
+/// standing named idle 98.0 % and 94.2 %; named braking or accelerating 0 and 2 of 1226 and
+/// 1026 standing seconds. The bounds leave room for other platforms' rounding, not for a
+/// regression.
+#[test]
+fn railcar_regimes_are_named_right_on_two_routes() {
+    for route in ["fuel-railcar.toml", "fuel-railcar-hilly.toml"] {
+        let scenario = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../config/scenarios")
+            .join(route);
+        let (input, _) = simulate_scenario(&scenario).unwrap();
+        let (labels, names) = input.labels.as_ref().unwrap();
+        let ev = evaluate(&input.config, &input.samples, Some((labels, names)), || {}).unwrap();
+        let named = ev.named_regimes.as_ref().expect("labels are regime names");
+        assert!(
+            named.accuracy() > 0.6,
+            "{route}: {} {:?}",
+            named.accuracy(),
+            named.confusion
+        );
+        let idle = names.iter().position(|n| n == "idle").unwrap();
+        let by_name = |name: RegimeName| {
+            let i = RegimeName::ALL.iter().position(|&n| n == name).unwrap();
+            named.confusion[i][idle]
+        };
+        let standing: usize = named.confusion.iter().map(|row| row[idle]).sum();
+        assert!(
+            by_name(RegimeName::Idle) as f64 > 0.9 * standing as f64,
+            "{route}: {:?}",
+            named.confusion
+        );
+        let false_motion = by_name(RegimeName::Braking) + by_name(RegimeName::Accelerating);
+        assert!(
+            false_motion as f64 <= 0.005 * standing as f64,
+            "{route}: {:?}",
+            named.confusion
+        );
+    }
 }

@@ -17,6 +17,7 @@ use serde::Serialize;
 use crate::config::{FuelMonitorConfig, InitialPartition};
 use crate::mixture::{argmax, Mixture, MixtureInput, MixtureSpec};
 use crate::predictive::{central_interval, Interval, StudentT};
+use crate::regime::{OperatingPoint, RegimeName};
 use crate::sample::{bin_index, Channel, DerivedChannel, VehicleSample};
 use crate::FuelError;
 
@@ -59,6 +60,10 @@ pub struct MixtureEstimate {
     /// The reported driving regime: the active regime once it has been active for
     /// `regime_confirm_samples` samples in a row (the first estimate's active regime at start).
     pub regime: usize,
+    /// What each component means, from its statistics after this sample (`crate::regime`).
+    pub regime_names: Vec<RegimeName>,
+    /// The name of `regime`.
+    pub regime_name: RegimeName,
     /// `regime` differs from the previous sample's (`None` on the first estimate): the
     /// `regime_changed` event, raised by the service and written by `railmon analyze fuel`.
     pub regime_change: Option<RegimeChange>,
@@ -72,6 +77,10 @@ pub struct MixtureEstimate {
 pub struct RegimeChange {
     pub from_regime: usize,
     pub to_regime: usize,
+    /// What the regimes mean, named on this sample (the component left may have been renamed
+    /// since it was entered: the name is of its statistics now).
+    pub from_name: RegimeName,
+    pub to_name: RegimeName,
     /// Probability of the new regime on this sample.
     pub probability: f64,
 }
@@ -547,11 +556,14 @@ impl FuelMonitor {
             Some(e) if self.active_streak.1 < self.config.regime_confirm_samples => e.regime,
             _ => active,
         };
+        let regime_names = self.regime_names();
         let regime_change = previous
             .filter(|e| e.regime != regime)
             .map(|e| RegimeChange {
                 from_regime: e.regime,
                 to_regime: regime,
+                from_name: regime_names[e.regime],
+                to_name: regime_names[regime],
                 probability: regime_probabilities[regime],
             });
         let cumulative_virtual =
@@ -570,6 +582,8 @@ impl FuelMonitor {
             regime_probabilities,
             active_regime: active,
             regime,
+            regime_name: regime_names[regime],
+            regime_names,
             regime_change,
             cumulative_virtual_fuel_cm3: cumulative_virtual,
         })
@@ -689,6 +703,65 @@ impl FuelMonitor {
             (Source::Psi(u), Source::Y(v)) | (Source::Y(v), Source::Psi(u)) => c_psi_y[(u, v)],
             (Source::Psi(u), Source::Psi(v)) => sigma_psi[(u, v)],
         })
+    }
+
+    /// Each component's operating point (`crate::regime`): the mean of the data vector it has
+    /// absorbed, `V[., 1] / (V[1, 1] - V_0[1, 1])` with `1` the constant of `psi`, in physical
+    /// units. Empty
+    /// before initialisation.
+    pub fn operating_points(&self) -> Vec<OperatingPoint> {
+        let (Some(st), Some(mixture)) = (self.standardiser.as_ref(), self.mixture.as_ref()) else {
+            return Vec::new();
+        };
+        let k_y = self.spec.k_y;
+        let one = k_y + self.spec.k_psi - 1;
+        let speed = self.channels.iter().position(|&c| c == Channel::Speed);
+        let acceleration = self
+            .derived
+            .iter()
+            .position(|&d| d == DerivedChannel::Acceleration)
+            .map(|i| self.channels.len() + i);
+        // Speed a sample ago: its place in the newest lag block of psi, when speed is lagged.
+        let lagged_speed = speed
+            .and_then(|s| self.lagged.iter().position(|&i| i == s))
+            .filter(|_| self.config.regression_memory > 0)
+            .map(|p| k_y + p);
+        let prior = self.config.prior_information;
+        mixture
+            .components()
+            .iter()
+            .map(|comp| {
+                let v = comp.v();
+                // V_0 = epsilon I adds to the diagonal only (also under stabilised forgetting,
+                // which keeps the prior's share at V_0): the weighted count is the rest.
+                let samples = v[(one, one)] - prior;
+                let raw = |j: usize| v[(j, one)] / samples.max(f64::MIN_POSITIVE);
+                let physical = |c: usize, j: usize| st.mean[c] + st.scale[c] * raw(j);
+                let speed_m_s = speed.map(|s| physical(s, s));
+                let acceleration_m_s2 = match (acceleration, speed, lagged_speed) {
+                    (Some(a), _, _) => Some(physical(a, a)),
+                    (None, Some(s), Some(lag)) => {
+                        Some(st.scale[s] * (raw(s) - raw(lag)) / self.config.sample_period_s)
+                    }
+                    _ => None,
+                };
+                OperatingPoint {
+                    samples,
+                    fuel_cm3_s: physical(0, 0),
+                    speed_m_s,
+                    acceleration_m_s2,
+                }
+            })
+            .collect()
+    }
+
+    /// What each component means (`crate::regime`), from its operating point. Empty before
+    /// initialisation.
+    pub fn regime_names(&self) -> Vec<RegimeName> {
+        self.operating_points()
+            .iter()
+            .map(|p| self.config.naming.name(p))
+            .collect()
     }
 
     /// Index of the most probable component now (`None` before initialisation).

@@ -516,3 +516,80 @@ fn regime_changes_are_flagged_once_per_confirmed_change() {
     let (active, reported) = check_regime_confirmation(5);
     assert!(reported > 0 && reported < active, "{reported} of {active}");
 }
+
+/// Issue 14 item 3: a component's operating point is the mean of the data it absorbed. With
+/// one component and no forgetting every sample has weight 1, so the operating point is the
+/// plain mean of fuel, speed and the derived acceleration over the samples the statistics hold
+/// (all but the first `regression_memory`, which only fill the regressor).
+#[test]
+fn the_operating_point_of_one_component_is_the_mean_of_its_data() {
+    let config = FuelMonitorConfig {
+        components: 1,
+        forgetting: 1.0,
+        ..FuelMonitorConfig::default()
+    };
+    let n = 400;
+    let (monitor, samples) = run(&config, n, 21);
+    let used = &samples[config.regression_memory..];
+    let mean = |f: &dyn Fn(usize) -> f64| {
+        (config.regression_memory..n).map(f).sum::<f64>() / used.len() as f64
+    };
+    let fuel = mean(&|t| samples[t].fuel_cm3_s.unwrap());
+    let speed = mean(&|t| samples[t].speed_m_s.unwrap());
+    let acceleration = mean(&|t| samples[t].speed_m_s.unwrap() - samples[t - 1].speed_m_s.unwrap());
+    let points = monitor.operating_points();
+    assert_eq!(points.len(), 1);
+    let p = points[0];
+    assert!((p.samples - used.len() as f64).abs() < 1e-6, "{p:?}");
+    assert!(
+        (p.fuel_cm3_s - fuel).abs() < 1e-9 * fuel.abs().max(1.0),
+        "{p:?} {fuel}"
+    );
+    assert!(
+        (p.speed_m_s.unwrap() - speed).abs() < 1e-9 * speed.max(1.0),
+        "{p:?}"
+    );
+    assert!(
+        (p.acceleration_m_s2.unwrap() - acceleration).abs() < 1e-9,
+        "{p:?}"
+    );
+    // The paper's setting has no acceleration channel: the speed now minus a lag ago.
+    let paper = FuelMonitorConfig {
+        components: 1,
+        ..FuelMonitorConfig::paper()
+    };
+    let (monitor, samples) = run(&paper, n, 21);
+    let mean_change = (1..n)
+        .map(|t| samples[t].speed_m_s.unwrap() - samples[t - 1].speed_m_s.unwrap())
+        .sum::<f64>()
+        / (n - 1) as f64;
+    let a = monitor.operating_points()[0].acceleration_m_s2.unwrap();
+    assert!((a - mean_change).abs() < 1e-9, "{a} {mean_change}");
+}
+
+/// Names are a function of the statistics: a monitor restored from its serialised state (as
+/// the service's snapshot does) names its components as the running one, now and after more
+/// samples; and every estimate's names are the monitor's.
+#[test]
+fn regime_names_survive_a_restore_and_follow_the_statistics() {
+    let (mut running, _) = run(&FuelMonitorConfig::default(), 600, 31);
+    let saved = serde_json::to_string(&running).unwrap();
+    let mut restored: FuelMonitor = serde_json::from_str(&saved).unwrap();
+    assert_eq!(restored.regime_names(), running.regime_names());
+    assert_eq!(restored.operating_points(), running.operating_points());
+    let mut rng = ChaCha8Rng::seed_from_u64(32);
+    for t in 600..900 {
+        let s = sample(t, &mut rng);
+        let a = running.update(&s).unwrap().mixture.clone().unwrap();
+        let b = restored.update(&s).unwrap().mixture.clone().unwrap();
+        assert_eq!(a, b, "t = {t}");
+        assert_eq!(a.regime_names, running.regime_names());
+        assert_eq!(a.regime_name, a.regime_names[a.regime]);
+        if let Some(c) = a.regime_change {
+            assert_eq!(
+                (c.from_name, c.to_name),
+                (a.regime_names[c.from_regime], a.regime_names[c.to_regime])
+            );
+        }
+    }
+}

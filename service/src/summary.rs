@@ -98,5 +98,13 @@ pub fn fuel(report: &Evaluation) -> String {
             100.0 * regimes.confirmed_accuracy()
         );
     }
+    if let Some(named) = &report.named_regimes {
+        let _ = write!(
+            out,
+            "\n  named regime accuracy: {:.1} % (reported regime: {:.1} %)",
+            100.0 * named.accuracy(),
+            100.0 * named.confirmed_accuracy()
+        );
+    }
     out
 }

@@ -442,6 +442,72 @@ async fn vehicle_reports_fuel_forecast_regime_and_metrics_in_base_units() {
     }
 }
 
+/// Every key of the vehicle stream's live answers is in its schema, nested intervals and the
+/// regime-change event's fields included (issue 14: names and 90 % intervals).
+#[tokio::test]
+async fn vehicle_answers_keys_are_in_their_schemas() {
+    let state = vehicle_state_after(1500);
+    let (_, api) = get_json(&state, "/openapi.json").await;
+    let schemas = &api["components"]["schemas"];
+    let check = |what: &str, body: &Value, schema: &str| {
+        let properties = schemas[schema]["properties"]
+            .as_object()
+            .unwrap_or_else(|| panic!("{schema}: no properties"));
+        for key in body.as_object().unwrap().keys() {
+            assert!(
+                properties.contains_key(key),
+                "{what}: `{key}` not in {schema}"
+            );
+        }
+        for key in properties.keys() {
+            assert!(
+                body.get(key).is_some(),
+                "{what}: {schema}'s `{key}` not sent"
+            );
+        }
+    };
+    let (_, view) = get_json(&state, "/api/v1/vehicle").await;
+    check("/api/v1/vehicle", &view, "VehicleView");
+    let interval = &view["virtual_sensor_interval_cm3_s"];
+    check("virtual sensor interval", interval, "IntervalView");
+    check(
+        "forecast interval",
+        &view["forecast_interval_cm3_s"][9],
+        "IntervalView",
+    );
+    assert_eq!(
+        view["forecast_interval_cm3_s"].as_array().unwrap().len(),
+        10
+    );
+    let names = view["regime_names"].as_array().unwrap();
+    assert_eq!(names.len(), 3);
+    let regime = view["regime"].as_u64().unwrap() as usize;
+    assert_eq!(view["regime_name"], names[regime]);
+    let (_, history) = get_json(&state, "/api/v1/vehicle/history?seconds=3").await;
+    check(
+        "history point",
+        &history["points"][0],
+        "VehicleHistoryPoint",
+    );
+    let (_, events) = get_json(&state, "/api/v1/vehicle/events").await;
+    let event = &events["events"][0];
+    assert!(event.is_object(), "{events}");
+    let mut detail = event.as_object().unwrap().clone();
+    // EventView is allOf [the stream's fields, the common fields]: remove the common ones.
+    let common = schemas["EventView"]["allOf"][1]["properties"]
+        .as_object()
+        .unwrap()
+        .clone();
+    for key in common.keys() {
+        detail.remove(key);
+    }
+    check(
+        "regime_changed detail",
+        &Value::Object(detail),
+        "RegimeEventDetail",
+    );
+}
+
 #[tokio::test]
 async fn vehicle_history_and_events() {
     let state = vehicle_state_after(1500);

@@ -5,8 +5,9 @@ mod common;
 
 use common::vehicle::{fuel_cycles, vehicle_config, vehicle_header, VehicleHarness};
 use railmon_bus::VehicleFrame;
-use railmon_fuel::{CategoricalConfig, FuelMonitor, FuelMonitorConfig, VehicleSample};
+use railmon_fuel::{CategoricalConfig, FuelMonitor, FuelMonitorConfig, RegimeName, VehicleSample};
 use railmon_service::ingest::Pipeline;
+use railmon_service::vehicle::IntervalView;
 
 #[test]
 fn pipeline_reproduces_the_library_and_reports_regime_changes() {
@@ -49,6 +50,39 @@ fn pipeline_reproduces_the_library_and_reports_regime_changes() {
                 assert_eq!(view.regime_probabilities, m.regime_probabilities);
                 let total: f64 = view.regime_probabilities.iter().sum();
                 assert!((total - 1.0).abs() < 1e-9, "{total}");
+                // Names and intervals (issue 14 items 3 and 5) are the library's.
+                let names: Vec<String> = m.regime_names.iter().map(|n| n.to_string()).collect();
+                assert_eq!(view.regime_names, names);
+                assert_eq!(view.regime_name, Some(m.regime_name.to_string()));
+                assert_eq!(
+                    view.most_probable_regime_name,
+                    Some(names[m.active_regime].clone())
+                );
+                assert_eq!(
+                    view.virtual_sensor_interval_cm3_s,
+                    IntervalView::of(m.virtual_sensor_interval_cm3_s)
+                );
+                assert_eq!(
+                    view.one_step_interval_cm3_s,
+                    IntervalView::of(m.one_step_interval_cm3_s)
+                );
+                assert_eq!(view.forecast_interval_cm3_s.len(), 10);
+                for (i, (f, want)) in view
+                    .forecast_interval_cm3_s
+                    .iter()
+                    .zip(&m.forecast_interval_cm3_s)
+                    .enumerate()
+                {
+                    assert_eq!(Some(*f), IntervalView::of(*want));
+                    let mean = m.forecast_cm3_s[i];
+                    assert!(
+                        f.lower_cm3_s <= mean && mean <= f.upper_cm3_s,
+                        "{f:?} {mean}"
+                    );
+                }
+                let v = view.virtual_sensor_interval_cm3_s.unwrap();
+                let vs = m.virtual_sensor_cm3_s;
+                assert!(v.lower_cm3_s < vs && vs < v.upper_cm3_s, "{v:?} {vs}");
             }
         }
     }
@@ -65,6 +99,12 @@ fn pipeline_reproduces_the_library_and_reports_regime_changes() {
             "{pair:?}"
         );
         assert!(pair[1].time_s > pair[0].time_s && pair[1].id == pair[0].id + 1);
+    }
+    for e in &events {
+        for key in ["from_name", "to_name"] {
+            let name = e.detail[key].as_str().unwrap();
+            assert!(RegimeName::parse(name).is_some(), "{key} = {name}");
+        }
     }
     // One history point per second of stream time.
     let history = harness.shared.history.collect(|_| true);

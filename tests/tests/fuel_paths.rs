@@ -1,6 +1,7 @@
 //! Same data, same answer (issue 8) for the fuel stream: the `regime_changed` events the real
 //! service raises on a replayed recording equal `railmon analyze fuel --input`'s `events.csv`
-//! on the same file, and for a scenario also `railmon analyze fuel --scenario`'s.
+//! on the same file, and for a scenario also `railmon analyze fuel --scenario`'s; the regimes'
+//! names (issue 14 item 3) included.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -75,7 +76,13 @@ fn service_events(service: &Service) -> Vec<Event> {
         .iter()
         .map(|e| {
             let mut detail = serde_json::Map::new();
-            for key in ["from_regime", "to_regime", "probability"] {
+            for key in [
+                "from_regime",
+                "to_regime",
+                "from_name",
+                "to_name",
+                "probability",
+            ] {
                 detail.insert(key.into(), e[key].clone());
             }
             assert_eq!(
@@ -134,6 +141,10 @@ fn camry_events_of_the_service_equal_analyze_input() {
     let offline = analyze_events(&["--input", file], &dir.join("input"));
     let live = replayed_events(&[], &["--csv", file, "--speed", "max"], rows.len());
     assert!(!offline.is_empty(), "the file has regime changes");
+    assert!(
+        offline.iter().all(|e| e.detail["to_name"].is_string()),
+        "every event names its regimes"
+    );
     assert_eq!(live, offline);
     std::fs::remove_dir_all(&dir).unwrap();
 }

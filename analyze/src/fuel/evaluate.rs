@@ -9,7 +9,8 @@
 use std::collections::VecDeque;
 
 use railmon_fuel::{
-    FuelError, FuelMonitor, FuelMonitorConfig, Interval, RegimeChange, VehicleSample,
+    FuelError, FuelMonitor, FuelMonitorConfig, Interval, OperatingPoint, RegimeChange, RegimeName,
+    VehicleSample,
 };
 
 use super::rls::RlsPeer;
@@ -36,6 +37,9 @@ pub struct PredictionRow {
     pub active_regime: usize,
     /// The reported regime (active for `regime_confirm_samples` in a row).
     pub regime: usize,
+    /// The names of the active and of the reported regime (`railmon_fuel::regime`).
+    pub active_regime_name: RegimeName,
+    pub regime_name: RegimeName,
     pub label: Option<usize>,
     pub speed_m_s: Option<f64>,
     pub engine_speed_rpm: Option<f64>,
@@ -82,6 +86,66 @@ impl RegimeScore {
     }
 }
 
+/// Named regimes against labels that are regime names (the railcar's idle / accelerating /
+/// cruising / coasting / braking): no matching, a sample is right when its regime's name is
+/// its label.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedRegimeScore {
+    /// `confusion[name][label]`, names in the order of [`RegimeName::ALL`]: samples whose
+    /// active regime had that name under that label.
+    pub confusion: Vec<Vec<usize>>,
+    /// The same for the reported (confirmed) regime.
+    pub confirmed_confusion: Vec<Vec<usize>>,
+    /// Each label as a name.
+    pub label_names: Vec<RegimeName>,
+}
+
+impl NamedRegimeScore {
+    /// Scores `rows` when every label is a regime name (`None` otherwise).
+    pub fn of(rows: &[PredictionRow], labels: &[String]) -> Option<Self> {
+        let label_names = labels
+            .iter()
+            .map(|l| RegimeName::parse(l))
+            .collect::<Option<Vec<_>>>()?;
+        let index = |n: RegimeName| RegimeName::ALL.iter().position(|&m| m == n).unwrap_or(0);
+        let mut confusion = vec![vec![0usize; labels.len()]; RegimeName::ALL.len()];
+        let mut confirmed_confusion = confusion.clone();
+        for r in rows {
+            if let Some(l) = r.label {
+                confusion[index(r.active_regime_name)][l] += 1;
+                confirmed_confusion[index(r.regime_name)][l] += 1;
+            }
+        }
+        Some(NamedRegimeScore {
+            confusion,
+            confirmed_confusion,
+            label_names,
+        })
+    }
+
+    fn share_right(&self, confusion: &[Vec<usize>]) -> f64 {
+        let mut right = 0;
+        let mut n = 0;
+        for (name, row) in RegimeName::ALL.iter().zip(confusion) {
+            for (label, count) in self.label_names.iter().zip(row) {
+                n += count;
+                right += if name == label { *count } else { 0 };
+            }
+        }
+        right as f64 / n.max(1) as f64
+    }
+
+    /// Share of samples whose active regime's name is the label.
+    pub fn accuracy(&self) -> f64 {
+        self.share_right(&self.confusion)
+    }
+
+    /// The same for the reported regime.
+    pub fn confirmed_accuracy(&self) -> f64 {
+        self.share_right(&self.confirmed_confusion)
+    }
+}
+
 /// A `regime_changed` event of the mixture, by the rule the service raises it with
 /// ([`railmon_fuel::MixtureEstimate::regime_change`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -99,6 +163,10 @@ pub struct Evaluation {
     pub events: Vec<RegimeEvent>,
     pub scores: Vec<ScoreRow>,
     pub regimes: Option<RegimeScore>,
+    /// Named regimes against the labels, when the labels are regime names.
+    pub named_regimes: Option<NamedRegimeScore>,
+    /// Each component's operating point and name at the end of the run.
+    pub operating_points: Vec<(OperatingPoint, RegimeName)>,
     pub components: usize,
     pub samples: usize,
 }
@@ -170,7 +238,7 @@ impl Path {
 pub fn evaluate(
     config: &FuelMonitorConfig,
     samples: &[VehicleSample],
-    labels: Option<(&[usize], usize)>,
+    labels: Option<(&[usize], &[String])>,
     mut on_step: impl FnMut(),
 ) -> Result<Evaluation, FuelError> {
     let mut mixture = FuelMonitor::new(config)?;
@@ -243,6 +311,8 @@ pub fn evaluate(
                 regime_probabilities: a.regime_probabilities.clone(),
                 active_regime: a.active_regime,
                 regime: a.regime,
+                active_regime_name: a.regime_names[a.active_regime],
+                regime_name: a.regime_name,
                 label: labels.map(|(l, _)| l[t]),
                 speed_m_s: sample.speed_m_s,
                 engine_speed_rpm: sample.engine_speed_rpm,
@@ -265,12 +335,17 @@ pub fn evaluate(
         scores.push(single_h[h].row("single_regression", h));
         scores.push(persist_h[h].row("persistence", h));
     }
-    let regimes = labels.map(|(_, n_labels)| score_regimes(&rows, config.components, n_labels));
+    let regimes = labels.map(|(_, names)| score_regimes(&rows, config.components, names.len()));
+    let named_regimes = labels.and_then(|(_, names)| NamedRegimeScore::of(&rows, names));
+    let names = mixture.regime_names();
+    let operating_points = mixture.operating_points().into_iter().zip(names).collect();
     Ok(Evaluation {
         rows,
         events,
         scores,
         regimes,
+        named_regimes,
+        operating_points,
         components: config.components,
         samples: samples.len(),
     })
@@ -376,6 +451,8 @@ mod tests {
             regime_probabilities: vec![],
             active_regime: active,
             regime: active,
+            active_regime_name: RegimeName::Unsettled,
+            regime_name: RegimeName::Unsettled,
             label: Some(label),
             speed_m_s: None,
             engine_speed_rpm: None,

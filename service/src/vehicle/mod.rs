@@ -14,7 +14,7 @@ pub use config::VehicleConfig;
 pub use metrics::VehicleMetrics;
 pub use pipeline::VehiclePipeline;
 pub use routes::{routes, VehicleApi};
-pub use view::{RegimeEventDetail, VehicleHistoryPoint, VehicleShared, VehicleView};
+pub use view::{IntervalView, RegimeEventDetail, VehicleHistoryPoint, VehicleShared, VehicleView};
 
 impl VehicleConfig {
     /// The outbox of the vehicle stream, sized by this config.

@@ -8,7 +8,9 @@ use railmon_fuel::{FuelError, FuelMonitor, VehicleSample, REGIME_CHANGED};
 
 use railmon_bus::StreamKind;
 
-use super::view::{RegimeEventDetail, VehicleHistoryPoint, VehicleShared, VehicleView};
+use super::view::{
+    IntervalView, RegimeEventDetail, VehicleHistoryPoint, VehicleShared, VehicleView,
+};
 use super::VehicleConfig;
 use crate::ingest::{Pipeline, Rejection};
 use crate::metrics::{EstimateGauge, Metrics};
@@ -162,6 +164,8 @@ impl VehiclePipeline {
                     time_s = stamp.time_s,
                     from = change.from_regime,
                     to = change.to_regime,
+                    from_name = %change.from_name,
+                    to_name = %change.to_name,
                     probability = change.probability,
                     "{REGIME_CHANGED}"
                 );
@@ -179,7 +183,12 @@ impl VehiclePipeline {
                 fuel_rate_cm3_s: estimate.fuel_cm3_s,
                 virtual_sensor_cm3_s: m.map(|m| m.virtual_sensor_cm3_s),
                 one_step_forecast_cm3_s: m.map(|m| m.one_step_forecast_cm3_s),
+                virtual_sensor_interval_cm3_s: m
+                    .and_then(|m| IntervalView::of(m.virtual_sensor_interval_cm3_s)),
+                one_step_interval_cm3_s: m
+                    .and_then(|m| IntervalView::of(m.one_step_interval_cm3_s)),
                 regime: m.map(|m| m.regime),
+                regime_name: m.map(|m| m.regime_name.to_string()),
                 regime_probabilities: m.map_or_else(Vec::new, |m| m.regime_probabilities.clone()),
                 cumulative_fuel_cm3: estimate.cumulative_fuel_cm3,
             });
@@ -200,13 +209,27 @@ impl VehiclePipeline {
             fuel_rate_cm3_s: Some(estimate.fuel_cm3_s),
             speed_m_s: self.speed_m_s,
             virtual_sensor_cm3_s: m.map(|m| m.virtual_sensor_cm3_s),
+            virtual_sensor_interval_cm3_s: m
+                .and_then(|m| IntervalView::of(m.virtual_sensor_interval_cm3_s)),
             zero_step_cm3_s: m.map(|m| m.zero_step_cm3_s),
             one_step_forecast_cm3_s: m.map(|m| m.one_step_forecast_cm3_s),
+            one_step_interval_cm3_s: m.and_then(|m| IntervalView::of(m.one_step_interval_cm3_s)),
             forecast_step_s: self.config.estimator.sample_period_s,
             forecast_cm3_s: m.map_or_else(Vec::new, |m| m.forecast_cm3_s.clone()),
+            forecast_interval_cm3_s: m.map_or_else(Vec::new, |m| {
+                m.forecast_interval_cm3_s
+                    .iter()
+                    .filter_map(|&i| IntervalView::of(i))
+                    .collect()
+            }),
             regime: m.map(|m| m.regime),
             most_probable_regime: m.map(|m| m.active_regime),
+            regime_name: m.map(|m| m.regime_name.to_string()),
+            most_probable_regime_name: m.map(|m| m.regime_names[m.active_regime].to_string()),
             regime_probabilities: m.map_or_else(Vec::new, |m| m.regime_probabilities.clone()),
+            regime_names: m.map_or_else(Vec::new, |m| {
+                m.regime_names.iter().map(|n| n.to_string()).collect()
+            }),
             cumulative_fuel_cm3: estimate.cumulative_fuel_cm3,
             cumulative_virtual_fuel_cm3: m.map(|m| m.cumulative_virtual_fuel_cm3),
             forecast_error_cm3_s: self.errors.last_cm3_s,

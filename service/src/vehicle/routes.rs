@@ -7,7 +7,9 @@ use railmon_bus::StreamKind;
 use serde::Serialize;
 use utoipa::{OpenApi, ToSchema};
 
-use super::view::{RegimeEventDetail, VehicleHistoryPoint, VehicleShared, VehicleView};
+use super::view::{
+    IntervalView, RegimeEventDetail, VehicleHistoryPoint, VehicleShared, VehicleView,
+};
 use crate::http::events::{self, EventsPage, EventsQuery, Scope};
 use crate::http::{require_stream, ApiQuery, AppError, ErrorBody, HistoryQuery};
 use crate::AppState;
@@ -15,7 +17,13 @@ use crate::AppState;
 #[derive(OpenApi)]
 #[openapi(
     paths(vehicle, vehicle_history, vehicle_events),
-    components(schemas(VehicleView, VehicleHistory, VehicleHistoryPoint, RegimeEventDetail))
+    components(schemas(
+        VehicleView,
+        VehicleHistory,
+        VehicleHistoryPoint,
+        RegimeEventDetail,
+        IntervalView
+    ))
 )]
 pub struct VehicleApi;
 

@@ -29,21 +29,35 @@ pub struct VehicleView {
     pub speed_m_s: Option<f64>,
     /// Virtual fuel sensor: fuel now from the other channels now, cm^3/s.
     pub virtual_sensor_cm3_s: Option<f64>,
+    /// 90 % interval of the virtual sensor (the mixture's predictive).
+    pub virtual_sensor_interval_cm3_s: Option<IntervalView>,
     /// The paper's 0-step estimate (has seen the fuel it estimates), cm^3/s.
     pub zero_step_cm3_s: Option<f64>,
     /// Honest 1-step forecast of this sample's fuel, made a step ago, cm^3/s.
     pub one_step_forecast_cm3_s: Option<f64>,
+    /// 90 % interval of the 1-step forecast (null on the first estimate: no forecast was made).
+    pub one_step_interval_cm3_s: Option<IntervalView>,
     /// Step between forecast points, s (the estimator's `sample_period_s`).
     pub forecast_step_s: f64,
     /// Fuel forecast for the next `forecast_horizon_steps` steps, cm^3/s (first: one step ahead).
     pub forecast_cm3_s: Vec<f64>,
+    /// 90 % interval of each forecast point (same order).
+    pub forecast_interval_cm3_s: Vec<IntervalView>,
     /// Driving regime (mixture component, 0-based): the most probable one once it has been
     /// the most probable for `regime_confirm_samples` samples in a row.
     pub regime: Option<usize>,
     /// The most probable regime on this sample (the paper's pointer estimate; flickers).
     pub most_probable_regime: Option<usize>,
+    /// What `regime` means, named from its component's statistics: `idle`, `accelerating`,
+    /// `cruising`, `coasting`, `braking` or `unsettled` (not converged). docs/fuel.md gives
+    /// the rule.
+    pub regime_name: Option<String>,
+    /// The name of `most_probable_regime`.
+    pub most_probable_regime_name: Option<String>,
     /// Probability of each regime (index = regime).
     pub regime_probabilities: Vec<f64>,
+    /// Name of each regime (index = regime).
+    pub regime_names: Vec<String>,
     /// Measured fuel integrated since the source started, cm^3.
     pub cumulative_fuel_cm3: f64,
     /// Virtual sensor integrated since the estimator initialised, cm^3.
@@ -65,9 +79,31 @@ pub struct VehicleHistoryPoint {
     pub fuel_rate_cm3_s: f64,
     pub virtual_sensor_cm3_s: Option<f64>,
     pub one_step_forecast_cm3_s: Option<f64>,
+    /// 90 % intervals of the virtual sensor and of the 1-step forecast.
+    pub virtual_sensor_interval_cm3_s: Option<IntervalView>,
+    pub one_step_interval_cm3_s: Option<IntervalView>,
     pub regime: Option<usize>,
+    /// The name of `regime` (see [`VehicleView::regime_name`]).
+    pub regime_name: Option<String>,
     pub regime_probabilities: Vec<f64>,
     pub cumulative_fuel_cm3: f64,
+}
+
+/// A 90 % predictive interval (5 % to 95 % quantile of the mixture's predictive), cm^3/s.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, ToSchema)]
+pub struct IntervalView {
+    pub lower_cm3_s: f64,
+    pub upper_cm3_s: f64,
+}
+
+impl IntervalView {
+    /// `None` when either end is not finite (no forecast was made yet).
+    pub fn of(interval: railmon_fuel::Interval) -> Option<Self> {
+        (interval.lower.is_finite() && interval.upper.is_finite()).then_some(IntervalView {
+            lower_cm3_s: interval.lower,
+            upper_cm3_s: interval.upper,
+        })
+    }
 }
 
 /// The vehicle stream's fields of a `regime_changed` event (the confirmed driving regime).
@@ -75,6 +111,10 @@ pub struct VehicleHistoryPoint {
 pub struct RegimeEventDetail {
     pub from_regime: usize,
     pub to_regime: usize,
+    /// What the regimes mean on this sample (`idle`, `accelerating`, `cruising`, `coasting`,
+    /// `braking`, `unsettled`).
+    pub from_name: String,
+    pub to_name: String,
     /// Probability of the new regime.
     pub probability: f64,
 }
@@ -84,6 +124,8 @@ impl From<railmon_fuel::RegimeChange> for RegimeEventDetail {
         Self {
             from_regime: c.from_regime,
             to_regime: c.to_regime,
+            from_name: c.from_name.to_string(),
+            to_name: c.to_name.to_string(),
             probability: c.probability,
         }
     }
