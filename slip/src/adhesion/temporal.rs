@@ -34,7 +34,7 @@
 //!
 //! What limits it is the EKF: its torque estimate lags a load step by some 20 steps
 //! (2.5 ms) at the 10 % level, and that lag is most of the remaining error. Cost: O(N) per
-//! step, per drive three `exp`, four normal CDFs and two `ln`, no allocation.
+//! step, per drive three `exp`, two normal CDFs and two `ln`, no allocation.
 
 use serde::{Deserialize, Serialize};
 
@@ -201,12 +201,10 @@ impl TemporalConfig {
 /// F1 0.95 -> 0.10), because a real slip's run is as correlated as a noise run. Scaling before
 /// the clip keeps the largest departures at the clip (a drop to 0 is flagged as fast).
 fn evidence(d: f64, limit: f64, sigma: f64, rho: f64, evidence_limit: f64) -> f64 {
-    let above = (d - limit) / sigma;
-    let below = (-limit - d) / sigma;
-    // q and 1 - q each as a sum or difference of tails, so that neither loses its digits
-    // to the other (the erfc fit's error is relative).
-    let beyond = normal_cdf(above) + normal_cdf(below);
-    let within = (normal_cdf(-above) - normal_cdf(below)).max(0.0);
+    let beyond = normal_cdf((d - limit) / sigma) + normal_cdf((-limit - d) / sigma);
+    // `1 - beyond` loses its relative digits only when it is below ~1e-10, where the log
+    // odds are beyond 20 and the clip binds anyway (0 gives +inf, clipped as well).
+    let within = (1.0 - beyond).max(0.0);
     let log_odds =
         ((beyond.ln() - within.ln()) / (1.0 + rho)).clamp(-evidence_limit, evidence_limit);
     1.0 / (1.0 + (-log_odds).exp())
