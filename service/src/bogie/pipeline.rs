@@ -375,6 +375,7 @@ impl BogiePipeline {
                     .into(),
                     paused: estimate.and_then(|e| e.paused).map(|r| r.as_str().into()),
                     speed_m_s: estimate.map(|e| e.speed_m_s),
+                    noise_std_ratio: estimate.map(|e| e.noise_std_ratio.into()),
                 }
             })
             .collect();
