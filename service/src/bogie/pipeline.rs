@@ -125,7 +125,7 @@ pub struct BogiePipeline {
     /// batch ends ([`BogiePipeline::flush`]).
     pending: Vec<(FrameHeader, CheckedBogieSample)>,
     workers: BogieWorkers,
-    /// Solves the gain table's speed nodes near the vehicle's speed before a filter needs
+    /// Solves the gain table's speed nodes, nearest the vehicle's speed first, before a filter needs
     /// them (`super::warm`; none for exact propagation).
     warmer: Option<NodeWarmer>,
     done: Vec<Done>,
