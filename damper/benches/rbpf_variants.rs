@@ -7,6 +7,8 @@
 //!   model and `H` at the exact speed, the gains of the nearest node, the Taylor order the
 //!   speed needs), configured noise;
 //! - `+speed+noise`: both (the issue's target);
+//! - `+speed+noise@10`: the same on a ramp 9 -> 11 m/s (the creep terms ~ 1 / v are stiffer:
+//!   a higher Taylor order);
 //! - `monitor`: `DamperMonitor::step` of the last (adds the EKF, the consistency check and the
 //!   posterior summary).
 //!
@@ -104,6 +106,10 @@ fn main() {
         profile_m_s: vec![[0.0, 28.0], [n as f64 * config.dt_s, 34.0]],
     };
     let (_, ramped) = samples(n, Some(ramp));
+    let slow_ramp = SpeedProfile {
+        profile_m_s: vec![[0.0, 9.0], [n as f64 * config.dt_s, 11.0]],
+    };
+    let (_, slow) = samples(n, Some(slow_ramp));
     let mut with_noise = config;
     with_noise.rbpf.particles = particles;
     let mut fixed = with_noise;
@@ -118,6 +124,9 @@ fn main() {
         table.grid_at(node).expect("grid");
     }
     let per_node_s = start.elapsed().as_secs_f64() / (hi - lo + 1) as f64;
+    for node in table.node_of(9.0)..=table.node_of(11.0) {
+        table.grid_at(node).expect("grid");
+    }
     println!(
         "gain table: the configured speed's grid {first_s:.3} s (with the table), then \
          {per_node_s:.3} s per speed node ({} nodes over the speed range: {:.1} s for all)",
@@ -133,6 +142,7 @@ fn main() {
         ("+noise", rbpf(&with_noise, false), &constant),
         ("+speed", rbpf(&fixed, true), &ramped),
         ("+speed+noise", rbpf(&with_noise, true), &ramped),
+        ("+speed+noise@10", rbpf(&with_noise, true), &slow),
         (
             "monitor",
             Runner::Monitor(Box::new(
@@ -179,7 +189,7 @@ fn main() {
     let steps = (BLOCK * rounds) as f64;
     println!("\nRBPF step, N = {particles}, {rounds} x {BLOCK} steps per variant, interleaved:");
     println!(
-        "{:>14} {:>12} {:>10} {:>12} {:>10}",
+        "{:>16} {:>12} {:>10} {:>12} {:>10}",
         "variant", "cpu us/step", "/ first", "wall us/step", "resamples"
     );
     for (((name, runner, _), (s, cpu)), r0) in variants
@@ -189,7 +199,7 @@ fn main() {
     {
         let resamples = runner.resamples() - r0;
         println!(
-            "{name:>14} {:>12.1} {:>10.3} {:>12.1} {resamples:>10}",
+            "{name:>16} {:>12.1} {:>10.3} {:>12.1} {resamples:>10}",
             cpu * 1e6 / steps,
             cpu / cpu_seconds[0],
             s * 1e6 / steps,

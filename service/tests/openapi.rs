@@ -216,7 +216,11 @@ async fn parameter_bounds_are_the_servers() {
     // Where the server sends null before the first estimate, the schema allows it.
     let damper = &api["components"]["schemas"]["DamperView"]["properties"]["health_ratio"];
     assert!(damper.to_string().contains("null"), "{damper}");
-    for field in ["effective_sample_size", "nis_window_mean"] {
+    for field in [
+        "effective_sample_size",
+        "nis_window_mean",
+        "noise_std_ratio",
+    ] {
         let bogie = &api["components"]["schemas"]["BogieView"]["properties"][field];
         assert!(bogie.to_string().contains("null"), "{field}: {bogie}");
     }

@@ -98,6 +98,19 @@ fn damper_fault_replay_equals_the_library_and_raises_the_health_event() {
         b["effective_sample_size"].as_f64(),
         Some(want.effective_sample_size)
     );
+    // The sensor-noise estimate too (configured noise: each within a few % of 1).
+    let noise = &b["noise_std_ratio"];
+    let sensors = [
+        "wheelset1_accel",
+        "wheelset2_accel",
+        "bogie_accel",
+        "bogie_yaw_rate",
+        "body_accel",
+    ];
+    for (sensor, ratio) in sensors.iter().zip(want.noise_std_ratio) {
+        assert_eq!(noise[sensor].as_f64(), Some(ratio), "{sensor}: {noise}");
+        assert!((ratio - 1.0).abs() < 0.1, "{sensor}: {noise}");
+    }
     assert_eq!(all["bogies"][0], *b);
 
     // The C_say step to 40% is seen on both bogies, and only that.

@@ -125,7 +125,7 @@ pub struct BogiePipeline {
     /// batch ends ([`BogiePipeline::flush`]).
     pending: Vec<(FrameHeader, CheckedBogieSample)>,
     workers: BogieWorkers,
-    /// Solves the gain table's speed nodes near the vehicle's speed before a filter needs
+    /// Solves the gain table's speed nodes, nearest the vehicle's speed first, before a filter needs
     /// them (`super::warm`; none for exact propagation).
     warmer: Option<NodeWarmer>,
     done: Vec<Done>,
@@ -388,6 +388,7 @@ impl BogiePipeline {
                     .into(),
                     paused: estimate.and_then(|e| e.paused).map(|r| r.as_str().into()),
                     speed_m_s: estimate.map(|e| e.speed_m_s),
+                    noise_std_ratio: estimate.map(|e| e.noise_std_ratio.into()),
                 }
             })
             .collect();

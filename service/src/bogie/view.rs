@@ -61,6 +61,37 @@ pub struct BogieView {
     pub paused: Option<String>,
     /// Vehicle speed of the last sample, m/s; null before the first.
     pub speed_m_s: Option<f64>,
+    /// The sensors' noise as the filter estimates it online; null before the monitor exists
+    /// (its first frame).
+    pub noise_std_ratio: Option<SensorNoiseView>,
+}
+
+/// Each sensor's noise standard deviation as a ratio of the configured one
+/// (`estimator.sensors`), as the filter estimates it (`estimator.rbpf.noise_scale`,
+/// `railmon_damper::NoiseScale`): 1 = as configured, all 1 with the estimate disabled, within
+/// `[min_std_ratio, max_std_ratio]` (0.25-4 by default). A sensor far from 1 for long is worth
+/// a look (a loose or failing sensor, or a configured noise that is not the sensor's).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, ToSchema)]
+pub struct SensorNoiseView {
+    pub wheelset1_accel: f64,
+    pub wheelset2_accel: f64,
+    pub bogie_accel: f64,
+    pub bogie_yaw_rate: f64,
+    pub body_accel: f64,
+}
+
+impl From<[f64; 5]> for SensorNoiseView {
+    /// From the filter's order (eq. (4): wheelset 1, wheelset 2, bogie, yaw gyro, body).
+    fn from(r: [f64; 5]) -> Self {
+        let [wheelset1_accel, wheelset2_accel, bogie_accel, bogie_yaw_rate, body_accel] = r;
+        Self {
+            wheelset1_accel,
+            wheelset2_accel,
+            bogie_accel,
+            bogie_yaw_rate,
+            body_accel,
+        }
+    }
 }
 
 /// `GET /api/v1/bogies`: every configured bogie.
