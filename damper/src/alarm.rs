@@ -23,6 +23,13 @@ pub struct DamperAlarmConfig {
     /// the flag changes (s). A transient excursion of the posterior (a burst of track input,
     /// noise the filter did not expect) does not raise an alarm; a failed damper stays failed.
     pub hold_s: f64,
+    /// No flag changes until the filter has been judged this long since it started from its
+    /// prior (s of judged stream time; pauses do not count). The RBPF's first seconds can be
+    /// confidently wrong: on the speed profile with stops, resuming from rest at 5 m/s, one
+    /// seed's `C_say` interval lay below 0.7 x nominal from 4.7 s after the start, a false
+    /// `damper_degraded` at 9.7 s (7.3 false per hour in the robustness matrix); it had
+    /// recovered by the end of the warm-up.
+    pub warmup_s: f64,
 }
 
 impl Default for DamperAlarmConfig {
@@ -31,6 +38,7 @@ impl Default for DamperAlarmConfig {
             degraded_below_ratio: 0.7,
             recovered_above_ratio: 0.8,
             hold_s: 3.0,
+            warmup_s: 10.0,
         }
     }
 }
@@ -52,7 +60,8 @@ impl DamperAlarmConfig {
                 reason: "must be in (degraded_below_ratio, 1]",
             });
         }
-        crate::params::non_negative("alarm.hold_s", self.hold_s)
+        crate::params::non_negative("alarm.hold_s", self.hold_s)?;
+        crate::params::non_negative("alarm.warmup_s", self.warmup_s)
     }
 }
 
@@ -96,6 +105,9 @@ pub struct DamperAlarm {
     degraded: bool,
     /// Judged time the interval has been beyond the threshold that would change the flag.
     beyond_s: f64,
+    /// Judged time since the filter started from its prior (for `warmup_s`).
+    #[serde(default)]
+    judged_s: f64,
 }
 
 impl DamperAlarm {
@@ -110,6 +122,7 @@ impl DamperAlarm {
             dt_s: config.dt_s,
             degraded,
             beyond_s: 0.0,
+            judged_s: 0.0,
         }
     }
 
@@ -123,6 +136,7 @@ impl DamperAlarm {
     /// degraded damper stays degraded until the new estimates clear it, with an event.
     pub fn restart(&mut self) {
         self.beyond_s = 0.0;
+        self.judged_s = 0.0;
     }
 
     pub fn damper(&self) -> DamperId {
@@ -145,6 +159,10 @@ impl DamperAlarm {
     pub fn update(&mut self, estimate: &DamperEstimate) -> Option<DamperEvent> {
         // Paused (speed outside the model's range): the posterior is held, not new evidence.
         if estimate.model_mismatch || estimate.paused.is_some() {
+            return None;
+        }
+        self.judged_s += self.dt_s;
+        if self.judged_s + 0.5 * self.dt_s < self.config.warmup_s {
             return None;
         }
         let posterior = match self.damper {
@@ -215,7 +233,33 @@ mod tests {
             ..DamperMonitorConfig::default()
         };
         c.alarm.hold_s = 1.0;
+        // The warm-up has its own test.
+        c.alarm.warmup_s = 0.0;
         c
+    }
+
+    /// No flag change in the first `warmup_s` of judged time (paused time does not count),
+    /// nor after a restart until the new filter has had its warm-up.
+    #[test]
+    fn no_flag_changes_during_the_warm_up() {
+        let mut c = config();
+        c.alarm.warmup_s = 2.0;
+        let mut csay = DamperAlarm::new(DamperId::Csay, &c, false);
+        let paused = DamperEstimate {
+            paused: Some(crate::config::PauseReason::LowSpeed),
+            ..estimate(0.0, [0.4, 0.35, 0.45])
+        };
+        for _ in 0..100 {
+            assert_eq!(csay.update(&paused), None);
+        }
+        // 2 s of warm-up (steps 1-19 not judged), then 1 s of hold (steps 20-29).
+        assert!(feed(&mut csay, 0.0, 28, [0.4, 0.35, 0.45]).is_empty());
+        assert_eq!(feed(&mut csay, 2.8, 1, [0.4, 0.35, 0.45]).len(), 1);
+        // A new source: the flag holds through the new filter's warm-up, then clears.
+        csay.restart();
+        assert!(feed(&mut csay, 0.0, 28, [1.0, 0.95, 1.05]).is_empty());
+        assert!(csay.degraded());
+        assert_eq!(feed(&mut csay, 2.8, 1, [1.0, 0.95, 1.05]).len(), 1);
     }
 
     /// Feeds `n` steps of `csay` from `t0`; the events.
@@ -306,6 +350,11 @@ mod tests {
         ));
         let bad = DamperAlarmConfig {
             hold_s: -1.0,
+            ..DamperAlarmConfig::default()
+        };
+        assert!(bad.validate().is_err());
+        let bad = DamperAlarmConfig {
+            warmup_s: f64::NAN,
             ..DamperAlarmConfig::default()
         };
         assert!(bad.validate().is_err());

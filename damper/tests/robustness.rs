@@ -17,7 +17,7 @@
 //! `ROBUST_DURATION_S=60 ROBUST_SEEDS=2 ROBUST_PARTICLES=200 ROBUST_CELLS=speed,noise`
 //! (`ROBUST_CELLS`: names or prefixes of cells, `ROBUST_FAULT=1` adds the fault runs,
 //! `ROBUST_NOISE_SCALE=0` runs the filter without its noise estimate, as before issue 9 item 2;
-//! `ROBUST_MATCHED_NOISE=1` gives the filter each cell's true sensor noise: the reference
+//! `ROBUST_VERBOSE=1` prints each false alarm; `ROBUST_MATCHED_NOISE=1` gives the filter each cell's true sensor noise: the reference
 //! the noise estimate is judged against).
 
 use std::sync::Arc;
@@ -261,7 +261,20 @@ fn run(
                 Some(f) if event.damper == f.fault.damper && time >= f.starts_s => {
                     detected.get_or_insert(time - f.crosses_s);
                 }
-                _ => t.false_degraded += 1,
+                _ => {
+                    t.false_degraded += 1;
+                    if std::env::var_os("ROBUST_VERBOSE").is_some() {
+                        println!(
+                            "  false {} at {time:.3} s (seed {}, {}): health {:.3}, speed {:.1} m/s, paused {:?}",
+                            event.damper.name(),
+                            scenario.seed,
+                            spec.map_or("healthy", |_| "fault run"),
+                            event.health_ratio,
+                            sample.speed_m_s,
+                            e.paused,
+                        );
+                    }
+                }
             }
         }
         let truths = [truth.dampers.csy_ns_per_m, truth.dampers.csay_ns_per_m];
