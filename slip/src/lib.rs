@@ -11,6 +11,7 @@
 
 pub mod adhesion;
 pub mod alarm;
+pub mod bound;
 pub mod ekf;
 pub mod error;
 pub mod jump;
