@@ -285,7 +285,8 @@ pub struct TemporalEstimator {
     /// Per drive, the mean departure (N m) over the steps of its current slip episode
     /// (weighted by the slip probability; memory `slip_level_memory_steps`).
     slip_level_nm: Vec<f64>,
-    /// Per drive, the weight its slip level has learnt from; 0 while it adheres.
+    /// Per drive, the weight its slip level has learnt from; 0 once it adheres and its
+    /// estimate is back within the tolerance (no level to judge against).
     slip_level_weight: Vec<f64>,
     /// Filtered slip probability per drive (the chain's state).
     probability: Vec<f64>,
