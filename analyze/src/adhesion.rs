@@ -471,6 +471,10 @@ fn write_tables(
             "alarm_false_pos",
             "alarm_false_neg",
             "alarm_missed_events",
+            // Added by issue 10: the alarm's episodes (`slip_started` events) and those with
+            // no true slip step in them.
+            "alarm_episodes",
+            "alarm_false_episodes",
         ])
         .map_err(|e| write_error(&path, e))?;
         for r in &report.detection {
@@ -484,7 +488,11 @@ fn write_tables(
             ]);
             row.extend([PROBABILITY_RULE.to_owned(), run.alarm_rule.clone()]);
             row.extend(score_columns(&r.alarm));
-            row.push(r.alarm.missed_events.to_string());
+            row.extend([
+                r.alarm.missed_events.to_string(),
+                r.alarm.detection_episodes.to_string(),
+                r.alarm.false_episodes.to_string(),
+            ]);
             w.write_record(&row).map_err(|e| write_error(&path, e))?;
         }
         finish_csv(w)?;
@@ -669,6 +677,27 @@ mod tests {
         ] {
             assert!(out.join(name).is_file(), "{name}");
         }
+        // The alarm's episodes in detection.csv are its slip_started events in events.csv
+        // (the configured method, temporal), drive by drive.
+        let rows = |name: &str| -> Vec<csv::StringRecord> {
+            let mut r = csv::Reader::from_path(out.join(name)).unwrap();
+            let header = r.headers().unwrap().clone();
+            std::iter::once(header)
+                .chain(r.records().map(Result::unwrap))
+                .collect()
+        };
+        let (detection, events) = (rows("detection.csv"), rows("events.csv"));
+        let column = |name: &str| detection[0].iter().position(|h| h == name).unwrap();
+        let (episodes, false_episodes) = (column("alarm_episodes"), column("alarm_false_episodes"));
+        for row in detection.iter().filter(|r| &r[0] == "temporal") {
+            let started = events
+                .iter()
+                .filter(|e| &e[1] == "slip_started" && e[3] == row[1])
+                .count();
+            assert_eq!(row[episodes], started.to_string(), "{row:?}");
+            assert!(row[false_episodes].parse::<usize>().unwrap() <= started);
+        }
+        assert!(events.iter().any(|e| &e[1] == "slip_started"));
         let table1 = std::fs::read_to_string(out.join("table1.csv")).unwrap();
         assert!(
             table1.starts_with("method,drive,min,q1,median,q3,max,mean,std,iqr\nvb,1,"),

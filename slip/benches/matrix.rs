@@ -4,10 +4,15 @@
 //! - per scenario, method and drive that loses adhesion: precision, recall, F1 of
 //!   "probability > 0.5", median delay, and the F1 of the alarm rule (what the service raises);
 //! - per scenario and method, over the drives that never lose adhesion: false-alarm steps
-//!   (probability > 0.5, and alarm on), the largest of one drive and the share of all steps.
+//!   (probability > 0.5, and alarm on), the largest of one drive and the share of all steps,
+//!   and the alarm's false episodes (`slip_started` on a drive that never slips);
+//! - per method over the whole matrix: true losses, alarm starts, false alarm episodes on
+//!   slipping and on healthy drives (an episode is false when none of its steps is a true slip).
 //!
-//! `cargo bench -p railmon-slip --bench matrix [-- [--jump] NAME]` (NAME: run only scenarios
-//! whose file name contains it; `--jump`: every EKF with its load-jump test on). Takes a minute or two in release on one core.
+//! `cargo bench -p railmon-slip --bench matrix [-- [--jump] [--confirm=N] [--hold=N] NAME]`
+//! (NAME: run only scenarios whose file name contains it; `--jump`: every EKF with its
+//! load-jump test on; `--confirm`, `--hold`: the alarm's `confirm_steps`,
+//! `release_hold_steps`). Takes a minute or two in release on one core.
 
 use std::time::Instant;
 
@@ -34,6 +39,9 @@ fn main() {
     let jump = std::env::args().any(|a| a == "--jump");
     let mut per_drive = Vec::new();
     let mut healthy = Vec::new();
+    // Per method (in `AdhesionMethod::ALL` order): true losses, alarm starts on slipping
+    // drives, false alarm episodes on slipping drives, on healthy drives.
+    let mut episodes = vec![[0usize; 4]; AdhesionMethod::ALL.len()];
     for path in scenario_paths(filter.as_deref()) {
         let text = std::fs::read_to_string(&path).expect("scenario file");
         let scenario = AdhesionScenario::from_toml_str(&text)
@@ -43,6 +51,15 @@ fn main() {
         let mut cfg = scenario.monitor_config();
         // `--jump`: the same with the load-jump test of the EKFs on (`[ekf.jump]`).
         cfg.ekf.jump.enabled |= jump;
+        // `--confirm=N`, `--hold=N`: the alarm's holds (`[alarm]`), for the sweep in the docs.
+        for arg in std::env::args() {
+            let number = |s: &str| s.parse().expect("a number of steps");
+            if let Some(v) = arg.strip_prefix("--confirm=") {
+                cfg.alarm.confirm_steps = number(v);
+            } else if let Some(v) = arg.strip_prefix("--hold=") {
+                cfg.alarm.release_hold_steps = number(v);
+            }
+        }
         let mut pipe = MultiMethodPipeline::new(&cfg, n).expect("pipeline");
         let mut counters: Vec<MethodCounters> = AdhesionMethod::ALL
             .iter()
@@ -73,7 +90,7 @@ fn main() {
             "{name}: {n} drives x {step} steps, pipeline (EKFs + 5 methods) {:.2} M drive-steps/s",
             (n * step) as f64 / pipeline_s / 1e6
         );
-        for c in &counters {
+        for (c, totals) in counters.iter().zip(&mut episodes) {
             let scores: Vec<(DetectionScore, DetectionScore)> = c
                 .probability
                 .iter()
@@ -82,6 +99,7 @@ fn main() {
                 .collect();
             let (mut false_p, mut false_a, mut worst_p, mut worst_a, mut n_healthy) =
                 (0, 0, 0, 0, 0);
+            let (mut healthy_episodes, mut worst_episodes) = (0, 0);
             for (k, (p, a)) in scores.iter().enumerate() {
                 if p.events == 0 {
                     n_healthy += 1;
@@ -89,10 +107,16 @@ fn main() {
                     false_a += a.false_pos;
                     worst_p = worst_p.max(p.false_pos);
                     worst_a = worst_a.max(a.false_pos);
+                    healthy_episodes += a.false_episodes;
+                    worst_episodes = worst_episodes.max(a.false_episodes);
+                    totals[3] += a.false_episodes;
                     continue;
                 }
+                totals[0] += a.events;
+                totals[1] += a.detection_episodes;
+                totals[2] += a.false_episodes;
                 per_drive.push(format!(
-                    "| {name} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                    "| {name} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
                     c.method,
                     k + 1,
                     opt(p.precision, 3),
@@ -102,12 +126,15 @@ fn main() {
                     p.missed_events,
                     opt(a.f1, 3),
                     opt(a.median_delay_steps, 0),
+                    a.events,
+                    a.detection_episodes,
+                    a.false_episodes,
                 ));
             }
             if n_healthy > 0 {
                 let share = |f: usize| 100.0 * f as f64 / (n_healthy * step) as f64;
                 healthy.push(format!(
-                    "| {name} | {} | {n_healthy} | {worst_p} | {:.3} % | {worst_a} | {:.3} % |",
+                    "| {name} | {} | {n_healthy} | {worst_p} | {:.3} % | {worst_a} | {:.3} % | {healthy_episodes} | {worst_episodes} |",
                     c.method,
                     share(false_p),
                     share(false_a),
@@ -115,15 +142,26 @@ fn main() {
             }
         }
     }
-    println!("| scenario | method | drive | precision | recall | F1 | median delay | missed events | alarm F1 | alarm delay |");
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("| scenario | method | drive | precision | recall | F1 | median delay | missed events | alarm F1 | alarm delay | losses | alarm starts | false alarm episodes |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for row in &per_drive {
         println!("{row}");
     }
     println!();
-    println!("| scenario | method | healthy drives | most false steps (p > 0.5) | share of steps | most false steps (alarm) | share of steps |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("| scenario | method | healthy drives | most false steps (p > 0.5) | share of steps | most false steps (alarm) | share of steps | false alarm episodes | most on one drive |");
+    println!("|---|---|---|---|---|---|---|---|---|");
     for row in &healthy {
         println!("{row}");
+    }
+    println!();
+    println!("| method | true losses | alarm starts on slipping drives | starts per loss | false alarm episodes, slipping drives | false alarm episodes, healthy drives |");
+    println!("|---|---|---|---|---|---|");
+    for (method, [losses, starts, false_slipping, false_healthy]) in
+        AdhesionMethod::ALL.iter().zip(&episodes)
+    {
+        println!(
+            "| {method} | {losses} | {starts} | {:.2} | {false_slipping} | {false_healthy} |",
+            *starts as f64 / (*losses).max(1) as f64
+        );
     }
 }

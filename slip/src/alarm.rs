@@ -10,11 +10,19 @@ use crate::error::{check_in, SlipError};
 /// Hysteresis on the slip probability: a drive is flagged when its probability reaches
 /// `on_probability` and cleared when it falls to `off_probability`. The gap keeps a
 /// probability that hovers near one threshold from raising an event per step.
+///
+/// Two holds in time on top (issue 10, docs/adhesion.md "Alarm episodes"): the flag rises
+/// only once the probability has been at or above `on_probability` for `confirm_steps`
+/// consecutive steps (1: at once), and a flagged drive whose probability falls to
+/// `off_probability` stays flagged for `release_hold_steps` more steps, during which a return
+/// to `on_probability` continues the same episode (0: cleared at once).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SlipAlarmConfig {
     pub on_probability: f64,
     pub off_probability: f64,
+    pub confirm_steps: usize,
+    pub release_hold_steps: usize,
 }
 
 impl Default for SlipAlarmConfig {
@@ -22,6 +30,8 @@ impl Default for SlipAlarmConfig {
         SlipAlarmConfig {
             on_probability: 0.8,
             off_probability: 0.2,
+            confirm_steps: 1,
+            release_hold_steps: 0,
         }
     }
 }
@@ -41,15 +51,30 @@ impl SlipAlarmConfig {
             0.0,
             self.on_probability * (1.0 - f64::EPSILON),
             "must be in [0, alarm.on_probability)",
-        )
+        )?;
+        if self.confirm_steps == 0 {
+            return Err(SlipError::invalid(
+                "alarm.confirm_steps",
+                0,
+                "must be at least 1",
+            ));
+        }
+        Ok(())
     }
 
     /// How the rule reads in reports (`detection.csv`'s `alarm_rule`).
     pub fn describe(&self) -> String {
-        format!(
+        let mut rule = format!(
             "on at p >= {}, off at p <= {}",
             self.on_probability, self.off_probability
-        )
+        );
+        if self.confirm_steps > 1 {
+            rule += &format!(", on after {} steps", self.confirm_steps);
+        }
+        if self.release_hold_steps > 0 {
+            rule += &format!(", off after {} steps", self.release_hold_steps);
+        }
+        rule
     }
 }
 
@@ -86,6 +111,10 @@ pub struct SlipAlarmEvent {
 pub struct SlipAlarm {
     config: SlipAlarmConfig,
     slipping: Vec<bool>,
+    /// Per drive: while not flagged, the consecutive steps at or above `on_probability`;
+    /// while flagged, the steps since the probability fell to `off_probability` (0: not
+    /// releasing).
+    held_steps: Vec<usize>,
 }
 
 impl SlipAlarm {
@@ -94,6 +123,7 @@ impl SlipAlarm {
         Ok(SlipAlarm {
             config,
             slipping: vec![false; n_drives],
+            held_steps: vec![0; n_drives],
         })
     }
 
@@ -107,26 +137,43 @@ impl SlipAlarm {
     pub fn restore(&mut self, drive: usize, slipping: bool) {
         if drive >= 1 {
             if self.slipping.len() < drive {
-                self.slipping.resize(drive, false);
+                self.resize(drive);
             }
             self.slipping[drive - 1] = slipping;
+            self.held_steps[drive - 1] = 0;
         }
     }
 
     /// Keeps the flags of the first `n_drives` drives (a new source may have more or fewer).
     pub fn resize(&mut self, n_drives: usize) {
         self.slipping.resize(n_drives, false);
+        self.held_steps.resize(n_drives, 0);
     }
 
     /// One step of the probabilities of every drive; the crossings, in drive order, are
     /// appended to `events`. Drives beyond the flags' count are ignored.
     pub fn update(&mut self, slip_probability: &[f64], events: &mut Vec<SlipAlarmEvent>) {
-        for (k, (flag, &p)) in self.slipping.iter_mut().zip(slip_probability).enumerate() {
-            let kind = match *flag {
-                false if p >= self.config.on_probability => SlipAlarmKind::SlipStarted,
-                true if p <= self.config.off_probability => SlipAlarmKind::SlipEnded,
-                _ => continue,
+        let c = &self.config;
+        let drives = self.slipping.iter_mut().zip(&mut self.held_steps);
+        for (k, ((flag, held), &p)) in drives.zip(slip_probability).enumerate() {
+            let kind = if !*flag {
+                *held = if p >= c.on_probability { *held + 1 } else { 0 };
+                if *held < c.confirm_steps {
+                    continue;
+                }
+                SlipAlarmKind::SlipStarted
+            } else {
+                if p >= c.on_probability {
+                    *held = 0;
+                } else if *held > 0 || p <= c.off_probability {
+                    *held += 1;
+                }
+                if *held == 0 || *held <= c.release_hold_steps {
+                    continue;
+                }
+                SlipAlarmKind::SlipEnded
             };
+            *held = 0;
             *flag = kind == SlipAlarmKind::SlipStarted;
             events.push(SlipAlarmEvent {
                 kind,
@@ -166,6 +213,74 @@ mod tests {
         assert_eq!(SlipAlarmKind::SlipEnded.name(), "slip_ended");
     }
 
+    /// The steps (0-based) of the events of one drive over `ps`.
+    fn event_steps(config: SlipAlarmConfig, ps: &[f64]) -> Vec<(usize, SlipAlarmKind)> {
+        let mut alarm = SlipAlarm::new(config, 1).unwrap();
+        let mut events = Vec::new();
+        let mut seen = Vec::new();
+        for (step, &p) in ps.iter().enumerate() {
+            events.clear();
+            alarm.update(&[p], &mut events);
+            seen.extend(events.iter().map(|e| (step, e.kind)));
+        }
+        seen
+    }
+
+    #[test]
+    fn confirmation_and_release_hold_on_a_hand_made_sequence() {
+        use SlipAlarmKind::{SlipEnded, SlipStarted};
+        let ps = [0.9, 0.5, 0.9, 0.9, 0.1, 0.5, 0.85, 0.1, 0.1, 0.1, 0.1];
+        // Without holds: on at 0, off at 4, on at 6, off at 7.
+        let plain = SlipAlarmConfig::default();
+        assert_eq!(
+            event_steps(plain, &ps),
+            vec![
+                (0, SlipStarted),
+                (4, SlipEnded),
+                (6, SlipStarted),
+                (7, SlipEnded)
+            ]
+        );
+        // Confirmed after 2 consecutive steps at or above 0.8: the lone 0.9 at 0 is not
+        // enough, 2-3 is (on at 3); the lone 0.85 at 6 does not restart after the end at 4.
+        let confirm = SlipAlarmConfig {
+            confirm_steps: 2,
+            ..plain
+        };
+        assert_eq!(
+            event_steps(confirm, &ps),
+            vec![(3, SlipStarted), (4, SlipEnded)]
+        );
+        // Released 2 steps after the fall to 0.2: the fall at 4 is followed by 0.85 at 6
+        // (within the hold: the same episode), the fall at 7 by nothing (off at 9).
+        let hold = SlipAlarmConfig {
+            release_hold_steps: 2,
+            ..plain
+        };
+        assert_eq!(
+            event_steps(hold, &ps),
+            vec![(0, SlipStarted), (9, SlipEnded)]
+        );
+        // A hold of 1 is too short to bridge the gap of 4-6: two episodes.
+        let short_hold = SlipAlarmConfig {
+            release_hold_steps: 1,
+            ..plain
+        };
+        assert_eq!(
+            event_steps(short_hold, &ps),
+            vec![
+                (0, SlipStarted),
+                (5, SlipEnded),
+                (6, SlipStarted),
+                (8, SlipEnded)
+            ]
+        );
+        assert_eq!(
+            hold.describe(),
+            "on at p >= 0.8, off at p <= 0.2, off after 2 steps"
+        );
+    }
+
     #[test]
     fn restored_flag_is_cleared_by_an_estimate_with_an_event() {
         let mut alarm = SlipAlarm::new(SlipAlarmConfig::default(), 0).unwrap();
@@ -186,6 +301,7 @@ mod tests {
             let c = SlipAlarmConfig {
                 on_probability: on,
                 off_probability: off,
+                ..SlipAlarmConfig::default()
             };
             let e = c.validate().unwrap_err().to_string();
             assert!(e.contains(field), "{e}");
@@ -195,5 +311,11 @@ mod tests {
         bad(0.8, 0.8, "alarm.off_probability");
         bad(0.8, -0.1, "alarm.off_probability");
         bad(0.8, f64::NAN, "alarm.off_probability");
+        let no_confirmation = SlipAlarmConfig {
+            confirm_steps: 0,
+            ..SlipAlarmConfig::default()
+        };
+        let e = no_confirmation.validate().unwrap_err().to_string();
+        assert!(e.contains("alarm.confirm_steps"), "{e}");
     }
 }

@@ -12,6 +12,12 @@ pub struct DetectionCounter {
     in_event: bool,
     events: usize,
     delays_steps: Vec<usize>,
+    /// Whether the last step was detected, and whether the detection episode it belongs to
+    /// has met a true slip step so far.
+    in_detection: bool,
+    episode_overlaps_truth: bool,
+    detection_episodes: usize,
+    false_episodes: usize,
 }
 
 /// The score of one drive.
@@ -32,6 +38,12 @@ pub struct DetectionScore {
     pub events: usize,
     /// Events never detected while they lasted.
     pub missed_events: usize,
+    /// Detection episodes (rising edges of the decision): for the alarm rule, the
+    /// `slip_started` events a maintainer sees.
+    pub detection_episodes: usize,
+    /// Detection episodes with no true slip step in them (a false alarm as a maintainer counts
+    /// it, however long); an episode still open at the end is counted by what it met so far.
+    pub false_episodes: usize,
 }
 
 impl DetectionCounter {
@@ -56,6 +68,16 @@ impl DetectionCounter {
                 self.delays_steps.push(step - onset);
             }
         }
+        match (self.in_detection, detected) {
+            (false, true) => {
+                self.detection_episodes += 1;
+                self.episode_overlaps_truth = truth;
+            }
+            (true, true) => self.episode_overlaps_truth |= truth,
+            (true, false) if !self.episode_overlaps_truth => self.false_episodes += 1,
+            _ => {}
+        }
+        self.in_detection = detected;
     }
 
     pub fn score(&self) -> DetectionScore {
@@ -83,6 +105,9 @@ impl DetectionCounter {
             false_neg: self.false_neg,
             events: self.events,
             missed_events: self.events - self.delays_steps.len(),
+            detection_episodes: self.detection_episodes,
+            false_episodes: self.false_episodes
+                + usize::from(self.in_detection && !self.episode_overlaps_truth),
         }
     }
 }
@@ -109,6 +134,24 @@ mod tests {
         // event 1 starts at 2, detected at 4: delay 2; event 2 (8-9) missed.
         assert_eq!(s.median_delay_steps, Some(2.0));
         assert_eq!((s.events, s.missed_events), (2, 1));
+        // Episodes 1-1 (false: no true step), 4-6 (meets event 1).
+        assert_eq!((s.detection_episodes, s.false_episodes), (2, 1));
+    }
+
+    #[test]
+    fn episodes_split_by_a_gap_and_one_open_at_the_end() {
+        // truth:    0 1 1 1 0 0 0 0 0
+        // detected: 0 0 1 0 1 0 0 1 1
+        // Episodes: 2 (true), 4 (after the truth ended: false), 7-8 (open at the end: false).
+        let truth = [0, 1, 1, 1, 0, 0, 0, 0, 0];
+        let det = [0, 0, 1, 0, 1, 0, 0, 1, 1];
+        let mut c = DetectionCounter::default();
+        for (t, (&d, &tr)) in det.iter().zip(&truth).enumerate() {
+            c.push(t, d == 1, tr == 1);
+        }
+        let s = c.score();
+        assert_eq!((s.detection_episodes, s.false_episodes), (3, 2));
+        assert_eq!((s.events, s.missed_events), (1, 0));
     }
 
     #[test]
