@@ -1,7 +1,8 @@
 //! Per-step trace of one drive through the temporal and VB methods over a range of steps of a
 //! scenario: true and healthy load, the slip truth, the EKF torque estimate, the temporal
 //! reference `M` and the terms of its threshold (`0.1 |M|`, the 0.5 N m floor, `3 s_i`), both
-//! methods' slip probabilities. Used for docs/adhesion.md, "Low load".
+//! methods' slip probabilities, and the drive's learnt healthy offset `b_i` (`dev_nm` is
+//! `x_i - M`; temporal tests `dev_nm - offset_nm` against `limit_nm`). Used for docs/adhesion.md, "Low load".
 //!
 //! `cargo run --release -p railmon-slip --example slip_trace -- SCENARIO.toml DRIVE FROM TO`
 
@@ -20,7 +21,7 @@ fn main() {
     let mut temporal = TemporalEstimator::new(config.adhesion.temporal.clone(), n);
     let mut vb = AdhesionEstimator::new(AdhesionMethod::Vb, &config.adhesion, n).expect("vb");
     let t = &config.adhesion.temporal;
-    println!("step,true_nm,healthy_nm,truth,torque_nm,reference_nm,rel_nm,floor_nm,sig_nm,limit_nm,dev_nm,p_temporal,p_vb,vb_global_nm");
+    println!("step,true_nm,healthy_nm,truth,torque_nm,reference_nm,rel_nm,floor_nm,sig_nm,limit_nm,dev_nm,p_temporal,p_vb,vb_global_nm,offset_nm");
     let mut torque = vec![0.0; n];
     let mut step = 0;
     while let Some((samples, truth)) = sim.step() {
@@ -29,6 +30,7 @@ fn main() {
             *x = f.torque_nm();
         }
         let spread = temporal.spread_nm().nth(k).expect("drive");
+        let offset = temporal.offset_nm()[k];
         let out = temporal.estimate(&torque).expect("temporal");
         let (m, p_t) = (out.global_torque_nm, out.slip_probability[k]);
         let vb_out = vb.estimate(&torque).expect("vb");
@@ -37,7 +39,7 @@ fn main() {
             let sig = t.significance_sigmas * spread;
             let limit = rel.max(t.min_tolerance_nm).max(sig);
             println!(
-                "{step},{:.3},{:.3},{},{:.3},{:.3},{rel:.3},{:.3},{sig:.3},{limit:.3},{:.3},{p_t:.3},{:.3},{:.3}",
+                "{step},{:.3},{:.3},{},{:.3},{:.3},{rel:.3},{:.3},{sig:.3},{limit:.3},{:.3},{p_t:.3},{:.3},{:.3},{offset:.3}",
                 truth[k].torque_nm,
                 scenario.healthy_load_nm(k, step as f64),
                 u8::from(truth[k].slipping),
