@@ -16,6 +16,12 @@ use crate::error::{check_in, SlipError};
 /// consecutive steps (1: at once), and a flagged drive whose probability falls to
 /// `off_probability` stays flagged for `release_hold_steps` more steps, during which a return
 /// to `on_probability` continues the same episode (0: cleared at once).
+///
+/// The default confirms for 8 steps (1 ms at 8 kHz): over the whole scenario matrix it removes
+/// every false alarm episode on healthy drives (3 -> 0, each a 7-8-step run of the estimate
+/// about 5 `s_i` out on a flat load) at 7.5 steps more median onset delay; the alarm F1 it
+/// costs (0.04-0.05) falls on the four short losses the information bound already caps. A
+/// monitor that cries wolf is not read, so the false episodes weigh more.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SlipAlarmConfig {
@@ -30,7 +36,7 @@ impl Default for SlipAlarmConfig {
         SlipAlarmConfig {
             on_probability: 0.8,
             off_probability: 0.2,
-            confirm_steps: 1,
+            confirm_steps: 8,
             release_hold_steps: 0,
         }
     }
@@ -188,9 +194,18 @@ impl SlipAlarm {
 mod tests {
     use super::*;
 
+    /// The hysteresis alone, without the holds in time.
+    fn without_holds() -> SlipAlarmConfig {
+        SlipAlarmConfig {
+            confirm_steps: 1,
+            release_hold_steps: 0,
+            ..SlipAlarmConfig::default()
+        }
+    }
+
     #[test]
     fn hysteresis_on_a_hand_made_sequence() {
-        let mut alarm = SlipAlarm::new(SlipAlarmConfig::default(), 2).unwrap();
+        let mut alarm = SlipAlarm::new(without_holds(), 2).unwrap();
         let mut events = Vec::new();
         // Drive 1: 0.5 (nothing), 0.8 (on), 0.5 (stays on), 0.2 (off), 0.79 (stays off).
         // Drive 2: 0.9 (on) and stays above 0.2.
@@ -231,7 +246,7 @@ mod tests {
         use SlipAlarmKind::{SlipEnded, SlipStarted};
         let ps = [0.9, 0.5, 0.9, 0.9, 0.1, 0.5, 0.85, 0.1, 0.1, 0.1, 0.1];
         // Without holds: on at 0, off at 4, on at 6, off at 7.
-        let plain = SlipAlarmConfig::default();
+        let plain = without_holds();
         assert_eq!(
             event_steps(plain, &ps),
             vec![
@@ -283,7 +298,7 @@ mod tests {
 
     #[test]
     fn restored_flag_is_cleared_by_an_estimate_with_an_event() {
-        let mut alarm = SlipAlarm::new(SlipAlarmConfig::default(), 0).unwrap();
+        let mut alarm = SlipAlarm::new(without_holds(), 0).unwrap();
         alarm.restore(3, true);
         assert_eq!(alarm.slipping(), &[false, false, true]);
         let mut events = Vec::new();
