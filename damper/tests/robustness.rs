@@ -326,6 +326,7 @@ fn robustness_matrix() {
     let mut config = DamperMonitorConfig::default();
     config.rbpf.particles = particles;
     config.rbpf.noise_scale.enabled = env_or("ROBUST_NOISE_SCALE", 1u8) == 1;
+    config.rbpf.max_move_interval_s = env_or("ROBUST_MAX_MOVE_S", config.rbpf.max_move_interval_s);
     let matched: bool = env_or("ROBUST_MATCHED_NOISE", 0u8) == 1;
     let table = Rbpf::gain_table(&config).unwrap();
     println!(
