@@ -15,8 +15,10 @@
 //!   10 s after the fault is complete and the time from then until the estimate settles
 //!   within 5% for good;
 //! - `events.csv`: `id,kind,stream_time_s,subject,detail`, the damper health events
-//!   (`damper_degraded` / `damper_recovered`) of `railmon_damper::DamperAlarm`, the rule the
-//!   service applies (`subject` = `<bogie>/<damper>`, `detail` the service's JSON fields);
+//!   (`damper_degraded` / `damper_recovered`) of `railmon_damper::DamperAlarm` (`subject` =
+//!   `<bogie>/<damper>`) and the bogie status events (`damper_paused` / `damper_resumed`,
+//!   `damper_model_mismatch` / `damper_model_ok`) of `railmon_damper::BogieStatusWatch`
+//!   (`subject` = `<bogie>`): the rules the service applies, its kinds and JSON fields;
 //! - `timing.csv`: steps, particles, propagation, mean wall time of one monitor step (RBPF,
 //!   EKF and the posterior summary) and the real-time factor at the sample rate, and when
 //!   the EKF diverged if it did;
@@ -31,9 +33,9 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use railmon_damper::{
-    BogieSample, BogieSimulator, DamperAlarm, DamperError, DamperEstimate, DamperEvent,
-    DamperFault, DamperId, DamperMonitor, DamperMonitorConfig, DamperScenario, FaultKind,
-    Propagation,
+    BogieSample, BogieSimulator, BogieStatusEvent, BogieStatusWatch, DamperAlarm, DamperError,
+    DamperEstimate, DamperEvent, DamperFault, DamperId, DamperMonitor, DamperMonitorConfig,
+    DamperScenario, FaultKind, Propagation,
 };
 use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord};
 use railmon_records::{write_csv_table, RecordError};
@@ -127,8 +129,8 @@ pub struct FaultRow {
 #[derive(Debug, Clone)]
 pub struct DamperReport {
     pub summary: Vec<SummaryRow>,
-    /// The health events, as the service would raise them.
-    pub events: Vec<DamperEvent>,
+    /// The health and status events, as the service would raise them, in its order.
+    pub events: Vec<BogieEvent>,
     pub faults: Vec<FaultRow>,
     pub steps: u64,
     /// Mean wall time of one monitor step (RBPF + EKF + posterior summary).
@@ -314,9 +316,51 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
     })
 }
 
+/// One event of `events.csv`: a damper's health flag (`railmon_damper::DamperAlarm`) or the
+/// bogie's status (`railmon_damper::BogieStatusWatch`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum BogieEvent {
+    Health(DamperEvent),
+    Status(BogieStatusEvent),
+}
+
+impl BogieEvent {
+    pub fn kind(&self) -> &'static str {
+        match self {
+            BogieEvent::Health(e) => e.kind.as_str(),
+            BogieEvent::Status(e) => e.kind.as_str(),
+        }
+    }
+
+    pub fn time_s(&self) -> f64 {
+        match self {
+            BogieEvent::Health(e) => e.time_s,
+            BogieEvent::Status(e) => e.time_s,
+        }
+    }
+
+    /// The service's subject (`<bogie>/<damper>` for health, `<bogie>` for status) and detail.
+    fn subject_and_detail(&self, bogie: u32) -> (String, serde_json::Value) {
+        match self {
+            BogieEvent::Health(e) => (
+                format!("{bogie}/{}", e.damper.name()),
+                serde_json::json!({
+                    "bogie": bogie,
+                    "damper": e.damper.name(),
+                    "health_ratio": e.health_ratio,
+                }),
+            ),
+            BogieEvent::Status(e) => (
+                bogie.to_string(),
+                serde_json::to_value(e.detail(bogie)).unwrap_or_default(),
+            ),
+        }
+    }
+}
+
 struct MonitorRun {
     trace: Vec<TracePoint>,
-    events: Vec<DamperEvent>,
+    events: Vec<BogieEvent>,
     steps: u64,
     elapsed: Duration,
     ekf_diverged_at_s: Option<f64>,
@@ -334,6 +378,7 @@ fn run_monitor(
     let mut monitor =
         DamperMonitor::for_bogie(config, bogie, None).map_err(estimator_error(name))?;
     let mut alarms = DamperAlarm::pair(config, [false; 2]);
+    let mut status = BogieStatusWatch::new();
     let mut events = vec![];
     let bar = progress_bar(max_steps.unwrap_or(0), "damper");
     let mut trace = vec![];
@@ -347,11 +392,17 @@ fn run_monitor(
         let estimate = *monitor.step(&sample).map_err(estimator_error(name))?;
         elapsed += started.elapsed();
         steps += 1;
-        // Stamped with the sample's own time, as the service stamps its events.
+        // Stamped with the sample's own time, as the service stamps its events; health
+        // before status, as the service stores them.
+        events.extend(alarms.iter_mut().filter_map(|a| {
+            a.update(&estimate)
+                .map(|e| BogieEvent::Health(DamperEvent { time_s, ..e }))
+        }));
         events.extend(
-            alarms
-                .iter_mut()
-                .filter_map(|a| a.update(&estimate).map(|e| DamperEvent { time_s, ..e })),
+            status
+                .update(&estimate)
+                .into_iter()
+                .map(|e| BogieEvent::Status(BogieStatusEvent { time_s, ..e })),
         );
         if let Some(w) = record.as_mut() {
             w.write(&BogieRecord {
@@ -387,21 +438,17 @@ fn run_monitor(
 
 /// `events.csv`: the columns every `railmon analyze` domain writes, the service's kinds,
 /// subjects and detail fields.
-fn write_events(path: &Path, bogie: u32, events: &[DamperEvent]) -> Result<(), RecordError> {
+fn write_events(path: &Path, bogie: u32, events: &[BogieEvent]) -> Result<(), RecordError> {
     write_csv_table(
         path,
         &["id", "kind", "stream_time_s", "subject", "detail"],
         events.iter().enumerate().map(|(i, e)| {
-            let detail = serde_json::json!({
-                "bogie": bogie,
-                "damper": e.damper.name(),
-                "health_ratio": e.health_ratio,
-            });
+            let (subject, detail) = e.subject_and_detail(bogie);
             vec![
                 (i + 1).to_string(),
-                e.kind.as_str().to_owned(),
-                format!("{:.6}", e.time_s),
-                format!("{bogie}/{}", e.damper.name()),
+                e.kind().to_owned(),
+                format!("{:.6}", e.time_s()),
+                subject,
                 detail.to_string(),
             ]
         }),

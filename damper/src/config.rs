@@ -175,6 +175,12 @@ pub struct RbpfConfig {
     pub regeneration_fraction: f64,
     /// Weight of a regenerated particle relative to the others, in (0, 1].
     pub regeneration_weight: f64,
+    /// With `kernel = "at_resampling"`: resample and move at the latest this long after the
+    /// last move (s; 0 = only when the effective sample size falls). Regenerated particles
+    /// are drawn only at moves, and where the data say little per second (low speed: the
+    /// creep forces ~1/v dominate) the effective sample size falls slowly, so the first
+    /// newcomers near a failed damper's new value came seconds late.
+    pub max_move_interval_s: f64,
     pub propagation: Propagation,
     pub kernel: KernelSchedule,
     /// Order of the Taylor series for `Phi(theta) x` (steady-state propagation). 6, 8 and 10
@@ -199,6 +205,7 @@ impl Default for RbpfConfig {
             ln_diffusion_per_sqrt_s: 0.002,
             regeneration_fraction: 0.01,
             regeneration_weight: 0.1,
+            max_move_interval_s: 0.0,
             propagation: Propagation::SteadyState,
             kernel: KernelSchedule::AtResampling,
             taylor_order: 8,
@@ -245,6 +252,7 @@ impl RbpfConfig {
             });
         }
         non_negative("rbpf.ln_diffusion_per_sqrt_s", self.ln_diffusion_per_sqrt_s)?;
+        non_negative("rbpf.max_move_interval_s", self.max_move_interval_s)?;
         if !(self.regeneration_weight > 0.0 && self.regeneration_weight <= 1.0) {
             return Err(DamperError::InvalidParameter {
                 field: "rbpf.regeneration_weight",
@@ -557,6 +565,10 @@ mod tests {
         rejects(
             with_rbpf(|r| r.regeneration_weight = 0.0),
             "rbpf.regeneration_weight",
+        );
+        rejects(
+            with_rbpf(|r| r.max_move_interval_s = f64::NAN),
+            "rbpf.max_move_interval_s",
         );
         rejects(with_rbpf(|r| r.taylor_order = 0), "rbpf.taylor_order");
         rejects(

@@ -28,6 +28,7 @@ pub mod sample;
 pub mod scenario;
 pub mod simulator;
 pub mod speed_profile;
+pub mod status;
 pub mod track;
 
 pub use alarm::{DamperAlarm, DamperAlarmConfig, DamperEvent, DamperEventKind};
@@ -47,4 +48,7 @@ pub use sample::{BogieSample, SensorNoise};
 pub use scenario::DamperScenario;
 pub use simulator::{BogieSimulator, BogieTruth};
 pub use speed_profile::SpeedProfile;
+pub use status::{
+    BogieStatusEvent, BogieStatusEventDetail, BogieStatusEventKind, BogieStatusWatch,
+};
 pub use track::{ErriLevel, TrackSpec};

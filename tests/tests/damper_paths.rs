@@ -1,7 +1,8 @@
 //! Same data, same damper events on every path: `railmon analyze damper --scenario`, `railmon
 //! analyze damper --input` on the recording the scenario run wrote, and `railmon serve` fed that
-//! recording by `sensors-replay bogie --csv`. All three apply `railmon_damper::DamperAlarm` to
-//! the same estimates (bogie 1, the scenario's seed, 100 particles).
+//! recording by `sensors-replay bogie --csv`. All three apply `railmon_damper::DamperAlarm`
+//! (health) and `railmon_damper::BogieStatusWatch` (paused / resumed, model mismatch) to the
+//! same estimates (bogie 1, the scenario's seed, 100 particles).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -10,13 +11,8 @@ use std::time::Duration;
 use railmon_system_tests::{binaries, start_replay, workspace_root, PrivateBus, Service};
 use serde_json::Value;
 
-/// 45 s of damper-fault (C_say steps to 40 % at 30 s; at N = 100 the filter takes up to 8 s to
-/// find it, then the alarm holds 3 s).
-const SECONDS: &str = "45";
-const STEPS: u64 = 45_000;
-
-/// One event as every path reports it: kind, subject, stream time, health ratio.
-type Event = (String, String, f64, f64);
+/// One event as every path reports it: kind, subject, stream time, its detail fields.
+type Event = (String, String, f64, serde_json::Map<String, Value>);
 
 fn analyze(args: &[&str], out: &Path) -> Vec<Event> {
     let status = Command::new(&binaries().railmon)
@@ -40,7 +36,7 @@ fn analyze(args: &[&str], out: &Path) -> Vec<Event> {
                 r[1].to_string(),
                 r[3].to_string(),
                 r[2].parse().unwrap(),
-                detail["health_ratio"].as_f64().unwrap(),
+                detail.as_object().unwrap().clone(),
             )
         })
         .collect()
@@ -55,33 +51,20 @@ fn temp(name: &str) -> PathBuf {
     dir
 }
 
-#[test]
-fn service_and_both_analyze_paths_raise_the_same_damper_events() {
-    let scenario_out = temp("scenario");
+/// Runs `scenario` for `seconds` through `railmon analyze damper --scenario`, then its
+/// recording through `--input` and through the service (the RBPF seeded with the scenario's
+/// `seed`); asserts the three give the same events, and returns them.
+fn same_events_on_every_path(name: &str, scenario: &str, seconds: &str, seed: u64) -> Vec<Event> {
+    let scenario_out = temp(&format!("{name}-scenario"));
     let from_scenario = analyze(
-        &[
-            "--scenario",
-            "config/scenarios/damper-fault.toml",
-            "--duration-s",
-            SECONDS,
-        ],
+        &["--scenario", scenario, "--duration-s", seconds],
         &scenario_out,
-    );
-    // The fault is found (so the comparison below compares something), and nothing else.
-    assert_eq!(from_scenario.len(), 1, "{from_scenario:?}");
-    assert_eq!(
-        (from_scenario[0].0.as_str(), from_scenario[0].1.as_str()),
-        ("damper_degraded", "1/csay")
-    );
-    assert!(
-        (30.0..45.0).contains(&from_scenario[0].2),
-        "{from_scenario:?}"
     );
 
     // The scenario's monitor differs from the default only in its seed.
     let recording = scenario_out.join("bogie.csv");
-    let monitor = temp("monitor.toml");
-    std::fs::write(&monitor, "[rbpf]\nseed = 12\n").unwrap();
+    let monitor = temp(&format!("{name}-monitor.toml"));
+    std::fs::write(&monitor, format!("[rbpf]\nseed = {seed}\n")).unwrap();
     let from_input = analyze(
         &[
             "--input",
@@ -89,11 +72,12 @@ fn service_and_both_analyze_paths_raise_the_same_damper_events() {
             "--config",
             monitor.to_str().unwrap(),
         ],
-        &temp("input"),
+        &temp(&format!("{name}-input")),
     );
     assert_eq!(from_input, from_scenario);
 
     let bus = PrivateBus::new();
+    let seed = seed.to_string();
     let service = Service::start(
         &bus,
         &[
@@ -101,7 +85,7 @@ fn service_and_both_analyze_paths_raise_the_same_damper_events() {
             ("RAILMON_DRIVE__ENABLED", "false"),
             ("RAILMON_BOGIE__BOGIES", "[1]"),
             ("RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES", "100"),
-            ("RAILMON_BOGIE__ESTIMATOR__RBPF__SEED", "12"),
+            ("RAILMON_BOGIE__ESTIMATOR__RBPF__SEED", seed.as_str()),
         ],
     );
     let mut replay = start_replay(
@@ -110,8 +94,9 @@ fn service_and_both_analyze_paths_raise_the_same_damper_events() {
         &["--csv", recording.to_str().unwrap(), "--speed", "max"],
     );
     assert!(replay.wait(Duration::from_secs(300)).success());
+    let steps = (seconds.parse::<f64>().unwrap() * 1000.0).round() as u64;
     service.wait_for_status("bogie", Duration::from_secs(60), "every frame", |s| {
-        s["estimator_steps"].as_u64() == Some(STEPS)
+        s["estimator_steps"].as_u64() == Some(steps)
     });
     let events = service.get_json("/api/v1/bogies/events");
     let from_service: Vec<Event> = events["events"]
@@ -119,18 +104,78 @@ fn service_and_both_analyze_paths_raise_the_same_damper_events() {
         .unwrap()
         .iter()
         .map(|e| {
+            let mut detail = e.as_object().unwrap().clone();
+            for common in [
+                "id",
+                "stream",
+                "kind",
+                "subject",
+                "time_utc",
+                "time_s",
+                "run",
+                "run_time_s",
+            ] {
+                detail.remove(common);
+            }
             (
                 e["kind"].as_str().unwrap().to_string(),
                 e["subject"].as_str().unwrap().to_string(),
                 e["time_s"].as_f64().unwrap(),
-                e["health_ratio"].as_f64().unwrap(),
+                detail,
             )
         })
         .collect();
     assert_eq!(from_service.len(), from_scenario.len(), "{from_service:?}");
     for (s, a) in from_service.iter().zip(&from_scenario) {
-        assert_eq!((&s.0, &s.1, s.3), (&a.0, &a.1, a.3));
+        assert_eq!((&s.0, &s.1, &s.3), (&a.0, &a.1, &a.3));
         // events.csv writes the time to the microsecond.
         assert!((s.2 - a.2).abs() < 1e-6, "{s:?} {a:?}");
     }
+    // The bogie filter of the events API holds the bogie's status events too.
+    let of_bogie = service.get_json("/api/v1/bogies/events?bogie=1");
+    assert_eq!(
+        of_bogie["events"].as_array().unwrap().len(),
+        from_scenario.len()
+    );
+    from_scenario
+}
+
+/// 45 s of damper-fault (C_say steps to 40 % at 30 s; at N = 100 the filter takes up to 8 s to
+/// find it, then the alarm holds 3 s).
+#[test]
+fn service_and_both_analyze_paths_raise_the_same_damper_events() {
+    let events = same_events_on_every_path("fault", "config/scenarios/damper-fault.toml", "45", 12);
+    // The fault is found (so the comparison compares something), and nothing else.
+    assert_eq!(events.len(), 1, "{events:?}");
+    assert_eq!(
+        (events[0].0.as_str(), events[0].1.as_str()),
+        ("damper_degraded", "1/csay")
+    );
+    assert!((30.0..45.0).contains(&events[0].2), "{events:?}");
+}
+
+/// The first 10 s of the speed profile: the train starts at rest (the filter paused, low
+/// speed, from the first sample) and passes 5 m/s at 5 s (it learns again after 1 s of
+/// settling): a `damper_paused` and a `damper_resumed`, the same on every path.
+#[test]
+fn service_and_both_analyze_paths_raise_the_same_pause_events() {
+    let events = same_events_on_every_path(
+        "profile",
+        "config/scenarios/damper-speed-profile.toml",
+        "10",
+        11,
+    );
+    let kinds: Vec<(&str, &str)> = events
+        .iter()
+        .map(|e| (e.0.as_str(), e.1.as_str()))
+        .collect();
+    assert_eq!(
+        kinds,
+        [("damper_paused", "1"), ("damper_resumed", "1")],
+        "{events:?}"
+    );
+    assert_eq!(events[0].3["reason"], "low_speed");
+    assert!(events[0].2 < 0.01, "{events:?}");
+    // 5 m/s at 5 s, then 1 s of settling.
+    assert!((5.9..6.1).contains(&events[1].2), "{events:?}");
 }

@@ -297,7 +297,8 @@ impl Rbpf {
         std::mem::swap(&mut self.log_w, &mut self.log_w_next);
         self.log_evidence += log_increment;
         self.ess = effective_sample_size(&self.log_w);
-        if self.ess < self.config.resample_ess_fraction * n as f64 {
+        let resample = self.ess < self.config.resample_ess_fraction * n as f64;
+        if resample {
             systematic_resample(&self.log_w, &mut self.indices, &mut self.rng);
             self.bank.resample(&self.indices);
             for (dst, &i) in self.ln_theta_next.iter_mut().zip(&self.indices) {
@@ -307,15 +308,22 @@ impl Rbpf {
             self.log_w.fill(-(n as f64).ln());
             self.resamples += 1;
             self.sorted.stale = true;
-            if self.config.kernel == KernelSchedule::AtResampling {
-                self.kernel_move();
-                std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
-                for (w, pen) in self.log_w.iter_mut().zip(&self.regeneration_penalty) {
-                    *w += pen;
-                }
-                normalize_log_weights(&mut self.log_w)?;
-                self.ess = effective_sample_size(&self.log_w);
+        }
+        let max_move = self.config.max_move_interval_s;
+        let move_due = max_move > 0.0
+            && self.steps_since_move as f64 * self.dt_s + 0.5 * self.dt_s >= max_move;
+        if self.config.kernel == KernelSchedule::AtResampling && (resample || move_due) {
+            // Without a resampling (`max_move_interval_s`) the particles keep their weights:
+            // the Liu-West kernel of eq. (24) acts on the weighted cloud, and a newcomer is
+            // not copied before the data have had their say about it.
+            self.kernel_move();
+            std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
+            for (w, pen) in self.log_w.iter_mut().zip(&self.regeneration_penalty) {
+                *w += pen;
             }
+            normalize_log_weights(&mut self.log_w)?;
+            self.ess = effective_sample_size(&self.log_w);
+            self.sorted.stale = true;
         }
         Ok(())
     }

@@ -1,6 +1,6 @@
 //! Metric families of the bogie stream (labels `bogie`, `damper`: `csy` or `csay`).
 
-use prometheus::IntCounterVec;
+use prometheus::{IntCounter, IntCounterVec};
 
 use crate::metrics::{EstimateGaugeVec, EstimateIntGaugeVec, Families};
 
@@ -12,6 +12,7 @@ pub struct BogieMetrics {
     pub events: IntCounterVec,
     pub paused: EstimateIntGaugeVec,
     pub speed: EstimateGaugeVec,
+    pub snapshot_refused: IntCounter,
 }
 
 impl BogieMetrics {
@@ -53,6 +54,11 @@ impl BogieMetrics {
                 "bogie_speed_meters_per_second",
                 "Vehicle speed of the bogie's last sample.",
                 &["bogie"],
+            )?,
+            snapshot_refused: f.int_counter(
+                "bogie_snapshot_refused_total",
+                "Bogie snapshots found at start and refused (another format version, other \
+                 settings, too old, corrupt): the filters started from their prior.",
             )?,
         })
     }

@@ -10,8 +10,8 @@ use prometheus::IntCounter;
 use railmon_bus::{BogieFrame, FrameHeader};
 use railmon_damper::gain_table::GainTable;
 use railmon_damper::{
-    BogieSample, DamperAlarm, DamperError, DamperEventKind, DamperMonitor, DamperMonitorState,
-    DamperPosterior, PauseReason, Propagation, Rbpf,
+    BogieSample, BogieStatusWatch, DamperAlarm, DamperError, DamperEventKind, DamperMonitor,
+    DamperMonitorState, DamperPosterior, PauseReason, Propagation, Rbpf,
 };
 
 use railmon_bus::StreamKind;
@@ -45,6 +45,8 @@ struct BogieSlot {
     monitor: Option<Box<DamperMonitor>>,
     /// The health flags of `csy` and `csay` (the damper crate's rule).
     alarms: [DamperAlarm; 2],
+    /// The status last reported (paused, model mismatch), for its change events.
+    status: BogieStatusWatch,
     last_stamp: Option<Stamp>,
     dampers: [DamperGauges; 2],
     ess: EstimateGauge,
@@ -79,6 +81,7 @@ impl BogieSlot {
             id,
             monitor: None,
             alarms,
+            status: BogieStatusWatch::new(),
             last_stamp: None,
             dampers,
             ess: metrics
@@ -133,6 +136,7 @@ pub struct BogiePipeline {
     rejections: Vec<(FrameHeader, Rejection)>,
     /// Deferred steps done, for the ingest loop's step times ([`Pipeline::take_completed`]).
     completed: Vec<CompletedStep>,
+    snapshot_refused: IntCounter,
 }
 
 impl BogiePipeline {
@@ -192,6 +196,7 @@ impl BogiePipeline {
             done: Vec::new(),
             rejections: Vec::new(),
             completed: Vec::new(),
+            snapshot_refused: metrics.bogie.snapshot_refused.clone(),
         };
         // The configured bogies are listed (without samples) before the first frame.
         pipeline
@@ -315,6 +320,25 @@ impl BogiePipeline {
                 Some(("degraded", alarm.degraded())),
             );
         }
+        // The status as events (after the health events, as `railmon analyze damper` writes
+        // them): the same changes the view's `status` shows.
+        for event in slot.status.update(estimate) {
+            let kind = event.kind.as_str();
+            tracing::info!(
+                bogie = slot.id,
+                reason = event.reason.map(PauseReason::as_str),
+                speed_m_s = event.speed_m_s,
+                time_s = stamp.time_s,
+                "{kind}"
+            );
+            self.track.push_event(
+                stamp,
+                kind,
+                slot.id.to_string(),
+                &event.detail(slot.id),
+                None,
+            );
+        }
         if self.track.history_due(stamp.time_s) {
             let bogies = self
                 .slots
@@ -433,10 +457,54 @@ pub struct CheckedBogieSample {
 /// Kalman states, the EKF, the consistency check) and stream time. The health flags are not
 /// saved: the event store's active alarms, committed with their events, are newer and are
 /// restored at start.
-#[derive(serde::Serialize, serde::Deserialize)]
+#[derive(Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 struct SavedBogies {
     bogies: Vec<(u32, Option<DamperMonitorState>)>,
     clock: crate::outbox::TrackClock,
+}
+
+/// A saved [`SavedBogies`] starts with this, then its format version (`u32`, little endian),
+/// then the bincode. Bincode has no schema: a state of another layout would fail to decode
+/// with a message about bytes, or worse decode into other numbers; the version says which
+/// layout it is before anything is read.
+const SAVED_BOGIES_MAGIC: &[u8] = b"railmon-bogies\0";
+
+/// The layout of [`SavedBogies`] and everything in it (`DamperMonitorState`: the RBPF's
+/// particles and states, the noise estimate, the EKF, the consistency check, the pause).
+/// Raise it with every change of any of them. Snapshots written before it existed have no
+/// version (format 1).
+const SAVED_BOGIES_FORMAT: u32 = 2;
+
+impl SavedBogies {
+    fn encode(&self) -> Option<Vec<u8>> {
+        let mut bytes = SAVED_BOGIES_MAGIC.to_vec();
+        bytes.extend_from_slice(&SAVED_BOGIES_FORMAT.to_le_bytes());
+        bincode::serialize_into(&mut bytes, self).ok()?;
+        Some(bytes)
+    }
+
+    /// The state in `bytes` if it is of this build's format; else why not, with the version.
+    fn decode(bytes: &[u8]) -> Result<Self, String> {
+        let ours = SAVED_BOGIES_FORMAT;
+        let Some(rest) = bytes.strip_prefix(SAVED_BOGIES_MAGIC) else {
+            return Err(format!(
+                "bogie state without a format version (format 1, written before versions); \
+                 this build reads format {ours}"
+            ));
+        };
+        let Some((version, payload)) = rest.split_first_chunk::<4>() else {
+            return Err("bogie state truncated in its format version".into());
+        };
+        let version = u32::from_le_bytes(*version);
+        if version != ours {
+            let which = if version > ours { "newer" } else { "older" };
+            return Err(format!(
+                "bogie state format {version} ({which} than this build's); this build reads \
+                 format {ours}"
+            ));
+        }
+        bincode::deserialize(payload).map_err(|e| format!("bogie state format {ours}: {e}"))
+    }
 }
 
 impl Pipeline for BogiePipeline {
@@ -571,13 +639,13 @@ impl Pipeline for BogiePipeline {
                 .collect(),
             clock: self.track.clock(),
         };
-        bincode::serialize(&saved).ok()
+        saved.encode()
     }
 
     /// Every bogie's monitor where the snapshot left it (built first: on error nothing
     /// changes); a bogie the snapshot does not hold starts from its prior on its first frame.
     fn resume_state(&mut self, state: &[u8]) -> Result<(), String> {
-        let saved: SavedBogies = bincode::deserialize(state).map_err(|e| e.to_string())?;
+        let saved = SavedBogies::decode(state)?;
         let table = self.table.clone().map_err(|r| r.message)?;
         let mut monitors = Vec::with_capacity(self.slots.len());
         for slot in &self.slots {
@@ -601,6 +669,27 @@ impl Pipeline for BogiePipeline {
         Ok(())
     }
 
+    /// A snapshot that does not fit: the bogies start from their prior, and the store gets a
+    /// `snapshot_refused` event saying which file and why (the log has a warning too).
+    fn snapshot_refused(&mut self, file: &std::path::Path, reason: &str) {
+        self.snapshot_refused.inc();
+        let mut detail = serde_json::Map::new();
+        detail.insert("file".into(), file.display().to_string().into());
+        detail.insert("reason".into(), reason.into());
+        self.shared.store.append(vec![crate::store::NewEvent {
+            stream: StreamKind::Bogie,
+            kind: "snapshot_refused".into(),
+            subject: String::new(),
+            time_utc_ns: railmon_bus::utc_now_ns(),
+            // Before the first frame: no stream time yet.
+            time_s: 0.0,
+            run: 0,
+            run_time_s: 0.0,
+            detail,
+            alarm: None,
+        }]);
+    }
+
     fn publish(&mut self) {
         self.flush();
         let Some(stamp) = self.track.flush(&self.shared) else {
@@ -609,5 +698,61 @@ impl Pipeline for BogiePipeline {
         let view = self.view(Some(&stamp));
         self.set_gauges(&view);
         self.shared.snapshot.store(Arc::new(view));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use railmon_damper::DamperMonitorConfig;
+
+    fn saved() -> SavedBogies {
+        let mut c = DamperMonitorConfig::default();
+        c.rbpf.particles = 4;
+        c.rbpf.propagation = Propagation::Exact;
+        let m = DamperMonitor::for_bogie(&c, 2, None).unwrap();
+        SavedBogies {
+            bogies: vec![(1, None), (2, Some(m.state()))],
+            clock: crate::outbox::TrackClock {
+                run_offset_s: 3.0,
+                last_time_s: Some(2.5),
+                next_history_s: 2.6,
+            },
+        }
+    }
+
+    /// This build's format comes back; a newer or older version, or a state written before
+    /// versions (bare bincode), is refused with its version named, before its bytes are read.
+    #[test]
+    fn a_bogie_state_of_another_format_version_is_refused_by_its_version() {
+        let bytes = saved().encode().unwrap();
+        // Compared as bytes: the states hold NaN (no window yet), and NaN != NaN.
+        let back = SavedBogies::decode(&bytes).unwrap();
+        assert_eq!(back.encode().unwrap(), bytes);
+        let at = SAVED_BOGIES_MAGIC.len();
+        for (version, which) in [
+            (SAVED_BOGIES_FORMAT + 1, "newer"),
+            (u32::MAX, "newer"),
+            (1, "older"),
+        ] {
+            let mut other = bytes.clone();
+            other[at..at + 4].copy_from_slice(&version.to_le_bytes());
+            let e = SavedBogies::decode(&other).unwrap_err();
+            assert!(
+                e.contains(&format!("format {version} ({which}"))
+                    && e.contains(&format!("reads format {SAVED_BOGIES_FORMAT}")),
+                "{e}"
+            );
+        }
+        let unversioned = bincode::serialize(&saved()).unwrap();
+        let e = SavedBogies::decode(&unversioned).unwrap_err();
+        assert!(e.contains("without a format version"), "{e}");
+        let e = SavedBogies::decode(&bytes[..at + 2]).unwrap_err();
+        assert!(e.contains("truncated"), "{e}");
+        let e = SavedBogies::decode(&bytes[..bytes.len() - 8]).unwrap_err();
+        assert!(
+            e.contains(&format!("bogie state format {SAVED_BOGIES_FORMAT}: ")),
+            "{e}"
+        );
     }
 }

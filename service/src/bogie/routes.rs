@@ -160,7 +160,10 @@ async fn bogie_history(
     }))
 }
 
-/// Damper events of every bogie, oldest first, in pages (`bogie` picks one bogie).
+/// Damper events of every bogie, oldest first, in pages (`bogie` picks one bogie): health
+/// (`damper_degraded` / `damper_recovered`, subject `<bogie>/<damper>`), status
+/// (`damper_paused` / `damper_resumed`, `damper_model_mismatch` / `damper_model_ok`, subject
+/// `<bogie>`), and `snapshot_refused` (subject empty) when a saved state did not fit at start.
 #[utoipa::path(get, path = "/api/v1/bogies/events", tag = "bogies",
     params(EventsQuery),
     responses((status = 200, description = "A page of events, oldest first", body = EventsPage),

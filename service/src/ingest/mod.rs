@@ -89,6 +89,9 @@ pub trait Pipeline {
     fn resume_state(&mut self, _state: &[u8]) -> Result<(), String> {
         Err("this stream does not resume from snapshots".into())
     }
+    /// A snapshot was there and did not fit (`reason`); the estimator starts from its prior.
+    /// Called after the warning is logged, so a pipeline can also count it or store an event.
+    fn snapshot_refused(&mut self, _file: &std::path::Path, _reason: &str) {}
 }
 
 /// A deferred step, done: the estimator time of its own frame (not of the call that ran it,
@@ -262,8 +265,8 @@ fn resume_snapshot<P: Pipeline>(
     source: &mut SourceTracking,
     kind: railmon_bus::StreamKind,
 ) {
-    match file.load(max_age_s) {
-        Ok(None) => {}
+    let refused = match file.load(max_age_s) {
+        Ok(None) => return,
         Ok(Some(state)) => match pipeline.resume_state(&state.pipeline) {
             Ok(()) => {
                 source
@@ -271,15 +274,14 @@ fn resume_snapshot<P: Pipeline>(
                     .resume(state.publisher_instance, state.run, state.next_sequence);
                 source.clock.resume(state.last_sample_time_ns);
                 tracing::info!(stream = %kind, file = %file.path().display(), "estimator resumed from its snapshot");
+                return;
             }
-            Err(e) => {
-                tracing::warn!(stream = %kind, file = %file.path().display(), "snapshot refused, the estimator starts from its prior: {e}")
-            }
+            Err(e) => e,
         },
-        Err(e) => {
-            tracing::warn!(stream = %kind, file = %file.path().display(), "snapshot refused, the estimator starts from its prior: {e}")
-        }
-    }
+        Err(e) => e,
+    };
+    tracing::warn!(stream = %kind, file = %file.path().display(), "snapshot refused, the estimator starts from its prior: {refused}");
+    pipeline.snapshot_refused(file.path(), &refused);
 }
 
 fn ingest_loop<P: Pipeline>(

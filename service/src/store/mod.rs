@@ -187,7 +187,8 @@ pub struct EventQuery {
     pub stream: Option<StreamKind>,
     pub kind: Option<String>,
     pub subject: Option<String>,
-    /// Subjects starting with this (`2/`: both dampers of bogie 2).
+    /// Subjects starting with this, or this without its last character (`2/`: both dampers
+    /// of bogie 2, `2/csy` and `2/csay`, and the bogie's own status events, `2`).
     pub subject_prefix: Option<String>,
     pub limit: usize,
 }
@@ -414,7 +415,8 @@ impl EventStore {
                  WHERE id > ?1 AND time_utc_ns >= ?2
                    AND (?3 IS NULL OR stream = ?3) AND (?4 IS NULL OR kind = ?4)
                    AND (?5 IS NULL OR subject = ?5)
-                   AND (?7 IS NULL OR substr(subject, 1, length(?7)) = ?7)
+                   AND (?7 IS NULL OR substr(subject, 1, length(?7)) = ?7
+                        OR subject || '/' = ?7)
                  ORDER BY id LIMIT ?6",
             )?;
             let rows = statement.query_map(
