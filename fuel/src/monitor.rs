@@ -194,8 +194,10 @@ pub struct FuelMonitor {
     /// The single regression the forecasts are blended with (`forecast_blend`, `m_c > 1`).
     baseline: Option<Mixture>,
     blend: Blend,
-    /// Forecast path made at the previous step (blended).
+    /// Forecast path made at the previous step (blended, calibrated).
     pending_forecast: ForecastPath,
+    /// Scales of the predictives that keep the 90 % intervals' coverage at 90 %.
+    calibration: IntervalCalibration,
     /// The active regime and for how many samples in a row it has been active.
     active_streak: (usize, usize),
     estimate: FuelEstimate,
@@ -256,6 +258,7 @@ impl FuelMonitor {
             baseline: None,
             blend: Blend::new(config.forecast_horizon_steps),
             pending_forecast: ForecastPath::default(),
+            calibration: IntervalCalibration::new(config.forecast_horizon_steps),
             active_streak: (0, 0),
             estimate: FuelEstimate::default(),
         })
@@ -535,6 +538,7 @@ impl FuelMonitor {
                 st.fuel_term(log_v[i].exp(), cond[i].mean, cond[i].variance, dof)
             })
             .collect();
+        let virtual_terms = self.calibration.scaled(0, virtual_sensor, &virtual_terms);
         let virtual_sensor_interval = central_interval(&virtual_terms, INTERVAL_MASS);
 
         let input = MixtureInput {
@@ -568,6 +572,8 @@ impl FuelMonitor {
         let one_step = self.pending_forecast.mean_cm3_s.first().copied();
         let one_step_interval = self.pending_forecast.interval_cm3_s.first().copied();
         self.blend.observe(p.y[0], self.config.blend_forgetting);
+        self.calibration.observe(0, &virtual_terms, p.y[0]);
+        self.calibration.observe_forecasts(p.y[0]);
         self.pending_forecast = self.blended_forecast();
         let previous = self.estimate.mixture.as_ref();
         self.active_streak = match self.active_streak {
@@ -615,19 +621,23 @@ impl FuelMonitor {
     }
 
     /// The forecast path of the mixture, blended with the baseline's (when there is one) by
-    /// the current blend weights; remembers both paths for the next weights.
+    /// the current blend weights, calibrated ([`IntervalCalibration`]), with its intervals;
+    /// remembers the paths for the next weights and scales.
     fn blended_forecast(&mut self) -> ForecastPath {
         let Some(mixture) = self.mixture.as_ref() else {
             return ForecastPath::default();
         };
         let own = self.forecast_path(mixture);
-        let Some(baseline) = self.baseline.as_ref() else {
-            return own.finish();
+        let path = match self.baseline.as_ref() {
+            Some(baseline) => {
+                let single = self.forecast_path(baseline);
+                let blended = self.blend.combine(&own, &single);
+                self.blend.remember(own.mean_cm3_s, single.mean_cm3_s);
+                blended
+            }
+            None => own,
         };
-        let single = self.forecast_path(baseline);
-        let blended = self.blend.combine(&own, &single);
-        self.blend.remember(own.mean_cm3_s, single.mean_cm3_s);
-        blended
+        self.calibration.calibrate(path).finish()
     }
 
     /// Multi-step forecast of fuel from the current state of `mixture` (the paper's future
@@ -1024,8 +1034,8 @@ impl Blend {
         self.waiting.truncate(self.sums.len());
     }
 
-    /// The blended path: means `w m + (1 - w) s`, predictive the pool of both mixtures with
-    /// weights `w` and `1 - w`.
+    /// The blended path (without intervals): means `w m + (1 - w) s`, predictive the pool of
+    /// both mixtures with weights `w` and `1 - w`.
     fn combine(&self, own: &ForecastPath, single: &ForecastPath) -> ForecastPath {
         let mut out = ForecastPath::with_capacity(own.mean_cm3_s.len());
         for h in 1..=own.mean_cm3_s.len() {
@@ -1046,6 +1056,133 @@ impl Blend {
                 terms,
             );
         }
-        out.finish()
+        out
+    }
+}
+
+/// Step of the calibration's log scale per sample (see [`IntervalCalibration`]).
+const CALIBRATION_STEP: f64 = 0.05;
+
+/// Adaptive calibration of the 90 % intervals (adaptive conformal inference: Gibbs and Candes,
+/// "Adaptive conformal inference under distribution shift", NeurIPS 2021, eq. 2, here on the
+/// log of a scale instead of on the miscoverage level). Every predictive (index 0 the virtual
+/// sensor, `h` the forecast `h` steps ahead) is widened or narrowed about its mean by a factor
+/// `s = exp(l)` (locations and scales of its terms); once its target is measured, `l <- l +
+/// gamma (miss - 0.1)`, `miss` = 1 when the target fell outside the 90 % interval (its CDF
+/// value outside [0.05, 0.95]).
+///
+/// Why: the mixture's predictive is right in the bulk and wrong in the tails. Fuel errors are
+/// small noise plus rare large jumps (the driver's decisions within the horizon: a notch or
+/// pedal change), kurtosis 5-145 of the standardised errors against 3 for the Gaussian
+/// components. A Gaussian fitted to both covers the 1-step bulk too widely (coverage 0.957 and
+/// 0.960 on the railcar routes) and, accumulated over 10 s, misses the jumps (0.827 on the
+/// hilly route; mean squared standardised error 10 at 10 s against 1 by the model). A
+/// heavy-tailed component noise would be the model's fix; it is not the paper's estimator.
+///
+/// Guarantee (the telescoping sum of the updates): over `T` targets, the share of misses is
+/// exactly `0.1 + (l_T - l_0) / (gamma T)`, so the long-run coverage is 90 % whenever the
+/// scale stays bounded, which it does: a wide enough interval misses nothing (so `l` falls)
+/// and a narrow enough one misses everything (so `l` rises); on any data, not one file's.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+struct IntervalCalibration {
+    /// `l` of the virtual sensor (0) and of each forecast step (`h`).
+    log_scale: Vec<f64>,
+    /// Calibrated predictives of the forecast paths still waiting for their targets, newest
+    /// first.
+    waiting: VecDeque<Vec<Vec<StudentT>>>,
+}
+
+impl IntervalCalibration {
+    fn new(horizon: usize) -> Self {
+        IntervalCalibration {
+            log_scale: vec![0.0; horizon + 1],
+            waiting: VecDeque::with_capacity(horizon + 1),
+        }
+    }
+
+    /// `terms` widened about `mean` by the current scale of predictive `index`.
+    fn scaled(&self, index: usize, mean: f64, terms: &[StudentT]) -> Vec<StudentT> {
+        let s = self.log_scale[index].exp();
+        terms
+            .iter()
+            .map(|t| StudentT {
+                location: mean + s * (t.location - mean),
+                scale: s * t.scale,
+                ..*t
+            })
+            .collect()
+    }
+
+    /// Updates the scale of predictive `index` with its (calibrated) `terms` and the target.
+    fn observe(&mut self, index: usize, terms: &[StudentT], target: f64) {
+        let total: f64 = terms.iter().map(|t| t.weight).sum();
+        if !(total > 0.0 && total.is_finite() && target.is_finite()) {
+            return;
+        }
+        let cdf = terms.iter().map(|t| t.weight * t.cdf(target)).sum::<f64>() / total;
+        let tail = 0.5 * (1.0 - INTERVAL_MASS);
+        let miss = f64::from(u8::from(!(tail..=1.0 - tail).contains(&cdf)));
+        self.log_scale[index] += CALIBRATION_STEP * (miss - (1.0 - INTERVAL_MASS));
+    }
+
+    /// Scores the waiting forecasts of this sample (the newest path's first step, the one
+    /// before's second, ...).
+    fn observe_forecasts(&mut self, target: f64) {
+        let waiting = std::mem::take(&mut self.waiting);
+        for (age, terms) in waiting.iter().enumerate() {
+            if let Some(step) = terms.get(age) {
+                self.observe(age + 1, step, target);
+            }
+        }
+        self.waiting = waiting;
+    }
+
+    /// `path` with every step's predictive scaled; remembers it for the updates.
+    fn calibrate(&mut self, mut path: ForecastPath) -> ForecastPath {
+        for (h, (terms, mean)) in path.terms.iter_mut().zip(&path.mean_cm3_s).enumerate() {
+            *terms = self.scaled(h + 1, *mean, terms);
+        }
+        self.waiting.push_front(path.terms.clone());
+        self.waiting.truncate(self.log_scale.len() - 1);
+        path
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The calibration's guarantee on targets its predictive gets wrong (a unit normal against
+    /// Student-t targets with 2 degrees of freedom and twice the scale, seeded): the share of
+    /// misses equals `0.1 + l_T / (gamma T)` (the telescoping sum of the updates, to rounding)
+    /// and ends near 10 %, where the uncalibrated interval misses about 29 %.
+    #[test]
+    fn calibrated_intervals_miss_ten_percent_of_targets_they_were_not_made_for() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut calibration = IntervalCalibration::new(1);
+        let unit = [StudentT {
+            weight: 1.0,
+            location: 0.0,
+            scale: 1.0,
+            dof: 1e9,
+        }];
+        let (n, mut misses, mut raw_misses) = (20_000, 0usize, 0usize);
+        for _ in 0..n {
+            // Student-t with 2 dof: a normal over the root of a chi-square(2) / 2.
+            let z: f64 = rng.sample(rand_distr::StandardNormal);
+            let chi2 = -2.0 * (1.0 - rng.random::<f64>()).ln();
+            let target = 2.0 * z / (chi2 / 2.0).sqrt();
+            let terms = calibration.scaled(0, 0.0, &unit);
+            let interval = central_interval(&terms, INTERVAL_MASS);
+            misses += usize::from(!interval.contains(target));
+            raw_misses += usize::from(!central_interval(&unit, INTERVAL_MASS).contains(target));
+            calibration.observe(0, &terms, target);
+        }
+        let share = misses as f64 / n as f64;
+        let identity = 0.1 + calibration.log_scale[0] / (CALIBRATION_STEP * n as f64);
+        assert!((share - identity).abs() < 1e-9, "{share} vs {identity}");
+        assert!((share - 0.1).abs() < 0.005, "{share}");
+        assert!(raw_misses as f64 / n as f64 > 0.25, "{raw_misses}");
     }
 }
