@@ -151,7 +151,9 @@ fn scenario_run_writes_every_report() {
         assert!(out.join(f).is_file(), "{f} missing");
     }
     let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
-    assert!(summary.starts_with("method,horizon_s,rmse,mae,n,coverage_90\n"));
+    assert!(
+        summary.starts_with("method,horizon_s,rmse,mae,n,coverage_90,diebold_mariano_vs_single\n")
+    );
     for method in [
         "mixture,0,",
         "virtual_sensor,0,",
