@@ -64,10 +64,8 @@ pub struct MixtureEstimate {
     pub regime_names: Vec<RegimeName>,
     /// The name of `regime`.
     pub regime_name: RegimeName,
-    /// `regime` differs from the previous sample's and so does its name (both named on this
-    /// sample; `None` on the first estimate): the `regime_changed` event, raised by the service
-    /// and written by `railmon analyze fuel`. A move between two components with one name is
-    /// no event.
+    /// `regime` differs from the previous sample's (`None` on the first estimate): the
+    /// `regime_changed` event, raised by the service and written by `railmon analyze fuel`.
     pub regime_change: Option<RegimeChange>,
     /// Fuel integrated from the virtual sensor since initialisation, cm^3.
     pub cumulative_virtual_fuel_cm3: f64,
@@ -585,11 +583,8 @@ impl FuelMonitor {
             _ => active,
         };
         let regime_names = self.regime_names();
-        // A move between two components of one name is not a change of regime for whoever
-        // reads the events ("cruising -> cruising" said nothing); a component renamed while it
-        // stays reported is not an event either (its name may cross a threshold back and forth).
         let regime_change = previous
-            .filter(|e| e.regime != regime && regime_names[e.regime] != regime_names[regime])
+            .filter(|e| e.regime != regime)
             .map(|e| RegimeChange {
                 from_regime: e.regime,
                 to_regime: regime,

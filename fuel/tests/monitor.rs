@@ -463,21 +463,19 @@ fn paper_setting_separates_fuel_cut_off_from_driving() {
 
 /// Runs the synthetic drive from t = 160 to 1000 and checks every estimate's reported regime
 /// and change flag against the rule written out here: the reported regime follows the active
-/// (most probable) one once that has been active for `confirm` samples in a row, and an event
-/// is raised when it moves to a component of another name. Returns the changes of the active
-/// regime, the events and the moves of the reported regime between two components of one
-/// name (no event).
-fn check_regime_confirmation(config: &FuelMonitorConfig, confirm: usize) -> (usize, usize, usize) {
+/// (most probable) one once that has been active for `confirm` samples in a row. Returns the
+/// changes of the active and of the reported regime.
+fn check_regime_confirmation(confirm: usize) -> (usize, usize) {
     let config = FuelMonitorConfig {
         regime_confirm_samples: confirm,
-        ..config.clone()
+        ..FuelMonitorConfig::paper()
     };
     let (mut monitor, _) = run(&config, 160, 12);
     let mut rng = ChaCha8Rng::seed_from_u64(13);
     let first = monitor.estimate().mixture.clone().unwrap();
     let (mut reported, mut active) = (first.regime, first.active_regime);
     let mut streak = 1;
-    let (mut active_changes, mut reported_changes, mut same_name_moves) = (0, 0, 0);
+    let (mut active_changes, mut reported_changes) = (0, 0);
     for t in 160..1000 {
         let e = monitor
             .update(&sample(t, &mut rng))
@@ -493,10 +491,7 @@ fn check_regime_confirmation(config: &FuelMonitorConfig, confirm: usize) -> (usi
         }
         let expected = if streak >= confirm { active } else { reported };
         assert_eq!(e.regime, expected, "t = {t}");
-        // An event when the reported regime moves to a component of another name.
-        let renamed = e.regime_names[reported] != e.regime_names[expected];
-        same_name_moves += usize::from(expected != reported && !renamed);
-        let change = (expected != reported && renamed).then_some((reported, expected));
+        let change = (expected != reported).then_some((reported, expected));
         assert_eq!(
             e.regime_change.map(|c| (c.from_regime, c.to_regime)),
             change,
@@ -508,36 +503,18 @@ fn check_regime_confirmation(config: &FuelMonitorConfig, confirm: usize) -> (usi
         reported_changes += usize::from(change.is_some());
         reported = expected;
     }
-    (active_changes, reported_changes, same_name_moves)
+    (active_changes, reported_changes)
 }
 
 #[test]
 fn regime_changes_are_flagged_once_per_confirmed_change() {
-    let paper = FuelMonitorConfig::paper();
     // Unconfirmed (1 sample): the reported regime is the pointer estimate itself.
-    let (active, reported, same_name) = check_regime_confirmation(&paper, 1);
+    let (active, reported) = check_regime_confirmation(1);
     assert!(active > 0, "the synthetic drive switches regime");
-    assert_eq!(reported + same_name, active);
+    assert_eq!(reported, active);
     // Confirmed over 5 samples: fewer changes, each still flagged once.
-    let (active, reported, _) = check_regime_confirmation(&paper, 5);
+    let (active, reported) = check_regime_confirmation(5);
     assert!(reported > 0 && reported < active, "{reported} of {active}");
-}
-
-/// Issue 14 item 3: with more components than names some share one; a move between two of them
-/// is no `regime_changed` event (the rule above), and there are such moves to check it on.
-#[test]
-fn a_move_between_components_of_one_name_is_no_event() {
-    let config = FuelMonitorConfig {
-        components: 6,
-        ..FuelMonitorConfig::default()
-    };
-    let (active, reported, same_name) = check_regime_confirmation(&config, 1);
-    assert!(
-        same_name > 0,
-        "no two components share a name ({active} changes)"
-    );
-    assert!(reported > 0, "no change between names ({active} changes)");
-    assert_eq!(reported + same_name, active);
 }
 
 /// Issue 14 item 3: a component's operating point is the mean of the data it absorbed. With
