@@ -34,25 +34,28 @@ pub struct MixtureEstimate {
     /// pointer predicted with the switching model (blended with the single regression when
     /// `forecast_blend` is on): the first element of the previous sample's `forecast_cm3_s`.
     pub one_step_forecast_cm3_s: f64,
-    /// 90 % predictive interval of the 1-step forecast (made at `t-1`).
-    pub one_step_interval_cm3_s: Interval,
+    /// Predictive of the 1-step forecast (made at `t-1`): the first of the previous sample's
+    /// `forecast_predictive` (empty while no forecast was made). Its 90 % interval:
+    /// [`MixtureEstimate::one_step_interval_cm3_s`].
+    pub one_step_predictive: Vec<StudentT>,
     /// Virtual fuel sensor: fuel now from the other channels now (and data up to `t-1`), each
     /// component's Gaussian conditioned on the observed channels, weighted by the predicted
     /// pointer times the likelihood of those channels. Equals the 1-step forecast when fuel is
     /// the only continuous channel (and there is no gear).
     pub virtual_sensor_cm3_s: f64,
-    /// 90 % predictive interval of the virtual sensor: the mixture over components of each
-    /// one's Student-t of fuel given the other channels, weighted as the virtual sensor is.
-    pub virtual_sensor_interval_cm3_s: Interval,
+    /// Predictive of the virtual sensor: the mixture over components of each one's Student-t
+    /// of fuel given the other channels, weighted as the virtual sensor is. Its 90 % interval:
+    /// [`MixtureEstimate::virtual_sensor_interval_cm3_s`].
+    pub virtual_sensor_predictive: Vec<StudentT>,
     /// Fuel forecasts for `t+1 .. t+H` (H = `forecast_horizon_steps`): pointer propagated with
     /// the switching model, regressors filled with the forecast means, gear, speed level and
     /// acceleration level held at their last values.
     pub forecast_cm3_s: Vec<f64>,
-    /// 90 % predictive interval of each forecast: the mixture of the components' Student-t
-    /// densities under the propagated pointer, with the regressor's uncertainty propagated
-    /// (moment matching) from step 2 on; pooled with the single regression's by the blend
-    /// weights.
-    pub forecast_interval_cm3_s: Vec<Interval>,
+    /// Predictive of each forecast: the mixture of the components' Student-t densities under
+    /// the propagated pointer, with the regressor's uncertainty propagated (moment matching)
+    /// from step 2 on; pooled with the single regression's by the blend weights. Their 90 %
+    /// intervals: [`MixtureEstimate::forecast_interval_cm3_s`].
+    pub forecast_predictive: Vec<Vec<StudentT>>,
     /// `w_{i;t}`: probability of each component (driving regime).
     pub regime_probabilities: Vec<f64>,
     /// `argmax_i w_{i;t}`: the point estimate of the pointer.
@@ -69,6 +72,31 @@ pub struct MixtureEstimate {
     pub regime_change: Option<RegimeChange>,
     /// Fuel integrated from the virtual sensor since initialisation, cm^3.
     pub cumulative_virtual_fuel_cm3: f64,
+}
+
+/// The intervals are computed from the predictive terms only when asked: each end is a quantile
+/// of a Student-t mixture found by Newton steps on its CDF (a continued fraction per term), and
+/// computing the 22 ends in every `update` made the step 3.4 times slower (docs/fuel.md,
+/// "Benchmark"); the service needs them once per published view, `railmon analyze fuel` at every
+/// step. Same terms, same function: the same bits on every path.
+impl MixtureEstimate {
+    /// 90 % predictive interval of the 1-step forecast (NaN while no forecast was made).
+    pub fn one_step_interval_cm3_s(&self) -> Interval {
+        central_interval(&self.one_step_predictive, INTERVAL_MASS)
+    }
+
+    /// 90 % predictive interval of the virtual sensor.
+    pub fn virtual_sensor_interval_cm3_s(&self) -> Interval {
+        central_interval(&self.virtual_sensor_predictive, INTERVAL_MASS)
+    }
+
+    /// 90 % predictive interval of each forecast step (`t+1 .. t+H`).
+    pub fn forecast_interval_cm3_s(&self) -> Vec<Interval> {
+        self.forecast_predictive
+            .iter()
+            .map(|terms| central_interval(terms, INTERVAL_MASS))
+            .collect()
+    }
 }
 
 /// The alarm rule of the fuel stream: the reported regime changed. The event `regime_changed`
@@ -537,7 +565,6 @@ impl FuelMonitor {
             })
             .collect();
         let virtual_terms = self.calibration.scaled(0, virtual_sensor, &virtual_terms);
-        let virtual_sensor_interval = central_interval(&virtual_terms, INTERVAL_MASS);
 
         let input = MixtureInput {
             y: &y,
@@ -568,7 +595,7 @@ impl FuelMonitor {
         let (m_y, m_alpha) = (self.config.regression_memory, self.config.switching_memory);
         Self::push_past(&mut self.past, y, p, m_y, m_alpha);
         let one_step = self.pending_forecast.mean_cm3_s.first().copied();
-        let one_step_interval = self.pending_forecast.interval_cm3_s.first().copied();
+        let one_step_terms = self.pending_forecast.terms.first().cloned();
         self.blend.observe(p.y[0], self.config.blend_forgetting);
         self.calibration.observe(0, &virtual_terms, p.y[0]);
         self.calibration.observe_forecasts(p.y[0]);
@@ -597,14 +624,11 @@ impl FuelMonitor {
         Ok(MixtureEstimate {
             zero_step_cm3_s: zero_step,
             one_step_forecast_cm3_s: one_step.unwrap_or(f64::NAN),
-            one_step_interval_cm3_s: one_step_interval.unwrap_or(Interval {
-                lower: f64::NAN,
-                upper: f64::NAN,
-            }),
+            one_step_predictive: one_step_terms.unwrap_or_default(),
             virtual_sensor_cm3_s: virtual_sensor,
-            virtual_sensor_interval_cm3_s: virtual_sensor_interval,
+            virtual_sensor_predictive: virtual_terms,
             forecast_cm3_s: self.pending_forecast.mean_cm3_s.clone(),
-            forecast_interval_cm3_s: self.pending_forecast.interval_cm3_s.clone(),
+            forecast_predictive: self.pending_forecast.terms.clone(),
             regime_probabilities,
             active_regime: active,
             regime,
@@ -632,7 +656,7 @@ impl FuelMonitor {
             }
             None => own,
         };
-        self.calibration.calibrate(path).finish()
+        self.calibration.calibrate(path)
     }
 
     /// Multi-step forecast of fuel from the current state of `mixture` (the paper's future
@@ -879,7 +903,6 @@ impl FuelMonitor {
 struct ForecastPath {
     mean_cm3_s: Vec<f64>,
     terms: Vec<Vec<StudentT>>,
-    interval_cm3_s: Vec<Interval>,
 }
 
 impl ForecastPath {
@@ -887,23 +910,12 @@ impl ForecastPath {
         ForecastPath {
             mean_cm3_s: Vec::with_capacity(n),
             terms: Vec::with_capacity(n),
-            interval_cm3_s: Vec::with_capacity(n),
         }
     }
 
     fn push(&mut self, mean_cm3_s: f64, terms: Vec<StudentT>) {
         self.mean_cm3_s.push(mean_cm3_s);
         self.terms.push(terms);
-    }
-
-    /// Computes the intervals of the steps' predictives.
-    fn finish(mut self) -> Self {
-        self.interval_cm3_s = self
-            .terms
-            .iter()
-            .map(|t| central_interval(t, INTERVAL_MASS))
-            .collect();
-        self
     }
 }
 

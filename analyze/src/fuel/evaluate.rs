@@ -263,7 +263,7 @@ impl Path {
     fn of(m: &railmon_fuel::MixtureEstimate) -> Self {
         Path {
             mean: m.forecast_cm3_s.clone(),
-            interval: m.forecast_interval_cm3_s.clone(),
+            interval: m.forecast_interval_cm3_s(),
         }
     }
 }
@@ -328,12 +328,12 @@ pub fn evaluate(
             single_h[0].add(b.zero_step_cm3_s, fuel);
             virtual_mix.add_with_interval(
                 a.virtual_sensor_cm3_s,
-                &a.virtual_sensor_interval_cm3_s,
+                &a.virtual_sensor_interval_cm3_s(),
                 fuel,
             );
             virtual_single.add_with_interval(
                 b.virtual_sensor_cm3_s,
-                &b.virtual_sensor_interval_cm3_s,
+                &b.virtual_sensor_interval_cm3_s(),
                 fuel,
             );
             if let Some(e) = rls_estimate {
@@ -351,8 +351,8 @@ pub fn evaluate(
                 single_virtual_sensor_cm3_s: b.virtual_sensor_cm3_s,
                 persistence_cm3_s: previous_fuel.unwrap_or(fuel),
                 rls_virtual_sensor_cm3_s: rls_estimate.unwrap_or(f64::NAN),
-                one_step_interval_cm3_s: a.one_step_interval_cm3_s,
-                virtual_sensor_interval_cm3_s: a.virtual_sensor_interval_cm3_s,
+                one_step_interval_cm3_s: a.one_step_interval_cm3_s(),
+                virtual_sensor_interval_cm3_s: a.virtual_sensor_interval_cm3_s(),
                 regime_probabilities: a.regime_probabilities.clone(),
                 active_regime: a.active_regime,
                 regime: a.regime,
