@@ -282,11 +282,21 @@ fn write_summary(path: &Path, scores: &[ScoreRow]) -> Result<(), RecordError> {
             format!("{:.6}", s.mae),
             s.n.to_string(),
             s.coverage_90.map_or(String::new(), |c| format!("{c:.4}")),
+            s.diebold_mariano_vs_single
+                .map_or(String::new(), |c| format!("{c:.3}")),
         ]
     });
     write_csv_table(
         path,
-        &["method", "horizon_s", "rmse", "mae", "n", "coverage_90"],
+        &[
+            "method",
+            "horizon_s",
+            "rmse",
+            "mae",
+            "n",
+            "coverage_90",
+            "diebold_mariano_vs_single",
+        ],
         rows,
     )
 }

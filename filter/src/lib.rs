@@ -7,12 +7,14 @@
 //! - [`logspace`]: log-sum-exp, normalising log-weights, effective sample size;
 //! - [`normal`]: the standard normal CDF (`erfc`);
 //! - [`resample`]: systematic resampling;
+//! - [`special`]: `ln Gamma`;
 //! - [`stats`]: order statistics and the summaries written to CSV reports.
 
 pub mod kalman;
 pub mod logspace;
 pub mod normal;
 pub mod resample;
+pub mod special;
 pub mod stats;
 
 /// Errors of the shared numerics.

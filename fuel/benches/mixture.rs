@@ -1,5 +1,6 @@
 //! Estimator steps per second for `m_c` = 3 and 10 components with 5 continuous channels and
-//! the gear (the paper's setting), on simulated samples. Run with
+//! the gear (the paper's setting), on simulated samples: the step alone and the step with every
+//! 90 % interval asked for. Run with
 //! `cargo bench -p railmon-fuel --bench mixture`.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
@@ -36,12 +37,32 @@ fn bench_steps(c: &mut Criterion) {
             monitor.update(&sample(t)).expect("valid sample");
             t += 1;
         }
-        group.bench_with_input(BenchmarkId::new("components", m_c), &m_c, |b, _| {
+        // The step alone: what the service pays per sample.
+        group.bench_with_input(BenchmarkId::new("update", m_c), &m_c, |b, _| {
             b.iter(|| {
                 t += 1;
                 monitor.update(&sample(t)).expect("valid sample").samples
             })
         });
+        // The step and every interval the estimate offers (virtual sensor, 1-step forecast,
+        // each forecast step): what a published view or `railmon analyze fuel` pays per sample.
+        group.bench_with_input(
+            BenchmarkId::new("update_and_intervals", m_c),
+            &m_c,
+            |b, _| {
+                b.iter(|| {
+                    t += 1;
+                    let e = monitor.update(&sample(t)).expect("valid sample");
+                    let m = e.mixture.as_ref().expect("initialised");
+                    let forecast = m.forecast_interval_cm3_s();
+                    (
+                        m.virtual_sensor_interval_cm3_s(),
+                        m.one_step_interval_cm3_s(),
+                        forecast,
+                    )
+                })
+            },
+        );
     }
     group.finish();
 }

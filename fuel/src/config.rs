@@ -6,7 +6,7 @@ use railmon_settings::{with_preset, Presets};
 use serde::{Deserialize, Deserializer, Serialize};
 
 use crate::regime::RegimeNaming;
-use crate::sample::{Channel, DerivedChannel};
+use crate::sample::{channel_field, Channel, DerivedChannel};
 use crate::FuelError;
 
 /// The categorical channel `z` (the gear of a car, section 4.1, or the throttle notch of a
@@ -114,14 +114,7 @@ impl ChannelRanges {
 
     /// The range of one channel.
     pub fn of(&self, channel: Channel) -> [f64; 2] {
-        match channel {
-            Channel::Fuel => self.fuel_cm3_s,
-            Channel::Speed => self.speed_m_s,
-            Channel::Pedal => self.pedal_pct,
-            Channel::EngineTorque => self.engine_torque_nm,
-            Channel::EngineSpeed => self.engine_speed_rpm,
-            Channel::Gradient => self.gradient_permille,
-        }
+        channel_field!(self, channel)
     }
 
     fn validate(&self) -> Result<(), FuelError> {

@@ -34,25 +34,28 @@ pub struct MixtureEstimate {
     /// pointer predicted with the switching model (blended with the single regression when
     /// `forecast_blend` is on): the first element of the previous sample's `forecast_cm3_s`.
     pub one_step_forecast_cm3_s: f64,
-    /// 90 % predictive interval of the 1-step forecast (made at `t-1`).
-    pub one_step_interval_cm3_s: Interval,
+    /// Predictive of the 1-step forecast (made at `t-1`): the first of the previous sample's
+    /// `forecast_predictive` (empty while no forecast was made). Its 90 % interval:
+    /// [`MixtureEstimate::one_step_interval_cm3_s`].
+    pub one_step_predictive: Vec<StudentT>,
     /// Virtual fuel sensor: fuel now from the other channels now (and data up to `t-1`), each
     /// component's Gaussian conditioned on the observed channels, weighted by the predicted
     /// pointer times the likelihood of those channels. Equals the 1-step forecast when fuel is
     /// the only continuous channel (and there is no gear).
     pub virtual_sensor_cm3_s: f64,
-    /// 90 % predictive interval of the virtual sensor: the mixture over components of each
-    /// one's Student-t of fuel given the other channels, weighted as the virtual sensor is.
-    pub virtual_sensor_interval_cm3_s: Interval,
+    /// Predictive of the virtual sensor: the mixture over components of each one's Student-t
+    /// of fuel given the other channels, weighted as the virtual sensor is. Its 90 % interval:
+    /// [`MixtureEstimate::virtual_sensor_interval_cm3_s`].
+    pub virtual_sensor_predictive: Vec<StudentT>,
     /// Fuel forecasts for `t+1 .. t+H` (H = `forecast_horizon_steps`): pointer propagated with
     /// the switching model, regressors filled with the forecast means, gear, speed level and
     /// acceleration level held at their last values.
     pub forecast_cm3_s: Vec<f64>,
-    /// 90 % predictive interval of each forecast: the mixture of the components' Student-t
-    /// densities under the propagated pointer, with the regressor's uncertainty propagated
-    /// (moment matching) from step 2 on; pooled with the single regression's by the blend
-    /// weights.
-    pub forecast_interval_cm3_s: Vec<Interval>,
+    /// Predictive of each forecast: the mixture of the components' Student-t densities under
+    /// the propagated pointer, with the regressor's uncertainty propagated (moment matching)
+    /// from step 2 on; pooled with the single regression's by the blend weights. Their 90 %
+    /// intervals: [`MixtureEstimate::forecast_interval_cm3_s`].
+    pub forecast_predictive: Vec<Vec<StudentT>>,
     /// `w_{i;t}`: probability of each component (driving regime).
     pub regime_probabilities: Vec<f64>,
     /// `argmax_i w_{i;t}`: the point estimate of the pointer.
@@ -69,6 +72,31 @@ pub struct MixtureEstimate {
     pub regime_change: Option<RegimeChange>,
     /// Fuel integrated from the virtual sensor since initialisation, cm^3.
     pub cumulative_virtual_fuel_cm3: f64,
+}
+
+/// The intervals are computed from the predictive terms only when asked: each end is a quantile
+/// of a Student-t mixture found by Newton steps on its CDF (a continued fraction per term), and
+/// computing the 22 ends in every `update` made the step 3.4 times slower (docs/fuel.md,
+/// "Benchmark"); the service needs them once per published view, `railmon analyze fuel` at every
+/// step. Same terms, same function: the same bits on every path.
+impl MixtureEstimate {
+    /// 90 % predictive interval of the 1-step forecast (NaN while no forecast was made).
+    pub fn one_step_interval_cm3_s(&self) -> Interval {
+        central_interval(&self.one_step_predictive, INTERVAL_MASS)
+    }
+
+    /// 90 % predictive interval of the virtual sensor.
+    pub fn virtual_sensor_interval_cm3_s(&self) -> Interval {
+        central_interval(&self.virtual_sensor_predictive, INTERVAL_MASS)
+    }
+
+    /// 90 % predictive interval of each forecast step (`t+1 .. t+H`).
+    pub fn forecast_interval_cm3_s(&self) -> Vec<Interval> {
+        self.forecast_predictive
+            .iter()
+            .map(|terms| central_interval(terms, INTERVAL_MASS))
+            .collect()
+    }
 }
 
 /// The alarm rule of the fuel stream: the reported regime changed. The event `regime_changed`
@@ -192,8 +220,10 @@ pub struct FuelMonitor {
     /// The single regression the forecasts are blended with (`forecast_blend`, `m_c > 1`).
     baseline: Option<Mixture>,
     blend: Blend,
-    /// Forecast path made at the previous step (blended).
+    /// Forecast path made at the previous step (blended, calibrated).
     pending_forecast: ForecastPath,
+    /// Scales of the predictives that keep the 90 % intervals' coverage at 90 %.
+    calibration: IntervalCalibration,
     /// The active regime and for how many samples in a row it has been active.
     active_streak: (usize, usize),
     estimate: FuelEstimate,
@@ -254,6 +284,7 @@ impl FuelMonitor {
             baseline: None,
             blend: Blend::new(config.forecast_horizon_steps),
             pending_forecast: ForecastPath::default(),
+            calibration: IntervalCalibration::new(config.forecast_horizon_steps),
             active_streak: (0, 0),
             estimate: FuelEstimate::default(),
         })
@@ -391,9 +422,29 @@ impl FuelMonitor {
     }
 
     fn switching_row(&self, past: &Past) -> usize {
+        self.switching_row_of(past.fuel_levels.iter().copied(), past.acceleration_level)
+    }
+
+    /// The switching row after one more sample whose fuel level is `newest` (the older levels
+    /// and the acceleration level those of `past`).
+    fn switching_row_after(&self, past: &Past, newest: usize) -> usize {
+        let older = past.fuel_levels.iter().copied();
+        let levels = std::iter::once(newest).chain(older);
+        let levels = levels.take(self.config.switching_memory);
+        self.switching_row_of(levels, past.acceleration_level)
+    }
+
+    /// Row of the switching table for fuel levels (newest first) and an acceleration level:
+    /// the newest level is the least significant digit (base: the number of levels).
+    fn switching_row_of(
+        &self,
+        levels_newest_first: impl Iterator<Item = usize>,
+        acceleration_level: usize,
+    ) -> usize {
         let n_f = self.config.fuel_levels();
-        let k_f = past.fuel_levels.iter().rev().fold(0, |k, &f| k * n_f + f);
-        k_f * self.config.acceleration_levels() + past.acceleration_level
+        let (k_f, _) =
+            levels_newest_first.fold((0, 1), |(k, digit), f| (k + f * digit, digit * n_f));
+        k_f * self.config.acceleration_levels() + acceleration_level
     }
 
     fn push_past(past: &mut Past, y: DVector<f64>, p: &Prepared, m_y: usize, m_alpha: usize) {
@@ -513,7 +564,7 @@ impl FuelMonitor {
                 st.fuel_term(log_v[i].exp(), cond[i].mean, cond[i].variance, dof)
             })
             .collect();
-        let virtual_sensor_interval = central_interval(&virtual_terms, INTERVAL_MASS);
+        let virtual_terms = self.calibration.scaled(0, virtual_sensor, &virtual_terms);
 
         let input = MixtureInput {
             y: &y,
@@ -544,8 +595,10 @@ impl FuelMonitor {
         let (m_y, m_alpha) = (self.config.regression_memory, self.config.switching_memory);
         Self::push_past(&mut self.past, y, p, m_y, m_alpha);
         let one_step = self.pending_forecast.mean_cm3_s.first().copied();
-        let one_step_interval = self.pending_forecast.interval_cm3_s.first().copied();
+        let one_step_terms = self.pending_forecast.terms.first().cloned();
         self.blend.observe(p.y[0], self.config.blend_forgetting);
+        self.calibration.observe(0, &virtual_terms, p.y[0]);
+        self.calibration.observe_forecasts(p.y[0]);
         self.pending_forecast = self.blended_forecast();
         let previous = self.estimate.mixture.as_ref();
         self.active_streak = match self.active_streak {
@@ -571,14 +624,11 @@ impl FuelMonitor {
         Ok(MixtureEstimate {
             zero_step_cm3_s: zero_step,
             one_step_forecast_cm3_s: one_step.unwrap_or(f64::NAN),
-            one_step_interval_cm3_s: one_step_interval.unwrap_or(Interval {
-                lower: f64::NAN,
-                upper: f64::NAN,
-            }),
+            one_step_predictive: one_step_terms.unwrap_or_default(),
             virtual_sensor_cm3_s: virtual_sensor,
-            virtual_sensor_interval_cm3_s: virtual_sensor_interval,
+            virtual_sensor_predictive: virtual_terms,
             forecast_cm3_s: self.pending_forecast.mean_cm3_s.clone(),
-            forecast_interval_cm3_s: self.pending_forecast.interval_cm3_s.clone(),
+            forecast_predictive: self.pending_forecast.terms.clone(),
             regime_probabilities,
             active_regime: active,
             regime,
@@ -590,29 +640,41 @@ impl FuelMonitor {
     }
 
     /// The forecast path of the mixture, blended with the baseline's (when there is one) by
-    /// the current blend weights; remembers both paths for the next weights.
+    /// the current blend weights, calibrated ([`IntervalCalibration`]), with its intervals;
+    /// remembers the paths for the next weights and scales.
     fn blended_forecast(&mut self) -> ForecastPath {
         let Some(mixture) = self.mixture.as_ref() else {
             return ForecastPath::default();
         };
         let own = self.forecast_path(mixture);
-        let Some(baseline) = self.baseline.as_ref() else {
-            return own.finish();
+        let path = match self.baseline.as_ref() {
+            Some(baseline) => {
+                let single = self.forecast_path(baseline);
+                let blended = self.blend.combine(&own, &single);
+                self.blend.remember(own.mean_cm3_s, single.mean_cm3_s);
+                blended
+            }
+            None => own,
         };
-        let single = self.forecast_path(baseline);
-        let blended = self.blend.combine(&own, &single);
-        self.blend.remember(own.mean_cm3_s, single.mean_cm3_s);
-        blended
+        self.calibration.calibrate(path)
     }
 
     /// Multi-step forecast of fuel from the current state of `mixture` (the paper's future
-    /// work 2), by propagating means: `p(c_{t+h})` with the switching model at the forecast
-    /// fuel level, `y_{t+h} = sum_i p_i theta_i' psi_{t+h}` with forecasts in the regressor.
-    /// The predictive of each step is the mixture over components of Student-t densities with
-    /// squared scale `r_i (1 + zeta_i) + theta_i' Sigma_psi theta_i`, where `Sigma_psi`, the
-    /// covariance of the forecast regressor, is propagated by moment matching: the mixture's
-    /// `Cov(y_{t+h}) = sum_i p_i (r_i (1 + zeta_i) + theta_i' Sigma_psi theta_i + d_i d_i')`,
-    /// `d_i` the component's mean minus the mixture's, and `Cov(psi, y) = Sigma_psi theta_bar`.
+    /// work 2). Each component keeps its own forecast regressor, the mean and covariance of
+    /// `psi_{t+h}` given `c_{t+h} = i`, and the steps are joined as in the interacting multiple
+    /// model filter (Blom and Bar-Shalom, IEEE TAC 33(8), 1988, the mixing step): after step
+    /// `h` each component's regressor is shifted with its own forecast, then mixed for the
+    /// next step with the probabilities `P(c_{t+h} = j | c_{t+h+1} = i) = alpha_{i|j,k_j} p_j /
+    /// p_i'`, `k_j` the switching row at component `j`'s forecast fuel level, and the spread
+    /// of the mixed regressors added to the covariance. The step's predictive is the mixture
+    /// over components of Student-t densities with squared scale `r_i (1 + zeta_i) + theta_i'
+    /// Sigma_i theta_i`, its mean `sum_i p_i theta_i' psi_i`.
+    ///
+    /// Before, one regressor (the mixture's mean) fed every component and the switching row
+    /// was that of the mean's level: on the railcar routes a traction component was fed the
+    /// average of idling and traction, the forecast drifted towards idling (bias -6.4 cm^3/s
+    /// at 10 s on `fuel-railcar.toml`, single regression +0.16) and, without the blend, lost to
+    /// the single regression from 2 s on.
     fn forecast_path(&self, mixture: &Mixture) -> ForecastPath {
         let Some(st) = self.standardiser.as_ref() else {
             return ForecastPath::default();
@@ -621,56 +683,117 @@ impl FuelMonitor {
         let m = mixture.spec().components;
         let (k_y, k_psi) = (self.spec.k_y, self.spec.k_psi);
         let mut past = self.past.clone();
-        let mut log_p = mixture.log_weights().to_vec();
-        let mut next = vec![0.0; m];
-        let mut sigma_psi = DMatrix::<f64>::zeros(k_psi, k_psi);
+        // Given c_{t+h+1} = i: the regressor's mean and covariance, and log p(c_{t+h+1}).
+        let mut psi = vec![self.regressor(&past); m];
+        let mut sigma = vec![DMatrix::<f64>::zeros(k_psi, k_psi); m];
+        let mut log_p = vec![0.0; m];
+        mixture.predict_pointer_from(mixture.log_weights(), self.switching_row(&past), &mut log_p);
         let mut path = ForecastPath::with_capacity(horizon);
         for h in 0..horizon {
-            mixture.predict_pointer_from(&log_p, self.switching_row(&past), &mut next);
-            let psi = self.regressor(&past);
-            let p: Vec<f64> = next.iter().map(|l| l.exp()).collect();
-            let means: Vec<DVector<f64>> =
-                mixture.components().iter().map(|c| c.mean(&psi)).collect();
-            let mut y = DVector::zeros(k_y);
-            for (mean, p) in means.iter().zip(&p) {
-                y += mean * *p;
-            }
+            let p: Vec<f64> = log_p.iter().map(|l| l.exp()).collect();
             let last = h + 1 == horizon;
-            let mut c_yy = DMatrix::<f64>::zeros(k_y, k_y);
-            let mut theta_bar = DMatrix::<f64>::zeros(k_psi, k_y);
+            let mut y = DVector::zeros(k_y);
             let mut terms = Vec::with_capacity(m);
+            // Each component's regressor for the next step (shifted with its own forecast)
+            // and the switching row at its forecast level.
+            let mut shifted = Vec::with_capacity(m);
             for (i, comp) in mixture.components().iter().enumerate() {
+                let mean = comp.mean(&psi[i]);
                 let inflate = if self.config.parameter_uncertainty {
-                    1.0 + comp.zeta(&psi)
+                    1.0 + comp.zeta(&psi[i])
                 } else {
                     1.0
                 };
-                let propagated = (h > 0).then(|| comp.theta().tr_mul(&sigma_psi) * comp.theta());
+                let propagated = (h > 0).then(|| comp.theta().tr_mul(&sigma[i]) * comp.theta());
                 let fuel_var =
                     comp.r()[(0, 0)] * inflate + propagated.as_ref().map_or(0.0, |c| c[(0, 0)]);
-                terms.push(st.fuel_term(p[i], means[i][0], fuel_var, comp.predictive_dof()));
+                terms.push(st.fuel_term(p[i], mean[0], fuel_var, comp.predictive_dof()));
+                y += &mean * p[i];
                 if !last {
-                    let d = &means[i] - &y;
-                    c_yy += (comp.r() * inflate + &d * d.transpose()) * p[i];
+                    let mut c_yy = comp.r() * inflate;
                     if let Some(c) = propagated {
-                        c_yy += c * p[i];
+                        c_yy += c;
                     }
-                    theta_bar += comp.theta() * p[i];
+                    let c_psi_y = &sigma[i] * comp.theta();
+                    let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(mean[0]));
+                    shifted.push((
+                        self.shift_regressor(&psi[i], &mean),
+                        self.shift_regressor_covariance(&sigma[i], &c_psi_y, &c_yy),
+                        self.switching_row_after(&past, level),
+                    ));
                 }
             }
             path.push(st.fuel(y[0]), terms);
             if !last {
-                let c_psi_y = &sigma_psi * &theta_bar;
-                sigma_psi = self.shift_regressor_covariance(&sigma_psi, &c_psi_y, &c_yy);
+                log_p = self.mix_regressors(mixture, &p, &shifted, &mut psi, &mut sigma);
             }
             let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(y[0]));
-            past.y.push_front(y);
-            past.y.truncate(self.config.regression_memory);
             past.fuel_levels.push_front(level);
             past.fuel_levels.truncate(self.config.switching_memory);
-            std::mem::swap(&mut log_p, &mut next);
         }
         path
+    }
+
+    /// The interacting-multiple-model mixing step of [`Self::forecast_path`]: from `p_j =
+    /// p(c_{t+h} = j)` and each component's shifted regressor (mean, covariance, switching row
+    /// at its level), the pointer `p_i' = sum_j alpha_{i|j,k_j} p_j` (returned as logs) and
+    /// each component's regressor given `c_{t+h+1} = i` (written into `psi`, `sigma`).
+    fn mix_regressors(
+        &self,
+        mixture: &Mixture,
+        p: &[f64],
+        shifted: &[(DVector<f64>, DMatrix<f64>, usize)],
+        psi: &mut [DVector<f64>],
+        sigma: &mut [DMatrix<f64>],
+    ) -> Vec<f64> {
+        let m = p.len();
+        let mut log_next = Vec::with_capacity(m);
+        for i in 0..m {
+            // Unnormalised P(c_{t+h} = j, c_{t+h+1} = i).
+            let joint: Vec<f64> = (0..m)
+                .map(|j| mixture.log_alpha(shifted[j].2, j, i).exp() * p[j])
+                .collect();
+            let total: f64 = joint.iter().sum();
+            // A component no path reaches keeps the pointer's mix (its weight is ~0 anyway).
+            let mu: Vec<f64> = match total > 0.0 && total.is_finite() {
+                true => joint.iter().map(|x| x / total).collect(),
+                false => p.to_vec(),
+            };
+            let mut mean = DVector::<f64>::zeros(psi[i].len());
+            for (j, (s, _, _)) in shifted.iter().enumerate() {
+                mean += s * mu[j];
+            }
+            let mut cov = DMatrix::<f64>::zeros(mean.len(), mean.len());
+            for (j, (s, c, _)) in shifted.iter().enumerate() {
+                let d = s - &mean;
+                cov += (c + &d * d.transpose()) * mu[j];
+            }
+            psi[i] = mean;
+            sigma[i] = cov;
+            log_next.push(total.ln());
+        }
+        if normalize_log_weights(&mut log_next).is_err() {
+            // No path reaches any component (cannot happen with a proper switching table).
+            return p.iter().map(|x| x.ln()).collect();
+        }
+        log_next
+    }
+
+    /// The next forecast regressor's mean: `y`'s lagged channels in the newest lag, the older
+    /// lags shifted, gear and constant as they are.
+    fn shift_regressor(&self, psi: &DVector<f64>, y: &DVector<f64>) -> DVector<f64> {
+        let n_lag = self.lagged.len();
+        let lagged_len = n_lag * self.config.regression_memory;
+        let mut out = psi.clone();
+        if lagged_len > 0 {
+            for a in (n_lag..lagged_len).rev() {
+                out[a] = psi[a - n_lag];
+            }
+            for (a, &c) in self.lagged.iter().enumerate() {
+                out[a] = y[c];
+            }
+        }
+        out
     }
 
     /// Covariance of the next forecast regressor `psi'` (the new `y` in its newest lag, the
@@ -780,7 +903,6 @@ impl FuelMonitor {
 struct ForecastPath {
     mean_cm3_s: Vec<f64>,
     terms: Vec<Vec<StudentT>>,
-    interval_cm3_s: Vec<Interval>,
 }
 
 impl ForecastPath {
@@ -788,7 +910,6 @@ impl ForecastPath {
         ForecastPath {
             mean_cm3_s: Vec::with_capacity(n),
             terms: Vec::with_capacity(n),
-            interval_cm3_s: Vec::with_capacity(n),
         }
     }
 
@@ -796,45 +917,113 @@ impl ForecastPath {
         self.mean_cm3_s.push(mean_cm3_s);
         self.terms.push(terms);
     }
-
-    /// Computes the intervals of the steps' predictives.
-    fn finish(mut self) -> Self {
-        self.interval_cm3_s = self
-            .terms
-            .iter()
-            .map(|t| central_interval(t, INTERVAL_MASS))
-            .collect();
-        self
-    }
 }
 
-/// Per-horizon blend of the mixture's forecast with the single regression's: running sums of
-/// squared errors (`e_m^2`, `e_s^2`, `e_m e_s`) of forecasts whose target has been measured,
-/// and the forecast paths still waiting for theirs (newest first).
+/// One-sided 95 % point of the standard normal: the blend gives the mixture the lower end of
+/// the one-sided 95 % confidence interval of its least-squares weight ([`HorizonSums::weight`]).
+const BLEND_WEIGHT_Z: f64 = 1.644_853_626_951_472;
+
+/// Per-horizon blend of the mixture's forecast with the single regression's: per horizon the
+/// forgotten sums that give the combination weight and its standard error, and the forecast
+/// paths still waiting for their targets (newest first).
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 struct Blend {
-    sums: Vec<[f64; 3]>,
+    sums: Vec<HorizonSums>,
     waiting: VecDeque<(Vec<f64>, Vec<f64>)>,
+}
+
+/// The errors of one horizon's forecasts, `e_m` (mixture) and `e_s` (single regression),
+/// forgotten with `blend_forgetting`.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+struct HorizonSums {
+    /// `sum e_m^2`, `sum e_s^2`, `sum e_m e_s`.
+    squares: [f64; 3],
+    /// The score's parts `a_t = d_t e_s`, `b_t = d_t^2` (`d = e_s - e_m`) of the newest errors,
+    /// newest first, as many as the horizon.
+    recent: VecDeque<(f64, f64)>,
+    /// Per lag `k` below the horizon: `sum a_t a_{t-k}`, `sum (a_t b_{t-k} + b_t a_{t-k})`,
+    /// `sum b_t b_{t-k}`.
+    lag_sums: Vec<[f64; 3]>,
+}
+
+impl HorizonSums {
+    fn new(h: usize) -> Self {
+        HorizonSums {
+            squares: [0.0; 3],
+            recent: VecDeque::with_capacity(h),
+            lag_sums: vec![[0.0; 3]; h],
+        }
+    }
+
+    fn observe(&mut self, em: f64, es: f64, forgetting: f64) {
+        for (sum, e) in self.squares.iter_mut().zip([em * em, es * es, em * es]) {
+            *sum = forgetting * *sum + e;
+        }
+        let d = es - em;
+        let (a, b) = (d * es, d * d);
+        self.recent.push_front((a, b));
+        self.recent.truncate(self.lag_sums.len());
+        for (k, sums) in self.lag_sums.iter_mut().enumerate() {
+            let (ak, bk) = self.recent.get(k).copied().unwrap_or((0.0, 0.0));
+            for (sum, x) in sums.iter_mut().zip([a * ak, a * bk + b * ak, b * bk]) {
+                *sum = forgetting * *sum + x;
+            }
+        }
+    }
+
+    /// Weight of the mixture: the least-squares weight `w = argmin sum (w e_m + (1 - w)
+    /// e_s)^2 = sum e_s d / sum d^2` (the regression of `e_s` on `d = e_s - e_m`), lowered by
+    /// `z` times its standard error, in `[0, 1]`; 0 (the single regression alone) until there
+    /// are as many errors as the horizon. The standard error is Newey and West's
+    /// (Econometrica 55(3), 1987: Bartlett weights `1 - k/h` over `h - 1` lags, since
+    /// forecasts `h` steps ahead overlap and their errors are correlated up to lag `h - 1`) of
+    /// the score `g_t = d_t (e_s - w d_t) = a_t - w b_t`: `se = sqrt(sum_k c_k sum_t g_t
+    /// g_{t-k}) / sum d^2`, `c_0 = 1`, `c_k = 2 (1 - k/h)`.
+    ///
+    /// Why a lower confidence bound and not the weight itself: where the mixture adds nothing
+    /// (true weight 0) the estimated weight is noise around 0, positive half of the time, and
+    /// after a change of which method is better it lags; both cost squared error against the
+    /// single regression (the weight itself left the blend 0.2-0.8 % worse than the single
+    /// regression from 7 s on the highway and aggressive Camry files). With the bound the
+    /// weight is 0 with probability about 95 % when the mixture does not help, and the
+    /// mixture keeps a weight where its help is significant (the railcar routes, the city).
+    fn weight(&self) -> f64 {
+        let [mm, ss, ms] = self.squares;
+        let dd = mm + ss - 2.0 * ms;
+        let h = self.lag_sums.len();
+        if !(dd > 1e-12 * (mm + ss) && dd > 0.0) || self.recent.len() < h {
+            return 0.0;
+        }
+        let w = (ss - ms) / dd;
+        let long_run_variance: f64 = self
+            .lag_sums
+            .iter()
+            .enumerate()
+            .map(|(k, [aa, ab, bb])| {
+                let bartlett = if k == 0 {
+                    1.0
+                } else {
+                    2.0 * (1.0 - k as f64 / h as f64)
+                };
+                bartlett * (aa - w * ab + w * w * bb)
+            })
+            .sum();
+        let standard_error = long_run_variance.max(0.0).sqrt() / dd;
+        (w - BLEND_WEIGHT_Z * standard_error).clamp(0.0, 1.0)
+    }
 }
 
 impl Blend {
     fn new(horizon: usize) -> Self {
         Blend {
-            sums: vec![[0.0; 3]; horizon],
+            sums: (1..=horizon).map(HorizonSums::new).collect(),
             waiting: VecDeque::with_capacity(horizon + 1),
         }
     }
 
-    /// Weight of the mixture at horizon `h` (1-based): the minimiser of
-    /// `sum (w e_m + (1 - w) e_s)^2` over `w in [0, 1]`; the mixture alone before any error.
+    /// Weight of the mixture at horizon `h` (1-based), [`HorizonSums::weight`].
     fn weight(&self, h: usize) -> f64 {
-        let [mm, ss, ms] = self.sums[h - 1];
-        let denominator = mm + ss - 2.0 * ms;
-        if denominator > 1e-12 * (mm + ss) && denominator > 0.0 {
-            ((ss - ms) / denominator).clamp(0.0, 1.0)
-        } else {
-            1.0
-        }
+        self.sums[h - 1].weight()
     }
 
     /// Scores the waiting forecasts of this sample's measured fuel (forgetting older errors).
@@ -843,11 +1032,7 @@ impl Blend {
             let (Some(m), Some(s)) = (own.get(age), single.get(age)) else {
                 continue;
             };
-            let (em, es) = (m - fuel_cm3_s, s - fuel_cm3_s);
-            let sums = &mut self.sums[age];
-            for (sum, e) in sums.iter_mut().zip([em * em, es * es, em * es]) {
-                *sum = forgetting * *sum + e;
-            }
+            self.sums[age].observe(m - fuel_cm3_s, s - fuel_cm3_s, forgetting);
         }
     }
 
@@ -856,8 +1041,8 @@ impl Blend {
         self.waiting.truncate(self.sums.len());
     }
 
-    /// The blended path: means `w m + (1 - w) s`, predictive the pool of both mixtures with
-    /// weights `w` and `1 - w`.
+    /// The blended path (without intervals): means `w m + (1 - w) s`, predictive the pool of
+    /// both mixtures with weights `w` and `1 - w`.
     fn combine(&self, own: &ForecastPath, single: &ForecastPath) -> ForecastPath {
         let mut out = ForecastPath::with_capacity(own.mean_cm3_s.len());
         for h in 1..=own.mean_cm3_s.len() {
@@ -878,6 +1063,133 @@ impl Blend {
                 terms,
             );
         }
-        out.finish()
+        out
+    }
+}
+
+/// Step of the calibration's log scale per sample (see [`IntervalCalibration`]).
+const CALIBRATION_STEP: f64 = 0.05;
+
+/// Adaptive calibration of the 90 % intervals (adaptive conformal inference: Gibbs and Candes,
+/// "Adaptive conformal inference under distribution shift", NeurIPS 2021, eq. 2, here on the
+/// log of a scale instead of on the miscoverage level). Every predictive (index 0 the virtual
+/// sensor, `h` the forecast `h` steps ahead) is widened or narrowed about its mean by a factor
+/// `s = exp(l)` (locations and scales of its terms); once its target is measured, `l <- l +
+/// gamma (miss - 0.1)`, `miss` = 1 when the target fell outside the 90 % interval (its CDF
+/// value outside [0.05, 0.95]).
+///
+/// Why: the mixture's predictive is right in the bulk and wrong in the tails. Fuel errors are
+/// small noise plus rare large jumps (the driver's decisions within the horizon: a notch or
+/// pedal change), kurtosis 5-145 of the standardised errors against 3 for the Gaussian
+/// components. A Gaussian fitted to both covers the 1-step bulk too widely (coverage 0.957 and
+/// 0.960 on the railcar routes) and, accumulated over 10 s, misses the jumps (0.827 on the
+/// hilly route; mean squared standardised error 10 at 10 s against 1 by the model). A
+/// heavy-tailed component noise would be the model's fix; it is not the paper's estimator.
+///
+/// Guarantee (the telescoping sum of the updates): over `T` targets, the share of misses is
+/// exactly `0.1 + (l_T - l_0) / (gamma T)`, so the long-run coverage is 90 % whenever the
+/// scale stays bounded, which it does: a wide enough interval misses nothing (so `l` falls)
+/// and a narrow enough one misses everything (so `l` rises); on any data, not one file's.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+struct IntervalCalibration {
+    /// `l` of the virtual sensor (0) and of each forecast step (`h`).
+    log_scale: Vec<f64>,
+    /// Calibrated predictives of the forecast paths still waiting for their targets, newest
+    /// first.
+    waiting: VecDeque<Vec<Vec<StudentT>>>,
+}
+
+impl IntervalCalibration {
+    fn new(horizon: usize) -> Self {
+        IntervalCalibration {
+            log_scale: vec![0.0; horizon + 1],
+            waiting: VecDeque::with_capacity(horizon + 1),
+        }
+    }
+
+    /// `terms` widened about `mean` by the current scale of predictive `index`.
+    fn scaled(&self, index: usize, mean: f64, terms: &[StudentT]) -> Vec<StudentT> {
+        let s = self.log_scale[index].exp();
+        terms
+            .iter()
+            .map(|t| StudentT {
+                location: mean + s * (t.location - mean),
+                scale: s * t.scale,
+                ..*t
+            })
+            .collect()
+    }
+
+    /// Updates the scale of predictive `index` with its (calibrated) `terms` and the target.
+    fn observe(&mut self, index: usize, terms: &[StudentT], target: f64) {
+        let total: f64 = terms.iter().map(|t| t.weight).sum();
+        if !(total > 0.0 && total.is_finite() && target.is_finite()) {
+            return;
+        }
+        let cdf = terms.iter().map(|t| t.weight * t.cdf(target)).sum::<f64>() / total;
+        let tail = 0.5 * (1.0 - INTERVAL_MASS);
+        let miss = f64::from(u8::from(!(tail..=1.0 - tail).contains(&cdf)));
+        self.log_scale[index] += CALIBRATION_STEP * (miss - (1.0 - INTERVAL_MASS));
+    }
+
+    /// Scores the waiting forecasts of this sample (the newest path's first step, the one
+    /// before's second, ...).
+    fn observe_forecasts(&mut self, target: f64) {
+        let waiting = std::mem::take(&mut self.waiting);
+        for (age, terms) in waiting.iter().enumerate() {
+            if let Some(step) = terms.get(age) {
+                self.observe(age + 1, step, target);
+            }
+        }
+        self.waiting = waiting;
+    }
+
+    /// `path` with every step's predictive scaled; remembers it for the updates.
+    fn calibrate(&mut self, mut path: ForecastPath) -> ForecastPath {
+        for (h, (terms, mean)) in path.terms.iter_mut().zip(&path.mean_cm3_s).enumerate() {
+            *terms = self.scaled(h + 1, *mean, terms);
+        }
+        self.waiting.push_front(path.terms.clone());
+        self.waiting.truncate(self.log_scale.len() - 1);
+        path
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The calibration's guarantee on targets its predictive gets wrong (a unit normal against
+    /// Student-t targets with 2 degrees of freedom and twice the scale, seeded): the share of
+    /// misses equals `0.1 + l_T / (gamma T)` (the telescoping sum of the updates, to rounding)
+    /// and ends near 10 %, where the uncalibrated interval misses about 29 %.
+    #[test]
+    fn calibrated_intervals_miss_ten_percent_of_targets_they_were_not_made_for() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut calibration = IntervalCalibration::new(1);
+        let unit = [StudentT {
+            weight: 1.0,
+            location: 0.0,
+            scale: 1.0,
+            dof: 1e9,
+        }];
+        let (n, mut misses, mut raw_misses) = (20_000, 0usize, 0usize);
+        for _ in 0..n {
+            // Student-t with 2 dof: a normal over the root of a chi-square(2) / 2.
+            let z: f64 = rng.sample(rand_distr::StandardNormal);
+            let chi2 = -2.0 * (1.0 - rng.random::<f64>()).ln();
+            let target = 2.0 * z / (chi2 / 2.0).sqrt();
+            let terms = calibration.scaled(0, 0.0, &unit);
+            let interval = central_interval(&terms, INTERVAL_MASS);
+            misses += usize::from(!interval.contains(target));
+            raw_misses += usize::from(!central_interval(&unit, INTERVAL_MASS).contains(target));
+            calibration.observe(0, &terms, target);
+        }
+        let share = misses as f64 / n as f64;
+        let identity = 0.1 + calibration.log_scale[0] / (CALIBRATION_STEP * n as f64);
+        assert!((share - identity).abs() < 1e-9, "{share} vs {identity}");
+        assert!((share - 0.1).abs() < 0.005, "{share}");
+        assert!(raw_misses as f64 / n as f64 > 0.25, "{raw_misses}");
     }
 }

@@ -10,6 +10,7 @@
 //! quantiles have no closed form and are found by safeguarded Newton steps on the mixture's CDF.
 
 use railmon_filter::normal::normal_cdf;
+use railmon_filter::special::ln_gamma;
 use serde::{Deserialize, Serialize};
 
 /// One Student-t term of a predictive mixture.
@@ -264,34 +265,6 @@ fn beta_fraction(a: f64, b: f64, x: f64) -> f64 {
     h
 }
 
-/// `ln Gamma(x)` for `x > 0` (Lanczos, g = 7, n = 9; relative error ~1e-15).
-pub fn ln_gamma(x: f64) -> f64 {
-    const G: f64 = 7.0;
-    const C: [f64; 9] = [
-        0.999_999_999_999_809_9,
-        676.520_368_121_885_1,
-        -1_259.139_216_722_402_8,
-        771.323_428_777_653_1,
-        -176.615_029_162_140_6,
-        12.507_343_278_686_905,
-        -0.138_571_095_265_720_12,
-        9.984_369_578_019_572e-6,
-        1.505_632_735_149_311_6e-7,
-    ];
-    if x < 0.5 {
-        // Reflection: Gamma(x) Gamma(1 - x) = pi / sin(pi x).
-        let pi = std::f64::consts::PI;
-        return (pi / (pi * x).sin()).abs().ln() - ln_gamma(1.0 - x);
-    }
-    let x = x - 1.0;
-    let mut sum = C[0];
-    for (i, c) in C.iter().enumerate().skip(1) {
-        sum += c / (x + i as f64);
-    }
-    let t = x + G + 0.5;
-    0.5 * (2.0 * std::f64::consts::PI).ln() + (x + 0.5) * t.ln() - t + sum.ln()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -340,16 +313,6 @@ mod tests {
         // Many degrees of freedom: the normal.
         assert!((student_t_cdf(1.644_854, 1e9) - 0.95).abs() < 1e-6);
         assert!((student_t_cdf(1.644_854, 1e5) - 0.95).abs() < 1e-5);
-    }
-
-    #[test]
-    fn ln_gamma_matches_factorials() {
-        let mut fact = 1.0f64;
-        for n in 1..20 {
-            assert!((ln_gamma(n as f64) - fact.ln()).abs() < 1e-10, "n {n}");
-            fact *= n as f64;
-        }
-        assert!((ln_gamma(0.5) - std::f64::consts::PI.sqrt().ln()).abs() < 1e-12);
     }
 
     #[test]

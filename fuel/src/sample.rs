@@ -5,6 +5,23 @@ use serde::{Deserialize, Serialize};
 use crate::config::ChannelRanges;
 use crate::FuelError;
 
+/// The field of `$record` that holds `$channel`: a sample's value and a channel's range are
+/// kept in fields of the same names (`fuel_cm3_s`, `speed_m_s`, ...), and this one match maps
+/// a [`Channel`] to its field for both ([`VehicleSample::channel`], `ChannelRanges::of`).
+macro_rules! channel_field {
+    ($record:expr, $channel:expr) => {
+        match $channel {
+            Channel::Fuel => $record.fuel_cm3_s,
+            Channel::Speed => $record.speed_m_s,
+            Channel::Pedal => $record.pedal_pct,
+            Channel::EngineTorque => $record.engine_torque_nm,
+            Channel::EngineSpeed => $record.engine_speed_rpm,
+            Channel::Gradient => $record.gradient_permille,
+        }
+    };
+}
+pub(crate) use channel_field;
+
 /// A continuous channel of the vehicle (the paper's `y_{1..5;t}`, section 2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -172,14 +189,7 @@ pub struct VehicleSample {
 impl VehicleSample {
     /// The value of one continuous channel, if present.
     pub fn channel(&self, channel: Channel) -> Option<f64> {
-        match channel {
-            Channel::Fuel => self.fuel_cm3_s,
-            Channel::Speed => self.speed_m_s,
-            Channel::Pedal => self.pedal_pct,
-            Channel::EngineTorque => self.engine_torque_nm,
-            Channel::EngineSpeed => self.engine_speed_rpm,
-            Channel::Gradient => self.gradient_permille,
-        }
+        channel_field!(self, channel)
     }
 
     /// The value of `channel`, checked: present, finite and inside its plausible range

@@ -593,3 +593,65 @@ fn regime_names_survive_a_restore_and_follow_the_statistics() {
         }
     }
 }
+
+/// The estimate keeps the predictive terms and computes the intervals when asked: the 1-step
+/// predictive is the first step of the previous estimate's forecast predictive (same terms,
+/// same interval to the bit), each interval holds 90 % of its mixture (the CDF at its ends is
+/// 0.05 and 0.95), and an estimate that went through serde gives the same intervals (the
+/// service's snapshot and an offline re-read see what the live path saw).
+#[test]
+fn intervals_asked_for_later_are_the_quantiles_of_the_kept_terms() {
+    let config = FuelMonitorConfig::default();
+    assert!(config.forecast_blend, "the blend pools two mixtures' terms");
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let mut monitor = FuelMonitor::new(&config).unwrap();
+    let mut previous: Option<railmon_fuel::MixtureEstimate> = None;
+    let mut checked = 0;
+    for t in 0..400 {
+        let e = monitor.update(&sample(t, &mut rng)).unwrap().clone();
+        let Some(m) = e.mixture else { continue };
+        match &previous {
+            Some(p) => {
+                assert_eq!(m.one_step_predictive, p.forecast_predictive[0]);
+                let (now, then) = (m.one_step_interval_cm3_s(), p.forecast_interval_cm3_s()[0]);
+                assert_eq!(now.lower.to_bits(), then.lower.to_bits());
+                assert_eq!(now.upper.to_bits(), then.upper.to_bits());
+            }
+            // The forecast made when the initial samples were complete.
+            None => assert!(m.one_step_interval_cm3_s().lower.is_finite()),
+        }
+        let mut asked = vec![(
+            &m.virtual_sensor_predictive,
+            m.virtual_sensor_interval_cm3_s(),
+        )];
+        asked.extend(
+            m.forecast_predictive
+                .iter()
+                .zip(m.forecast_interval_cm3_s()),
+        );
+        for (terms, interval) in asked {
+            let cdf = |x: f64| terms.iter().map(|s| s.weight * s.cdf(x)).sum::<f64>();
+            assert!(
+                (cdf(interval.lower) - 0.05).abs() < 1e-6,
+                "t {t}: {interval:?}"
+            );
+            assert!(
+                (cdf(interval.upper) - 0.95).abs() < 1e-6,
+                "t {t}: {interval:?}"
+            );
+        }
+        let reread: railmon_fuel::MixtureEstimate =
+            serde_json::from_str(&serde_json::to_string(&m).unwrap()).unwrap();
+        assert_eq!(
+            reread.forecast_interval_cm3_s(),
+            m.forecast_interval_cm3_s()
+        );
+        assert_eq!(
+            reread.virtual_sensor_interval_cm3_s(),
+            m.virtual_sensor_interval_cm3_s()
+        );
+        previous = Some(m);
+        checked += 1;
+    }
+    assert!(checked > 200, "{checked}");
+}

@@ -60,17 +60,17 @@ fn pipeline_reproduces_the_library_and_reports_regime_changes() {
                 );
                 assert_eq!(
                     view.virtual_sensor_interval_cm3_s,
-                    IntervalView::of(m.virtual_sensor_interval_cm3_s)
+                    IntervalView::of(m.virtual_sensor_interval_cm3_s())
                 );
                 assert_eq!(
                     view.one_step_interval_cm3_s,
-                    IntervalView::of(m.one_step_interval_cm3_s)
+                    IntervalView::of(m.one_step_interval_cm3_s())
                 );
                 assert_eq!(view.forecast_interval_cm3_s.len(), 10);
                 for (i, (f, want)) in view
                     .forecast_interval_cm3_s
                     .iter()
-                    .zip(&m.forecast_interval_cm3_s)
+                    .zip(&m.forecast_interval_cm3_s())
                     .enumerate()
                 {
                     assert_eq!(Some(*f), IntervalView::of(*want));

@@ -1,8 +1,6 @@
 //! Special functions and the exponential-family pieces the variational estimators share
 //! (expectations and KL divergences of Beta, Gamma and Normal factors).
 
-use std::f64::consts::PI;
-
 /// `ln(2 pi)`.
 pub const LN_2PI: f64 = railmon_filter::kalman::LN_2PI;
 
@@ -34,21 +32,8 @@ pub fn digamma_minus_ln(mut x: f64, y: f64) -> f64 {
     acc + (x / y).ln() - 0.5 * inv - series
 }
 
-/// `ln Gamma(x)` for `x > 0`: recurrence up to `x >= 15`, then Stirling's series
-/// (truncation error < 3e-14 there). The recurrence multiplies and takes one logarithm.
-pub fn ln_gamma(mut x: f64) -> f64 {
-    let mut product = 1.0;
-    while x < 15.0 {
-        product *= x;
-        x += 1.0;
-    }
-    let acc = -product.ln();
-    let inv = 1.0 / x;
-    let inv2 = inv * inv;
-    acc + (x - 0.5) * x.ln() - x
-        + 0.5 * (2.0 * PI).ln()
-        + inv * (1.0 / 12.0 - inv2 * (1.0 / 360.0 - inv2 * (1.0 / 1260.0 - inv2 / 1680.0)))
-}
+/// One `ln Gamma` serves the slip and the fuel estimators: `railmon_filter::special`.
+pub use railmon_filter::special::ln_gamma;
 
 /// A Beta factor over the adhesion-loss probability `pi`, written as the paper's
 /// `p(pi) ∝ pi^(alpha_1 - 1) (1 - pi)^(alpha_0 - 1)` (eq. 25).
@@ -144,6 +129,8 @@ pub fn bernoulli_neg_entropy(r: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
+    use std::f64::consts::PI;
+
     use super::*;
 
     #[test]

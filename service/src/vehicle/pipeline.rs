@@ -184,9 +184,9 @@ impl VehiclePipeline {
                 virtual_sensor_cm3_s: m.map(|m| m.virtual_sensor_cm3_s),
                 one_step_forecast_cm3_s: m.map(|m| m.one_step_forecast_cm3_s),
                 virtual_sensor_interval_cm3_s: m
-                    .and_then(|m| IntervalView::of(m.virtual_sensor_interval_cm3_s)),
+                    .and_then(|m| IntervalView::of(m.virtual_sensor_interval_cm3_s())),
                 one_step_interval_cm3_s: m
-                    .and_then(|m| IntervalView::of(m.one_step_interval_cm3_s)),
+                    .and_then(|m| IntervalView::of(m.one_step_interval_cm3_s())),
                 regime: m.map(|m| m.regime),
                 regime_name: m.map(|m| m.regime_name.to_string()),
                 regime_probabilities: m.map_or_else(Vec::new, |m| m.regime_probabilities.clone()),
@@ -210,16 +210,16 @@ impl VehiclePipeline {
             speed_m_s: self.speed_m_s,
             virtual_sensor_cm3_s: m.map(|m| m.virtual_sensor_cm3_s),
             virtual_sensor_interval_cm3_s: m
-                .and_then(|m| IntervalView::of(m.virtual_sensor_interval_cm3_s)),
+                .and_then(|m| IntervalView::of(m.virtual_sensor_interval_cm3_s())),
             zero_step_cm3_s: m.map(|m| m.zero_step_cm3_s),
             one_step_forecast_cm3_s: m.map(|m| m.one_step_forecast_cm3_s),
-            one_step_interval_cm3_s: m.and_then(|m| IntervalView::of(m.one_step_interval_cm3_s)),
+            one_step_interval_cm3_s: m.and_then(|m| IntervalView::of(m.one_step_interval_cm3_s())),
             forecast_step_s: self.config.estimator.sample_period_s,
             forecast_cm3_s: m.map_or_else(Vec::new, |m| m.forecast_cm3_s.clone()),
             forecast_interval_cm3_s: m.map_or_else(Vec::new, |m| {
-                m.forecast_interval_cm3_s
-                    .iter()
-                    .filter_map(|&i| IntervalView::of(i))
+                m.forecast_interval_cm3_s()
+                    .into_iter()
+                    .filter_map(IntervalView::of)
                     .collect()
             }),
             regime: m.map(|m| m.regime),
