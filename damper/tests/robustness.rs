@@ -18,7 +18,8 @@
 //! (`ROBUST_CELLS`: names or prefixes of cells, `ROBUST_FAULT=1` adds the fault runs,
 //! `ROBUST_NOISE_SCALE=0` runs the filter without its noise estimate, as before issue 9 item 2;
 //! `ROBUST_FIRST_SEED=2` starts at the third seed (9002) to add one to a table;
-//! `ROBUST_MAX_MOVE_S` sets `rbpf.max_move_interval_s`;
+//! `ROBUST_MAX_MOVE_S` sets `rbpf.max_move_interval_s`, `ROBUST_REGEN_S`
+//! `rbpf.regeneration_interval_s`;
 //! `ROBUST_VERBOSE=1` prints each false alarm; `ROBUST_MATCHED_NOISE=1` gives the filter each cell's true sensor noise: the reference
 //! the noise estimate is judged against).
 
@@ -330,6 +331,8 @@ fn robustness_matrix() {
     config.rbpf.particles = particles;
     config.rbpf.noise_scale.enabled = env_or("ROBUST_NOISE_SCALE", 1u8) == 1;
     config.rbpf.max_move_interval_s = env_or("ROBUST_MAX_MOVE_S", config.rbpf.max_move_interval_s);
+    config.rbpf.regeneration_interval_s =
+        env_or("ROBUST_REGEN_S", config.rbpf.regeneration_interval_s);
     let matched: bool = env_or("ROBUST_MATCHED_NOISE", 0u8) == 1;
     let table = Rbpf::gain_table(&config).unwrap();
     println!(

@@ -263,7 +263,8 @@ fn the_information_about_the_anti_yaw_damper_grows_with_speed() {
 /// after the step, the posterior mean and 95 % quantile of `C_say` (ratios to nominal), the
 /// effective sample size and the resamplings since the step. Minutes in the dev profile:
 /// `cargo test --release -p railmon-damper --test speed finding_the_step -- --ignored --nocapture`
-/// (`SPEED_STEP_SEED`: another plant seed; `SPEED_STEP_MAX_MOVE_S`: `rbpf.max_move_interval_s`).
+/// (`SPEED_STEP_SEED`: another plant seed; `SPEED_STEP_MAX_MOVE_S`: `rbpf.max_move_interval_s`;
+/// `SPEED_STEP_REGEN_S`: `rbpf.regeneration_interval_s`).
 #[test]
 #[ignore = "a diagnosis, about a minute in release"]
 fn finding_the_step_at_each_speed() {
@@ -273,6 +274,12 @@ fn finding_the_step_at_each_speed() {
         .and_then(|v| v.parse().ok())
     {
         config.rbpf.max_move_interval_s = v;
+    }
+    if let Some(v) = std::env::var("SPEED_STEP_REGEN_S")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        config.rbpf.regeneration_interval_s = v;
     }
     let seed: u64 = std::env::var("SPEED_STEP_SEED")
         .ok()

@@ -45,12 +45,14 @@ pub struct BogieArgs {
 enum Samples {
     /// One simulator per bogie (and the scenario, to rewind).
     Simulated {
-        scenario: DamperScenario,
+        // Both variants' bulk is boxed (the scenario carries the monitor's whole
+        // configuration, the reader its buffers), so neither outweighs the other.
+        scenario: Box<DamperScenario>,
         simulators: Vec<BogieSimulator>,
     },
     Recorded {
         path: PathBuf,
-        reader: BogieCsvReader<std::fs::File>,
+        reader: Box<BogieCsvReader<std::fs::File>>,
     },
 }
 
@@ -117,7 +119,7 @@ impl BogieSource {
                     .with_context(|| format!("scenario {}", path.display()))?;
                 let dt_s = scenario.dt_s;
                 let samples = Samples::Simulated {
-                    scenario,
+                    scenario: Box::new(scenario),
                     simulators,
                 };
                 (samples, args.bogies, dt_s, true)
@@ -144,7 +146,7 @@ impl BogieSource {
                 }
                 let samples = Samples::Recorded {
                     path: path.clone(),
-                    reader,
+                    reader: Box::new(reader),
                 };
                 (samples, 1, 1e-3, with_truth)
             }
@@ -249,7 +251,7 @@ impl Source for BogieSource {
                 scenario: scenario.clone(),
             },
             Samples::Recorded { path, .. } => Samples::Recorded {
-                reader: BogieCsvReader::open(path)?,
+                reader: Box::new(BogieCsvReader::open(path)?),
                 path: path.clone(),
             },
         };

@@ -368,10 +368,12 @@ impl Rbpf {
     /// each particle's weight is to be scaled by (`ln regeneration_weight` for a regenerated
     /// one, else 0).
     fn kernel_move(&mut self) {
-        let dif =
-            self.config.ln_diffusion_per_sqrt_s * (self.steps_since_move as f64 * self.dt_s).sqrt();
+        let since_move_s = self.steps_since_move as f64 * self.dt_s;
+        let dif = self.config.ln_diffusion_per_sqrt_s * since_move_s.sqrt();
         self.steps_since_move = 0;
-        let regen = self.config.regeneration_fraction;
+        let regen = self
+            .config
+            .regeneration_probability(since_move_s, self.dt_s);
         let (lo, hi) = (
             self.config.gain_grid.min_ratio.ln(),
             self.config.gain_grid.max_ratio.ln(),
