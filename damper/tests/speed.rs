@@ -266,7 +266,8 @@ fn the_information_about_the_anti_yaw_damper_grows_with_speed() {
 /// (`SPEED_STEP_SEED`: another plant seed; `SPEED_STEP_MAX_MOVE_S`: `rbpf.max_move_interval_s`;
 /// `SPEED_STEP_REGEN_S`: `rbpf.regeneration_interval_s`).
 #[test]
-#[ignore = "a diagnosis, about a minute in release"]
+#[ignore = "a diagnosis, about a minute in release: \
+            cargo test --release -p railmon-damper --test speed finding_the_step -- --ignored --nocapture"]
 fn finding_the_step_at_each_speed() {
     let mut config = DamperMonitorConfig::default();
     if let Some(v) = std::env::var("SPEED_STEP_MAX_MOVE_S")
