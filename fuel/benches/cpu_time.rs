@@ -2,7 +2,7 @@
 //! and 10 (the samples and settings of `benches/mixture.rs`), from the thread's own CPU clock
 //! (`CLOCK_THREAD_CPUTIME_ID`): on the shared 2-core build machine criterion's wall-clock
 //! medians rise with the other jobs' load, the time this thread spends on a core much less.
-//! Prints a table. Run with `cargo bench -p railmon-fuel --bench cpu_time`.
+//! Prints a table. Run with `cargo bench -p railmon-fuel --bench cpu_time` (one row: `-- update/3`).
 
 use std::time::Instant;
 
@@ -46,7 +46,12 @@ fn measure(m_c: usize, with_intervals: bool, warm_up: usize, steps: usize) -> (f
 }
 
 fn main() {
-    // `cargo bench` passes `--bench`; a filter is not supported.
+    // `cargo bench` passes `--bench`; any other argument keeps only the rows whose name
+    // (`update/3`, `update_and_intervals/10`, ...) equals it.
+    let only: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with("--"))
+        .collect();
     println!("| row | m_c | CPU µs/step | steps/s (CPU) | wall µs/step |");
     println!("|---|---|---|---|---|");
     for m_c in [3usize, 10] {
@@ -56,12 +61,15 @@ fn main() {
                 (3, true) | (10, false) => 4_000,
                 _ => 1_000,
             };
-            let (cpu_us, wall_us) = measure(m_c, with_intervals, steps / 10, steps);
             let row = if with_intervals {
                 "update_and_intervals"
             } else {
                 "update"
             };
+            if !only.is_empty() && !only.contains(&format!("{row}/{m_c}")) {
+                continue;
+            }
+            let (cpu_us, wall_us) = measure(m_c, with_intervals, steps / 10, steps);
             println!(
                 "| {row} | {m_c} | {cpu_us:.2} | {:.0} | {wall_us:.2} |",
                 1e6 / cpu_us

@@ -7,7 +7,7 @@ use nalgebra::{DMatrix, DVector};
 use railmon_filter::logspace::{log_sum_exp, normalize_log_weights};
 
 use crate::counts::CountTable;
-use crate::regression::RegressionStats;
+use crate::regression::{Prediction, RegressionStats};
 use crate::FuelError;
 
 /// Sizes and settings of a [`Mixture`].
@@ -177,17 +177,22 @@ impl Mixture {
             .log_probability(k * self.spec.components + j, i)
     }
 
+    /// `ln alpha_{i|j,k}` (eq. 17) of every `j, i` for `phi = k`, at `j * m_c + i`: one
+    /// logarithm per count and per row sum (the forecast evaluates the pointer at every step of
+    /// its horizon, and these logarithms were a sixth of the monitor's step).
+    pub fn log_alpha_block(&self, k: usize) -> Vec<f64> {
+        let m = self.spec.components;
+        let mut block = vec![0.0; m * m];
+        for (j, row) in block.chunks_mut(m).enumerate() {
+            self.switching.log_probabilities_into(k * m + j, row);
+        }
+        block
+    }
+
     /// The predicted pointer `f(c_{t+1} = i | data up to t) = sum_j alpha_{i|j,k} w_{j;t}` for
     /// `phi_t = k`, written into `out` as log-probabilities (from log weights `log_w`).
     pub fn predict_pointer_from(&self, log_w: &[f64], k: usize, out: &mut [f64]) {
-        let m = self.spec.components;
-        let mut terms = vec![0.0; m];
-        for (i, o) in out.iter_mut().enumerate() {
-            for (j, t) in terms.iter_mut().enumerate() {
-                *t = self.log_alpha(k, j, i) + log_w[j];
-            }
-            *o = log_sum_exp(&terms);
-        }
+        predict_pointer(&self.log_alpha_block(k), log_w, out);
     }
 
     /// Log-probability of category `l` under condition `q` for component `i` (0 without a
@@ -225,22 +230,54 @@ impl Mixture {
         }
     }
 
+    /// Each component's [`Prediction`] at `psi` (of length `k_psi`).
+    pub fn predictions(&self, psi: &DVector<f64>) -> Vec<Prediction> {
+        self.components
+            .iter()
+            .map(|c| c.predict(psi, self.spec.parameter_uncertainty))
+            .collect()
+    }
+
     /// One on-line step of Algorithm 3.4 (steps 2-8). On error the state is unchanged.
     pub fn step(&mut self, input: &MixtureInput) -> Result<(), FuelError> {
         self.check_input(input)?;
+        let predictions = self.predictions(input.psi);
+        self.step_checked(input, &predictions)
+    }
+
+    /// [`step`](Self::step) with `predictions`, [`predictions`](Self::predictions) at
+    /// `input.psi` of the current statistics, made by the caller (the monitor's virtual sensor
+    /// needs them before the step).
+    pub(crate) fn step_predicted(
+        &mut self,
+        input: &MixtureInput,
+        predictions: &[Prediction],
+    ) -> Result<(), FuelError> {
+        self.check_input(input)?;
+        if predictions.len() != self.spec.components {
+            return Err(FuelError::Numerical(
+                "one prediction per component expected",
+            ));
+        }
+        self.step_checked(input, predictions)
+    }
+
+    fn step_checked(
+        &mut self,
+        input: &MixtureInput,
+        predictions: &[Prediction],
+    ) -> Result<(), FuelError> {
         let m = self.spec.components;
         let k = input.switching_row;
         let d = concat(input.y, input.psi);
         // Steps 2-4: proximities of y_t, probabilities of z_t, alpha_k and w_{t-1}, in logs.
+        let log_alpha = self.log_alpha_block(k);
         let mut log_joint = vec![0.0; m * m];
         for i in 0..m {
-            let evidence = self.components[i].log_proximity(
-                input.y,
-                input.psi,
-                self.spec.parameter_uncertainty,
-            ) + self.log_category(i, input.category);
+            let evidence = self.components[i].log_proximity_at(input.y, &predictions[i])
+                + self.log_category(i, input.category);
             for j in 0..m {
-                log_joint[i * m + j] = evidence + self.log_alpha(k, j, i) + self.log_w[j];
+                log_joint[i * m + j] = evidence + log_alpha[j * m + i] + self.log_w[j];
             }
         }
         // Step 5: normalise W_{i,j;t}. Step 6: w_{i;t} = sum_j W_{i,j;t} (eq. 9).
@@ -362,6 +399,27 @@ impl Mixture {
         mix.log_w = last.iter().map(|r| r.max(1e-300).ln()).collect();
         normalize_log_weights(&mut mix.log_w)?;
         Ok(mix)
+    }
+}
+
+/// The predicted pointer (see [`Mixture::predict_pointer_from`]) from the block of
+/// `ln alpha_{i|j,k}` ([`Mixture::log_alpha_block`]) of the switching configuration `k`.
+pub fn predict_pointer(log_alpha: &[f64], log_w: &[f64], out: &mut [f64]) {
+    let m = log_w.len();
+    // On the stack for up to 32 components (the forecast calls this at every step of its
+    // horizon).
+    let (mut stack, mut heap) = ([0.0; 32], Vec::new());
+    let terms: &mut [f64] = if m <= stack.len() {
+        &mut stack[..m]
+    } else {
+        heap.resize(m, 0.0);
+        &mut heap
+    };
+    for (i, o) in out.iter_mut().enumerate() {
+        for (j, t) in terms.iter_mut().enumerate() {
+            *t = log_alpha[j * m + i] + log_w[j];
+        }
+        *o = log_sum_exp(terms);
     }
 }
 

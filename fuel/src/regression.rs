@@ -134,9 +134,15 @@ impl RegressionStats {
         // difference of two large, nearly equal numbers after 10^6 steps) can leave r
         // indefinite. Fast path: `r - floor I` positive definite means no eigenvalue is below
         // the floor, and r stays as it is; otherwise clamp the eigenvalues.
-        r = (&r + r.transpose()) * 0.5;
-        let floor = DMatrix::identity(self.k_y, self.k_y) * self.min_variance;
-        let above_floor = r.iter().all(|v| v.is_finite()) && Cholesky::new(&r - &floor).is_some();
+        symmetrise(&mut r);
+        let above_floor = r.iter().all(|v| v.is_finite()) && {
+            // r - floor I, in one copy of r.
+            let mut shifted = r.clone();
+            for i in 0..self.k_y {
+                shifted[(i, i)] -= self.min_variance;
+            }
+            Cholesky::new(shifted).is_some()
+        };
         if !above_floor {
             let eig = SymmetricEigen::new(r);
             let vals = eig.eigenvalues.map(|l| {
@@ -147,7 +153,7 @@ impl RegressionStats {
                 }
             });
             r = &eig.eigenvectors * DMatrix::from_diagonal(&vals) * eig.eigenvectors.transpose();
-            r = (&r + r.transpose()) * 0.5;
+            symmetrise(&mut r);
         }
         let r_chol = cholesky_with_jitter(r.clone()).ok_or(FuelError::Numerical(
             "noise covariance not positive definite",
@@ -168,11 +174,40 @@ impl RegressionStats {
         self.theta.tr_mul(psi)
     }
 
+    /// [`mean`](Self::mean) written into `out` (of length `k_y`; the same numbers).
+    pub fn mean_into(&self, psi: &DVector<f64>, out: &mut DVector<f64>) {
+        self.theta.tr_mul_to(psi, out);
+    }
+
     /// `zeta = psi' V_psi^-1 psi`: the parameter uncertainty at this regressor, relative to the
     /// noise (the GiW predictive covariance is `r (1 + zeta)`).
     pub fn zeta(&self, psi: &DVector<f64>) -> f64 {
         let x = self.v_psi_chol.solve(psi);
         psi.dot(&x).max(0.0)
+    }
+
+    /// [`zeta`](Self::zeta) with the solve written into `work` (of length `k_psi`; the same
+    /// numbers).
+    pub fn zeta_with(&self, psi: &DVector<f64>, work: &mut DVector<f64>) -> f64 {
+        work.copy_from(psi);
+        self.v_psi_chol.solve_mut(work);
+        psi.dot(work).max(0.0)
+    }
+
+    /// What the component predicts at `psi`: the mean `theta' psi` and the inflation of the
+    /// covariance, `1 + zeta` with `parameter_uncertainty` (the GiW predictive's `r (1 + zeta)`),
+    /// else 1. The monitor's virtual sensor and the mixture's step both need it at the same
+    /// `psi` from the same statistics: computed once, it serves both.
+    pub fn predict(&self, psi: &DVector<f64>, parameter_uncertainty: bool) -> Prediction {
+        let inflate = if parameter_uncertainty {
+            1.0 + self.zeta(psi)
+        } else {
+            1.0
+        };
+        Prediction {
+            mean: self.mean(psi),
+            inflate,
+        }
     }
 
     /// Log of the component's "proximity" to `y` (Algorithm 3.4 step 2), in log space (seed-notes:
@@ -184,12 +219,13 @@ impl RegressionStats {
         psi: &DVector<f64>,
         parameter_uncertainty: bool,
     ) -> f64 {
-        let e = y - self.mean(psi);
-        let inflate = if parameter_uncertainty {
-            1.0 + self.zeta(psi)
-        } else {
-            1.0
-        };
+        self.log_proximity_at(y, &self.predict(psi, parameter_uncertainty))
+    }
+
+    /// [`log_proximity`](Self::log_proximity) from the component's [`Prediction`] at `psi`.
+    pub fn log_proximity_at(&self, y: &DVector<f64>, prediction: &Prediction) -> f64 {
+        let e = y - &prediction.mean;
+        let inflate = prediction.inflate;
         let q = e.dot(&self.r_chol.solve(&e)) / inflate;
         let k = self.k_y as f64;
         -0.5 * (k * LN_2PI + self.r_log_det + k * inflate.ln() + q)
@@ -211,13 +247,18 @@ impl RegressionStats {
         y_other: &DVector<f64>,
         parameter_uncertainty: bool,
     ) -> Conditional {
-        let mean = self.mean(psi);
+        self.condition_first_on_rest_at(&self.predict(psi, parameter_uncertainty), y_other)
+    }
+
+    /// [`condition_first_on_rest`](Self::condition_first_on_rest) from the component's
+    /// [`Prediction`] at `psi`.
+    pub fn condition_first_on_rest_at(
+        &self,
+        prediction: &Prediction,
+        y_other: &DVector<f64>,
+    ) -> Conditional {
+        let (mean, inflate) = (&prediction.mean, prediction.inflate);
         let k = self.k_y;
-        let inflate = if parameter_uncertainty {
-            1.0 + self.zeta(psi)
-        } else {
-            1.0
-        };
         let unconditional = Conditional {
             mean: mean[0],
             variance: self.r[(0, 0)] * inflate,
@@ -246,6 +287,15 @@ impl RegressionStats {
     }
 }
 
+/// What a component predicts at a regressor: see [`RegressionStats::predict`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct Prediction {
+    /// `theta' psi`.
+    pub mean: DVector<f64>,
+    /// `1 + zeta` (1 without parameter uncertainty).
+    pub inflate: f64,
+}
+
 /// Channel 0 of a component's predictive given the other channels: see
 /// [`RegressionStats::condition_first_on_rest`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -254,6 +304,18 @@ pub struct Conditional {
     pub variance: f64,
     /// Log-density of the other channels under the component (0 without them).
     pub log_density: f64,
+}
+
+/// `m <- (m + m') / 2` in place (each element as `(m_ij + m_ji) * 0.5`, the diagonal too: the
+/// same numbers as the expression, without its two temporaries).
+fn symmetrise(m: &mut DMatrix<f64>) {
+    for i in 0..m.nrows() {
+        for j in i..m.ncols() {
+            let s = (m[(i, j)] + m[(j, i)]) * 0.5;
+            m[(i, j)] = s;
+            m[(j, i)] = s;
+        }
+    }
 }
 
 /// Cholesky factor of a matrix that is positive definite in exact arithmetic but may not be in
@@ -277,6 +339,19 @@ fn cholesky_with_jitter(m: DMatrix<f64>) -> Option<Cholesky<f64, nalgebra::Dyn>>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The in-place symmetrisation gives the expression's numbers to the bit.
+    #[test]
+    fn symmetrise_equals_the_expression() {
+        let m = DMatrix::from_fn(5, 5, |i, j| ((i * 7 + j * 3) as f64).sin() * 1e3 + 0.1);
+        let want = (&m + m.transpose()) * 0.5;
+        let mut got = m.clone();
+        symmetrise(&mut got);
+        assert!(got
+            .iter()
+            .zip(want.iter())
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
 
     #[test]
     fn proximity_is_the_gaussian_log_density() {
