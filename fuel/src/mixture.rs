@@ -65,6 +65,20 @@ pub struct Mixture {
     log_w: Vec<f64>,
     /// The last normalised joint `W_{i,j;t}` (eq. 9), row-major `i * m_c + j`.
     joint: Vec<f64>,
+    /// `ln alpha` and `alpha` of every cell of `switching`, refreshed where the table changes.
+    #[serde(skip)]
+    alpha: AlphaCache,
+}
+
+/// `ln alpha_{i|j,k}` of every cell of the switching table, computed as
+/// [`Mixture::log_alpha`] computes it (so the same bits), and its `exp`: the forecast reads
+/// `m_c^2` of them at every step of its horizon, two logarithms and an exponential each, and
+/// the table changes in `m_c` rows per sample. Not in snapshots: empty after a restore (the
+/// values are then computed when asked) until the next step fills it.
+#[derive(Clone, Debug, Default)]
+struct AlphaCache {
+    log: Vec<f64>,
+    exp: Vec<f64>,
 }
 
 impl Mixture {
@@ -130,9 +144,42 @@ impl Mixture {
             switching,
             log_w: vec![-(m as f64).ln(); m],
             joint: vec![1.0 / (m * m) as f64; m * m],
+            alpha: AlphaCache::default(),
             v0,
             spec,
-        })
+        }
+        .with_alpha_cache())
+    }
+
+    /// `self` with every row of the [`AlphaCache`] filled.
+    fn with_alpha_cache(mut self) -> Self {
+        self.refresh_alpha(0..self.switching.rows());
+        self
+    }
+
+    /// Refreshes the [`AlphaCache`] rows `rows` of the switching table (all of them when the
+    /// cache is not filled).
+    fn refresh_alpha(&mut self, rows: std::ops::Range<usize>) {
+        let cols = self.switching.cols();
+        let cells = self.switching.rows() * cols;
+        let rows = if self.alpha.log.len() == cells {
+            rows
+        } else {
+            self.alpha.log.resize(cells, 0.0);
+            self.alpha.exp.resize(cells, 0.0);
+            0..self.switching.rows()
+        };
+        for row in rows {
+            let cells = row * cols..(row + 1) * cols;
+            self.switching
+                .log_probabilities_into(row, &mut self.alpha.log[cells.clone()]);
+            for (e, l) in self.alpha.exp[cells.clone()]
+                .iter_mut()
+                .zip(&self.alpha.log[cells])
+            {
+                *e = l.exp();
+            }
+        }
     }
 
     pub fn spec(&self) -> &MixtureSpec {
@@ -173,20 +220,35 @@ impl Mixture {
 
     /// `ln alpha_{i|j,k}`, eq. (17).
     pub fn log_alpha(&self, k: usize, j: usize, i: usize) -> f64 {
-        self.switching
-            .log_probability(k * self.spec.components + j, i)
+        let m = self.spec.components;
+        match self.alpha.log.get((k * m + j) * m + i) {
+            Some(cached) => *cached,
+            None => self.switching.log_probability(k * m + j, i),
+        }
+    }
+
+    /// `alpha_{i|j,k} = exp(ln alpha_{i|j,k})` (the exponential of [`Self::log_alpha`]).
+    pub fn alpha(&self, k: usize, j: usize, i: usize) -> f64 {
+        let m = self.spec.components;
+        match self.alpha.exp.get((k * m + j) * m + i) {
+            Some(cached) => *cached,
+            None => self.log_alpha(k, j, i).exp(),
+        }
     }
 
     /// `ln alpha_{i|j,k}` (eq. 17) of every `j, i` for `phi = k`, at `j * m_c + i`: one
     /// logarithm per count and per row sum (the forecast evaluates the pointer at every step of
     /// its horizon, and these logarithms were a sixth of the monitor's step).
-    pub fn log_alpha_block(&self, k: usize) -> Vec<f64> {
+    pub fn log_alpha_block(&self, k: usize) -> std::borrow::Cow<'_, [f64]> {
         let m = self.spec.components;
+        if let Some(block) = self.alpha.log.get(k * m * m..(k + 1) * m * m) {
+            return std::borrow::Cow::Borrowed(block);
+        }
         let mut block = vec![0.0; m * m];
         for (j, row) in block.chunks_mut(m).enumerate() {
             self.switching.log_probabilities_into(k * m + j, row);
         }
-        block
+        std::borrow::Cow::Owned(block)
     }
 
     /// The predicted pointer `f(c_{t+1} = i | data up to t) = sum_j alpha_{i|j,k} w_{j;t}` for
@@ -315,6 +377,7 @@ impl Mixture {
         }
         self.joint = joint;
         self.log_w = log_w;
+        self.refresh_alpha(k * m..(k + 1) * m);
         Ok(())
     }
 
@@ -398,7 +461,7 @@ impl Mixture {
         let last = resp.last().expect("data is not empty");
         mix.log_w = last.iter().map(|r| r.max(1e-300).ln()).collect();
         normalize_log_weights(&mut mix.log_w)?;
-        Ok(mix)
+        Ok(mix.with_alpha_cache())
     }
 }
 

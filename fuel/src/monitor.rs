@@ -794,6 +794,7 @@ impl FuelMonitor {
                     &mut psi[..m],
                     &mut sigma[..m],
                     &mut log_p[..m],
+                    solve,
                 );
             }
             let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(y0));
@@ -928,7 +929,8 @@ enum Source {
 
 /// The work space of [`FuelMonitor::forecast_path`]: per component (the first `m_c` used)
 /// the regressor's mean and covariance given the component, the same shifted by one step, the
-/// switching row at its forecast level; one component's mean, solve, `theta' Sigma`,
+/// switching row at its forecast level; one component's mean, a `k_psi` vector (the solve of
+/// `zeta`, then the mixing's deviations `d`), `theta' Sigma`,
 /// `theta' Sigma theta`, `Cov(y)`, `Cov(psi, y)`; the pointer; the forecast fuel levels; the
 /// sources of the shifted regressor. Not in snapshots (rebuilt on first use).
 #[derive(Clone, Debug, Default)]
@@ -993,6 +995,7 @@ fn mix_regressors(
     psi: &mut [DVector<f64>],
     sigma: &mut [DMatrix<f64>],
     log_p: &mut [f64],
+    d: &mut DVector<f64>,
 ) {
     let m = p.len();
     // On the stack for up to 32 components.
@@ -1006,7 +1009,7 @@ fn mix_regressors(
     for i in 0..m {
         // Unnormalised P(c_{t+h} = j, c_{t+h+1} = i).
         for (j, x) in joint.iter_mut().enumerate() {
-            *x = mixture.log_alpha(rows[j], j, i).exp() * p[j];
+            *x = mixture.alpha(rows[j], j, i) * p[j];
         }
         let total: f64 = joint.iter().sum();
         // A component no path reaches keeps the pointer's mix (its weight is ~0 anyway).
@@ -1018,17 +1021,21 @@ fn mix_regressors(
             let mu_j = mu(j);
             mean.zip_apply(s, |a, b| *a += b * mu_j);
         }
-        // cov += (c + d d') mu_j, d = s - mean, element by element.
-        let cov = &mut sigma[i];
+        // cov += (c + d d') mu_j, d = s - mean, element by element (column-major slices).
+        let cov = sigma[i].as_mut_slice();
         cov.fill(0.0);
         let n = mean.len();
         for (j, (s, c)) in shifted_psi.iter().zip(shifted_sigma).enumerate() {
             let mu_j = mu(j);
-            for b in 0..n {
-                let d_b = s[b] - mean[b];
-                for a in 0..n {
-                    let d_a = s[a] - mean[a];
-                    cov[(a, b)] += (c[(a, b)] + d_a * d_b) * mu_j;
+            d.zip_zip_apply(s, mean, |d, s, mean| *d = s - mean);
+            let d = d.as_slice();
+            for ((cov_b, c_b), d_b) in cov
+                .chunks_exact_mut(n)
+                .zip(c.as_slice().chunks_exact(n))
+                .zip(d)
+            {
+                for ((cov_ab, c_ab), d_a) in cov_b.iter_mut().zip(c_b).zip(d) {
+                    *cov_ab += (c_ab + d_a * d_b) * mu_j;
                 }
             }
         }

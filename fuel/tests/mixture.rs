@@ -283,3 +283,54 @@ fn pointer_weights_sum_to_one_over_a_million_extreme_steps() {
     let s: f64 = mix.joint().iter().sum();
     assert!((s - 1.0).abs() < 1e-12);
 }
+
+/// The switching probabilities the mixture keeps for the forecast (`ln alpha` and `alpha` of
+/// every cell, refreshed where a step changes the table) are the table's own to the bit: after
+/// batch initialisation, after on-line steps with forgetting over several switching rows, and
+/// after a snapshot round trip (which leaves them out, so they are computed when asked).
+#[test]
+fn kept_switching_probabilities_are_the_tables_to_the_bit() {
+    let (ys, psis) = regression_data(300, 7);
+    let spec = MixtureSpec {
+        switching_rows: 3,
+        forgetting: 0.99,
+        ..spec(3, 2, 3)
+    };
+    let inputs: Vec<MixtureInput> = ys
+        .iter()
+        .zip(&psis)
+        .enumerate()
+        .map(|(t, (y, psi))| MixtureInput {
+            y,
+            psi,
+            category: None,
+            switching_row: t % 3,
+        })
+        .collect();
+    let labels: Vec<usize> = (0..100).map(|t| t % 3).collect();
+    let mut mixture = Mixture::from_batch(spec, &inputs[..100], &labels, 2, 1.0).unwrap();
+    let check = |mixture: &Mixture| {
+        let table = mixture.switching();
+        for k in 0..3 {
+            for j in 0..3 {
+                for i in 0..3 {
+                    let want = table.log_probability(k * 3 + j, i);
+                    assert_eq!(mixture.log_alpha(k, j, i).to_bits(), want.to_bits());
+                    assert_eq!(mixture.alpha(k, j, i).to_bits(), want.exp().to_bits());
+                    assert_eq!(
+                        mixture.log_alpha_block(k)[j * 3 + i].to_bits(),
+                        want.to_bits()
+                    );
+                }
+            }
+        }
+    };
+    check(&mixture);
+    for input in &inputs[100..] {
+        mixture.step(input).unwrap();
+        check(&mixture);
+    }
+    let restored: Mixture =
+        serde_json::from_str(&serde_json::to_string(&mixture).unwrap()).unwrap();
+    check(&restored);
+}
