@@ -16,7 +16,7 @@ use serde::Serialize;
 
 use crate::config::{FuelMonitorConfig, InitialPartition};
 use crate::mixture::{argmax, Mixture, MixtureInput, MixtureSpec};
-use crate::predictive::{central_interval, Interval, StudentT};
+use crate::predictive::{cdf_within, central_interval, Interval, StudentT};
 use crate::regime::{OperatingPoint, RegimeName};
 use crate::regression::Prediction;
 use crate::sample::{bin_index, Channel, DerivedChannel, VehicleSample};
@@ -698,6 +698,7 @@ impl FuelMonitor {
         let m = mixture.spec().components;
         work.fit(m, self.spec.k_y, self.spec.k_psi);
         self.regressor_sources(&mut work.sources);
+        work.read_sets();
         let ForecastWork {
             psi,
             sigma,
@@ -714,6 +715,9 @@ impl FuelMonitor {
             log_p,
             levels,
             sources,
+            y_read,
+            y_lagged,
+            psi_read,
             ..
         } = work;
         // Given c_{t+h+1} = i: the regressor's mean and covariance, and log p(c_{t+h+1}).
@@ -737,7 +741,15 @@ impl FuelMonitor {
             let mut y0 = 0.0;
             let mut terms = Vec::with_capacity(m);
             for (i, comp) in mixture.components().iter().enumerate() {
-                comp.mean_into(&psi[i], mean);
+                if h == 0 {
+                    comp.mean_into(&psi[i], mean);
+                } else {
+                    // Beyond the first step only fuel and the lagged channels of the mean
+                    // are read.
+                    for &u in y_read.iter() {
+                        mean[u] = comp.theta().column(u).dot(&psi[i].column(0));
+                    }
+                }
                 let inflate = if self.config.parameter_uncertainty {
                     1.0 + comp.zeta_with(&psi[i], solve)
                 } else {
@@ -752,20 +764,23 @@ impl FuelMonitor {
                     });
                 }
                 if h > 0 {
-                    // theta' Sigma theta.
-                    comp.theta().tr_mul_to(&sigma[i], theta_sigma);
-                    theta_sigma.mul_to(comp.theta(), propagated);
+                    // theta' Sigma theta: at the last step only its fuel element is read.
+                    let read = if last { &[0][..] } else { &y_read[..] };
+                    theta_sigma_theta(comp.theta(), &sigma[i], read, theta_sigma, propagated);
                 }
                 let fuel_var =
                     comp.r()[(0, 0)] * inflate + if h > 0 { propagated[(0, 0)] } else { 0.0 };
                 terms.push(st.fuel_term(p[i], mean[0], fuel_var, comp.predictive_dof()));
                 y0 += mean[0] * p[i];
                 if !last {
-                    c_yy.zip_apply(comp.r(), |c, r| *c = r * inflate);
-                    if h > 0 {
-                        *c_yy += &*propagated;
+                    // The elements of Cov(y) and Cov(psi, y) the shift reads.
+                    for &v in y_lagged.iter() {
+                        for &u in y_lagged.iter() {
+                            c_yy[(u, v)] = comp.r()[(u, v)] * inflate
+                                + if h > 0 { propagated[(u, v)] } else { 0.0 };
+                        }
                     }
-                    sigma[i].mul_to(comp.theta(), c_psi_y);
+                    product_entries(&sigma[i], comp.theta(), psi_read, y_lagged, c_psi_y);
                     let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(mean[0]));
                     shift_regressor(sources, &psi[i], mean, &mut shifted_psi[i]);
                     shift_regressor_covariance(
@@ -951,9 +966,37 @@ struct ForecastWork {
     log_p: Vec<f64>,
     levels: VecDeque<usize>,
     sources: Vec<Source>,
+    /// The channels of `y` the recursion reads beyond the first step: fuel and the lagged
+    /// ones (sorted); the lagged ones alone; the elements of `psi` the shift moves to an
+    /// older lag.
+    y_read: Vec<usize>,
+    y_lagged: Vec<usize>,
+    psi_read: Vec<usize>,
 }
 
 impl ForecastWork {
+    /// `y_read`, `y_lagged` and `psi_read` from `sources`.
+    fn read_sets(&mut self) {
+        self.y_lagged.clear();
+        self.psi_read.clear();
+        for source in &self.sources {
+            match *source {
+                Source::Y(u) => self.y_lagged.push(u),
+                Source::Psi(u) => self.psi_read.push(u),
+                Source::Known => {}
+            }
+        }
+        for set in [&mut self.y_lagged, &mut self.psi_read] {
+            set.sort_unstable();
+            set.dedup();
+        }
+        self.y_read.clear();
+        self.y_read.push(0);
+        self.y_read.extend(self.y_lagged.iter().copied());
+        self.y_read.sort_unstable();
+        self.y_read.dedup();
+    }
+
     /// Room for `m` components of `k_y` channels and `k_psi` regressors (allocates only when
     /// they grow or change).
     fn fit(&mut self, m: usize, k_y: usize, k_psi: usize) {
@@ -1047,6 +1090,64 @@ fn mix_regressors(
             *l = x.ln();
         }
     }
+}
+
+/// nalgebra's `gemm` (0.34, which `*` and `mul_to` call) multiplies a product of these
+/// sizes with the `matrixmultiply` crate (blocked, its own order of summation) when all four
+/// exceed 5, and otherwise column by column, each element `x_a0 y_0v + x_a1 y_1v + ...` summed
+/// in order (test `product_entries_are_the_gemm_elements_to_the_bit`).
+fn gemm_is_blocked(x: &DMatrix<f64>, y: &DMatrix<f64>) -> bool {
+    const SMALL_DIM: usize = 5;
+    x.nrows() > SMALL_DIM && y.ncols() > SMALL_DIM && x.ncols() > SMALL_DIM
+}
+
+/// The elements `(a, v)`, `a` in `rows`, `v` in `cols`, of `x y` written into `out`, the same
+/// numbers as `x.mul_to(y, out)` gives them (the whole product when `gemm` would block it).
+fn product_entries(
+    x: &DMatrix<f64>,
+    y: &DMatrix<f64>,
+    rows: &[usize],
+    cols: &[usize],
+    out: &mut DMatrix<f64>,
+) {
+    if gemm_is_blocked(x, y) {
+        x.mul_to(y, out);
+        return;
+    }
+    let n = x.ncols();
+    for &v in cols {
+        let y_v = y.column(v);
+        for &a in rows {
+            let mut sum = x[(a, 0)] * y_v[0];
+            for b in 1..n {
+                sum += x[(a, b)] * y_v[b];
+            }
+            out[(a, v)] = sum;
+        }
+    }
+}
+
+/// `theta' Sigma theta` at the elements `(u, v)`, `u, v` in `read`, written into `propagated`
+/// (`theta_sigma`: the rows `read` of `theta' Sigma`), the same numbers as
+/// `theta.tr_mul(sigma) * theta`.
+fn theta_sigma_theta(
+    theta: &DMatrix<f64>,
+    sigma: &DMatrix<f64>,
+    read: &[usize],
+    theta_sigma: &mut DMatrix<f64>,
+    propagated: &mut DMatrix<f64>,
+) {
+    if gemm_is_blocked(theta_sigma, theta) {
+        theta.tr_mul_to(sigma, theta_sigma);
+    } else {
+        for b in 0..sigma.ncols() {
+            let sigma_b = sigma.column(b);
+            for &u in read {
+                theta_sigma[(u, b)] = theta.column(u).dot(&sigma_b);
+            }
+        }
+    }
+    product_entries(theta_sigma, theta, read, read, propagated);
 }
 
 /// The next forecast regressor's mean into `out`: `y`'s lagged channels in the newest lag, the
@@ -1294,9 +1395,15 @@ impl IntervalCalibration {
         if !(total > 0.0 && total.is_finite() && target.is_finite()) {
             return;
         }
-        let cdf = terms.iter().map(|t| t.weight * t.cdf(target)).sum::<f64>() / total;
+        // The target's CDF value in [0.05, 0.95], decided by a bound where it can be.
         let tail = 0.5 * (1.0 - INTERVAL_MASS);
-        let miss = f64::from(u8::from(!(tail..=1.0 - tail).contains(&cdf)));
+        let miss = f64::from(u8::from(!cdf_within(
+            terms,
+            total,
+            target,
+            tail,
+            1.0 - tail,
+        )));
         self.log_scale[index] += CALIBRATION_STEP * (miss - (1.0 - INTERVAL_MASS));
     }
 
@@ -1326,6 +1433,48 @@ impl IntervalCalibration {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The selected elements of a product are nalgebra's, to the bit, at every size up to 8
+    /// (blocked by `matrixmultiply` or not), and `theta' Sigma theta` at selected elements is
+    /// `theta.tr_mul(sigma) * theta`'s.
+    #[test]
+    fn product_entries_are_the_gemm_elements_to_the_bit() {
+        let fill = |r: usize, c: usize, seed: f64| {
+            DMatrix::from_fn(r, c, |i, j| ((i * 31 + j * 17) as f64 + seed).sin() * 1e2)
+        };
+        for rows in 1..=8 {
+            for inner in 1..=8 {
+                for cols in 1..=8 {
+                    let (x, y) = (fill(rows, inner, 0.3), fill(inner, cols, 1.7));
+                    let want = &x * &y;
+                    let mut got = DMatrix::zeros(rows, cols);
+                    let all_rows: Vec<usize> = (0..rows).collect();
+                    let all_cols: Vec<usize> = (0..cols).collect();
+                    product_entries(&x, &y, &all_rows, &all_cols, &mut got);
+                    assert!(
+                        got.iter()
+                            .zip(want.iter())
+                            .all(|(a, b)| a.to_bits() == b.to_bits()),
+                        "{rows}x{inner} times {inner}x{cols}"
+                    );
+                }
+            }
+            for k_y in 1..=8 {
+                let theta = fill(rows, k_y, 2.9);
+                let sigma = fill(rows, rows, 0.1);
+                let want = theta.tr_mul(&sigma) * &theta;
+                let read: Vec<usize> = (0..k_y).step_by(2).collect();
+                let mut theta_sigma = DMatrix::zeros(k_y, rows);
+                let mut got = DMatrix::zeros(k_y, k_y);
+                theta_sigma_theta(&theta, &sigma, &read, &mut theta_sigma, &mut got);
+                for &u in &read {
+                    for &v in &read {
+                        assert_eq!(got[(u, v)].to_bits(), want[(u, v)].to_bits());
+                    }
+                }
+            }
+        }
+    }
 
     /// The calibration's guarantee on targets its predictive gets wrong (a unit normal against
     /// Student-t targets with 2 degrees of freedom and twice the scale, seeded): the share of
