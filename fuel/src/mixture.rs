@@ -68,6 +68,10 @@ pub struct Mixture {
     /// `ln alpha` and `alpha` of every cell of `switching`, refreshed where the table changes.
     #[serde(skip)]
     alpha: AlphaCache,
+    /// The buffers a step updates the statistics in (the components of two steps ago; empty
+    /// after a restore).
+    #[serde(skip)]
+    spare: Vec<RegressionStats>,
 }
 
 /// `ln alpha_{i|j,k}` of every cell of the switching table, computed as
@@ -145,6 +149,7 @@ impl Mixture {
             log_w: vec![-(m as f64).ln(); m],
             joint: vec![1.0 / (m * m) as f64; m * m],
             alpha: AlphaCache::default(),
+            spare: Vec::new(),
             v0,
             spec,
         }
@@ -347,14 +352,23 @@ impl Mixture {
         let mut log_w: Vec<f64> = log_joint.chunks(m).map(log_sum_exp).collect();
         normalize_log_weights(&mut log_w)?;
         // Step 7: statistics, eq. (10)-(12) and (16); step 8 (eq. 13, 15, 17) inside.
+        // Into the spare statistics, so that a failure leaves the components as they were;
+        // swapped in when every component succeeded (the old ones become the next spare).
         let lambda = self.spec.forgetting;
-        let mut updated = self.components.clone();
+        let mut updated = std::mem::take(&mut self.spare);
+        updated.truncate(m);
+        for (i, comp) in self.components.iter().enumerate() {
+            match updated.get_mut(i) {
+                Some(spare) => spare.take_statistics_of(comp),
+                None => updated.push(comp.clone()),
+            }
+        }
         for (i, comp) in updated.iter_mut().enumerate() {
             let w = log_w[i].exp();
             let forget = (lambda < 1.0).then(|| (lambda.powf(w), &self.v0, self.spec.prior_kappa));
             comp.update(&d, w, forget)?;
         }
-        self.components = updated;
+        self.spare = std::mem::replace(&mut self.components, updated);
         if let Some((q, l)) = input.category {
             for (i, table) in self.categorical.iter_mut().enumerate() {
                 let w = log_w[i].exp();

@@ -99,12 +99,27 @@ impl RegressionStats {
     ) -> Result<(), FuelError> {
         if let Some((lambda, v0, kappa0)) = forgetting {
             self.v *= lambda;
-            self.v += v0 * (1.0 - lambda);
+            // v += v0 (1 - lambda), element by element.
+            self.v.zip_apply(v0, |v, v0| *v += v0 * (1.0 - lambda));
             self.kappa = lambda * self.kappa + (1.0 - lambda) * kappa0;
         }
         self.v.syger(weight, d, d, 1.0);
         self.kappa += weight;
         self.recompute()
+    }
+
+    /// Makes `self` hold `other`'s statistics (`V`, `kappa`) in its own buffers, for an update
+    /// that must leave `other` as it is should it fail; the point estimates are `other`'s only
+    /// after [`Self::recompute`] (which [`Self::update`] calls).
+    pub(crate) fn take_statistics_of(&mut self, other: &RegressionStats) {
+        if self.v.shape() != other.v.shape() {
+            *self = other.clone();
+            return;
+        }
+        self.v.copy_from(&other.v);
+        self.kappa = other.kappa;
+        self.k_y = other.k_y;
+        self.min_variance = other.min_variance;
     }
 
     /// Adds `w d d'` without recomputing the point estimates (batch initialisation).
@@ -351,6 +366,37 @@ mod tests {
             .iter()
             .zip(want.iter())
             .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+
+    /// An update in another component's buffers (the mixture's spare) gives the numbers of an
+    /// update of a copy, to the bit, whatever those buffers held before.
+    #[test]
+    fn an_update_in_spare_buffers_equals_an_update_of_a_copy() {
+        let v0 = DMatrix::from_fn(4, 4, |i, j| if i == j { 2.0 + i as f64 } else { 0.3 });
+        let mut source = RegressionStats::new(2, v0.clone(), 3.0, 1e-9).unwrap();
+        let mut spare = RegressionStats::new(2, v0 * 7.0, 11.0, 1e-9).unwrap();
+        for t in 0..20 {
+            let x = t as f64;
+            let d = DVector::from_vec(vec![x.sin(), (0.3 * x).cos(), 0.1 * x, 1.0]);
+            let mut copy = source.clone();
+            copy.update(&d, 0.7, Some((0.9, &DMatrix::identity(4, 4), 1.0)))
+                .unwrap();
+            spare.take_statistics_of(&source);
+            spare
+                .update(&d, 0.7, Some((0.9, &DMatrix::identity(4, 4), 1.0)))
+                .unwrap();
+            let bits = |s: &RegressionStats| {
+                let m = [s.v(), s.theta(), s.r()];
+                let mut b: Vec<u64> = m
+                    .iter()
+                    .flat_map(|m| m.iter().map(|v| v.to_bits()))
+                    .collect();
+                b.extend([s.kappa().to_bits(), s.r_log_det.to_bits()]);
+                b
+            };
+            assert_eq!(bits(&spare), bits(&copy));
+            std::mem::swap(&mut source, &mut spare);
+        }
     }
 
     #[test]

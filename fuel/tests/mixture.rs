@@ -334,3 +334,42 @@ fn kept_switching_probabilities_are_the_tables_to_the_bit() {
         serde_json::from_str(&serde_json::to_string(&mixture).unwrap()).unwrap();
     check(&restored);
 }
+
+/// A step that fails (a data vector so large that its proximities overflow) leaves the mixture
+/// as it was, and the next steps give the same numbers, to the bit, as on a mixture that never
+/// saw it (the statistics are updated in spare buffers, which a failure leaves dirty, and
+/// swapped in only when every component succeeded).
+#[test]
+fn a_failed_step_changes_nothing_and_the_next_steps_are_unaffected() {
+    let (ys, psis) = regression_data(200, 3);
+    let inputs: Vec<MixtureInput> = ys
+        .iter()
+        .zip(&psis)
+        .map(|(y, psi)| MixtureInput {
+            y,
+            psi,
+            category: None,
+            switching_row: 0,
+        })
+        .collect();
+    let labels: Vec<usize> = (0..50).map(|t| t % 2).collect();
+    let mut mixture = Mixture::from_batch(spec(2, 2, 3), &inputs[..50], &labels, 1, 1.0).unwrap();
+    for input in &inputs[50..100] {
+        mixture.step(input).unwrap();
+    }
+    let mut twin = mixture.clone();
+    let state = |m: &Mixture| serde_json::to_string(m).unwrap();
+    let before = state(&mixture);
+    let huge = DVector::from_vec(vec![1e200, -1e200]);
+    let failing = MixtureInput {
+        y: &huge,
+        ..inputs[100].clone()
+    };
+    assert!(mixture.step(&failing).is_err());
+    assert_eq!(state(&mixture), before);
+    for input in &inputs[100..] {
+        mixture.step(input).unwrap();
+        twin.step(input).unwrap();
+        assert_eq!(state(&mixture), state(&twin));
+    }
+}
