@@ -565,13 +565,14 @@ impl FuelMonitor {
         normalize_log_weights(&mut log_v)?;
         let virtual_std: f64 = (0..m).map(|i| log_v[i].exp() * cond[i].mean).sum();
         let virtual_sensor = st.fuel(virtual_std);
-        let virtual_terms: Vec<StudentT> = (0..m)
+        let mut virtual_terms: Vec<StudentT> = (0..m)
             .map(|i| {
                 let dof = mixture.components()[i].predictive_dof();
                 st.fuel_term(log_v[i].exp(), cond[i].mean, cond[i].variance, dof)
             })
             .collect();
-        let virtual_terms = self.calibration.scaled(0, virtual_sensor, &virtual_terms);
+        self.calibration
+            .scale(0, virtual_sensor, &mut virtual_terms);
 
         let input = MixtureInput {
             y: &y,
@@ -1377,16 +1378,12 @@ impl IntervalCalibration {
     }
 
     /// `terms` widened about `mean` by the current scale of predictive `index`.
-    fn scaled(&self, index: usize, mean: f64, terms: &[StudentT]) -> Vec<StudentT> {
+    fn scale(&self, index: usize, mean: f64, terms: &mut [StudentT]) {
         let s = self.log_scale[index].exp();
-        terms
-            .iter()
-            .map(|t| StudentT {
-                location: mean + s * (t.location - mean),
-                scale: s * t.scale,
-                ..*t
-            })
-            .collect()
+        for t in terms {
+            t.location = mean + s * (t.location - mean);
+            t.scale *= s;
+        }
     }
 
     /// Updates the scale of predictive `index` with its (calibrated) `terms` and the target.
@@ -1422,10 +1419,18 @@ impl IntervalCalibration {
     /// `path` with every step's predictive scaled; remembers it for the updates.
     fn calibrate(&mut self, mut path: ForecastPath) -> ForecastPath {
         for (h, (terms, mean)) in path.terms.iter_mut().zip(&path.mean_cm3_s).enumerate() {
-            *terms = self.scaled(h + 1, *mean, terms);
+            self.scale(h + 1, *mean, terms);
         }
-        self.waiting.push_front(path.terms.clone());
-        self.waiting.truncate(self.log_scale.len() - 1);
+        // The copy goes into the buffers of the path it pushes out (no allocation once the
+        // queue is full).
+        let horizon = self.log_scale.len() - 1;
+        let mut kept = match self.waiting.len() >= horizon {
+            true => self.waiting.pop_back().unwrap_or_default(),
+            false => Vec::new(),
+        };
+        kept.clone_from(&path.terms);
+        self.waiting.push_front(kept);
+        self.waiting.truncate(horizon);
         path
     }
 }
@@ -1497,7 +1502,8 @@ mod tests {
             let z: f64 = rng.sample(rand_distr::StandardNormal);
             let chi2 = -2.0 * (1.0 - rng.random::<f64>()).ln();
             let target = 2.0 * z / (chi2 / 2.0).sqrt();
-            let terms = calibration.scaled(0, 0.0, &unit);
+            let mut terms = unit;
+            calibration.scale(0, 0.0, &mut terms);
             let interval = central_interval(&terms, INTERVAL_MASS);
             misses += usize::from(!interval.contains(target));
             raw_misses += usize::from(!central_interval(&unit, INTERVAL_MASS).contains(target));

@@ -8,7 +8,7 @@
 //! `V = [[V_yy, V_psiy'], [V_psiy, V_psi]]`, `theta = V_psi^-1 V_psiy`,
 //! `r = (V_yy - V_psiy' theta) / kappa`.
 
-use nalgebra::{Cholesky, DMatrix, DVector, SymmetricEigen};
+use nalgebra::{Cholesky, DMatrix, DMatrixView, DVector, SymmetricEigen};
 use railmon_filter::kalman::LN_2PI;
 
 use crate::FuelError;
@@ -138,13 +138,17 @@ impl RegressionStats {
                 self.v[(i, j)] = self.v[(j, i)];
             }
         }
-        let v_psi = self.v.view((k, k), (p, p)).into_owned();
-        let v_psiy = self.v.view((k, 0), (p, k)).into_owned();
-        let v_yy = self.v.view((0, 0), (k, k)).into_owned();
-        let chol = cholesky_with_jitter(v_psi)
+        // Views of V: each block is copied only where a result needs its own storage.
+        let v_psiy = self.v.view((k, 0), (p, k));
+        let chol = cholesky_with_jitter(self.v.view((k, k), (p, p)))
             .ok_or(FuelError::Numerical("V_psi not positive definite"))?;
         let theta = chol.solve(&v_psiy);
-        let mut r = (v_yy - v_psiy.transpose() * &theta) / self.kappa.max(f64::MIN_POSITIVE);
+        // r = (V_yy - V_psiy' theta) / kappa, element by element in the product's storage.
+        let kappa = self.kappa.max(f64::MIN_POSITIVE);
+        let mut r = v_psiy.transpose() * &theta;
+        r.zip_apply(&self.v.view((0, 0), (k, k)), |x, v_yy| {
+            *x = (v_yy - *x) / kappa
+        });
         // Floor the eigenvalues at `min_variance`: rounding in V_yy - V_psiy' theta (a
         // difference of two large, nearly equal numbers after 10^6 steps) can leave r
         // indefinite. Fast path: `r - floor I` positive definite means no eigenvalue is below
@@ -170,7 +174,7 @@ impl RegressionStats {
             r = &eig.eigenvectors * DMatrix::from_diagonal(&vals) * eig.eigenvectors.transpose();
             symmetrise(&mut r);
         }
-        let r_chol = cholesky_with_jitter(r.clone()).ok_or(FuelError::Numerical(
+        let r_chol = cholesky_with_jitter(r.as_view()).ok_or(FuelError::Numerical(
             "noise covariance not positive definite",
         ))?;
         if theta.iter().any(|v| !v.is_finite()) {
@@ -337,8 +341,9 @@ fn symmetrise(m: &mut DMatrix<f64>) {
 /// floating point: `V_psi = V_0 + sum w psi psi'` after 10^6 updates of size 10^12 has lost the
 /// `V_0 = 10^-3 I` of its small directions to rounding. Retries with a jitter `eps max(diag) I`,
 /// `eps = 10^-14 .. 10^-8`, used for the factor only (the statistics are left as they are).
-fn cholesky_with_jitter(m: DMatrix<f64>) -> Option<Cholesky<f64, nalgebra::Dyn>> {
-    if let Some(c) = Cholesky::new(m.clone()) {
+/// `m` is a view (copied once for the factor; again only when the first attempt fails).
+fn cholesky_with_jitter(m: DMatrixView<f64>) -> Option<Cholesky<f64, nalgebra::Dyn>> {
+    if let Some(c) = Cholesky::new(m.into_owned()) {
         return Some(c);
     }
     let scale = m.diagonal().iter().fold(0.0f64, |a, d| a.max(d.abs()));
@@ -348,7 +353,7 @@ fn cholesky_with_jitter(m: DMatrix<f64>) -> Option<Cholesky<f64, nalgebra::Dyn>>
     let n = m.nrows();
     [1e-14, 1e-12, 1e-10, 1e-8]
         .iter()
-        .find_map(|eps| Cholesky::new(&m + DMatrix::identity(n, n) * (eps * scale)))
+        .find_map(|eps| Cholesky::new(m + DMatrix::identity(n, n) * (eps * scale)))
 }
 
 #[cfg(test)]
