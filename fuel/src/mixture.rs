@@ -483,20 +483,23 @@ impl Mixture {
 /// `ln alpha_{i|j,k}` ([`Mixture::log_alpha_block`]) of the switching configuration `k`.
 pub fn predict_pointer(log_alpha: &[f64], log_w: &[f64], out: &mut [f64]) {
     let m = log_w.len();
-    // On the stack for up to 32 components (the forecast calls this at every step of its
-    // horizon).
-    let (mut stack, mut heap) = ([0.0; 32], Vec::new());
-    let terms: &mut [f64] = if m <= stack.len() {
-        &mut stack[..m]
-    } else {
-        heap.resize(m, 0.0);
-        &mut heap
-    };
-    for (i, o) in out.iter_mut().enumerate() {
-        for (j, t) in terms.iter_mut().enumerate() {
-            *t = log_alpha[j * m + i] + log_w[j];
+    with_scratch(m, |terms| {
+        for (i, o) in out.iter_mut().enumerate() {
+            for (j, t) in terms.iter_mut().enumerate() {
+                *t = log_alpha[j * m + i] + log_w[j];
+            }
+            *o = log_sum_exp(terms);
         }
-        *o = log_sum_exp(terms);
+    })
+}
+
+/// `f` on `n` numbers of scratch, on the stack for up to 32 (one per component: the forecast
+/// asks at every step of its horizon), on the heap beyond.
+pub(crate) fn with_scratch<R>(n: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
+    let mut stack = [0.0; 32];
+    match stack.get_mut(..n) {
+        Some(scratch) => f(scratch),
+        None => f(&mut vec![0.0; n]),
     }
 }
 

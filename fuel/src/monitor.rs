@@ -15,7 +15,7 @@ use railmon_filter::logspace::normalize_log_weights;
 use serde::Serialize;
 
 use crate::config::{FuelMonitorConfig, InitialPartition};
-use crate::mixture::{argmax, Mixture, MixtureInput, MixtureSpec};
+use crate::mixture::{argmax, with_scratch, Mixture, MixtureInput, MixtureSpec};
 use crate::predictive::{cdf_within, central_interval, Interval, StudentT};
 use crate::regime::{OperatingPoint, RegimeName};
 use crate::regression::Prediction;
@@ -1042,49 +1042,43 @@ fn mix_regressors(
     d: &mut DVector<f64>,
 ) {
     let m = p.len();
-    // On the stack for up to 32 components.
-    let (mut stack, mut heap) = ([0.0; 32], Vec::new());
-    let joint: &mut [f64] = if m <= stack.len() {
-        &mut stack[..m]
-    } else {
-        heap.resize(m, 0.0);
-        &mut heap
-    };
-    for i in 0..m {
-        // Unnormalised P(c_{t+h} = j, c_{t+h+1} = i).
-        for (j, x) in joint.iter_mut().enumerate() {
-            *x = mixture.alpha(rows[j], j, i) * p[j];
-        }
-        let total: f64 = joint.iter().sum();
-        // A component no path reaches keeps the pointer's mix (its weight is ~0 anyway).
-        let reached = total > 0.0 && total.is_finite();
-        let mu = |j: usize| if reached { joint[j] / total } else { p[j] };
-        let mean = &mut psi[i];
-        mean.fill(0.0);
-        for (j, s) in shifted_psi.iter().enumerate() {
-            let mu_j = mu(j);
-            mean.zip_apply(s, |a, b| *a += b * mu_j);
-        }
-        // cov += (c + d d') mu_j, d = s - mean, element by element (column-major slices).
-        let cov = sigma[i].as_mut_slice();
-        cov.fill(0.0);
-        let n = mean.len();
-        for (j, (s, c)) in shifted_psi.iter().zip(shifted_sigma).enumerate() {
-            let mu_j = mu(j);
-            d.zip_zip_apply(s, mean, |d, s, mean| *d = s - mean);
-            let d = d.as_slice();
-            for ((cov_b, c_b), d_b) in cov
-                .chunks_exact_mut(n)
-                .zip(c.as_slice().chunks_exact(n))
-                .zip(d)
-            {
-                for ((cov_ab, c_ab), d_a) in cov_b.iter_mut().zip(c_b).zip(d) {
-                    *cov_ab += (c_ab + d_a * d_b) * mu_j;
+    with_scratch(m, |joint| {
+        for i in 0..m {
+            // Unnormalised P(c_{t+h} = j, c_{t+h+1} = i).
+            for (j, x) in joint.iter_mut().enumerate() {
+                *x = mixture.alpha(rows[j], j, i) * p[j];
+            }
+            let total: f64 = joint.iter().sum();
+            // A component no path reaches keeps the pointer's mix (its weight is ~0 anyway).
+            let reached = total > 0.0 && total.is_finite();
+            let mu = |j: usize| if reached { joint[j] / total } else { p[j] };
+            let mean = &mut psi[i];
+            mean.fill(0.0);
+            for (j, s) in shifted_psi.iter().enumerate() {
+                let mu_j = mu(j);
+                mean.zip_apply(s, |a, b| *a += b * mu_j);
+            }
+            // cov += (c + d d') mu_j, d = s - mean, element by element (column-major slices).
+            let cov = sigma[i].as_mut_slice();
+            cov.fill(0.0);
+            let n = mean.len();
+            for (j, (s, c)) in shifted_psi.iter().zip(shifted_sigma).enumerate() {
+                let mu_j = mu(j);
+                d.zip_zip_apply(s, mean, |d, s, mean| *d = s - mean);
+                let d = d.as_slice();
+                for ((cov_b, c_b), d_b) in cov
+                    .chunks_exact_mut(n)
+                    .zip(c.as_slice().chunks_exact(n))
+                    .zip(d)
+                {
+                    for ((cov_ab, c_ab), d_a) in cov_b.iter_mut().zip(c_b).zip(d) {
+                        *cov_ab += (c_ab + d_a * d_b) * mu_j;
+                    }
                 }
             }
+            log_p[i] = total.ln();
         }
-        log_p[i] = total.ln();
-    }
+    });
     if normalize_log_weights(log_p).is_err() {
         // No path reaches any component (cannot happen with a proper switching table).
         for (l, x) in log_p.iter_mut().zip(p) {

@@ -70,7 +70,7 @@ pub fn central_interval(terms: &[StudentT], mass: f64) -> Interval {
 /// most `1 / sqrt(2 pi)` there (the normal's), so `F(z)` lies in `[1/2, 1/2 + z / sqrt(2 pi)]`
 /// for `z >= 0` and symmetrically below; so does the normal approximation used above 100
 /// degrees of freedom (its argument is `z` shrunk towards 0). The computed values differ from
-/// these by the erfc fit (below 6e-8) and rounding, far below the margin `1e-6` by which the
+/// these by the erfc fit (below 1.2e-7) and rounding, far below the margin `1e-6` by which the
 /// bound must clear `lo` and `hi`. Anything not finite, a negative weight or fewer than one
 /// degree of freedom leaves the answer to the evaluation.
 pub fn cdf_within(terms: &[StudentT], total: f64, x: f64, lo: f64, hi: f64) -> bool {
