@@ -15,10 +15,9 @@ use railmon_filter::logspace::normalize_log_weights;
 use serde::Serialize;
 
 use crate::config::{FuelMonitorConfig, InitialPartition};
-use crate::mixture::{argmax, with_scratch, Mixture, MixtureInput, MixtureSpec};
-use crate::predictive::{cdf_within, central_interval, Interval, StudentT};
+use crate::mixture::{argmax, Mixture, MixtureInput, MixtureSpec};
+use crate::predictive::{central_interval, Interval, StudentT};
 use crate::regime::{OperatingPoint, RegimeName};
-use crate::regression::Prediction;
 use crate::sample::{bin_index, Channel, DerivedChannel, VehicleSample};
 use crate::FuelError;
 
@@ -759,7 +758,7 @@ impl FuelMonitor {
                 if h == 0 {
                     // The next update's virtual sensor and step predict at this regressor
                     // from these statistics.
-                    path.first_predictions.push(Prediction {
+                    path.first_predictions.push(crate::regression::Prediction {
                         mean: mean.clone(),
                         inflate,
                     });
@@ -914,7 +913,7 @@ struct ForecastPath {
     /// update's virtual sensor and step need: the same statistics, the same `psi`). Not in
     /// snapshots: a restored monitor computes them again.
     #[serde(skip)]
-    first_predictions: Vec<Prediction>,
+    first_predictions: Vec<crate::regression::Prediction>,
 }
 
 impl ForecastPath {
@@ -1042,7 +1041,7 @@ fn mix_regressors(
     d: &mut DVector<f64>,
 ) {
     let m = p.len();
-    with_scratch(m, |joint| {
+    crate::mixture::with_scratch(m, |joint| {
         for i in 0..m {
             // Unnormalised P(c_{t+h} = j, c_{t+h+1} = i).
             for (j, x) in joint.iter_mut().enumerate() {
@@ -1388,7 +1387,7 @@ impl IntervalCalibration {
         }
         // The target's CDF value in [0.05, 0.95], decided by a bound where it can be.
         let tail = 0.5 * (1.0 - INTERVAL_MASS);
-        let miss = f64::from(u8::from(!cdf_within(
+        let miss = f64::from(u8::from(!crate::predictive::cdf_within(
             terms,
             total,
             target,
