@@ -241,9 +241,8 @@ impl Mixture {
         }
     }
 
-    /// `ln alpha_{i|j,k}` (eq. 17) of every `j, i` for `phi = k`, at `j * m_c + i`: one
-    /// logarithm per count and per row sum (the forecast evaluates the pointer at every step of
-    /// its horizon, and these logarithms were a sixth of the monitor's step).
+    /// `ln alpha_{i|j,k}` (eq. 17) of every `j, i` for `phi = k`, at `j * m_c + i`: the kept
+    /// values (`AlphaCache`), or after a restore one logarithm per count and per row sum.
     pub fn log_alpha_block(&self, k: usize) -> std::borrow::Cow<'_, [f64]> {
         let m = self.spec.components;
         if let Some(block) = self.alpha.log.get(k * m * m..(k + 1) * m * m) {
