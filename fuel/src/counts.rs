@@ -61,6 +61,16 @@ impl CountTable {
         self.count(row, col).ln() - self.row_sums[row].ln()
     }
 
+    /// `ln P(col | row)` of every column of `row`, into `out`: the row sum's logarithm is taken
+    /// once (each value is [`log_probability`](Self::log_probability)'s, to the bit).
+    pub fn log_probabilities_into(&self, row: usize, out: &mut [f64]) {
+        let ln_sum = self.row_sums[row].ln();
+        let counts = &self.counts[row * self.cols..(row + 1) * self.cols];
+        for (o, c) in out.iter_mut().zip(counts) {
+            *o = c.ln() - ln_sum;
+        }
+    }
+
     /// Eq. (12) / (16): `count[row][col] += weight`.
     pub fn add(&mut self, row: usize, col: usize, weight: f64) {
         self.counts[row * self.cols + col] += weight;
@@ -97,5 +107,11 @@ mod tests {
         t.forget_row(0, 0.5);
         assert!((t.count(0, 2) - 2.5).abs() < 1e-15);
         assert!((t.log_probability(0, 2) - (2.5f64 / 4.5).ln()).abs() < 1e-15);
+        // A whole row at once: the same bits.
+        let mut row = [0.0; 3];
+        t.log_probabilities_into(0, &mut row);
+        for (c, v) in row.iter().enumerate() {
+            assert_eq!(v.to_bits(), t.log_probability(0, c).to_bits());
+        }
     }
 }

@@ -7,7 +7,7 @@ use nalgebra::{DMatrix, DVector};
 use railmon_filter::logspace::{log_sum_exp, normalize_log_weights};
 
 use crate::counts::CountTable;
-use crate::regression::RegressionStats;
+use crate::regression::{Prediction, RegressionStats};
 use crate::FuelError;
 
 /// Sizes and settings of a [`Mixture`].
@@ -65,6 +65,24 @@ pub struct Mixture {
     log_w: Vec<f64>,
     /// The last normalised joint `W_{i,j;t}` (eq. 9), row-major `i * m_c + j`.
     joint: Vec<f64>,
+    /// `ln alpha` and `alpha` of every cell of `switching`, refreshed where the table changes.
+    #[serde(skip)]
+    alpha: AlphaCache,
+    /// The buffers a step updates the statistics in (the components of two steps ago; empty
+    /// after a restore).
+    #[serde(skip)]
+    spare: Vec<RegressionStats>,
+}
+
+/// `ln alpha_{i|j,k}` of every cell of the switching table, computed as
+/// [`Mixture::log_alpha`] computes it (so the same bits), and its `exp`: the forecast reads
+/// `m_c^2` of them at every step of its horizon, two logarithms and an exponential each, and
+/// the table changes in `m_c` rows per sample. Not in snapshots: empty after a restore (the
+/// values are then computed when asked) until the next step fills it.
+#[derive(Clone, Debug, Default)]
+struct AlphaCache {
+    log: Vec<f64>,
+    exp: Vec<f64>,
 }
 
 impl Mixture {
@@ -130,9 +148,43 @@ impl Mixture {
             switching,
             log_w: vec![-(m as f64).ln(); m],
             joint: vec![1.0 / (m * m) as f64; m * m],
+            alpha: AlphaCache::default(),
+            spare: Vec::new(),
             v0,
             spec,
-        })
+        }
+        .with_alpha_cache())
+    }
+
+    /// `self` with every row of the [`AlphaCache`] filled.
+    fn with_alpha_cache(mut self) -> Self {
+        self.refresh_alpha(0..self.switching.rows());
+        self
+    }
+
+    /// Refreshes the [`AlphaCache`] rows `rows` of the switching table (all of them when the
+    /// cache is not filled).
+    fn refresh_alpha(&mut self, rows: std::ops::Range<usize>) {
+        let cols = self.switching.cols();
+        let cells = self.switching.rows() * cols;
+        let rows = if self.alpha.log.len() == cells {
+            rows
+        } else {
+            self.alpha.log.resize(cells, 0.0);
+            self.alpha.exp.resize(cells, 0.0);
+            0..self.switching.rows()
+        };
+        for row in rows {
+            let cells = row * cols..(row + 1) * cols;
+            self.switching
+                .log_probabilities_into(row, &mut self.alpha.log[cells.clone()]);
+            for (e, l) in self.alpha.exp[cells.clone()]
+                .iter_mut()
+                .zip(&self.alpha.log[cells])
+            {
+                *e = l.exp();
+            }
+        }
     }
 
     pub fn spec(&self) -> &MixtureSpec {
@@ -173,21 +225,40 @@ impl Mixture {
 
     /// `ln alpha_{i|j,k}`, eq. (17).
     pub fn log_alpha(&self, k: usize, j: usize, i: usize) -> f64 {
-        self.switching
-            .log_probability(k * self.spec.components + j, i)
+        let m = self.spec.components;
+        match self.alpha.log.get((k * m + j) * m + i) {
+            Some(cached) => *cached,
+            None => self.switching.log_probability(k * m + j, i),
+        }
+    }
+
+    /// `alpha_{i|j,k} = exp(ln alpha_{i|j,k})` (the exponential of [`Self::log_alpha`]).
+    pub fn alpha(&self, k: usize, j: usize, i: usize) -> f64 {
+        let m = self.spec.components;
+        match self.alpha.exp.get((k * m + j) * m + i) {
+            Some(cached) => *cached,
+            None => self.log_alpha(k, j, i).exp(),
+        }
+    }
+
+    /// `ln alpha_{i|j,k}` (eq. 17) of every `j, i` for `phi = k`, at `j * m_c + i`: the kept
+    /// values (`AlphaCache`), or after a restore one logarithm per count and per row sum.
+    pub fn log_alpha_block(&self, k: usize) -> std::borrow::Cow<'_, [f64]> {
+        let m = self.spec.components;
+        if let Some(block) = self.alpha.log.get(k * m * m..(k + 1) * m * m) {
+            return std::borrow::Cow::Borrowed(block);
+        }
+        let mut block = vec![0.0; m * m];
+        for (j, row) in block.chunks_mut(m).enumerate() {
+            self.switching.log_probabilities_into(k * m + j, row);
+        }
+        std::borrow::Cow::Owned(block)
     }
 
     /// The predicted pointer `f(c_{t+1} = i | data up to t) = sum_j alpha_{i|j,k} w_{j;t}` for
     /// `phi_t = k`, written into `out` as log-probabilities (from log weights `log_w`).
     pub fn predict_pointer_from(&self, log_w: &[f64], k: usize, out: &mut [f64]) {
-        let m = self.spec.components;
-        let mut terms = vec![0.0; m];
-        for (i, o) in out.iter_mut().enumerate() {
-            for (j, t) in terms.iter_mut().enumerate() {
-                *t = self.log_alpha(k, j, i) + log_w[j];
-            }
-            *o = log_sum_exp(&terms);
-        }
+        predict_pointer(&self.log_alpha_block(k), log_w, out);
     }
 
     /// Log-probability of category `l` under condition `q` for component `i` (0 without a
@@ -225,22 +296,54 @@ impl Mixture {
         }
     }
 
+    /// Each component's [`Prediction`] at `psi` (of length `k_psi`).
+    pub fn predictions(&self, psi: &DVector<f64>) -> Vec<Prediction> {
+        self.components
+            .iter()
+            .map(|c| c.predict(psi, self.spec.parameter_uncertainty))
+            .collect()
+    }
+
     /// One on-line step of Algorithm 3.4 (steps 2-8). On error the state is unchanged.
     pub fn step(&mut self, input: &MixtureInput) -> Result<(), FuelError> {
         self.check_input(input)?;
+        let predictions = self.predictions(input.psi);
+        self.step_checked(input, &predictions)
+    }
+
+    /// [`step`](Self::step) with `predictions`, [`predictions`](Self::predictions) at
+    /// `input.psi` of the current statistics, made by the caller (the monitor's virtual sensor
+    /// needs them before the step).
+    pub(crate) fn step_predicted(
+        &mut self,
+        input: &MixtureInput,
+        predictions: &[Prediction],
+    ) -> Result<(), FuelError> {
+        self.check_input(input)?;
+        if predictions.len() != self.spec.components {
+            return Err(FuelError::Numerical(
+                "one prediction per component expected",
+            ));
+        }
+        self.step_checked(input, predictions)
+    }
+
+    fn step_checked(
+        &mut self,
+        input: &MixtureInput,
+        predictions: &[Prediction],
+    ) -> Result<(), FuelError> {
         let m = self.spec.components;
         let k = input.switching_row;
         let d = concat(input.y, input.psi);
         // Steps 2-4: proximities of y_t, probabilities of z_t, alpha_k and w_{t-1}, in logs.
+        let log_alpha = self.log_alpha_block(k);
         let mut log_joint = vec![0.0; m * m];
         for i in 0..m {
-            let evidence = self.components[i].log_proximity(
-                input.y,
-                input.psi,
-                self.spec.parameter_uncertainty,
-            ) + self.log_category(i, input.category);
+            let evidence = self.components[i].log_proximity_at(input.y, &predictions[i])
+                + self.log_category(i, input.category);
             for j in 0..m {
-                log_joint[i * m + j] = evidence + self.log_alpha(k, j, i) + self.log_w[j];
+                log_joint[i * m + j] = evidence + log_alpha[j * m + i] + self.log_w[j];
             }
         }
         // Step 5: normalise W_{i,j;t}. Step 6: w_{i;t} = sum_j W_{i,j;t} (eq. 9).
@@ -248,14 +351,23 @@ impl Mixture {
         let mut log_w: Vec<f64> = log_joint.chunks(m).map(log_sum_exp).collect();
         normalize_log_weights(&mut log_w)?;
         // Step 7: statistics, eq. (10)-(12) and (16); step 8 (eq. 13, 15, 17) inside.
+        // Into the spare statistics, so that a failure leaves the components as they were;
+        // swapped in when every component succeeded (the old ones become the next spare).
         let lambda = self.spec.forgetting;
-        let mut updated = self.components.clone();
+        let mut updated = std::mem::take(&mut self.spare);
+        updated.truncate(m);
+        for (i, comp) in self.components.iter().enumerate() {
+            match updated.get_mut(i) {
+                Some(spare) => spare.take_statistics_of(comp),
+                None => updated.push(comp.clone()),
+            }
+        }
         for (i, comp) in updated.iter_mut().enumerate() {
             let w = log_w[i].exp();
             let forget = (lambda < 1.0).then(|| (lambda.powf(w), &self.v0, self.spec.prior_kappa));
             comp.update(&d, w, forget)?;
         }
-        self.components = updated;
+        self.spare = std::mem::replace(&mut self.components, updated);
         if let Some((q, l)) = input.category {
             for (i, table) in self.categorical.iter_mut().enumerate() {
                 let w = log_w[i].exp();
@@ -278,6 +390,7 @@ impl Mixture {
         }
         self.joint = joint;
         self.log_w = log_w;
+        self.refresh_alpha(k * m..(k + 1) * m);
         Ok(())
     }
 
@@ -361,7 +474,31 @@ impl Mixture {
         let last = resp.last().expect("data is not empty");
         mix.log_w = last.iter().map(|r| r.max(1e-300).ln()).collect();
         normalize_log_weights(&mut mix.log_w)?;
-        Ok(mix)
+        Ok(mix.with_alpha_cache())
+    }
+}
+
+/// The predicted pointer (see [`Mixture::predict_pointer_from`]) from the block of
+/// `ln alpha_{i|j,k}` ([`Mixture::log_alpha_block`]) of the switching configuration `k`.
+pub fn predict_pointer(log_alpha: &[f64], log_w: &[f64], out: &mut [f64]) {
+    let m = log_w.len();
+    with_scratch(m, |terms| {
+        for (i, o) in out.iter_mut().enumerate() {
+            for (j, t) in terms.iter_mut().enumerate() {
+                *t = log_alpha[j * m + i] + log_w[j];
+            }
+            *o = log_sum_exp(terms);
+        }
+    })
+}
+
+/// `f` on `n` numbers of scratch, on the stack for up to 32 (one per component: the forecast
+/// asks at every step of its horizon), on the heap beyond.
+pub(crate) fn with_scratch<R>(n: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
+    let mut stack = [0.0; 32];
+    match stack.get_mut(..n) {
+        Some(scratch) => f(scratch),
+        None => f(&mut vec![0.0; n]),
     }
 }
 

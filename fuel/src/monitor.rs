@@ -222,6 +222,9 @@ pub struct FuelMonitor {
     blend: Blend,
     /// Forecast path made at the previous step (blended, calibrated).
     pending_forecast: ForecastPath,
+    /// The forecast's work space (not in snapshots).
+    #[serde(skip)]
+    forecast_work: ForecastWork,
     /// Scales of the predictives that keep the 90 % intervals' coverage at 90 %.
     calibration: IntervalCalibration,
     /// The active regime and for how many samples in a row it has been active.
@@ -284,6 +287,7 @@ impl FuelMonitor {
             baseline: None,
             blend: Blend::new(config.forecast_horizon_steps),
             pending_forecast: ForecastPath::default(),
+            forecast_work: ForecastWork::default(),
             calibration: IntervalCalibration::new(config.forecast_horizon_steps),
             active_streak: (0, 0),
             estimate: FuelEstimate::default(),
@@ -425,15 +429,6 @@ impl FuelMonitor {
         self.switching_row_of(past.fuel_levels.iter().copied(), past.acceleration_level)
     }
 
-    /// The switching row after one more sample whose fuel level is `newest` (the older levels
-    /// and the acceleration level those of `past`).
-    fn switching_row_after(&self, past: &Past, newest: usize) -> usize {
-        let older = past.fuel_levels.iter().copied();
-        let levels = std::iter::once(newest).chain(older);
-        let levels = levels.take(self.config.switching_memory);
-        self.switching_row_of(levels, past.acceleration_level)
-    }
-
     /// Row of the switching table for fuel levels (newest first) and an acceleration level:
     /// the newest level is the least significant digit (base: the number of levels).
     fn switching_row_of(
@@ -550,21 +545,33 @@ impl FuelMonitor {
         let y_other = y.rows(1, y.len() - 1).into_owned();
         let mut cond = Vec::with_capacity(m);
         let mut log_v = vec![0.0; m];
+        // The step's proximities need the same predictions; the forecast made at the end of the
+        // last update made them already, at this `psi` from these statistics (its first step),
+        // unless the monitor was restored from a snapshot since.
+        let fresh;
+        let predictions = match &self.pending_forecast.first_predictions {
+            made if made.len() == m => made.as_slice(),
+            _ => {
+                fresh = mixture.predictions(&psi);
+                fresh.as_slice()
+            }
+        };
         for (i, comp) in mixture.components().iter().enumerate() {
-            let c = comp.condition_first_on_rest(&psi, &y_other, self.config.parameter_uncertainty);
+            let c = comp.condition_first_on_rest_at(&predictions[i], &y_other);
             log_v[i] = log_pred[i] + c.log_density + mixture.log_category(i, category);
             cond.push(c);
         }
         normalize_log_weights(&mut log_v)?;
         let virtual_std: f64 = (0..m).map(|i| log_v[i].exp() * cond[i].mean).sum();
         let virtual_sensor = st.fuel(virtual_std);
-        let virtual_terms: Vec<StudentT> = (0..m)
+        let mut virtual_terms: Vec<StudentT> = (0..m)
             .map(|i| {
                 let dof = mixture.components()[i].predictive_dof();
                 st.fuel_term(log_v[i].exp(), cond[i].mean, cond[i].variance, dof)
             })
             .collect();
-        let virtual_terms = self.calibration.scaled(0, virtual_sensor, &virtual_terms);
+        self.calibration
+            .scale(0, virtual_sensor, &mut virtual_terms);
 
         let input = MixtureInput {
             y: &y,
@@ -583,7 +590,7 @@ impl FuelMonitor {
             None => None,
         };
         let mixture = self.mixture.as_mut().expect("checked above");
-        mixture.step(&input)?;
+        mixture.step_predicted(&input, predictions)?;
         if baseline.is_some() {
             self.baseline = baseline;
         }
@@ -646,16 +653,19 @@ impl FuelMonitor {
         let Some(mixture) = self.mixture.as_ref() else {
             return ForecastPath::default();
         };
-        let own = self.forecast_path(mixture);
+        let mut work = std::mem::take(&mut self.forecast_work);
+        let mut own = self.forecast_path(mixture, &mut work);
         let path = match self.baseline.as_ref() {
             Some(baseline) => {
-                let single = self.forecast_path(baseline);
-                let blended = self.blend.combine(&own, &single);
+                let single = self.forecast_path(baseline, &mut work);
+                let mut blended = self.blend.combine(&own, &single);
+                blended.first_predictions = std::mem::take(&mut own.first_predictions);
                 self.blend.remember(own.mean_cm3_s, single.mean_cm3_s);
                 blended
             }
             None => own,
         };
+        self.forecast_work = work;
         self.calibration.calibrate(path)
     }
 
@@ -675,157 +685,153 @@ impl FuelMonitor {
     /// average of idling and traction, the forecast drifted towards idling (bias -6.4 cm^3/s
     /// at 10 s on `fuel-railcar.toml`, single regression +0.16) and, without the blend, lost to
     /// the single regression from 2 s on.
-    fn forecast_path(&self, mixture: &Mixture) -> ForecastPath {
+    ///
+    /// Every vector and matrix of the recursion lives in `work` (allocated once, reused at
+    /// every step: the forecast is most of a step's arithmetic, and its temporaries were a
+    /// sixth of the step's time in `malloc` and `free`); each number is computed by the same
+    /// operations in the same order as with the temporaries, so the bits are the same.
+    fn forecast_path(&self, mixture: &Mixture, work: &mut ForecastWork) -> ForecastPath {
         let Some(st) = self.standardiser.as_ref() else {
             return ForecastPath::default();
         };
         let horizon = self.config.forecast_horizon_steps;
         let m = mixture.spec().components;
-        let (k_y, k_psi) = (self.spec.k_y, self.spec.k_psi);
-        let mut past = self.past.clone();
+        work.fit(m, self.spec.k_y, self.spec.k_psi);
+        self.regressor_sources(&mut work.sources);
+        work.read_sets();
+        let ForecastWork {
+            psi,
+            sigma,
+            shifted_psi,
+            shifted_sigma,
+            rows,
+            mean,
+            solve,
+            theta_sigma,
+            propagated,
+            c_yy,
+            c_psi_y,
+            p,
+            log_p,
+            levels,
+            sources,
+            y_read,
+            y_lagged,
+            psi_read,
+            ..
+        } = work;
         // Given c_{t+h+1} = i: the regressor's mean and covariance, and log p(c_{t+h+1}).
-        let mut psi = vec![self.regressor(&past); m];
-        let mut sigma = vec![DMatrix::<f64>::zeros(k_psi, k_psi); m];
-        let mut log_p = vec![0.0; m];
-        mixture.predict_pointer_from(mixture.log_weights(), self.switching_row(&past), &mut log_p);
+        let psi0 = self.regressor(&self.past);
+        for (psi_i, sigma_i) in psi.iter_mut().zip(sigma.iter_mut()).take(m) {
+            psi_i.copy_from(&psi0);
+            sigma_i.fill(0.0);
+        }
+        levels.clear();
+        levels.extend(self.past.fuel_levels.iter().copied());
+        let acceleration_level = self.past.acceleration_level;
+        let row = self.switching_row_of(levels.iter().copied(), acceleration_level);
+        mixture.predict_pointer_from(mixture.log_weights(), row, &mut log_p[..m]);
         let mut path = ForecastPath::with_capacity(horizon);
         for h in 0..horizon {
-            let p: Vec<f64> = log_p.iter().map(|l| l.exp()).collect();
+            for (p_i, l) in p.iter_mut().zip(log_p.iter()).take(m) {
+                *p_i = l.exp();
+            }
             let last = h + 1 == horizon;
-            let mut y = DVector::zeros(k_y);
+            // Only the fuel of the mixture's mean is used (its value and its level).
+            let mut y0 = 0.0;
             let mut terms = Vec::with_capacity(m);
-            // Each component's regressor for the next step (shifted with its own forecast)
-            // and the switching row at its forecast level.
-            let mut shifted = Vec::with_capacity(m);
             for (i, comp) in mixture.components().iter().enumerate() {
-                let mean = comp.mean(&psi[i]);
+                if h == 0 {
+                    comp.mean_into(&psi[i], mean);
+                } else {
+                    // Beyond the first step only fuel and the lagged channels of the mean
+                    // are read.
+                    for &u in y_read.iter() {
+                        mean[u] = comp.theta().column(u).dot(&psi[i].column(0));
+                    }
+                }
                 let inflate = if self.config.parameter_uncertainty {
-                    1.0 + comp.zeta(&psi[i])
+                    1.0 + comp.zeta_with(&psi[i], solve)
                 } else {
                     1.0
                 };
-                let propagated = (h > 0).then(|| comp.theta().tr_mul(&sigma[i]) * comp.theta());
+                if h == 0 {
+                    // The next update's virtual sensor and step predict at this regressor
+                    // from these statistics.
+                    path.first_predictions.push(crate::regression::Prediction {
+                        mean: mean.clone(),
+                        inflate,
+                    });
+                }
+                if h > 0 {
+                    // theta' Sigma theta: at the last step only its fuel element is read.
+                    let read = if last { &[0][..] } else { &y_read[..] };
+                    theta_sigma_theta(comp.theta(), &sigma[i], read, theta_sigma, propagated);
+                }
                 let fuel_var =
-                    comp.r()[(0, 0)] * inflate + propagated.as_ref().map_or(0.0, |c| c[(0, 0)]);
+                    comp.r()[(0, 0)] * inflate + if h > 0 { propagated[(0, 0)] } else { 0.0 };
                 terms.push(st.fuel_term(p[i], mean[0], fuel_var, comp.predictive_dof()));
-                y += &mean * p[i];
+                y0 += mean[0] * p[i];
                 if !last {
-                    let mut c_yy = comp.r() * inflate;
-                    if let Some(c) = propagated {
-                        c_yy += c;
+                    // The elements of Cov(y) and Cov(psi, y) the shift reads.
+                    for &v in y_lagged.iter() {
+                        for &u in y_lagged.iter() {
+                            c_yy[(u, v)] = comp.r()[(u, v)] * inflate
+                                + if h > 0 { propagated[(u, v)] } else { 0.0 };
+                        }
                     }
-                    let c_psi_y = &sigma[i] * comp.theta();
+                    product_entries(&sigma[i], comp.theta(), psi_read, y_lagged, c_psi_y);
                     let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(mean[0]));
-                    shifted.push((
-                        self.shift_regressor(&psi[i], &mean),
-                        self.shift_regressor_covariance(&sigma[i], &c_psi_y, &c_yy),
-                        self.switching_row_after(&past, level),
-                    ));
+                    shift_regressor(sources, &psi[i], mean, &mut shifted_psi[i]);
+                    shift_regressor_covariance(
+                        sources,
+                        &sigma[i],
+                        c_psi_y,
+                        c_yy,
+                        &mut shifted_sigma[i],
+                    );
+                    rows[i] = self.switching_row_of(
+                        std::iter::once(level)
+                            .chain(levels.iter().copied())
+                            .take(self.config.switching_memory),
+                        acceleration_level,
+                    );
                 }
             }
-            path.push(st.fuel(y[0]), terms);
+            path.push(st.fuel(y0), terms);
             if !last {
-                log_p = self.mix_regressors(mixture, &p, &shifted, &mut psi, &mut sigma);
+                mix_regressors(
+                    mixture,
+                    &p[..m],
+                    &shifted_psi[..m],
+                    &shifted_sigma[..m],
+                    &rows[..m],
+                    &mut psi[..m],
+                    &mut sigma[..m],
+                    &mut log_p[..m],
+                    solve,
+                );
             }
-            let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(y[0]));
-            past.fuel_levels.push_front(level);
-            past.fuel_levels.truncate(self.config.switching_memory);
+            let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(y0));
+            levels.push_front(level);
+            levels.truncate(self.config.switching_memory);
         }
         path
     }
 
-    /// The interacting-multiple-model mixing step of [`Self::forecast_path`]: from `p_j =
-    /// p(c_{t+h} = j)` and each component's shifted regressor (mean, covariance, switching row
-    /// at its level), the pointer `p_i' = sum_j alpha_{i|j,k_j} p_j` (returned as logs) and
-    /// each component's regressor given `c_{t+h+1} = i` (written into `psi`, `sigma`).
-    fn mix_regressors(
-        &self,
-        mixture: &Mixture,
-        p: &[f64],
-        shifted: &[(DVector<f64>, DMatrix<f64>, usize)],
-        psi: &mut [DVector<f64>],
-        sigma: &mut [DMatrix<f64>],
-    ) -> Vec<f64> {
-        let m = p.len();
-        let mut log_next = Vec::with_capacity(m);
-        for i in 0..m {
-            // Unnormalised P(c_{t+h} = j, c_{t+h+1} = i).
-            let joint: Vec<f64> = (0..m)
-                .map(|j| mixture.log_alpha(shifted[j].2, j, i).exp() * p[j])
-                .collect();
-            let total: f64 = joint.iter().sum();
-            // A component no path reaches keeps the pointer's mix (its weight is ~0 anyway).
-            let mu: Vec<f64> = match total > 0.0 && total.is_finite() {
-                true => joint.iter().map(|x| x / total).collect(),
-                false => p.to_vec(),
-            };
-            let mut mean = DVector::<f64>::zeros(psi[i].len());
-            for (j, (s, _, _)) in shifted.iter().enumerate() {
-                mean += s * mu[j];
-            }
-            let mut cov = DMatrix::<f64>::zeros(mean.len(), mean.len());
-            for (j, (s, c, _)) in shifted.iter().enumerate() {
-                let d = s - &mean;
-                cov += (c + &d * d.transpose()) * mu[j];
-            }
-            psi[i] = mean;
-            sigma[i] = cov;
-            log_next.push(total.ln());
-        }
-        if normalize_log_weights(&mut log_next).is_err() {
-            // No path reaches any component (cannot happen with a proper switching table).
-            return p.iter().map(|x| x.ln()).collect();
-        }
-        log_next
-    }
-
-    /// The next forecast regressor's mean: `y`'s lagged channels in the newest lag, the older
-    /// lags shifted, gear and constant as they are.
-    fn shift_regressor(&self, psi: &DVector<f64>, y: &DVector<f64>) -> DVector<f64> {
+    /// Where each element of the next forecast regressor comes from (the new `y` in its newest
+    /// lag, the older lags shifted, gear and constant known), written into `out`.
+    fn regressor_sources(&self, out: &mut Vec<Source>) {
         let n_lag = self.lagged.len();
         let lagged_len = n_lag * self.config.regression_memory;
-        let mut out = psi.clone();
-        if lagged_len > 0 {
-            for a in (n_lag..lagged_len).rev() {
-                out[a] = psi[a - n_lag];
-            }
-            for (a, &c) in self.lagged.iter().enumerate() {
-                out[a] = y[c];
-            }
-        }
-        out
-    }
-
-    /// Covariance of the next forecast regressor `psi'` (the new `y` in its newest lag, the
-    /// older lags shifted, gear and constant known) from that of `psi`, `Cov(psi, y)` and
-    /// `Cov(y)`.
-    fn shift_regressor_covariance(
-        &self,
-        sigma_psi: &DMatrix<f64>,
-        c_psi_y: &DMatrix<f64>,
-        c_yy: &DMatrix<f64>,
-    ) -> DMatrix<f64> {
-        /// Where an element of the new regressor comes from.
-        #[derive(Clone, Copy)]
-        enum Source {
-            Y(usize),
-            Psi(usize),
-            Known,
-        }
-        let n_lag = self.lagged.len();
-        let lagged_len = n_lag * self.config.regression_memory;
-        let k_psi = sigma_psi.nrows();
-        let source = |a: usize| match (a < lagged_len, a / n_lag.max(1)) {
-            (false, _) => Source::Known,
-            (true, 0) => Source::Y(self.lagged[a % n_lag]),
-            (true, k) => Source::Psi((k - 1) * n_lag + a % n_lag),
-        };
-        DMatrix::from_fn(k_psi, k_psi, |a, b| match (source(a), source(b)) {
-            (Source::Known, _) | (_, Source::Known) => 0.0,
-            (Source::Y(u), Source::Y(v)) => c_yy[(u, v)],
-            (Source::Psi(u), Source::Y(v)) | (Source::Y(v), Source::Psi(u)) => c_psi_y[(u, v)],
-            (Source::Psi(u), Source::Psi(v)) => sigma_psi[(u, v)],
-        })
+        out.clear();
+        out.extend(
+            (0..self.spec.k_psi).map(|a| match (a < lagged_len, a / n_lag.max(1)) {
+                (false, _) => Source::Known,
+                (true, 0) => Source::Y(self.lagged[a % n_lag]),
+                (true, k) => Source::Psi((k - 1) * n_lag + a % n_lag),
+            }),
+        );
     }
 
     /// Each component's operating point (`crate::regime`): the mean of the data vector it has
@@ -903,6 +909,11 @@ impl FuelMonitor {
 struct ForecastPath {
     mean_cm3_s: Vec<f64>,
     terms: Vec<Vec<StudentT>>,
+    /// The mixture's components' predictions at the first step's regressor (what the next
+    /// update's virtual sensor and step need: the same statistics, the same `psi`). Not in
+    /// snapshots: a restored monitor computes them again.
+    #[serde(skip)]
+    first_predictions: Vec<crate::regression::Prediction>,
 }
 
 impl ForecastPath {
@@ -910,12 +921,264 @@ impl ForecastPath {
         ForecastPath {
             mean_cm3_s: Vec::with_capacity(n),
             terms: Vec::with_capacity(n),
+            first_predictions: Vec::new(),
         }
     }
 
     fn push(&mut self, mean_cm3_s: f64, terms: Vec<StudentT>) {
         self.mean_cm3_s.push(mean_cm3_s);
         self.terms.push(terms);
+    }
+}
+
+/// Where an element of the next forecast regressor comes from.
+#[derive(Clone, Copy, Debug)]
+enum Source {
+    /// Channel `u` of the forecast `y`.
+    Y(usize),
+    /// Element `u` of the regressor now.
+    Psi(usize),
+    /// Gear and constant: held, no uncertainty.
+    Known,
+}
+
+/// The work space of [`FuelMonitor::forecast_path`]: per component (the first `m_c` used)
+/// the regressor's mean and covariance given the component, the same shifted by one step, the
+/// switching row at its forecast level; one component's mean, a `k_psi` vector (the solve of
+/// `zeta`, then the mixing's deviations `d`), `theta' Sigma`,
+/// `theta' Sigma theta`, `Cov(y)`, `Cov(psi, y)`; the pointer; the forecast fuel levels; the
+/// sources of the shifted regressor. Not in snapshots (rebuilt on first use).
+#[derive(Clone, Debug, Default)]
+struct ForecastWork {
+    dims: (usize, usize),
+    psi: Vec<DVector<f64>>,
+    sigma: Vec<DMatrix<f64>>,
+    shifted_psi: Vec<DVector<f64>>,
+    shifted_sigma: Vec<DMatrix<f64>>,
+    rows: Vec<usize>,
+    mean: DVector<f64>,
+    solve: DVector<f64>,
+    theta_sigma: DMatrix<f64>,
+    propagated: DMatrix<f64>,
+    c_yy: DMatrix<f64>,
+    c_psi_y: DMatrix<f64>,
+    p: Vec<f64>,
+    log_p: Vec<f64>,
+    levels: VecDeque<usize>,
+    sources: Vec<Source>,
+    /// The channels of `y` the recursion reads beyond the first step: fuel and the lagged
+    /// ones (sorted); the lagged ones alone; the elements of `psi` the shift moves to an
+    /// older lag.
+    y_read: Vec<usize>,
+    y_lagged: Vec<usize>,
+    psi_read: Vec<usize>,
+}
+
+impl ForecastWork {
+    /// `y_read`, `y_lagged` and `psi_read` from `sources`.
+    fn read_sets(&mut self) {
+        self.y_lagged.clear();
+        self.psi_read.clear();
+        for source in &self.sources {
+            match *source {
+                Source::Y(u) => self.y_lagged.push(u),
+                Source::Psi(u) => self.psi_read.push(u),
+                Source::Known => {}
+            }
+        }
+        for set in [&mut self.y_lagged, &mut self.psi_read] {
+            set.sort_unstable();
+            set.dedup();
+        }
+        self.y_read.clear();
+        self.y_read.push(0);
+        self.y_read.extend(self.y_lagged.iter().copied());
+        self.y_read.sort_unstable();
+        self.y_read.dedup();
+    }
+
+    /// Room for `m` components of `k_y` channels and `k_psi` regressors (allocates only when
+    /// they grow or change).
+    fn fit(&mut self, m: usize, k_y: usize, k_psi: usize) {
+        if self.dims != (k_y, k_psi) {
+            *self = ForecastWork {
+                dims: (k_y, k_psi),
+                mean: DVector::zeros(k_y),
+                solve: DVector::zeros(k_psi),
+                theta_sigma: DMatrix::zeros(k_y, k_psi),
+                propagated: DMatrix::zeros(k_y, k_y),
+                c_yy: DMatrix::zeros(k_y, k_y),
+                c_psi_y: DMatrix::zeros(k_psi, k_y),
+                ..ForecastWork::default()
+            };
+        }
+        if self.psi.len() < m {
+            self.psi.resize(m, DVector::zeros(k_psi));
+            self.sigma.resize(m, DMatrix::zeros(k_psi, k_psi));
+            self.shifted_psi.resize(m, DVector::zeros(k_psi));
+            self.shifted_sigma.resize(m, DMatrix::zeros(k_psi, k_psi));
+            self.rows.resize(m, 0);
+            self.p.resize(m, 0.0);
+            self.log_p.resize(m, 0.0);
+        }
+    }
+}
+
+/// The interacting-multiple-model mixing step of [`FuelMonitor::forecast_path`]: from `p_j =
+/// p(c_{t+h} = j)` and each component's shifted regressor (mean, covariance, switching row at
+/// its level), the pointer `p_i' = sum_j alpha_{i|j,k_j} p_j` (written as logs into `log_p`)
+/// and each component's regressor given `c_{t+h+1} = i` (written into `psi`, `sigma`).
+#[allow(clippy::too_many_arguments)]
+fn mix_regressors(
+    mixture: &Mixture,
+    p: &[f64],
+    shifted_psi: &[DVector<f64>],
+    shifted_sigma: &[DMatrix<f64>],
+    rows: &[usize],
+    psi: &mut [DVector<f64>],
+    sigma: &mut [DMatrix<f64>],
+    log_p: &mut [f64],
+    d: &mut DVector<f64>,
+) {
+    let m = p.len();
+    crate::mixture::with_scratch(m, |joint| {
+        for i in 0..m {
+            // Unnormalised P(c_{t+h} = j, c_{t+h+1} = i).
+            for (j, x) in joint.iter_mut().enumerate() {
+                *x = mixture.alpha(rows[j], j, i) * p[j];
+            }
+            let total: f64 = joint.iter().sum();
+            // A component no path reaches keeps the pointer's mix (its weight is ~0 anyway).
+            let reached = total > 0.0 && total.is_finite();
+            let mu = |j: usize| if reached { joint[j] / total } else { p[j] };
+            let mean = &mut psi[i];
+            mean.fill(0.0);
+            for (j, s) in shifted_psi.iter().enumerate() {
+                let mu_j = mu(j);
+                mean.zip_apply(s, |a, b| *a += b * mu_j);
+            }
+            // cov += (c + d d') mu_j, d = s - mean, element by element (column-major slices).
+            let cov = sigma[i].as_mut_slice();
+            cov.fill(0.0);
+            let n = mean.len();
+            for (j, (s, c)) in shifted_psi.iter().zip(shifted_sigma).enumerate() {
+                let mu_j = mu(j);
+                d.zip_zip_apply(s, mean, |d, s, mean| *d = s - mean);
+                let d = d.as_slice();
+                for ((cov_b, c_b), d_b) in cov
+                    .chunks_exact_mut(n)
+                    .zip(c.as_slice().chunks_exact(n))
+                    .zip(d)
+                {
+                    for ((cov_ab, c_ab), d_a) in cov_b.iter_mut().zip(c_b).zip(d) {
+                        *cov_ab += (c_ab + d_a * d_b) * mu_j;
+                    }
+                }
+            }
+            log_p[i] = total.ln();
+        }
+    });
+    if normalize_log_weights(log_p).is_err() {
+        // No path reaches any component (cannot happen with a proper switching table).
+        for (l, x) in log_p.iter_mut().zip(p) {
+            *l = x.ln();
+        }
+    }
+}
+
+/// nalgebra's `gemm` (0.34, which `*` and `mul_to` call) multiplies a product of these
+/// sizes with the `matrixmultiply` crate (blocked, its own order of summation) when all four
+/// exceed 5, and otherwise column by column, each element `x_a0 y_0v + x_a1 y_1v + ...` summed
+/// in order (test `product_entries_are_the_gemm_elements_to_the_bit`).
+fn gemm_is_blocked(x: &DMatrix<f64>, y: &DMatrix<f64>) -> bool {
+    const SMALL_DIM: usize = 5;
+    x.nrows() > SMALL_DIM && y.ncols() > SMALL_DIM && x.ncols() > SMALL_DIM
+}
+
+/// The elements `(a, v)`, `a` in `rows`, `v` in `cols`, of `x y` written into `out`, the same
+/// numbers as `x.mul_to(y, out)` gives them (the whole product when `gemm` would block it).
+fn product_entries(
+    x: &DMatrix<f64>,
+    y: &DMatrix<f64>,
+    rows: &[usize],
+    cols: &[usize],
+    out: &mut DMatrix<f64>,
+) {
+    if gemm_is_blocked(x, y) {
+        x.mul_to(y, out);
+        return;
+    }
+    let n = x.ncols();
+    for &v in cols {
+        let y_v = y.column(v);
+        for &a in rows {
+            let mut sum = x[(a, 0)] * y_v[0];
+            for b in 1..n {
+                sum += x[(a, b)] * y_v[b];
+            }
+            out[(a, v)] = sum;
+        }
+    }
+}
+
+/// `theta' Sigma theta` at the elements `(u, v)`, `u, v` in `read`, written into `propagated`
+/// (`theta_sigma`: the rows `read` of `theta' Sigma`), the same numbers as
+/// `theta.tr_mul(sigma) * theta`.
+fn theta_sigma_theta(
+    theta: &DMatrix<f64>,
+    sigma: &DMatrix<f64>,
+    read: &[usize],
+    theta_sigma: &mut DMatrix<f64>,
+    propagated: &mut DMatrix<f64>,
+) {
+    if gemm_is_blocked(theta_sigma, theta) {
+        theta.tr_mul_to(sigma, theta_sigma);
+    } else {
+        for b in 0..sigma.ncols() {
+            let sigma_b = sigma.column(b);
+            for &u in read {
+                theta_sigma[(u, b)] = theta.column(u).dot(&sigma_b);
+            }
+        }
+    }
+    product_entries(theta_sigma, theta, read, read, propagated);
+}
+
+/// The next forecast regressor's mean into `out`: `y`'s lagged channels in the newest lag, the
+/// older lags shifted, gear and constant as they are.
+fn shift_regressor(
+    sources: &[Source],
+    psi: &DVector<f64>,
+    y: &DVector<f64>,
+    out: &mut DVector<f64>,
+) {
+    for (a, source) in sources.iter().enumerate() {
+        out[a] = match *source {
+            Source::Y(u) => y[u],
+            Source::Psi(u) => psi[u],
+            Source::Known => psi[a],
+        };
+    }
+}
+
+/// Covariance of the next forecast regressor `psi'` into `out`, from that of `psi`,
+/// `Cov(psi, y)` and `Cov(y)` (gear and constant known: no covariance).
+fn shift_regressor_covariance(
+    sources: &[Source],
+    sigma_psi: &DMatrix<f64>,
+    c_psi_y: &DMatrix<f64>,
+    c_yy: &DMatrix<f64>,
+    out: &mut DMatrix<f64>,
+) {
+    for (b, source_b) in sources.iter().enumerate() {
+        for (a, source_a) in sources.iter().enumerate() {
+            out[(a, b)] = match (*source_a, *source_b) {
+                (Source::Known, _) | (_, Source::Known) => 0.0,
+                (Source::Y(u), Source::Y(v)) => c_yy[(u, v)],
+                (Source::Psi(u), Source::Y(v)) | (Source::Y(v), Source::Psi(u)) => c_psi_y[(u, v)],
+                (Source::Psi(u), Source::Psi(v)) => sigma_psi[(u, v)],
+            };
+        }
     }
 }
 
@@ -1108,16 +1371,12 @@ impl IntervalCalibration {
     }
 
     /// `terms` widened about `mean` by the current scale of predictive `index`.
-    fn scaled(&self, index: usize, mean: f64, terms: &[StudentT]) -> Vec<StudentT> {
+    fn scale(&self, index: usize, mean: f64, terms: &mut [StudentT]) {
         let s = self.log_scale[index].exp();
-        terms
-            .iter()
-            .map(|t| StudentT {
-                location: mean + s * (t.location - mean),
-                scale: s * t.scale,
-                ..*t
-            })
-            .collect()
+        for t in terms {
+            t.location = mean + s * (t.location - mean);
+            t.scale *= s;
+        }
     }
 
     /// Updates the scale of predictive `index` with its (calibrated) `terms` and the target.
@@ -1126,9 +1385,15 @@ impl IntervalCalibration {
         if !(total > 0.0 && total.is_finite() && target.is_finite()) {
             return;
         }
-        let cdf = terms.iter().map(|t| t.weight * t.cdf(target)).sum::<f64>() / total;
+        // The target's CDF value in [0.05, 0.95], decided by a bound where it can be.
         let tail = 0.5 * (1.0 - INTERVAL_MASS);
-        let miss = f64::from(u8::from(!(tail..=1.0 - tail).contains(&cdf)));
+        let miss = f64::from(u8::from(!crate::predictive::cdf_within(
+            terms,
+            total,
+            target,
+            tail,
+            1.0 - tail,
+        )));
         self.log_scale[index] += CALIBRATION_STEP * (miss - (1.0 - INTERVAL_MASS));
     }
 
@@ -1147,10 +1412,18 @@ impl IntervalCalibration {
     /// `path` with every step's predictive scaled; remembers it for the updates.
     fn calibrate(&mut self, mut path: ForecastPath) -> ForecastPath {
         for (h, (terms, mean)) in path.terms.iter_mut().zip(&path.mean_cm3_s).enumerate() {
-            *terms = self.scaled(h + 1, *mean, terms);
+            self.scale(h + 1, *mean, terms);
         }
-        self.waiting.push_front(path.terms.clone());
-        self.waiting.truncate(self.log_scale.len() - 1);
+        // The copy goes into the buffers of the path it pushes out (no allocation once the
+        // queue is full).
+        let horizon = self.log_scale.len() - 1;
+        let mut kept = match self.waiting.len() >= horizon {
+            true => self.waiting.pop_back().unwrap_or_default(),
+            false => Vec::new(),
+        };
+        kept.clone_from(&path.terms);
+        self.waiting.push_front(kept);
+        self.waiting.truncate(horizon);
         path
     }
 }
@@ -1158,6 +1431,48 @@ impl IntervalCalibration {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The selected elements of a product are nalgebra's, to the bit, at every size up to 8
+    /// (blocked by `matrixmultiply` or not), and `theta' Sigma theta` at selected elements is
+    /// `theta.tr_mul(sigma) * theta`'s.
+    #[test]
+    fn product_entries_are_the_gemm_elements_to_the_bit() {
+        let fill = |r: usize, c: usize, seed: f64| {
+            DMatrix::from_fn(r, c, |i, j| ((i * 31 + j * 17) as f64 + seed).sin() * 1e2)
+        };
+        for rows in 1..=8 {
+            for inner in 1..=8 {
+                for cols in 1..=8 {
+                    let (x, y) = (fill(rows, inner, 0.3), fill(inner, cols, 1.7));
+                    let want = &x * &y;
+                    let mut got = DMatrix::zeros(rows, cols);
+                    let all_rows: Vec<usize> = (0..rows).collect();
+                    let all_cols: Vec<usize> = (0..cols).collect();
+                    product_entries(&x, &y, &all_rows, &all_cols, &mut got);
+                    assert!(
+                        got.iter()
+                            .zip(want.iter())
+                            .all(|(a, b)| a.to_bits() == b.to_bits()),
+                        "{rows}x{inner} times {inner}x{cols}"
+                    );
+                }
+            }
+            for k_y in 1..=8 {
+                let theta = fill(rows, k_y, 2.9);
+                let sigma = fill(rows, rows, 0.1);
+                let want = theta.tr_mul(&sigma) * &theta;
+                let read: Vec<usize> = (0..k_y).step_by(2).collect();
+                let mut theta_sigma = DMatrix::zeros(k_y, rows);
+                let mut got = DMatrix::zeros(k_y, k_y);
+                theta_sigma_theta(&theta, &sigma, &read, &mut theta_sigma, &mut got);
+                for &u in &read {
+                    for &v in &read {
+                        assert_eq!(got[(u, v)].to_bits(), want[(u, v)].to_bits());
+                    }
+                }
+            }
+        }
+    }
 
     /// The calibration's guarantee on targets its predictive gets wrong (a unit normal against
     /// Student-t targets with 2 degrees of freedom and twice the scale, seeded): the share of
@@ -1180,7 +1495,8 @@ mod tests {
             let z: f64 = rng.sample(rand_distr::StandardNormal);
             let chi2 = -2.0 * (1.0 - rng.random::<f64>()).ln();
             let target = 2.0 * z / (chi2 / 2.0).sqrt();
-            let terms = calibration.scaled(0, 0.0, &unit);
+            let mut terms = unit;
+            calibration.scale(0, 0.0, &mut terms);
             let interval = central_interval(&terms, INTERVAL_MASS);
             misses += usize::from(!interval.contains(target));
             raw_misses += usize::from(!central_interval(&unit, INTERVAL_MASS).contains(target));

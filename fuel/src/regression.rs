@@ -8,7 +8,7 @@
 //! `V = [[V_yy, V_psiy'], [V_psiy, V_psi]]`, `theta = V_psi^-1 V_psiy`,
 //! `r = (V_yy - V_psiy' theta) / kappa`.
 
-use nalgebra::{Cholesky, DMatrix, DVector, SymmetricEigen};
+use nalgebra::{Cholesky, DMatrix, DMatrixView, DVector, SymmetricEigen};
 use railmon_filter::kalman::LN_2PI;
 
 use crate::FuelError;
@@ -99,12 +99,27 @@ impl RegressionStats {
     ) -> Result<(), FuelError> {
         if let Some((lambda, v0, kappa0)) = forgetting {
             self.v *= lambda;
-            self.v += v0 * (1.0 - lambda);
+            // v += v0 (1 - lambda), element by element.
+            self.v.zip_apply(v0, |v, v0| *v += v0 * (1.0 - lambda));
             self.kappa = lambda * self.kappa + (1.0 - lambda) * kappa0;
         }
         self.v.syger(weight, d, d, 1.0);
         self.kappa += weight;
         self.recompute()
+    }
+
+    /// Makes `self` hold `other`'s statistics (`V`, `kappa`) in its own buffers, for an update
+    /// that must leave `other` as it is should it fail; the point estimates are `other`'s only
+    /// after [`Self::recompute`] (which [`Self::update`] calls).
+    pub(crate) fn take_statistics_of(&mut self, other: &RegressionStats) {
+        if self.v.shape() != other.v.shape() {
+            *self = other.clone();
+            return;
+        }
+        self.v.copy_from(&other.v);
+        self.kappa = other.kappa;
+        self.k_y = other.k_y;
+        self.min_variance = other.min_variance;
     }
 
     /// Adds `w d d'` without recomputing the point estimates (batch initialisation).
@@ -123,20 +138,30 @@ impl RegressionStats {
                 self.v[(i, j)] = self.v[(j, i)];
             }
         }
-        let v_psi = self.v.view((k, k), (p, p)).into_owned();
-        let v_psiy = self.v.view((k, 0), (p, k)).into_owned();
-        let v_yy = self.v.view((0, 0), (k, k)).into_owned();
-        let chol = cholesky_with_jitter(v_psi)
+        // Views of V: each block is copied only where a result needs its own storage.
+        let v_psiy = self.v.view((k, 0), (p, k));
+        let chol = cholesky_with_jitter(self.v.view((k, k), (p, p)))
             .ok_or(FuelError::Numerical("V_psi not positive definite"))?;
         let theta = chol.solve(&v_psiy);
-        let mut r = (v_yy - v_psiy.transpose() * &theta) / self.kappa.max(f64::MIN_POSITIVE);
+        // r = (V_yy - V_psiy' theta) / kappa, element by element in the product's storage.
+        let kappa = self.kappa.max(f64::MIN_POSITIVE);
+        let mut r = v_psiy.transpose() * &theta;
+        r.zip_apply(&self.v.view((0, 0), (k, k)), |x, v_yy| {
+            *x = (v_yy - *x) / kappa
+        });
         // Floor the eigenvalues at `min_variance`: rounding in V_yy - V_psiy' theta (a
         // difference of two large, nearly equal numbers after 10^6 steps) can leave r
         // indefinite. Fast path: `r - floor I` positive definite means no eigenvalue is below
         // the floor, and r stays as it is; otherwise clamp the eigenvalues.
-        r = (&r + r.transpose()) * 0.5;
-        let floor = DMatrix::identity(self.k_y, self.k_y) * self.min_variance;
-        let above_floor = r.iter().all(|v| v.is_finite()) && Cholesky::new(&r - &floor).is_some();
+        symmetrise(&mut r);
+        let above_floor = r.iter().all(|v| v.is_finite()) && {
+            // r - floor I, in one copy of r.
+            let mut shifted = r.clone();
+            for i in 0..self.k_y {
+                shifted[(i, i)] -= self.min_variance;
+            }
+            Cholesky::new(shifted).is_some()
+        };
         if !above_floor {
             let eig = SymmetricEigen::new(r);
             let vals = eig.eigenvalues.map(|l| {
@@ -147,9 +172,9 @@ impl RegressionStats {
                 }
             });
             r = &eig.eigenvectors * DMatrix::from_diagonal(&vals) * eig.eigenvectors.transpose();
-            r = (&r + r.transpose()) * 0.5;
+            symmetrise(&mut r);
         }
-        let r_chol = cholesky_with_jitter(r.clone()).ok_or(FuelError::Numerical(
+        let r_chol = cholesky_with_jitter(r.as_view()).ok_or(FuelError::Numerical(
             "noise covariance not positive definite",
         ))?;
         if theta.iter().any(|v| !v.is_finite()) {
@@ -168,11 +193,40 @@ impl RegressionStats {
         self.theta.tr_mul(psi)
     }
 
+    /// [`mean`](Self::mean) written into `out` (of length `k_y`; the same numbers).
+    pub fn mean_into(&self, psi: &DVector<f64>, out: &mut DVector<f64>) {
+        self.theta.tr_mul_to(psi, out);
+    }
+
     /// `zeta = psi' V_psi^-1 psi`: the parameter uncertainty at this regressor, relative to the
     /// noise (the GiW predictive covariance is `r (1 + zeta)`).
     pub fn zeta(&self, psi: &DVector<f64>) -> f64 {
         let x = self.v_psi_chol.solve(psi);
         psi.dot(&x).max(0.0)
+    }
+
+    /// [`zeta`](Self::zeta) with the solve written into `work` (of length `k_psi`; the same
+    /// numbers).
+    pub fn zeta_with(&self, psi: &DVector<f64>, work: &mut DVector<f64>) -> f64 {
+        work.copy_from(psi);
+        self.v_psi_chol.solve_mut(work);
+        psi.dot(work).max(0.0)
+    }
+
+    /// What the component predicts at `psi`: the mean `theta' psi` and the inflation of the
+    /// covariance, `1 + zeta` with `parameter_uncertainty` (the GiW predictive's `r (1 + zeta)`),
+    /// else 1. The monitor's virtual sensor and the mixture's step both need it at the same
+    /// `psi` from the same statistics: computed once, it serves both.
+    pub fn predict(&self, psi: &DVector<f64>, parameter_uncertainty: bool) -> Prediction {
+        let inflate = if parameter_uncertainty {
+            1.0 + self.zeta(psi)
+        } else {
+            1.0
+        };
+        Prediction {
+            mean: self.mean(psi),
+            inflate,
+        }
     }
 
     /// Log of the component's "proximity" to `y` (Algorithm 3.4 step 2), in log space (seed-notes:
@@ -184,12 +238,13 @@ impl RegressionStats {
         psi: &DVector<f64>,
         parameter_uncertainty: bool,
     ) -> f64 {
-        let e = y - self.mean(psi);
-        let inflate = if parameter_uncertainty {
-            1.0 + self.zeta(psi)
-        } else {
-            1.0
-        };
+        self.log_proximity_at(y, &self.predict(psi, parameter_uncertainty))
+    }
+
+    /// [`log_proximity`](Self::log_proximity) from the component's [`Prediction`] at `psi`.
+    pub fn log_proximity_at(&self, y: &DVector<f64>, prediction: &Prediction) -> f64 {
+        let e = y - &prediction.mean;
+        let inflate = prediction.inflate;
         let q = e.dot(&self.r_chol.solve(&e)) / inflate;
         let k = self.k_y as f64;
         -0.5 * (k * LN_2PI + self.r_log_det + k * inflate.ln() + q)
@@ -211,13 +266,18 @@ impl RegressionStats {
         y_other: &DVector<f64>,
         parameter_uncertainty: bool,
     ) -> Conditional {
-        let mean = self.mean(psi);
+        self.condition_first_on_rest_at(&self.predict(psi, parameter_uncertainty), y_other)
+    }
+
+    /// [`condition_first_on_rest`](Self::condition_first_on_rest) from the component's
+    /// [`Prediction`] at `psi`.
+    pub fn condition_first_on_rest_at(
+        &self,
+        prediction: &Prediction,
+        y_other: &DVector<f64>,
+    ) -> Conditional {
+        let (mean, inflate) = (&prediction.mean, prediction.inflate);
         let k = self.k_y;
-        let inflate = if parameter_uncertainty {
-            1.0 + self.zeta(psi)
-        } else {
-            1.0
-        };
         let unconditional = Conditional {
             mean: mean[0],
             variance: self.r[(0, 0)] * inflate,
@@ -246,6 +306,15 @@ impl RegressionStats {
     }
 }
 
+/// What a component predicts at a regressor: see [`RegressionStats::predict`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct Prediction {
+    /// `theta' psi`.
+    pub mean: DVector<f64>,
+    /// `1 + zeta` (1 without parameter uncertainty).
+    pub inflate: f64,
+}
+
 /// Channel 0 of a component's predictive given the other channels: see
 /// [`RegressionStats::condition_first_on_rest`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -256,12 +325,25 @@ pub struct Conditional {
     pub log_density: f64,
 }
 
+/// `m <- (m + m') / 2` in place (each element as `(m_ij + m_ji) * 0.5`, the diagonal too: the
+/// same numbers as the expression, without its two temporaries).
+fn symmetrise(m: &mut DMatrix<f64>) {
+    for i in 0..m.nrows() {
+        for j in i..m.ncols() {
+            let s = (m[(i, j)] + m[(j, i)]) * 0.5;
+            m[(i, j)] = s;
+            m[(j, i)] = s;
+        }
+    }
+}
+
 /// Cholesky factor of a matrix that is positive definite in exact arithmetic but may not be in
 /// floating point: `V_psi = V_0 + sum w psi psi'` after 10^6 updates of size 10^12 has lost the
 /// `V_0 = 10^-3 I` of its small directions to rounding. Retries with a jitter `eps max(diag) I`,
 /// `eps = 10^-14 .. 10^-8`, used for the factor only (the statistics are left as they are).
-fn cholesky_with_jitter(m: DMatrix<f64>) -> Option<Cholesky<f64, nalgebra::Dyn>> {
-    if let Some(c) = Cholesky::new(m.clone()) {
+/// `m` is a view (copied once for the factor; again only when the first attempt fails).
+fn cholesky_with_jitter(m: DMatrixView<f64>) -> Option<Cholesky<f64, nalgebra::Dyn>> {
+    if let Some(c) = Cholesky::new(m.into_owned()) {
         return Some(c);
     }
     let scale = m.diagonal().iter().fold(0.0f64, |a, d| a.max(d.abs()));
@@ -271,12 +353,56 @@ fn cholesky_with_jitter(m: DMatrix<f64>) -> Option<Cholesky<f64, nalgebra::Dyn>>
     let n = m.nrows();
     [1e-14, 1e-12, 1e-10, 1e-8]
         .iter()
-        .find_map(|eps| Cholesky::new(&m + DMatrix::identity(n, n) * (eps * scale)))
+        .find_map(|eps| Cholesky::new(m + DMatrix::identity(n, n) * (eps * scale)))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The in-place symmetrisation gives the expression's numbers to the bit.
+    #[test]
+    fn symmetrise_equals_the_expression() {
+        let m = DMatrix::from_fn(5, 5, |i, j| ((i * 7 + j * 3) as f64).sin() * 1e3 + 0.1);
+        let want = (&m + m.transpose()) * 0.5;
+        let mut got = m.clone();
+        symmetrise(&mut got);
+        assert!(got
+            .iter()
+            .zip(want.iter())
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+
+    /// An update in another component's buffers (the mixture's spare) gives the numbers of an
+    /// update of a copy, to the bit, whatever those buffers held before.
+    #[test]
+    fn an_update_in_spare_buffers_equals_an_update_of_a_copy() {
+        let v0 = DMatrix::from_fn(4, 4, |i, j| if i == j { 2.0 + i as f64 } else { 0.3 });
+        let mut source = RegressionStats::new(2, v0.clone(), 3.0, 1e-9).unwrap();
+        let mut spare = RegressionStats::new(2, v0 * 7.0, 11.0, 1e-9).unwrap();
+        for t in 0..20 {
+            let x = t as f64;
+            let d = DVector::from_vec(vec![x.sin(), (0.3 * x).cos(), 0.1 * x, 1.0]);
+            let mut copy = source.clone();
+            copy.update(&d, 0.7, Some((0.9, &DMatrix::identity(4, 4), 1.0)))
+                .unwrap();
+            spare.take_statistics_of(&source);
+            spare
+                .update(&d, 0.7, Some((0.9, &DMatrix::identity(4, 4), 1.0)))
+                .unwrap();
+            let bits = |s: &RegressionStats| {
+                let m = [s.v(), s.theta(), s.r()];
+                let mut b: Vec<u64> = m
+                    .iter()
+                    .flat_map(|m| m.iter().map(|v| v.to_bits()))
+                    .collect();
+                b.extend([s.kappa().to_bits(), s.r_log_det.to_bits()]);
+                b
+            };
+            assert_eq!(bits(&spare), bits(&copy));
+            std::mem::swap(&mut source, &mut spare);
+        }
+    }
 
     #[test]
     fn proximity_is_the_gaussian_log_density() {

@@ -283,3 +283,93 @@ fn pointer_weights_sum_to_one_over_a_million_extreme_steps() {
     let s: f64 = mix.joint().iter().sum();
     assert!((s - 1.0).abs() < 1e-12);
 }
+
+/// The switching probabilities the mixture keeps for the forecast (`ln alpha` and `alpha` of
+/// every cell, refreshed where a step changes the table) are the table's own to the bit: after
+/// batch initialisation, after on-line steps with forgetting over several switching rows, and
+/// after a snapshot round trip (which leaves them out, so they are computed when asked).
+#[test]
+fn kept_switching_probabilities_are_the_tables_to_the_bit() {
+    let (ys, psis) = regression_data(300, 7);
+    let spec = MixtureSpec {
+        switching_rows: 3,
+        forgetting: 0.99,
+        ..spec(3, 2, 3)
+    };
+    let inputs: Vec<MixtureInput> = ys
+        .iter()
+        .zip(&psis)
+        .enumerate()
+        .map(|(t, (y, psi))| MixtureInput {
+            y,
+            psi,
+            category: None,
+            switching_row: t % 3,
+        })
+        .collect();
+    let labels: Vec<usize> = (0..100).map(|t| t % 3).collect();
+    let mut mixture = Mixture::from_batch(spec, &inputs[..100], &labels, 2, 1.0).unwrap();
+    let check = |mixture: &Mixture| {
+        let table = mixture.switching();
+        for k in 0..3 {
+            for j in 0..3 {
+                for i in 0..3 {
+                    let want = table.log_probability(k * 3 + j, i);
+                    assert_eq!(mixture.log_alpha(k, j, i).to_bits(), want.to_bits());
+                    assert_eq!(mixture.alpha(k, j, i).to_bits(), want.exp().to_bits());
+                    assert_eq!(
+                        mixture.log_alpha_block(k)[j * 3 + i].to_bits(),
+                        want.to_bits()
+                    );
+                }
+            }
+        }
+    };
+    check(&mixture);
+    for input in &inputs[100..] {
+        mixture.step(input).unwrap();
+        check(&mixture);
+    }
+    let restored: Mixture =
+        serde_json::from_str(&serde_json::to_string(&mixture).unwrap()).unwrap();
+    check(&restored);
+}
+
+/// A step that fails (a data vector so large that its proximities overflow) leaves the mixture
+/// as it was, and the next steps give the same numbers, to the bit, as on a mixture that never
+/// saw it (the statistics are updated in spare buffers, which a failure leaves dirty, and
+/// swapped in only when every component succeeded).
+#[test]
+fn a_failed_step_changes_nothing_and_the_next_steps_are_unaffected() {
+    let (ys, psis) = regression_data(200, 3);
+    let inputs: Vec<MixtureInput> = ys
+        .iter()
+        .zip(&psis)
+        .map(|(y, psi)| MixtureInput {
+            y,
+            psi,
+            category: None,
+            switching_row: 0,
+        })
+        .collect();
+    let labels: Vec<usize> = (0..50).map(|t| t % 2).collect();
+    let mut mixture = Mixture::from_batch(spec(2, 2, 3), &inputs[..50], &labels, 1, 1.0).unwrap();
+    for input in &inputs[50..100] {
+        mixture.step(input).unwrap();
+    }
+    let mut twin = mixture.clone();
+    let state = |m: &Mixture| serde_json::to_string(m).unwrap();
+    let before = state(&mixture);
+    let huge = DVector::from_vec(vec![1e200, -1e200]);
+    let failing = MixtureInput {
+        y: &huge,
+        ..inputs[100].clone()
+    };
+    assert!(mixture.step(&failing).is_err());
+    assert_eq!(state(&mixture), before);
+    for input in &inputs[100..] {
+        mixture.step(input).unwrap();
+        twin.step(input).unwrap();
+        assert_eq!(state(&mixture), state(&twin));
+    }
+}

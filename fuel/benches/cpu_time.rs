@@ -1,0 +1,79 @@
+//! CPU time of `FuelMonitor::update`, alone and with every interval asked for, at `m_c` = 3
+//! and 10 (the samples and settings of `benches/mixture.rs`), from the thread's own CPU clock
+//! (`CLOCK_THREAD_CPUTIME_ID`): on the shared 2-core build machine criterion's wall-clock
+//! medians rise with the other jobs' load, the time this thread spends on a core much less.
+//! Prints a table. Run with `cargo bench -p railmon-fuel --bench cpu_time` (one row: `-- update/3`).
+
+use std::time::Instant;
+
+mod common;
+use common::{every_interval, initialised_monitor, sample};
+
+/// This thread's CPU time, ns.
+fn thread_cpu_ns() -> u128 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec; the clock id is a constant Linux supports.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    assert_eq!(rc, 0, "clock_gettime(CLOCK_THREAD_CPUTIME_ID)");
+    ts.tv_sec as u128 * 1_000_000_000 + ts.tv_nsec as u128
+}
+
+/// CPU and wall time per step, µs, over `steps` steps after `warm_up` unmeasured ones.
+fn measure(m_c: usize, with_intervals: bool, warm_up: usize, steps: usize) -> (f64, f64) {
+    let (mut monitor, mut t) = initialised_monitor(m_c);
+    let mut run = |n: usize| {
+        let mut kept = 0.0;
+        for _ in 0..n {
+            t += 1;
+            kept += monitor.update(&sample(t)).expect("valid sample").fuel_cm3_s;
+            if with_intervals {
+                kept += every_interval(&monitor).0.lower;
+            }
+        }
+        std::hint::black_box(kept);
+    };
+    run(warm_up);
+    let (cpu, wall) = (thread_cpu_ns(), Instant::now());
+    run(steps);
+    let per_step = |ns: f64| ns / steps as f64 / 1e3;
+    (
+        per_step((thread_cpu_ns() - cpu) as f64),
+        per_step(wall.elapsed().as_nanos() as f64),
+    )
+}
+
+fn main() {
+    // `cargo bench` passes `--bench`; any other argument keeps only the rows whose name
+    // (`update/3`, `update_and_intervals/10`, ...) equals it.
+    let only: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with("--"))
+        .collect();
+    println!("| row | m_c | CPU µs/step | steps/s (CPU) | wall µs/step |");
+    println!("|---|---|---|---|---|");
+    for m_c in [3usize, 10] {
+        for with_intervals in [false, true] {
+            let steps = match (m_c, with_intervals) {
+                (3, false) => 20_000,
+                (3, true) | (10, false) => 4_000,
+                _ => 1_000,
+            };
+            let row = if with_intervals {
+                "update_and_intervals"
+            } else {
+                "update"
+            };
+            if !only.is_empty() && !only.contains(&format!("{row}/{m_c}")) {
+                continue;
+            }
+            let (cpu_us, wall_us) = measure(m_c, with_intervals, steps / 10, steps);
+            println!(
+                "| {row} | {m_c} | {cpu_us:.2} | {:.0} | {wall_us:.2} |",
+                1e6 / cpu_us
+            );
+        }
+    }
+}
