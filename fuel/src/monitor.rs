@@ -270,6 +270,8 @@ impl FuelMonitor {
             dirichlet_prior: config.dirichlet_prior,
             switching_prior_stay: config.switching_prior_stay,
             switching_prior_move: config.switching_prior_move,
+            measured_channels: (config.measured_proximity && !derived.is_empty())
+                .then_some(channels.len()),
         };
         Ok(FuelMonitor {
             config: config.clone(),
