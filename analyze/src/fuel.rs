@@ -348,7 +348,8 @@ fn write_named_regimes(
     write_csv_table(path, &header, rows.chain(last))
 }
 
-/// `components.csv`: each component's operating point and name at the end of the run.
+/// `components.csv`: each component's operating point, unique name and regime (the name
+/// without qualifier) at the end of the run.
 fn write_components(path: &Path, ev: &Evaluation) -> Result<(), RecordError> {
     let optional = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6}"));
     let rows = ev
@@ -363,6 +364,7 @@ fn write_components(path: &Path, ev: &Evaluation) -> Result<(), RecordError> {
                 format!("{:.6}", p.fuel_cm3_s),
                 optional(p.speed_m_s),
                 optional(p.acceleration_m_s2),
+                name.regime.to_string(),
             ]
         });
     write_csv_table(
@@ -374,6 +376,7 @@ fn write_components(path: &Path, ev: &Evaluation) -> Result<(), RecordError> {
             "fuel_cm3_s",
             "speed_m_s",
             "acceleration_m_s2",
+            "regime",
         ],
         rows,
     )

@@ -177,9 +177,8 @@ fn scenario_run_writes_every_report() {
     // Each component's operating point and name (issue 14 item 3), the names those of the
     // last estimate.
     let components = std::fs::read_to_string(out.join("components.csv")).unwrap();
-    assert!(
-        components.starts_with("component,name,samples,fuel_cm3_s,speed_m_s,acceleration_m_s2\n")
-    );
+    assert!(components
+        .starts_with("component,name,samples,fuel_cm3_s,speed_m_s,acceleration_m_s2,regime\n"));
     assert_eq!(
         components.lines().count(),
         ev.components + 1,
@@ -195,7 +194,7 @@ fn scenario_run_writes_every_report() {
         .split(',')
         .nth(column)
         .unwrap();
-    assert_eq!(last_name, ev.rows.last().unwrap().regime_name.as_str());
+    assert_eq!(last_name, ev.rows.last().unwrap().regime_name.to_string());
     // The labels (city, aggressive) are not regime names: no named score.
     assert!(ev.named_regimes.is_none() && !out.join("regime_names.csv").exists());
     // The simulated samples read back as a labelled recording and give the same evaluation.

@@ -171,9 +171,19 @@ pub struct FuelMonitorConfig {
     /// measured ones (never lagged into `psi`): what the engine must deliver now. The virtual
     /// sensor conditions fuel on them, so within a component it is a regression of fuel on
     /// speed, acceleration, power demand and speed powers, which a fuel map is close to
-    /// (tractive power ~ m a v + c_r m g v + c_d v^3); and the pointer sees them, so regimes
-    /// separate by what the driver does (accelerate, cruise, coast). Need the `speed` channel.
+    /// (tractive power ~ m a v + c_r m g v + c_d v^3); and the pointer sees them (measured on
+    /// the railcar routes: mostly their degenerate density, not what the driver does;
+    /// [`FuelMonitorConfig::measured_proximity`]). Need the `speed` channel.
     pub derived_channels: Vec<DerivedChannel>,
+    /// The pointer weighs the components by the density of the measured data only: fuel given
+    /// every other channel (derived ones included) times the other measured channels, not the
+    /// derived channels' own density (`RegressionStats::log_proximity_measured`). A derived
+    /// channel is a function of the speed now and a sample ago, so its density given the
+    /// others is degenerate and, with the speed lagged in `psi`, decides the pointer by
+    /// rounding-sized misfits (docs/fuel.md, "Why coasting is not recognised"). Off: the
+    /// density of all of `y_t`. Worse named regimes on both railcar routes, so no preset uses
+    /// it.
+    pub measured_proximity: bool,
     /// Blend each h-step fuel forecast of the mixture with that of a single regression run
     /// alongside (same settings, one component), weighted per horizon by the convex
     /// combination with the smallest squared error so far (errors of forecasts whose target has
@@ -263,6 +273,7 @@ impl Default for FuelMonitorConfig {
                 DerivedChannel::SpeedSquared,
                 DerivedChannel::SpeedCubed,
             ],
+            measured_proximity: false,
             forecast_blend: true,
             blend_forgetting: 0.999,
             categorical: None,

@@ -38,7 +38,7 @@ pub use mixture::{Mixture, MixtureInput, MixtureSpec};
 pub use monitor::{FuelEstimate, FuelMonitor, MixtureEstimate, RegimeChange, REGIME_CHANGED};
 pub use predictive::{central_interval, Interval, StudentT};
 pub use railcar::{RailcarParameters, RailcarScenario, RailcarSimulator, RailcarTruth};
-pub use regime::{OperatingPoint, RegimeName, RegimeNaming};
+pub use regime::{ComponentName, OperatingPoint, PowerTier, RegimeName, RegimeNaming};
 pub use regression::RegressionStats;
 pub use sample::{bin_index, Channel, DerivedChannel, VehicleSample};
 pub use simulator::{

@@ -36,6 +36,11 @@ pub struct MixtureSpec {
     pub dirichlet_prior: f64,
     pub switching_prior_stay: f64,
     pub switching_prior_move: f64,
+    /// `Some(m)`: channels `m..k_y` of `y` are derived from the others and `psi`, and the
+    /// proximities are densities of the measured data only
+    /// ([`RegressionStats::log_proximity_measured`]); `None`: of all of `y` (the paper's).
+    #[serde(default)]
+    pub measured_channels: Option<usize>,
 }
 
 /// One step's data for the mixture.
@@ -340,7 +345,12 @@ impl Mixture {
         let log_alpha = self.log_alpha_block(k);
         let mut log_joint = vec![0.0; m * m];
         for i in 0..m {
-            let evidence = self.components[i].log_proximity_at(input.y, &predictions[i])
+            // The kept predictions serve the default proximity (same bits); the measured-data
+            // density (off by default) is computed from the input.
+            let evidence = match self.spec.measured_channels {
+                Some(_) => proximity(&self.spec, &self.components[i], input),
+                None => self.components[i].log_proximity_at(input.y, &predictions[i]),
+            }
                 + self.log_category(i, input.category);
             for j in 0..m {
                 log_joint[i * m + j] = evidence + log_alpha[j * m + i] + self.log_w[j];
@@ -439,14 +449,7 @@ impl Mixture {
                 .collect();
             for (input, r) in data.iter().zip(resp.iter_mut()) {
                 let mut l: Vec<f64> = (0..m)
-                    .map(|i| {
-                        log_pi[i]
-                            + comps[i].log_proximity(
-                                input.y,
-                                input.psi,
-                                mix.spec.parameter_uncertainty,
-                            )
-                    })
+                    .map(|i| log_pi[i] + proximity(&mix.spec, &comps[i], input))
                     .collect();
                 normalize_log_weights(&mut l)?;
                 for (ri, li) in r.iter_mut().zip(&l) {
@@ -499,6 +502,15 @@ pub(crate) fn with_scratch<R>(n: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
     match stack.get_mut(..n) {
         Some(scratch) => f(scratch),
         None => f(&mut vec![0.0; n]),
+    }
+}
+
+/// Log-proximity of `input` to component `c` (Algorithm 3.4 step 2), of all of `y` or of the
+/// measured channels only ([`MixtureSpec::measured_channels`]).
+fn proximity(spec: &MixtureSpec, c: &RegressionStats, input: &MixtureInput) -> f64 {
+    match spec.measured_channels {
+        Some(m) => c.log_proximity_measured(input.y, input.psi, spec.parameter_uncertainty, m),
+        None => c.log_proximity(input.y, input.psi, spec.parameter_uncertainty),
     }
 }
 

@@ -17,7 +17,7 @@ use serde::Serialize;
 use crate::config::{FuelMonitorConfig, InitialPartition};
 use crate::mixture::{argmax, Mixture, MixtureInput, MixtureSpec};
 use crate::predictive::{central_interval, Interval, StudentT};
-use crate::regime::{OperatingPoint, RegimeName};
+use crate::regime::{ComponentName, OperatingPoint};
 use crate::sample::{bin_index, Channel, DerivedChannel, VehicleSample};
 use crate::FuelError;
 
@@ -63,10 +63,11 @@ pub struct MixtureEstimate {
     /// The reported driving regime: the active regime once it has been active for
     /// `regime_confirm_samples` samples in a row (the first estimate's active regime at start).
     pub regime: usize,
-    /// What each component means, from its statistics after this sample (`crate::regime`).
-    pub regime_names: Vec<RegimeName>,
+    /// What each component means, from its statistics after this sample (`crate::regime`):
+    /// unique within the mixture.
+    pub regime_names: Vec<ComponentName>,
     /// The name of `regime`.
-    pub regime_name: RegimeName,
+    pub regime_name: ComponentName,
     /// `regime` differs from the previous sample's (`None` on the first estimate): the
     /// `regime_changed` event, raised by the service and written by `railmon analyze fuel`.
     pub regime_change: Option<RegimeChange>,
@@ -106,9 +107,10 @@ pub struct RegimeChange {
     pub from_regime: usize,
     pub to_regime: usize,
     /// What the regimes mean, named on this sample (the component left may have been renamed
-    /// since it was entered: the name is of its statistics now).
-    pub from_name: RegimeName,
-    pub to_name: RegimeName,
+    /// since it was entered: the name is of its statistics now). Names are unique per
+    /// component, so they differ.
+    pub from_name: ComponentName,
+    pub to_name: ComponentName,
     /// Probability of the new regime on this sample.
     pub probability: f64,
 }
@@ -271,6 +273,8 @@ impl FuelMonitor {
             dirichlet_prior: config.dirichlet_prior,
             switching_prior_stay: config.switching_prior_stay,
             switching_prior_move: config.switching_prior_move,
+            measured_channels: (config.measured_proximity && !derived.is_empty())
+                .then_some(channels.len()),
         };
         Ok(FuelMonitor {
             config: config.clone(),
@@ -884,13 +888,10 @@ impl FuelMonitor {
             .collect()
     }
 
-    /// What each component means (`crate::regime`), from its operating point. Empty before
-    /// initialisation.
-    pub fn regime_names(&self) -> Vec<RegimeName> {
-        self.operating_points()
-            .iter()
-            .map(|p| self.config.naming.name(p))
-            .collect()
+    /// What each component means (`crate::regime`), from the operating points: a name unique
+    /// per component. Empty before initialisation.
+    pub fn regime_names(&self) -> Vec<ComponentName> {
+        self.config.naming.names(&self.operating_points())
     }
 
     /// Index of the most probable component now (`None` before initialisation).

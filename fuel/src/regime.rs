@@ -18,8 +18,19 @@
 //!    off): `coasting`;
 //! 6. otherwise `cruising`.
 //!
-//! The name is a function of the statistics and the configuration only: a monitor restored
-//! from a snapshot names its components as before. Several components may share a name.
+//! Several components may fall under one rule (two `cruising` components: an eco and a sporty
+//! driver). Each component's [`ComponentName`] is unique within the mixture, so a move between
+//! two of them is a change of name: the components of one regime are told apart by their mean
+//! fuel (what a fuel monitor is about, and a channel every setting has), in tiers that differ
+//! by at least `same_power_cm3_s` (sorted by mean fuel, a new tier where the next component
+//! burns that much more than the previous): two tiers `_low_power` / `_high_power`, three with
+//! `_mid_power`, more `_power_1` (lowest) .. `_power_k`. Components in one tier really are the
+//! same regime as far as the statistics tell; they get an ordinal `_1`, `_2`, .. in component
+//! order. A component alone under its rule keeps the bare name (`cruising`), so a consumer
+//! reads the regime as the name up to its first qualifier ([`ComponentName::regime`]).
+//!
+//! The names are a function of the statistics and the configuration only: a monitor restored
+//! from a snapshot names its components as before.
 
 use serde::{Deserialize, Serialize};
 
@@ -91,6 +102,9 @@ pub struct RegimeNaming {
     pub acceleration_m_s2: f64,
     /// Mean fuel at or below which a moving, steady component draws no traction power, cm^3/s.
     pub coasting_fuel_cm3_s: f64,
+    /// Two components of one regime whose mean fuel differs by less than this are the same
+    /// power tier (told apart by an ordinal only), cm^3/s.
+    pub same_power_cm3_s: f64,
 }
 
 impl Default for RegimeNaming {
@@ -103,25 +117,84 @@ impl RegimeNaming {
     /// A road car: fuel is cut off on overrun (~0 cm^3/s, the Camry files' most frequent
     /// value), below the ~0.2-0.3 cm^3/s of an idling 2.5 l engine; a deliberate acceleration
     /// or braking is 0.15 m/s^2 or more as a component's mean (a car's running resistance
-    /// decelerates it by ~0.1-0.3 m/s^2 at speed, which coasting includes).
+    /// decelerates it by ~0.1-0.3 m/s^2 at speed, which coasting includes); 0.1 cm^3/s apart,
+    /// about half an idling engine's fuel, is another power tier.
     pub fn road_car() -> Self {
         RegimeNaming {
             min_samples: 30.0,
             standstill_speed_m_s: 0.5,
             acceleration_m_s2: 0.15,
             coasting_fuel_cm3_s: 0.15,
+            same_power_cm3_s: 0.1,
         }
     }
 
     /// A diesel railcar: engines idling with the auxiliaries on burn what they burn at a
     /// station (three QSK19-R: ~10 cm^3/s in `railcar.rs`'s map), so coasting is fuel below
     /// 1.5 times that; running resistance decelerates a train by ~0.05 m/s^2, service braking
-    /// by ~0.7, notching up accelerates it by 0.1-0.75, so 0.15 m/s^2 as for a car.
+    /// by ~0.7, notching up accelerates it by 0.1-0.75, so 0.15 m/s^2 as for a car. One notch
+    /// of three QSK19-R is ~200 kW, ~14 cm^3/s in the map: 5 cm^3/s apart is another tier.
     pub fn railcar() -> Self {
         RegimeNaming {
             coasting_fuel_cm3_s: 15.0,
+            same_power_cm3_s: 5.0,
             ..Self::road_car()
         }
+    }
+
+    /// Every component's unique name (module documentation): its regime by
+    /// [`RegimeNaming::name`], qualified by power tier and ordinal where several components
+    /// share that regime.
+    pub fn names(&self, points: &[OperatingPoint]) -> Vec<ComponentName> {
+        let regimes: Vec<RegimeName> = points.iter().map(|p| self.name(p)).collect();
+        let mut names: Vec<ComponentName> =
+            regimes.iter().map(|&r| ComponentName::bare(r)).collect();
+        for regime in RegimeName::ALL {
+            let mut members: Vec<usize> = (0..points.len())
+                .filter(|&i| regimes[i] == regime)
+                .collect();
+            if members.len() < 2 {
+                continue;
+            }
+            // An unsettled component's mean fuel means nothing yet: ordinals only.
+            let tier_of: Vec<usize> = if regime == RegimeName::Unsettled {
+                vec![0; members.len()]
+            } else {
+                members.sort_by(|&i, &j| {
+                    points[i]
+                        .fuel_cm3_s
+                        .total_cmp(&points[j].fuel_cm3_s)
+                        .then(i.cmp(&j))
+                });
+                let mut tier = 0;
+                let mut tiers = vec![0];
+                for w in members.windows(2) {
+                    let step = points[w[1]].fuel_cm3_s - points[w[0]].fuel_cm3_s;
+                    // NaN (a broken statistic) is not a step: same tier.
+                    if step >= self.same_power_cm3_s {
+                        tier += 1;
+                    }
+                    tiers.push(tier);
+                }
+                tiers
+            };
+            let tiers = tier_of.last().map_or(1, |t| t + 1);
+            for (k, &i) in members.iter().enumerate() {
+                let t = tier_of[k];
+                names[i].power = PowerTier::of(t, tiers);
+                let same: Vec<usize> = members
+                    .iter()
+                    .zip(&tier_of)
+                    .filter(|(_, &u)| u == t)
+                    .map(|(&j, _)| j)
+                    .collect();
+                if same.len() > 1 {
+                    let rank = same.iter().filter(|&&j| j < i).count() + 1;
+                    names[i].ordinal = Some(rank as u32);
+                }
+            }
+        }
+        names
     }
 
     /// The rule of the module documentation.
@@ -165,6 +238,13 @@ impl RegimeNaming {
                 ));
             }
         }
+        if !(self.same_power_cm3_s.is_finite() && self.same_power_cm3_s > 0.0) {
+            return Err(crate::FuelError::invalid(
+                "naming.same_power_cm3_s",
+                self.same_power_cm3_s,
+                "must be finite and > 0",
+            ));
+        }
         if !self.coasting_fuel_cm3_s.is_finite() {
             return Err(crate::FuelError::invalid(
                 "naming.coasting_fuel_cm3_s",
@@ -173,6 +253,126 @@ impl RegimeNaming {
             ));
         }
         Ok(())
+    }
+}
+
+/// Where a component sits by mean fuel among the components of its regime.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum PowerTier {
+    Low,
+    Mid,
+    High,
+    /// 1-based rank from the lowest, when there are more than three tiers.
+    Rank(u32),
+}
+
+impl PowerTier {
+    /// Tier `t` (0-based from the lowest) of `tiers`; `None` for a single tier.
+    fn of(t: usize, tiers: usize) -> Option<Self> {
+        match (tiers, t) {
+            (0 | 1, _) => None,
+            (_, 0) if tiers <= 3 => Some(PowerTier::Low),
+            (2, _) | (3, 2) => Some(PowerTier::High),
+            (3, _) => Some(PowerTier::Mid),
+            _ => Some(PowerTier::Rank(t as u32 + 1)),
+        }
+    }
+}
+
+/// A component's name, unique within the mixture (module documentation): the regime, then
+/// where needed its power tier and an ordinal. Written `cruising`, `cruising_high_power`,
+/// `braking_power_4`, `idle_2`, `cruising_low_power_1`; serialised as that text.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct ComponentName {
+    /// What the component means.
+    pub regime: RegimeName,
+    /// Its tier by mean fuel among components of the same regime (`None`: one tier).
+    pub power: Option<PowerTier>,
+    /// 1-based, among components of the same regime and tier (`None`: the only one).
+    pub ordinal: Option<u32>,
+}
+
+impl Default for ComponentName {
+    fn default() -> Self {
+        Self::bare(RegimeName::Unsettled)
+    }
+}
+
+impl ComponentName {
+    /// The regime's name without qualifier.
+    pub fn bare(regime: RegimeName) -> Self {
+        ComponentName {
+            regime,
+            power: None,
+            ordinal: None,
+        }
+    }
+
+    /// The name written `text` (as `Display` writes it); `None` if it is not one.
+    pub fn parse(text: &str) -> Option<Self> {
+        let (regime, mut rest) = RegimeName::ALL
+            .into_iter()
+            .find_map(|r| text.strip_prefix(r.as_str()).map(|rest| (r, rest)))?;
+        let mut name = Self::bare(regime);
+        let tier = [
+            ("_low_power", PowerTier::Low),
+            ("_mid_power", PowerTier::Mid),
+            ("_high_power", PowerTier::High),
+        ]
+        .into_iter()
+        .find_map(|(suffix, tier)| rest.strip_prefix(suffix).map(|r| (tier, r)));
+        if let Some((tier, r)) = tier {
+            name.power = Some(tier);
+            rest = r;
+        } else if let Some(r) = rest.strip_prefix("_power_") {
+            let (rank, r) = leading_number(r)?;
+            name.power = Some(PowerTier::Rank(rank));
+            rest = r;
+        }
+        if let Some(r) = rest.strip_prefix('_') {
+            let (ordinal, r) = leading_number(r)?;
+            name.ordinal = Some(ordinal);
+            rest = r;
+        }
+        rest.is_empty().then_some(name)
+    }
+}
+
+/// A positive decimal number at the start of `text` (digits up to the next `_` or the end).
+fn leading_number(text: &str) -> Option<(u32, &str)> {
+    let end = text.find('_').unwrap_or(text.len());
+    let n: u32 = text[..end].parse().ok().filter(|&n| n > 0)?;
+    Some((n, &text[end..]))
+}
+
+impl std::fmt::Display for ComponentName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.regime.as_str())?;
+        match self.power {
+            Some(PowerTier::Low) => f.write_str("_low_power")?,
+            Some(PowerTier::Mid) => f.write_str("_mid_power")?,
+            Some(PowerTier::High) => f.write_str("_high_power")?,
+            Some(PowerTier::Rank(k)) => write!(f, "_power_{k}")?,
+            None => {}
+        }
+        if let Some(k) = self.ordinal {
+            write!(f, "_{k}")?;
+        }
+        Ok(())
+    }
+}
+
+impl Serialize for ComponentName {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl<'de> Deserialize<'de> for ComponentName {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let text = String::deserialize(d)?;
+        ComponentName::parse(&text)
+            .ok_or_else(|| serde::de::Error::custom(format!("not a regime name: {text:?}")))
     }
 }
 
@@ -235,6 +435,118 @@ mod tests {
             n.name(&point(f64::NAN, 10.0, 0.0, 0.0)),
             RegimeName::Unsettled
         );
+    }
+
+    /// Components under one rule are told apart by mean fuel tiers, and by an ordinal only
+    /// where the fuel does not separate them; every name is unique, a lone component keeps the
+    /// bare name, and the order of the components does not change which is which.
+    #[test]
+    fn components_of_one_regime_get_unique_names_by_power_tier() {
+        let n = RegimeNaming::railcar();
+        let cruising = |fuel: f64| point(100.0, fuel, 20.0, 0.0);
+        let text = |points: &[OperatingPoint]| -> Vec<String> {
+            n.names(points).iter().map(|c| c.to_string()).collect()
+        };
+        // The driving_style case: two cruising components, one idle.
+        assert_eq!(
+            text(&[cruising(60.0), point(100.0, 10.4, 0.0, 0.0), cruising(40.0)]),
+            ["cruising_high_power", "idle", "cruising_low_power"]
+        );
+        assert_eq!(
+            text(&[cruising(40.0), cruising(80.0), cruising(60.0)]),
+            [
+                "cruising_low_power",
+                "cruising_high_power",
+                "cruising_mid_power"
+            ]
+        );
+        assert_eq!(
+            text(&[
+                cruising(70.0),
+                cruising(20.0),
+                cruising(30.0),
+                cruising(50.0)
+            ]),
+            [
+                "cruising_power_4",
+                "cruising_power_1",
+                "cruising_power_2",
+                "cruising_power_3"
+            ]
+        );
+        // Within `same_power_cm3_s` (5) of each other: one tier, ordinals in component order.
+        assert_eq!(
+            text(&[cruising(42.0), cruising(40.0), cruising(80.0)]),
+            [
+                "cruising_low_power_1",
+                "cruising_low_power_2",
+                "cruising_high_power"
+            ]
+        );
+        // A chain of small steps is one tier (tiers are separated by a gap, not a width).
+        assert_eq!(
+            text(&[cruising(40.0), cruising(44.0), cruising(48.0)]),
+            ["cruising_1", "cruising_2", "cruising_3"]
+        );
+        // Unsettled components: ordinals only, whatever their fuel.
+        let few = |fuel: f64| point(5.0, fuel, 0.0, 0.0);
+        assert_eq!(
+            text(&[few(10.0), few(f64::NAN), few(90.0)]),
+            ["unsettled_1", "unsettled_2", "unsettled_3"]
+        );
+        // Unique always, and the regime is the rule's.
+        let points = [
+            cruising(42.0),
+            cruising(40.0),
+            cruising(80.0),
+            point(100.0, 100.0, 18.0, 0.36),
+            point(100.0, 100.0, 18.0, 0.36),
+            few(1.0),
+        ];
+        let names = n.names(&points);
+        for (i, a) in names.iter().enumerate() {
+            assert_eq!(a.regime, n.name(&points[i]));
+            assert!(names[i + 1..].iter().all(|b| b != a), "{names:?}");
+        }
+    }
+
+    #[test]
+    fn component_names_round_trip_as_text_and_bare_names_still_read() {
+        let names = [
+            "idle",
+            "cruising_low_power",
+            "cruising_mid_power",
+            "braking_high_power",
+            "accelerating_power_12",
+            "coasting_3",
+            "cruising_high_power_2",
+            "cruising_power_4_1",
+        ];
+        for text in names {
+            let name = ComponentName::parse(text).unwrap();
+            assert_eq!(name.to_string(), text);
+            let json = serde_json::to_string(&name).unwrap();
+            assert_eq!(json, format!("\"{text}\""));
+            assert_eq!(serde_json::from_str::<ComponentName>(&json).unwrap(), name);
+        }
+        // A snapshot from before the qualifiers holds bare names: they read as bare names.
+        assert_eq!(
+            serde_json::from_str::<ComponentName>("\"cruising\"").unwrap(),
+            ComponentName::bare(RegimeName::Cruising)
+        );
+        for bad in [
+            "",
+            "cruise",
+            "cruising_",
+            "cruising_0",
+            "cruising_low",
+            "cruising_low_power_mid_power",
+            "cruising_power_",
+            "cruising_2_3",
+            "idle_x",
+        ] {
+            assert_eq!(ComponentName::parse(bad), None, "{bad}");
+        }
     }
 
     #[test]

@@ -22,6 +22,7 @@ fn spec(components: usize, k_y: usize, k_psi: usize) -> MixtureSpec {
         dirichlet_prior: 1.0,
         switching_prior_stay: 2.0,
         switching_prior_move: 1.0,
+        measured_channels: None,
     }
 }
 

@@ -5,7 +5,9 @@ mod common;
 
 use common::vehicle::{fuel_cycles, vehicle_config, vehicle_header, VehicleHarness};
 use railmon_bus::VehicleFrame;
-use railmon_fuel::{CategoricalConfig, FuelMonitor, FuelMonitorConfig, RegimeName, VehicleSample};
+use railmon_fuel::{
+    CategoricalConfig, ComponentName, FuelMonitor, FuelMonitorConfig, VehicleSample,
+};
 use railmon_service::ingest::Pipeline;
 use railmon_service::vehicle::IntervalView;
 
@@ -100,11 +102,13 @@ fn pipeline_reproduces_the_library_and_reports_regime_changes() {
         );
         assert!(pair[1].time_s > pair[0].time_s && pair[1].id == pair[0].id + 1);
     }
+    // Names are unique per component: every change is a change of name.
     for e in &events {
         for key in ["from_name", "to_name"] {
             let name = e.detail[key].as_str().unwrap();
-            assert!(RegimeName::parse(name).is_some(), "{key} = {name}");
+            assert!(ComponentName::parse(name).is_some(), "{key} = {name}");
         }
+        assert_ne!(e.detail["from_name"], e.detail["to_name"], "{e:?}");
     }
     // One history point per second of stream time.
     let history = harness.shared.history.collect(|_| true);

@@ -9,8 +9,8 @@
 use std::collections::VecDeque;
 
 use railmon_fuel::{
-    FuelError, FuelMonitor, FuelMonitorConfig, Interval, OperatingPoint, RegimeChange, RegimeName,
-    VehicleSample,
+    ComponentName, FuelError, FuelMonitor, FuelMonitorConfig, Interval, OperatingPoint,
+    RegimeChange, RegimeName, VehicleSample,
 };
 
 use super::rls::RlsPeer;
@@ -37,9 +37,10 @@ pub struct PredictionRow {
     pub active_regime: usize,
     /// The reported regime (active for `regime_confirm_samples` in a row).
     pub regime: usize,
-    /// The names of the active and of the reported regime (`railmon_fuel::regime`).
-    pub active_regime_name: RegimeName,
-    pub regime_name: RegimeName,
+    /// The names of the active and of the reported regime (`railmon_fuel::regime`), unique
+    /// per component.
+    pub active_regime_name: ComponentName,
+    pub regime_name: ComponentName,
     pub label: Option<usize>,
     pub speed_m_s: Option<f64>,
     pub engine_speed_rpm: Option<f64>,
@@ -146,8 +147,8 @@ impl NamedRegimeScore {
         let mut confirmed_confusion = confusion.clone();
         for r in rows {
             if let Some(l) = r.label {
-                confusion[index(r.active_regime_name)][l] += 1;
-                confirmed_confusion[index(r.regime_name)][l] += 1;
+                confusion[index(r.active_regime_name.regime)][l] += 1;
+                confirmed_confusion[index(r.regime_name.regime)][l] += 1;
             }
         }
         Some(NamedRegimeScore {
@@ -200,7 +201,7 @@ pub struct Evaluation {
     /// Named regimes against the labels, when the labels are regime names.
     pub named_regimes: Option<NamedRegimeScore>,
     /// Each component's operating point and name at the end of the run.
-    pub operating_points: Vec<(OperatingPoint, RegimeName)>,
+    pub operating_points: Vec<(OperatingPoint, ComponentName)>,
     pub components: usize,
     pub samples: usize,
 }
@@ -500,8 +501,8 @@ mod tests {
             regime_probabilities: vec![],
             active_regime: active,
             regime: active,
-            active_regime_name: RegimeName::Unsettled,
-            regime_name: RegimeName::Unsettled,
+            active_regime_name: ComponentName::default(),
+            regime_name: ComponentName::default(),
             label: Some(label),
             speed_m_s: None,
             engine_speed_rpm: None,

@@ -49,14 +49,16 @@ pub struct VehicleView {
     /// The most probable regime on this sample (the paper's pointer estimate; flickers).
     pub most_probable_regime: Option<usize>,
     /// What `regime` means, named from its component's statistics: `idle`, `accelerating`,
-    /// `cruising`, `coasting`, `braking` or `unsettled` (not converged). docs/fuel.md gives
-    /// the rule.
+    /// `cruising`, `coasting`, `braking` or `unsettled` (not converged), qualified where
+    /// several components fall under one of these (by mean fuel: `cruising_low_power`,
+    /// `cruising_high_power`; an ordinal where the fuel does not tell them apart: `idle_1`,
+    /// `idle_2`), so each component's name is unique. docs/fuel.md gives the rule.
     pub regime_name: Option<String>,
     /// The name of `most_probable_regime`.
     pub most_probable_regime_name: Option<String>,
     /// Probability of each regime (index = regime).
     pub regime_probabilities: Vec<f64>,
-    /// Name of each regime (index = regime).
+    /// Name of each regime (index = regime), unique per regime.
     pub regime_names: Vec<String>,
     /// Measured fuel integrated since the source started, cm^3.
     pub cumulative_fuel_cm3: f64,
@@ -112,7 +114,8 @@ pub struct RegimeEventDetail {
     pub from_regime: usize,
     pub to_regime: usize,
     /// What the regimes mean on this sample (`idle`, `accelerating`, `cruising`, `coasting`,
-    /// `braking`, `unsettled`).
+    /// `braking`, `unsettled`, qualified as in [`VehicleView::regime_name`]): unique per
+    /// regime, so they differ.
     pub from_name: String,
     pub to_name: String,
     /// Probability of the new regime.
