@@ -350,8 +350,7 @@ impl Mixture {
             let evidence = match self.spec.measured_channels {
                 Some(_) => proximity(&self.spec, &self.components[i], input),
                 None => self.components[i].log_proximity_at(input.y, &predictions[i]),
-            }
-                + self.log_category(i, input.category);
+            } + self.log_category(i, input.category);
             for j in 0..m {
                 log_joint[i * m + j] = evidence + log_alpha[j * m + i] + self.log_w[j];
             }

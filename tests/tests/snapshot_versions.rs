@@ -16,7 +16,7 @@ fn fnv1a(bytes: &[u8]) -> u64 {
 
 /// Rewrites the format version of the stream state behind `state_magic` in `file` to
 /// `version`, with a checksum that fits, so that only the version is wrong.
-fn set_format_version(file: &std::path::Path, state_magic: &[u8], version: u32) {
+fn set_format_version(file: &std::path::Path, state_magic: &[u8], ours: u32, version: u32) {
     let bytes = std::fs::read(file).unwrap();
     let mut parts = bytes.splitn(3, |&b| b == b'\n');
     let (magic, header, payload) = (
@@ -33,8 +33,8 @@ fn set_format_version(file: &std::path::Path, state_magic: &[u8], version: u32) 
         + state_magic.len();
     assert_eq!(
         payload[at..at + 4],
-        2u32.to_le_bytes(),
-        "this build writes format 2"
+        ours.to_le_bytes(),
+        "this build writes format {ours}"
     );
     payload[at..at + 4].copy_from_slice(&version.to_le_bytes());
     let mut header: serde_json::Value = serde_json::from_slice(header).unwrap();
@@ -53,6 +53,8 @@ struct Stream {
     replay: &'static [&'static str],
     steps: u64,
     state_magic: &'static [u8],
+    /// The format this build writes (`StateFormat::version` of the stream's pipeline).
+    format: u32,
     events: &'static str,
 }
 
@@ -67,6 +69,7 @@ const STREAMS: [Stream; 3] = [
         ],
         steps: 2000,
         state_magic: b"railmon-drives\0",
+        format: 2,
         events: "/api/v1/drives/events",
     },
     Stream {
@@ -81,6 +84,7 @@ const STREAMS: [Stream; 3] = [
         ],
         steps: 2000,
         state_magic: b"railmon-bogies\0",
+        format: 2,
         events: "/api/v1/bogies/events",
     },
     Stream {
@@ -93,6 +97,7 @@ const STREAMS: [Stream; 3] = [
         ],
         steps: 200,
         state_magic: b"railmon-vehicle\0",
+        format: 3,
         events: "/api/v1/vehicle/events",
     },
 ];
@@ -129,7 +134,7 @@ fn a_snapshot_of_a_newer_format_is_refused_with_an_event_and_a_count_on_every_st
     for (version, stream) in (7..).zip(&STREAMS) {
         let file = data_dir.join(format!("snapshots/{}.snapshot", stream.name));
         assert!(file.exists(), "{}", file.display());
-        set_format_version(&file, stream.state_magic, version);
+        set_format_version(&file, stream.state_magic, stream.format, version);
     }
 
     let service = Service::start(&bus, &settings);
@@ -150,7 +155,7 @@ fn a_snapshot_of_a_newer_format_is_refused_with_an_event_and_a_count_on_every_st
         let reason = refused["reason"].as_str().unwrap();
         assert!(
             reason.contains(&format!("{} state format {version} (newer", stream.name))
-                && reason.contains("reads format 2"),
+                && reason.contains(&format!("reads format {}", stream.format)),
             "{refused}"
         );
         assert!(

@@ -305,7 +305,8 @@ struct SavedVehicle {
 /// of failing to decode, or decoding into other numbers.
 const SAVED_VEHICLE: StateFormat = StateFormat {
     magic: b"railmon-vehicle\0",
-    version: 2,
+    // 3: the mixture's spec gained `measured_channels` (issue 14's measured-data density).
+    version: 3,
     what: "vehicle state",
 };
 
