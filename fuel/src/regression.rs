@@ -213,6 +213,22 @@ impl RegressionStats {
         psi.dot(work).max(0.0)
     }
 
+    /// `L^-1`, `L` the lower Cholesky factor of `V_psi` (`V_psi = L L'`), written into `out`
+    /// (resized to fit; zero above the diagonal): with it `zeta = |L^-1 psi|^2` is a
+    /// triangular product of independent rows, for the forecast's steps beyond its first.
+    /// Rounding differs from [`zeta`](Self::zeta)'s two solves: not for the mixture's step,
+    /// whose recursion carries such differences on (docs/fuel.md, "Benchmark").
+    pub(crate) fn v_psi_factor_inverse_into(&self, out: &mut DMatrix<f64>) {
+        let l = self.v_psi_chol.l_dirty();
+        let n = l.nrows();
+        if out.shape() != (n, n) {
+            *out = DMatrix::zeros(n, n);
+        }
+        // The diagonal of a Cholesky factor is positive: L is invertible.
+        let (l, out) = (l.as_slice(), out.as_mut_slice());
+        crate::kernel::with_size!(n, |s| crate::kernel::lower_inverse(s, l, out));
+    }
+
     /// What the component predicts at `psi`: the mean `theta' psi` and the inflation of the
     /// covariance, `1 + zeta` with `parameter_uncertainty` (the GiW predictive's `r (1 + zeta)`),
     /// else 1. The monitor's virtual sensor and the mixture's step both need it at the same
