@@ -302,22 +302,29 @@ impl RegressionStats {
         if k == 1 {
             return unconditional;
         }
-        let r_oo = self.r.view((1, 1), (k - 1, k - 1)).into_owned() * inflate;
-        let r_fo = self.r.view((0, 1), (1, k - 1)).into_owned() * inflate;
-        let e = y_other - mean.rows(1, k - 1);
-        let Some(chol) = Cholesky::new(r_oo) else {
+        // With r_oo = L L' (the other channels' block of r), z = L^-1 e and w = L^-1 r_of:
+        // the inflation s scales r_oo and r_fo alike, so the conditional mean
+        // r_fo r_oo^-1 e = w.z does not depend on it, the Schur complement is
+        // s (r_ff - w.w), e' (s r_oo)^-1 e = z.z / s and ln det(s r_oo) = ln det r_oo +
+        // (k - 1) ln s. Two triangular solves on r's own block (no copies scaled by s).
+        let Some(chol) = Cholesky::new(self.r.view((1, 1), (k - 1, k - 1)).into_owned()) else {
             // Cannot happen: a principal block of an SPD matrix is SPD. Fall back to the mean.
             return unconditional;
         };
-        let solved = chol.solve(&e);
-        let gain = chol.solve(&r_fo.transpose());
-        let log_det: f64 = chol.l().diagonal().iter().map(|l| 2.0 * l.ln()).sum();
+        let l = chol.l_dirty();
+        let mut z = y_other - mean.rows(1, k - 1);
+        let mut w = self.r.view((1, 0), (k - 1, 1)).into_owned();
+        l.solve_lower_triangular_mut(&mut z);
+        l.solve_lower_triangular_mut(&mut w);
+        let log_det: f64 = l.diagonal().iter().map(|l| 2.0 * l.ln()).sum();
+        let others = (k - 1) as f64;
         Conditional {
-            mean: mean[0] + (r_fo.row(0) * &solved)[0],
-            // Schur complement r_ff - r_fo r_oo^-1 r_of; positive as r is PD (floored).
-            variance: (unconditional.variance - (r_fo.row(0) * gain)[0])
+            mean: mean[0] + w.dot(&z),
+            // Positive as r is PD (floored); the floor guards rounding.
+            variance: (unconditional.variance - w.norm_squared() * inflate)
                 .max(self.min_variance * inflate),
-            log_density: -0.5 * ((k - 1) as f64 * LN_2PI + log_det + e.dot(&solved)),
+            log_density: -0.5
+                * (others * LN_2PI + log_det + others * inflate.ln() + z.norm_squared() / inflate),
         }
     }
 }
@@ -459,6 +466,16 @@ mod tests {
         // Var(a | b) = 1 - 0.5^2 / 2.
         assert!((c.variance - (1.0 - 0.25 / 2.0)).abs() < 1e-12);
         let expected_ld = -0.5 * (LN_2PI + 2f64.ln() + 1.0 / 2.0);
+        assert!((c.log_density - expected_ld).abs() < 1e-12);
+        // Inflated by s = 3 (r 3): the same mean, Var(a | b) and Var(b) three times as large.
+        let inflated = Prediction {
+            mean: s.mean(&psi),
+            inflate: 3.0,
+        };
+        let c = s.condition_first_on_rest_at(&inflated, &DVector::from_element(1, 3.0));
+        assert!((c.mean - (1.0 + 0.5 / 2.0 * (3.0 - 2.0))).abs() < 1e-12);
+        assert!((c.variance - 3.0 * (1.0 - 0.25 / 2.0)).abs() < 1e-12);
+        let expected_ld = -0.5 * (LN_2PI + 6f64.ln() + 1.0 / 6.0);
         assert!((c.log_density - expected_ld).abs() < 1e-12);
     }
 }
