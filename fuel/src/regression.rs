@@ -29,6 +29,37 @@ pub struct RegressionStats {
     r_chol: Cholesky<f64, nalgebra::Dyn>,
     r_log_det: f64,
     v_psi_chol: Cholesky<f64, nalgebra::Dyn>,
+    /// Buffers of earlier recomputes (not statistics: not in snapshots).
+    #[serde(skip)]
+    scratch: Scratch,
+}
+
+/// The storage [`RegressionStats::recompute`] fills (the point estimates and factors it
+/// replaced, its temporaries), so that a step allocates none of them: each a buffer or `None`
+/// (first use, after a restore or a failed recompute).
+#[derive(Clone, Debug, Default)]
+struct Scratch {
+    v_psi_factor: Option<DMatrix<f64>>,
+    theta: Option<DMatrix<f64>>,
+    v_psiy_t: Option<DMatrix<f64>>,
+    r: Option<DMatrix<f64>>,
+    shifted: Option<DMatrix<f64>>,
+    r_factor: Option<DMatrix<f64>>,
+}
+
+impl Scratch {
+    /// The buffer in `slot` if it is `rows x cols`, else a new one (contents unspecified).
+    fn take(
+        &mut self,
+        slot: impl FnOnce(&mut Self) -> &mut Option<DMatrix<f64>>,
+        rows: usize,
+        cols: usize,
+    ) -> DMatrix<f64> {
+        match slot(self).take() {
+            Some(m) if m.shape() == (rows, cols) => m,
+            _ => DMatrix::zeros(rows, cols),
+        }
+    }
 }
 
 impl RegressionStats {
@@ -56,6 +87,7 @@ impl RegressionStats {
             r_chol: Cholesky::new(DMatrix::identity(k_y, k_y)).expect("identity is SPD"),
             r_log_det: 0.0,
             v_psi_chol: Cholesky::new(DMatrix::identity(p, p)).expect("identity is SPD"),
+            scratch: Scratch::default(),
         };
         s.recompute()?;
         Ok(s)
@@ -138,14 +170,24 @@ impl RegressionStats {
                 self.v[(i, j)] = self.v[(j, i)];
             }
         }
-        // Views of V: each block is copied only where a result needs its own storage.
+        // Views of V; every result in a buffer of an earlier recompute (`Scratch`), filled by
+        // the same operations as a fresh one (the same numbers), swapped in on success.
         let v_psiy = self.v.view((k, 0), (p, k));
-        let chol = cholesky_with_jitter(self.v.view((k, k), (p, p)))
+        let v_psi = self.v.view((k, k), (p, p));
+        let mut factor = self.scratch.take(|s| &mut s.v_psi_factor, p, p);
+        factor.copy_from(&v_psi);
+        let chol = cholesky_with_jitter(v_psi, factor)
             .ok_or(FuelError::Numerical("V_psi not positive definite"))?;
-        let theta = chol.solve(&v_psiy);
+        let mut theta = self.scratch.take(|s| &mut s.theta, p, k);
+        theta.copy_from(&v_psiy);
+        chol.solve_mut(&mut theta);
         // r = (V_yy - V_psiy' theta) / kappa, element by element in the product's storage.
         let kappa = self.kappa.max(f64::MIN_POSITIVE);
-        let mut r = v_psiy.transpose() * &theta;
+        let mut v_psiy_t = self.scratch.take(|s| &mut s.v_psiy_t, k, p);
+        v_psiy.transpose_to(&mut v_psiy_t);
+        let mut r = self.scratch.take(|s| &mut s.r, k, k);
+        v_psiy_t.mul_to(&theta, &mut r);
+        self.scratch.v_psiy_t = Some(v_psiy_t);
         r.zip_apply(&self.v.view((0, 0), (k, k)), |x, v_yy| {
             *x = (v_yy - *x) / kappa
         });
@@ -156,11 +198,18 @@ impl RegressionStats {
         symmetrise(&mut r);
         let above_floor = r.iter().all(|v| v.is_finite()) && {
             // r - floor I, in one copy of r.
-            let mut shifted = r.clone();
+            let mut shifted = self.scratch.take(|s| &mut s.shifted, k, k);
+            shifted.copy_from(&r);
             for i in 0..self.k_y {
                 shifted[(i, i)] -= self.min_variance;
             }
-            Cholesky::new(shifted).is_some()
+            match Cholesky::new(shifted) {
+                Some(c) => {
+                    self.scratch.shifted = Some(c.unpack_dirty());
+                    true
+                }
+                None => false,
+            }
         };
         if !above_floor {
             let eig = SymmetricEigen::new(r);
@@ -174,17 +223,25 @@ impl RegressionStats {
             r = &eig.eigenvectors * DMatrix::from_diagonal(&vals) * eig.eigenvectors.transpose();
             symmetrise(&mut r);
         }
-        let r_chol = cholesky_with_jitter(r.as_view()).ok_or(FuelError::Numerical(
+        let mut r_factor = self.scratch.take(|s| &mut s.r_factor, k, k);
+        r_factor.copy_from(&r);
+        let r_chol = cholesky_with_jitter(r.as_view(), r_factor).ok_or(FuelError::Numerical(
             "noise covariance not positive definite",
         ))?;
         if theta.iter().any(|v| !v.is_finite()) {
             return Err(FuelError::Numerical("regression coefficients not finite"));
         }
-        self.r_log_det = r_chol.l().diagonal().iter().map(|l| 2.0 * l.ln()).sum();
-        self.theta = theta;
-        self.r = r;
-        self.r_chol = r_chol;
-        self.v_psi_chol = chol;
+        self.r_log_det = r_chol
+            .l_dirty()
+            .diagonal()
+            .iter()
+            .map(|l| 2.0 * l.ln())
+            .sum();
+        self.scratch.theta = Some(std::mem::replace(&mut self.theta, theta));
+        self.scratch.r = Some(std::mem::replace(&mut self.r, r));
+        self.scratch.r_factor = Some(std::mem::replace(&mut self.r_chol, r_chol).unpack_dirty());
+        self.scratch.v_psi_factor =
+            Some(std::mem::replace(&mut self.v_psi_chol, chol).unpack_dirty());
         Ok(())
     }
 
@@ -364,9 +421,13 @@ fn symmetrise(m: &mut DMatrix<f64>) {
 /// floating point: `V_psi = V_0 + sum w psi psi'` after 10^6 updates of size 10^12 has lost the
 /// `V_0 = 10^-3 I` of its small directions to rounding. Retries with a jitter `eps max(diag) I`,
 /// `eps = 10^-14 .. 10^-8`, used for the factor only (the statistics are left as they are).
-/// `m` is a view (copied once for the factor; again only when the first attempt fails).
-fn cholesky_with_jitter(m: DMatrixView<f64>) -> Option<Cholesky<f64, nalgebra::Dyn>> {
-    if let Some(c) = Cholesky::new(m.into_owned()) {
+/// `m` is a view, `copy` its copy to factor in (copied again only when the first attempt
+/// fails).
+fn cholesky_with_jitter(
+    m: DMatrixView<f64>,
+    copy: DMatrix<f64>,
+) -> Option<Cholesky<f64, nalgebra::Dyn>> {
+    if let Some(c) = Cholesky::new(copy) {
         return Some(c);
     }
     let scale = m.diagonal().iter().fold(0.0f64, |a, d| a.max(d.abs()));
