@@ -22,6 +22,7 @@
 pub mod config;
 pub mod counts;
 pub mod error;
+mod kernel;
 pub mod mixture;
 pub mod monitor;
 pub mod predictive;

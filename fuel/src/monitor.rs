@@ -700,7 +700,10 @@ impl FuelMonitor {
         };
         let horizon = self.config.forecast_horizon_steps;
         let m = mixture.spec().components;
-        work.fit(m, self.spec.k_y, self.spec.k_psi);
+        // Gear and constant (the regressor's tail) are known: the covariance lives on the
+        // lagged channels alone.
+        let uncertain = self.lagged.len() * self.config.regression_memory;
+        work.fit(m, self.spec.k_y, self.spec.k_psi, uncertain);
         self.regressor_sources(&mut work.sources);
         work.read_sets();
         let ForecastWork {
@@ -711,19 +714,25 @@ impl FuelMonitor {
             rows,
             mean,
             solve,
-            theta_sigma,
+            sigma_theta,
             propagated,
             c_yy,
-            c_psi_y,
             p,
             log_p,
             levels,
             sources,
             y_read,
             y_lagged,
-            psi_read,
+            factor_inverse,
+            covariance_from,
             ..
         } = work;
+        covariance_sources(sources, uncertain, self.spec.k_y, covariance_from);
+        if self.config.parameter_uncertainty && horizon > 1 {
+            for (comp, l_inv) in mixture.components().iter().zip(factor_inverse.iter_mut()) {
+                comp.v_psi_factor_inverse_into(l_inv);
+            }
+        }
         // Given c_{t+h+1} = i: the regressor's mean and covariance, and log p(c_{t+h+1}).
         let psi0 = self.regressor(&self.past);
         for (psi_i, sigma_i) in psi.iter_mut().zip(sigma.iter_mut()).take(m) {
@@ -754,10 +763,17 @@ impl FuelMonitor {
                         mean[u] = comp.theta().column(u).dot(&psi[i].column(0));
                     }
                 }
-                let inflate = if self.config.parameter_uncertainty {
-                    1.0 + comp.zeta_with(&psi[i], solve)
-                } else {
-                    1.0
+                let inflate = match (self.config.parameter_uncertainty, h) {
+                    (false, _) => 1.0,
+                    // The next update's step reads this one: its own numbers.
+                    (true, 0) => 1.0 + comp.zeta_with(&psi[i], solve),
+                    (true, _) => {
+                        let (l_inv, k_psi) = (factor_inverse[i].as_slice(), psi[i].len());
+                        let (x, work) = (psi[i].as_slice(), solve.as_mut_slice());
+                        1.0 + crate::kernel::with_size!(k_psi, |s| {
+                            crate::kernel::lower_times_norm_squared(s, l_inv, x, work)
+                        })
+                    }
                 };
                 if h == 0 {
                     // The next update's virtual sensor and step predict at this regressor
@@ -768,9 +784,22 @@ impl FuelMonitor {
                     });
                 }
                 if h > 0 {
-                    // theta' Sigma theta: at the last step only its fuel element is read.
+                    // Sigma theta and theta' Sigma theta: at the last step only the fuel
+                    // element is read.
                     let read = if last { &[0][..] } else { &y_read[..] };
-                    theta_sigma_theta(comp.theta(), &sigma[i], read, theta_sigma, propagated);
+                    let (theta, k_psi) = (comp.theta().as_slice(), comp.theta().nrows());
+                    let (sigma_i, sigma_theta) = (sigma[i].as_slice(), sigma_theta.as_mut_slice());
+                    crate::kernel::with_size!(sigma[i].nrows(), |s| {
+                        crate::kernel::propagate_covariance(
+                            s,
+                            theta,
+                            k_psi,
+                            sigma_i,
+                            read,
+                            sigma_theta,
+                            propagated,
+                        )
+                    });
                 }
                 let fuel_var =
                     comp.r()[(0, 0)] * inflate + if h > 0 { propagated[(0, 0)] } else { 0.0 };
@@ -784,13 +813,16 @@ impl FuelMonitor {
                                 + if h > 0 { propagated[(u, v)] } else { 0.0 };
                         }
                     }
-                    product_entries(&sigma[i], comp.theta(), psi_read, y_lagged, c_psi_y);
+                    if h == 0 {
+                        // Sigma = 0: so is Cov(psi, y) = Sigma theta.
+                        sigma_theta.fill(0.0);
+                    }
                     let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(mean[0]));
                     shift_regressor(sources, &psi[i], mean, &mut shifted_psi[i]);
                     shift_regressor_covariance(
-                        sources,
+                        covariance_from,
                         &sigma[i],
-                        c_psi_y,
+                        sigma_theta,
                         c_yy,
                         &mut shifted_sigma[i],
                     );
@@ -945,13 +977,15 @@ enum Source {
 
 /// The work space of [`FuelMonitor::forecast_path`]: per component (the first `m_c` used)
 /// the regressor's mean and covariance given the component, the same shifted by one step, the
-/// switching row at its forecast level; one component's mean, a `k_psi` vector (the solve of
-/// `zeta`, then the mixing's deviations `d`), `theta' Sigma`,
-/// `theta' Sigma theta`, `Cov(y)`, `Cov(psi, y)`; the pointer; the forecast fuel levels; the
-/// sources of the shifted regressor. Not in snapshots (rebuilt on first use).
+/// switching row at its forecast level; one component's mean, a `k_psi` vector (the mixing's
+/// deviations `d`, the solve of `zeta`), `Sigma theta` (which is also `Cov(psi, y)`),
+/// `theta' Sigma theta`, `Cov(y)`; the pointer; the forecast fuel levels; the sources of the
+/// shifted regressor. The covariances cover the regressor's uncertain part only, its lagged
+/// channels (the leading `uncertain` elements): gear and constant are known, their rows and
+/// columns zero. Not in snapshots (rebuilt on first use).
 #[derive(Clone, Debug, Default)]
 struct ForecastWork {
-    dims: (usize, usize),
+    dims: (usize, usize, usize),
     psi: Vec<DVector<f64>>,
     sigma: Vec<DMatrix<f64>>,
     shifted_psi: Vec<DVector<f64>>,
@@ -959,38 +993,34 @@ struct ForecastWork {
     rows: Vec<usize>,
     mean: DVector<f64>,
     solve: DVector<f64>,
-    theta_sigma: DMatrix<f64>,
+    sigma_theta: DMatrix<f64>,
     propagated: DMatrix<f64>,
     c_yy: DMatrix<f64>,
-    c_psi_y: DMatrix<f64>,
     p: Vec<f64>,
     log_p: Vec<f64>,
     levels: VecDeque<usize>,
     sources: Vec<Source>,
     /// The channels of `y` the recursion reads beyond the first step: fuel and the lagged
-    /// ones (sorted); the lagged ones alone; the elements of `psi` the shift moves to an
-    /// older lag.
+    /// ones (sorted); the lagged ones alone.
     y_read: Vec<usize>,
     y_lagged: Vec<usize>,
-    psi_read: Vec<usize>,
+    /// Per component `L^-1`, `V_psi = L L'`: `zeta` beyond the first step.
+    factor_inverse: Vec<DMatrix<f64>>,
+    /// The shift's gather of the covariance ([`covariance_sources`]).
+    covariance_from: Vec<CovarianceSource>,
 }
 
 impl ForecastWork {
-    /// `y_read`, `y_lagged` and `psi_read` from `sources`.
+    /// `y_read` and `y_lagged` from `sources`.
     fn read_sets(&mut self) {
         self.y_lagged.clear();
-        self.psi_read.clear();
         for source in &self.sources {
-            match *source {
-                Source::Y(u) => self.y_lagged.push(u),
-                Source::Psi(u) => self.psi_read.push(u),
-                Source::Known => {}
+            if let Source::Y(u) = *source {
+                self.y_lagged.push(u);
             }
         }
-        for set in [&mut self.y_lagged, &mut self.psi_read] {
-            set.sort_unstable();
-            set.dedup();
-        }
+        self.y_lagged.sort_unstable();
+        self.y_lagged.dedup();
         self.y_read.clear();
         self.y_read.push(0);
         self.y_read.extend(self.y_lagged.iter().copied());
@@ -998,26 +1028,27 @@ impl ForecastWork {
         self.y_read.dedup();
     }
 
-    /// Room for `m` components of `k_y` channels and `k_psi` regressors (allocates only when
-    /// they grow or change).
-    fn fit(&mut self, m: usize, k_y: usize, k_psi: usize) {
-        if self.dims != (k_y, k_psi) {
+    /// Room for `m` components of `k_y` channels and `k_psi` regressors, `uncertain` of them
+    /// with a covariance (allocates only when they grow or change).
+    fn fit(&mut self, m: usize, k_y: usize, k_psi: usize, uncertain: usize) {
+        if self.dims != (k_y, k_psi, uncertain) {
             *self = ForecastWork {
-                dims: (k_y, k_psi),
+                dims: (k_y, k_psi, uncertain),
                 mean: DVector::zeros(k_y),
                 solve: DVector::zeros(k_psi),
-                theta_sigma: DMatrix::zeros(k_y, k_psi),
+                sigma_theta: DMatrix::zeros(uncertain, k_y),
                 propagated: DMatrix::zeros(k_y, k_y),
                 c_yy: DMatrix::zeros(k_y, k_y),
-                c_psi_y: DMatrix::zeros(k_psi, k_y),
                 ..ForecastWork::default()
             };
         }
         if self.psi.len() < m {
             self.psi.resize(m, DVector::zeros(k_psi));
-            self.sigma.resize(m, DMatrix::zeros(k_psi, k_psi));
+            self.sigma.resize(m, DMatrix::zeros(uncertain, uncertain));
             self.shifted_psi.resize(m, DVector::zeros(k_psi));
-            self.shifted_sigma.resize(m, DMatrix::zeros(k_psi, k_psi));
+            self.shifted_sigma
+                .resize(m, DMatrix::zeros(uncertain, uncertain));
+            self.factor_inverse.resize(m, DMatrix::zeros(k_psi, k_psi));
             self.rows.resize(m, 0);
             self.p.resize(m, 0.0);
             self.log_p.resize(m, 0.0);
@@ -1052,30 +1083,34 @@ fn mix_regressors(
             // A component no path reaches keeps the pointer's mix (its weight is ~0 anyway).
             let reached = total > 0.0 && total.is_finite();
             let mu = |j: usize| if reached { joint[j] / total } else { p[j] };
-            let mean = &mut psi[i];
+            let mean = psi[i].as_mut_slice();
             mean.fill(0.0);
             for (j, s) in shifted_psi.iter().enumerate() {
                 let mu_j = mu(j);
-                mean.zip_apply(s, |a, b| *a += b * mu_j);
-            }
-            // cov += (c + d d') mu_j, d = s - mean, element by element (column-major slices).
-            let cov = sigma[i].as_mut_slice();
-            cov.fill(0.0);
-            let n = mean.len();
-            for (j, (s, c)) in shifted_psi.iter().zip(shifted_sigma).enumerate() {
-                let mu_j = mu(j);
-                d.zip_zip_apply(s, mean, |d, s, mean| *d = s - mean);
-                let d = d.as_slice();
-                for ((cov_b, c_b), d_b) in cov
-                    .chunks_exact_mut(n)
-                    .zip(c.as_slice().chunks_exact(n))
-                    .zip(d)
-                {
-                    for ((cov_ab, c_ab), d_a) in cov_b.iter_mut().zip(c_b).zip(d) {
-                        *cov_ab += (c_ab + d_a * d_b) * mu_j;
-                    }
+                for (a, b) in mean.iter_mut().zip(s.iter()) {
+                    *a += b * mu_j;
                 }
             }
+            // cov += (c + d d') mu_j, d = s - mean, on the uncertain block, the lower
+            // triangle (c is symmetric), mirrored after.
+            let n = sigma[i].nrows();
+            let cov = sigma[i].as_mut_slice();
+            cov.fill(0.0);
+            for (j, (s, c)) in shifted_psi.iter().zip(shifted_sigma).enumerate() {
+                let mu_j = mu(j);
+                let d = &mut d.as_mut_slice()[..n];
+                for ((d, s), mean) in d.iter_mut().zip(s.iter()).zip(mean.iter()) {
+                    *d = s - mean;
+                }
+                crate::kernel::with_size!(n, |size| crate::kernel::add_spread_lower(
+                    size,
+                    cov,
+                    c.as_slice(),
+                    d,
+                    mu_j
+                ));
+            }
+            crate::kernel::with_size!(n, |size| crate::kernel::mirror_lower(size, cov));
             log_p[i] = total.ln();
         }
     });
@@ -1085,64 +1120,6 @@ fn mix_regressors(
             *l = x.ln();
         }
     }
-}
-
-/// nalgebra's `gemm` (0.34, which `*` and `mul_to` call) multiplies a product of these
-/// sizes with the `matrixmultiply` crate (blocked, its own order of summation) when all four
-/// exceed 5, and otherwise column by column, each element `x_a0 y_0v + x_a1 y_1v + ...` summed
-/// in order (test `product_entries_are_the_gemm_elements_to_the_bit`).
-fn gemm_is_blocked(x: &DMatrix<f64>, y: &DMatrix<f64>) -> bool {
-    const SMALL_DIM: usize = 5;
-    x.nrows() > SMALL_DIM && y.ncols() > SMALL_DIM && x.ncols() > SMALL_DIM
-}
-
-/// The elements `(a, v)`, `a` in `rows`, `v` in `cols`, of `x y` written into `out`, the same
-/// numbers as `x.mul_to(y, out)` gives them (the whole product when `gemm` would block it).
-fn product_entries(
-    x: &DMatrix<f64>,
-    y: &DMatrix<f64>,
-    rows: &[usize],
-    cols: &[usize],
-    out: &mut DMatrix<f64>,
-) {
-    if gemm_is_blocked(x, y) {
-        x.mul_to(y, out);
-        return;
-    }
-    let n = x.ncols();
-    for &v in cols {
-        let y_v = y.column(v);
-        for &a in rows {
-            let mut sum = x[(a, 0)] * y_v[0];
-            for b in 1..n {
-                sum += x[(a, b)] * y_v[b];
-            }
-            out[(a, v)] = sum;
-        }
-    }
-}
-
-/// `theta' Sigma theta` at the elements `(u, v)`, `u, v` in `read`, written into `propagated`
-/// (`theta_sigma`: the rows `read` of `theta' Sigma`), the same numbers as
-/// `theta.tr_mul(sigma) * theta`.
-fn theta_sigma_theta(
-    theta: &DMatrix<f64>,
-    sigma: &DMatrix<f64>,
-    read: &[usize],
-    theta_sigma: &mut DMatrix<f64>,
-    propagated: &mut DMatrix<f64>,
-) {
-    if gemm_is_blocked(theta_sigma, theta) {
-        theta.tr_mul_to(sigma, theta_sigma);
-    } else {
-        for b in 0..sigma.ncols() {
-            let sigma_b = sigma.column(b);
-            for &u in read {
-                theta_sigma[(u, b)] = theta.column(u).dot(&sigma_b);
-            }
-        }
-    }
-    product_entries(theta_sigma, theta, read, read, propagated);
 }
 
 /// The next forecast regressor's mean into `out`: `y`'s lagged channels in the newest lag, the
@@ -1162,25 +1139,61 @@ fn shift_regressor(
     }
 }
 
-/// Covariance of the next forecast regressor `psi'` into `out`, from that of `psi`,
-/// `Cov(psi, y)` and `Cov(y)` (gear and constant known: no covariance).
+/// Where each element of the lower triangle of the next forecast regressor's covariance (its
+/// uncertain part) comes from, column by column: an index into `Cov(y)`, `Cov(psi, y)` (`Sigma
+/// theta`, `n x k_y`) or `Sigma` (`n x n`), all column-major. Made once per forecast from the
+/// [`Source`]s, so that the shift at every step and component is a gather.
+#[derive(Clone, Copy, Debug)]
+enum CovarianceSource {
+    Y(usize),
+    PsiY(usize),
+    Psi(usize),
+    Zero,
+}
+
+/// The [`CovarianceSource`]s of the `n x n` uncertain block from `sources`, `k_y` channels,
+/// written into `out`.
+fn covariance_sources(sources: &[Source], n: usize, k_y: usize, out: &mut Vec<CovarianceSource>) {
+    out.clear();
+    for b in 0..n {
+        for a in b..n {
+            out.push(match (sources[a], sources[b]) {
+                (Source::Known, _) | (_, Source::Known) => CovarianceSource::Zero,
+                (Source::Y(u), Source::Y(v)) => CovarianceSource::Y(v * k_y + u),
+                (Source::Psi(u), Source::Y(v)) | (Source::Y(v), Source::Psi(u)) => {
+                    CovarianceSource::PsiY(v * n + u)
+                }
+                (Source::Psi(u), Source::Psi(v)) => CovarianceSource::Psi(v * n + u),
+            });
+        }
+    }
+}
+
+/// Covariance of the next forecast regressor `psi'` into `out` (its uncertain part, `out`'s
+/// size), from that of `psi`, `Cov(psi, y)` and `Cov(y)` by the gather `from`
+/// ([`covariance_sources`]), the lower triangle mirrored.
 fn shift_regressor_covariance(
-    sources: &[Source],
+    from: &[CovarianceSource],
     sigma_psi: &DMatrix<f64>,
     c_psi_y: &DMatrix<f64>,
     c_yy: &DMatrix<f64>,
     out: &mut DMatrix<f64>,
 ) {
-    for (b, source_b) in sources.iter().enumerate() {
-        for (a, source_a) in sources.iter().enumerate() {
-            out[(a, b)] = match (*source_a, *source_b) {
-                (Source::Known, _) | (_, Source::Known) => 0.0,
-                (Source::Y(u), Source::Y(v)) => c_yy[(u, v)],
-                (Source::Psi(u), Source::Y(v)) | (Source::Y(v), Source::Psi(u)) => c_psi_y[(u, v)],
-                (Source::Psi(u), Source::Psi(v)) => sigma_psi[(u, v)],
+    let n = out.nrows();
+    let (sigma_psi, c_psi_y, c_yy) = (sigma_psi.as_slice(), c_psi_y.as_slice(), c_yy.as_slice());
+    let out = out.as_mut_slice();
+    let mut from = from.iter();
+    for b in 0..n {
+        for a in b..n {
+            out[b * n + a] = match from.next() {
+                Some(CovarianceSource::Y(x)) => c_yy[*x],
+                Some(CovarianceSource::PsiY(x)) => c_psi_y[*x],
+                Some(CovarianceSource::Psi(x)) => sigma_psi[*x],
+                Some(CovarianceSource::Zero) | None => 0.0,
             };
         }
     }
+    crate::kernel::with_size!(n, |size| crate::kernel::mirror_lower(size, out));
 }
 
 /// One-sided 95 % point of the standard normal: the blend gives the mixture the lower end of
@@ -1432,48 +1445,6 @@ impl IntervalCalibration {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The selected elements of a product are nalgebra's, to the bit, at every size up to 8
-    /// (blocked by `matrixmultiply` or not), and `theta' Sigma theta` at selected elements is
-    /// `theta.tr_mul(sigma) * theta`'s.
-    #[test]
-    fn product_entries_are_the_gemm_elements_to_the_bit() {
-        let fill = |r: usize, c: usize, seed: f64| {
-            DMatrix::from_fn(r, c, |i, j| ((i * 31 + j * 17) as f64 + seed).sin() * 1e2)
-        };
-        for rows in 1..=8 {
-            for inner in 1..=8 {
-                for cols in 1..=8 {
-                    let (x, y) = (fill(rows, inner, 0.3), fill(inner, cols, 1.7));
-                    let want = &x * &y;
-                    let mut got = DMatrix::zeros(rows, cols);
-                    let all_rows: Vec<usize> = (0..rows).collect();
-                    let all_cols: Vec<usize> = (0..cols).collect();
-                    product_entries(&x, &y, &all_rows, &all_cols, &mut got);
-                    assert!(
-                        got.iter()
-                            .zip(want.iter())
-                            .all(|(a, b)| a.to_bits() == b.to_bits()),
-                        "{rows}x{inner} times {inner}x{cols}"
-                    );
-                }
-            }
-            for k_y in 1..=8 {
-                let theta = fill(rows, k_y, 2.9);
-                let sigma = fill(rows, rows, 0.1);
-                let want = theta.tr_mul(&sigma) * &theta;
-                let read: Vec<usize> = (0..k_y).step_by(2).collect();
-                let mut theta_sigma = DMatrix::zeros(k_y, rows);
-                let mut got = DMatrix::zeros(k_y, k_y);
-                theta_sigma_theta(&theta, &sigma, &read, &mut theta_sigma, &mut got);
-                for &u in &read {
-                    for &v in &read {
-                        assert_eq!(got[(u, v)].to_bits(), want[(u, v)].to_bits());
-                    }
-                }
-            }
-        }
-    }
 
     /// The calibration's guarantee on targets its predictive gets wrong (a unit normal against
     /// Student-t targets with 2 degrees of freedom and twice the scale, seeded): the share of

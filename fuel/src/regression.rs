@@ -29,6 +29,37 @@ pub struct RegressionStats {
     r_chol: Cholesky<f64, nalgebra::Dyn>,
     r_log_det: f64,
     v_psi_chol: Cholesky<f64, nalgebra::Dyn>,
+    /// Buffers of earlier recomputes (not statistics: not in snapshots).
+    #[serde(skip)]
+    scratch: Scratch,
+}
+
+/// The storage [`RegressionStats::recompute`] fills (the point estimates and factors it
+/// replaced, its temporaries), so that a step allocates none of them: each a buffer or `None`
+/// (first use, after a restore or a failed recompute).
+#[derive(Clone, Debug, Default)]
+struct Scratch {
+    v_psi_factor: Option<DMatrix<f64>>,
+    theta: Option<DMatrix<f64>>,
+    v_psiy_t: Option<DMatrix<f64>>,
+    r: Option<DMatrix<f64>>,
+    shifted: Option<DMatrix<f64>>,
+    r_factor: Option<DMatrix<f64>>,
+}
+
+impl Scratch {
+    /// The buffer in `slot` if it is `rows x cols`, else a new one (contents unspecified).
+    fn take(
+        &mut self,
+        slot: impl FnOnce(&mut Self) -> &mut Option<DMatrix<f64>>,
+        rows: usize,
+        cols: usize,
+    ) -> DMatrix<f64> {
+        match slot(self).take() {
+            Some(m) if m.shape() == (rows, cols) => m,
+            _ => DMatrix::zeros(rows, cols),
+        }
+    }
 }
 
 impl RegressionStats {
@@ -56,6 +87,7 @@ impl RegressionStats {
             r_chol: Cholesky::new(DMatrix::identity(k_y, k_y)).expect("identity is SPD"),
             r_log_det: 0.0,
             v_psi_chol: Cholesky::new(DMatrix::identity(p, p)).expect("identity is SPD"),
+            scratch: Scratch::default(),
         };
         s.recompute()?;
         Ok(s)
@@ -138,14 +170,24 @@ impl RegressionStats {
                 self.v[(i, j)] = self.v[(j, i)];
             }
         }
-        // Views of V: each block is copied only where a result needs its own storage.
+        // Views of V; every result in a buffer of an earlier recompute (`Scratch`), filled by
+        // the same operations as a fresh one (the same numbers), swapped in on success.
         let v_psiy = self.v.view((k, 0), (p, k));
-        let chol = cholesky_with_jitter(self.v.view((k, k), (p, p)))
+        let v_psi = self.v.view((k, k), (p, p));
+        let mut factor = self.scratch.take(|s| &mut s.v_psi_factor, p, p);
+        factor.copy_from(&v_psi);
+        let chol = cholesky_with_jitter(v_psi, factor)
             .ok_or(FuelError::Numerical("V_psi not positive definite"))?;
-        let theta = chol.solve(&v_psiy);
+        let mut theta = self.scratch.take(|s| &mut s.theta, p, k);
+        theta.copy_from(&v_psiy);
+        chol.solve_mut(&mut theta);
         // r = (V_yy - V_psiy' theta) / kappa, element by element in the product's storage.
         let kappa = self.kappa.max(f64::MIN_POSITIVE);
-        let mut r = v_psiy.transpose() * &theta;
+        let mut v_psiy_t = self.scratch.take(|s| &mut s.v_psiy_t, k, p);
+        v_psiy.transpose_to(&mut v_psiy_t);
+        let mut r = self.scratch.take(|s| &mut s.r, k, k);
+        v_psiy_t.mul_to(&theta, &mut r);
+        self.scratch.v_psiy_t = Some(v_psiy_t);
         r.zip_apply(&self.v.view((0, 0), (k, k)), |x, v_yy| {
             *x = (v_yy - *x) / kappa
         });
@@ -156,11 +198,18 @@ impl RegressionStats {
         symmetrise(&mut r);
         let above_floor = r.iter().all(|v| v.is_finite()) && {
             // r - floor I, in one copy of r.
-            let mut shifted = r.clone();
+            let mut shifted = self.scratch.take(|s| &mut s.shifted, k, k);
+            shifted.copy_from(&r);
             for i in 0..self.k_y {
                 shifted[(i, i)] -= self.min_variance;
             }
-            Cholesky::new(shifted).is_some()
+            match Cholesky::new(shifted) {
+                Some(c) => {
+                    self.scratch.shifted = Some(c.unpack_dirty());
+                    true
+                }
+                None => false,
+            }
         };
         if !above_floor {
             let eig = SymmetricEigen::new(r);
@@ -174,17 +223,25 @@ impl RegressionStats {
             r = &eig.eigenvectors * DMatrix::from_diagonal(&vals) * eig.eigenvectors.transpose();
             symmetrise(&mut r);
         }
-        let r_chol = cholesky_with_jitter(r.as_view()).ok_or(FuelError::Numerical(
+        let mut r_factor = self.scratch.take(|s| &mut s.r_factor, k, k);
+        r_factor.copy_from(&r);
+        let r_chol = cholesky_with_jitter(r.as_view(), r_factor).ok_or(FuelError::Numerical(
             "noise covariance not positive definite",
         ))?;
         if theta.iter().any(|v| !v.is_finite()) {
             return Err(FuelError::Numerical("regression coefficients not finite"));
         }
-        self.r_log_det = r_chol.l().diagonal().iter().map(|l| 2.0 * l.ln()).sum();
-        self.theta = theta;
-        self.r = r;
-        self.r_chol = r_chol;
-        self.v_psi_chol = chol;
+        self.r_log_det = r_chol
+            .l_dirty()
+            .diagonal()
+            .iter()
+            .map(|l| 2.0 * l.ln())
+            .sum();
+        self.scratch.theta = Some(std::mem::replace(&mut self.theta, theta));
+        self.scratch.r = Some(std::mem::replace(&mut self.r, r));
+        self.scratch.r_factor = Some(std::mem::replace(&mut self.r_chol, r_chol).unpack_dirty());
+        self.scratch.v_psi_factor =
+            Some(std::mem::replace(&mut self.v_psi_chol, chol).unpack_dirty());
         Ok(())
     }
 
@@ -211,6 +268,22 @@ impl RegressionStats {
         work.copy_from(psi);
         self.v_psi_chol.solve_mut(work);
         psi.dot(work).max(0.0)
+    }
+
+    /// `L^-1`, `L` the lower Cholesky factor of `V_psi` (`V_psi = L L'`), written into `out`
+    /// (resized to fit; zero above the diagonal): with it `zeta = |L^-1 psi|^2` is a
+    /// triangular product of independent rows, for the forecast's steps beyond its first.
+    /// Rounding differs from [`zeta`](Self::zeta)'s two solves: not for the mixture's step,
+    /// whose recursion carries such differences on (docs/fuel.md, "Benchmark").
+    pub(crate) fn v_psi_factor_inverse_into(&self, out: &mut DMatrix<f64>) {
+        let l = self.v_psi_chol.l_dirty();
+        let n = l.nrows();
+        if out.shape() != (n, n) {
+            *out = DMatrix::zeros(n, n);
+        }
+        // The diagonal of a Cholesky factor is positive: L is invertible.
+        let (l, out) = (l.as_slice(), out.as_mut_slice());
+        crate::kernel::with_size!(n, |s| crate::kernel::lower_inverse(s, l, out));
     }
 
     /// What the component predicts at `psi`: the mean `theta' psi` and the inflation of the
@@ -331,22 +404,29 @@ impl RegressionStats {
         if k == 1 {
             return unconditional;
         }
-        let r_oo = self.r.view((1, 1), (k - 1, k - 1)).into_owned() * inflate;
-        let r_fo = self.r.view((0, 1), (1, k - 1)).into_owned() * inflate;
-        let e = y_other - mean.rows(1, k - 1);
-        let Some(chol) = Cholesky::new(r_oo) else {
+        // With r_oo = L L' (the other channels' block of r), z = L^-1 e and w = L^-1 r_of:
+        // the inflation s scales r_oo and r_fo alike, so the conditional mean
+        // r_fo r_oo^-1 e = w.z does not depend on it, the Schur complement is
+        // s (r_ff - w.w), e' (s r_oo)^-1 e = z.z / s and ln det(s r_oo) = ln det r_oo +
+        // (k - 1) ln s. Two triangular solves on r's own block (no copies scaled by s).
+        let Some(chol) = Cholesky::new(self.r.view((1, 1), (k - 1, k - 1)).into_owned()) else {
             // Cannot happen: a principal block of an SPD matrix is SPD. Fall back to the mean.
             return unconditional;
         };
-        let solved = chol.solve(&e);
-        let gain = chol.solve(&r_fo.transpose());
-        let log_det: f64 = chol.l().diagonal().iter().map(|l| 2.0 * l.ln()).sum();
+        let l = chol.l_dirty();
+        let mut z = y_other - mean.rows(1, k - 1);
+        let mut w = self.r.view((1, 0), (k - 1, 1)).into_owned();
+        l.solve_lower_triangular_mut(&mut z);
+        l.solve_lower_triangular_mut(&mut w);
+        let log_det: f64 = l.diagonal().iter().map(|l| 2.0 * l.ln()).sum();
+        let others = (k - 1) as f64;
         Conditional {
-            mean: mean[0] + (r_fo.row(0) * &solved)[0],
-            // Schur complement r_ff - r_fo r_oo^-1 r_of; positive as r is PD (floored).
-            variance: (unconditional.variance - (r_fo.row(0) * gain)[0])
+            mean: mean[0] + w.dot(&z),
+            // Positive as r is PD (floored); the floor guards rounding.
+            variance: (unconditional.variance - w.norm_squared() * inflate)
                 .max(self.min_variance * inflate),
-            log_density: -0.5 * ((k - 1) as f64 * LN_2PI + log_det + e.dot(&solved)),
+            log_density: -0.5
+                * (others * LN_2PI + log_det + others * inflate.ln() + z.norm_squared() / inflate),
         }
     }
 }
@@ -386,9 +466,13 @@ fn symmetrise(m: &mut DMatrix<f64>) {
 /// floating point: `V_psi = V_0 + sum w psi psi'` after 10^6 updates of size 10^12 has lost the
 /// `V_0 = 10^-3 I` of its small directions to rounding. Retries with a jitter `eps max(diag) I`,
 /// `eps = 10^-14 .. 10^-8`, used for the factor only (the statistics are left as they are).
-/// `m` is a view (copied once for the factor; again only when the first attempt fails).
-fn cholesky_with_jitter(m: DMatrixView<f64>) -> Option<Cholesky<f64, nalgebra::Dyn>> {
-    if let Some(c) = Cholesky::new(m.into_owned()) {
+/// `m` is a view, `copy` its copy to factor in (copied again only when the first attempt
+/// fails).
+fn cholesky_with_jitter(
+    m: DMatrixView<f64>,
+    copy: DMatrix<f64>,
+) -> Option<Cholesky<f64, nalgebra::Dyn>> {
+    if let Some(c) = Cholesky::new(copy) {
         return Some(c);
     }
     let scale = m.diagonal().iter().fold(0.0f64, |a, d| a.max(d.abs()));
@@ -488,6 +572,16 @@ mod tests {
         // Var(a | b) = 1 - 0.5^2 / 2.
         assert!((c.variance - (1.0 - 0.25 / 2.0)).abs() < 1e-12);
         let expected_ld = -0.5 * (LN_2PI + 2f64.ln() + 1.0 / 2.0);
+        assert!((c.log_density - expected_ld).abs() < 1e-12);
+        // Inflated by s = 3 (r 3): the same mean, Var(a | b) and Var(b) three times as large.
+        let inflated = Prediction {
+            mean: s.mean(&psi),
+            inflate: 3.0,
+        };
+        let c = s.condition_first_on_rest_at(&inflated, &DVector::from_element(1, 3.0));
+        assert!((c.mean - (1.0 + 0.5 / 2.0 * (3.0 - 2.0))).abs() < 1e-12);
+        assert!((c.variance - 3.0 * (1.0 - 0.25 / 2.0)).abs() < 1e-12);
+        let expected_ld = -0.5 * (LN_2PI + 6f64.ln() + 1.0 / 6.0);
         assert!((c.log_density - expected_ld).abs() < 1e-12);
     }
 

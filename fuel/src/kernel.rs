@@ -1,0 +1,310 @@
+//! The forecast's small dense kernels (`crate::monitor`'s IMM recursion), written once for a
+//! size known at compile time or at run time ([`Size`]): the sizes are configuration (the
+//! regressor's uncertain part is 5 in the paper's setting, 10 with regression memory 2), and a
+//! loop of 5 whose bound the compiler knows is unrolled, without bounds checks, where the
+//! same loop over a run-time bound spends more on its control than on its arithmetic.
+//! [`with_size!`] calls a kernel with a compile-time size for 1 to 12 and the run-time size
+//! beyond.
+
+/// A dimension: [`Fixed`] (known at compile time) or `usize` (at run time).
+pub(crate) trait Size: Copy {
+    fn get(self) -> usize;
+}
+
+/// A dimension known at compile time.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Fixed<const N: usize>;
+
+impl<const N: usize> Size for Fixed<N> {
+    #[inline(always)]
+    fn get(self) -> usize {
+        N
+    }
+}
+
+impl Size for usize {
+    #[inline(always)]
+    fn get(self) -> usize {
+        self
+    }
+}
+
+/// `$body` with `$s` bound to the [`Size`] `$n`: a [`Fixed`] for 1 to 12, else the `usize`.
+macro_rules! with_size {
+    ($n:expr, |$s:ident| $body:expr) => {{
+        use $crate::kernel::Fixed;
+        match $n {
+            1 => {
+                let $s = Fixed::<1>;
+                $body
+            }
+            2 => {
+                let $s = Fixed::<2>;
+                $body
+            }
+            3 => {
+                let $s = Fixed::<3>;
+                $body
+            }
+            4 => {
+                let $s = Fixed::<4>;
+                $body
+            }
+            5 => {
+                let $s = Fixed::<5>;
+                $body
+            }
+            6 => {
+                let $s = Fixed::<6>;
+                $body
+            }
+            7 => {
+                let $s = Fixed::<7>;
+                $body
+            }
+            8 => {
+                let $s = Fixed::<8>;
+                $body
+            }
+            9 => {
+                let $s = Fixed::<9>;
+                $body
+            }
+            10 => {
+                let $s = Fixed::<10>;
+                $body
+            }
+            11 => {
+                let $s = Fixed::<11>;
+                $body
+            }
+            12 => {
+                let $s = Fixed::<12>;
+                $body
+            }
+            n => {
+                let $s: usize = n;
+                $body
+            }
+        }
+    }};
+}
+pub(crate) use with_size;
+
+/// `|L x|^2` for a lower-triangular `n x n` `l` (column-major, only the lower triangle read),
+/// `L x` written into `work` (length at least `n`).
+#[inline(always)]
+pub(crate) fn lower_times_norm_squared(
+    n: impl Size,
+    l: &[f64],
+    x: &[f64],
+    work: &mut [f64],
+) -> f64 {
+    let n = n.get();
+    let (l, x, work) = (&l[..n * n], &x[..n], &mut work[..n]);
+    work.fill(0.0);
+    for b in 0..n {
+        let x_b = x[b];
+        for a in b..n {
+            work[a] += l[b * n + a] * x_b;
+        }
+    }
+    work.iter().map(|w| w * w).sum()
+}
+
+/// `Sigma theta` at the columns `read` into `sigma_theta` (`n x k_y`, column-major), and
+/// `theta' Sigma theta` at `(u, v)`, `u, v` in `read`, into `propagated` (`k_y x k_y`;
+/// `Sigma` symmetric: computed for `u <= v`, mirrored). `Sigma` is `n x n` (the regressor's
+/// uncertain part), `theta` `k_psi x k_y` with its first `n` rows read. Each column of `Sigma
+/// theta` is a sum of `Sigma`'s columns.
+#[inline(always)]
+pub(crate) fn propagate_covariance(
+    n: impl Size,
+    theta: &[f64],
+    k_psi: usize,
+    sigma: &[f64],
+    read: &[usize],
+    sigma_theta: &mut [f64],
+    propagated: &mut nalgebra::DMatrix<f64>,
+) {
+    let n = n.get();
+    let sigma = &sigma[..n * n];
+    let theta_column = |u: usize| &theta[u * k_psi..u * k_psi + n];
+    for &v in read {
+        let out = &mut sigma_theta[v * n..(v + 1) * n];
+        let theta_v = theta_column(v);
+        out.fill(0.0);
+        for b in 0..n {
+            let t = theta_v[b];
+            let sigma_b = &sigma[b * n..(b + 1) * n];
+            for a in 0..n {
+                out[a] += sigma_b[a] * t;
+            }
+        }
+    }
+    for (index, &u) in read.iter().enumerate() {
+        let theta_u = theta_column(u);
+        for &v in &read[index..] {
+            let sigma_theta_v = &sigma_theta[v * n..(v + 1) * n];
+            let mut x = 0.0;
+            for a in 0..n {
+                x += theta_u[a] * sigma_theta_v[a];
+            }
+            propagated[(u, v)] = x;
+            propagated[(v, u)] = x;
+        }
+    }
+}
+
+/// `cov += (c + d d') mu` on the lower triangle of the `n x n` column-major `cov` (`c`
+/// symmetric, its lower triangle read; `d` of length at least `n`).
+#[inline(always)]
+pub(crate) fn add_spread_lower(n: impl Size, cov: &mut [f64], c: &[f64], d: &[f64], mu: f64) {
+    let n = n.get();
+    let (cov, c, d) = (&mut cov[..n * n], &c[..n * n], &d[..n]);
+    for b in 0..n {
+        let d_b = d[b];
+        for a in b..n {
+            cov[b * n + a] += (c[b * n + a] + d[a] * d_b) * mu;
+        }
+    }
+}
+
+/// `m[(b, a)] = m[(a, b)]` for `a > b`: the lower triangle of the column-major `n x n` `m`
+/// copied to the upper.
+#[inline(always)]
+pub(crate) fn mirror_lower(n: impl Size, m: &mut [f64]) {
+    let n = n.get();
+    let m = &mut m[..n * n];
+    for b in 0..n {
+        for a in b + 1..n {
+            m[a * n + b] = m[b * n + a];
+        }
+    }
+}
+
+/// `L^-1` of the lower-triangular `n x n` `l` (column-major, only the lower triangle read,
+/// its diagonal nonzero) into `out` (zero above the diagonal): forward substitution of each
+/// unit vector, the columns independent of each other.
+#[inline(always)]
+pub(crate) fn lower_inverse(n: impl Size, l: &[f64], out: &mut [f64]) {
+    let n = n.get();
+    let (l, out) = (&l[..n * n], &mut out[..n * n]);
+    out.fill(0.0);
+    for j in 0..n {
+        let x = &mut out[j * n..(j + 1) * n];
+        x[j] = 1.0;
+        for k in j..n {
+            x[k] /= l[k * n + k];
+            let x_k = x[k];
+            for i in k + 1..n {
+                x[i] -= l[k * n + i] * x_k;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::DMatrix;
+
+    /// The kernels at a compile-time size give the run-time size's numbers to the bit, and
+    /// both nalgebra's products to rounding (every size 1 to 13, so the fallback too).
+    #[test]
+    fn kernels_are_the_products_at_every_size() {
+        let fill = |r: usize, c: usize, seed: f64| {
+            DMatrix::from_fn(r, c, |i, j| ((i * 31 + j * 17) as f64 + seed).sin() * 1e2)
+        };
+        let close = |a: f64, b: f64, scale: f64| (a - b).abs() <= 1e-12 * scale.max(1.0);
+        for n in 1..=13 {
+            let l = fill(n, n, 0.7).lower_triangle();
+            let x = fill(n, 1, 1.3);
+            let want = (&l * &x).norm_squared();
+            let mut work = vec![0.0; n];
+            let got = with_size!(n, |s| lower_times_norm_squared(
+                s,
+                l.as_slice(),
+                x.as_slice(),
+                &mut work
+            ));
+            let dynamic = lower_times_norm_squared(n, l.as_slice(), x.as_slice(), &mut work);
+            assert_eq!(got.to_bits(), dynamic.to_bits());
+            assert!(close(got, want, want), "{n}: {got} {want}");
+
+            let mut l_inv = vec![0.0; n * n];
+            let diagonal = DMatrix::from_diagonal_element(n, n, 3e2);
+            let l = &l + diagonal;
+            with_size!(n, |s| lower_inverse(s, l.as_slice(), &mut l_inv));
+            let product = &l * DMatrix::from_column_slice(n, n, &l_inv);
+            assert!(
+                (product - DMatrix::identity(n, n)).abs().max() < 1e-12,
+                "{n}"
+            );
+
+            let half = fill(n, n, 0.1);
+            let sigma = &half * half.transpose();
+            let d = fill(n, 1, 2.3);
+            let mut cov = fill(n, n, 4.1).lower_triangle();
+            let mut dynamic = cov.clone();
+            let mut want = &cov + (&sigma + &d * d.transpose()) * 0.3;
+            with_size!(n, |s| {
+                add_spread_lower(s, cov.as_mut_slice(), sigma.as_slice(), d.as_slice(), 0.3);
+                mirror_lower(s, cov.as_mut_slice());
+            });
+            add_spread_lower(
+                n,
+                dynamic.as_mut_slice(),
+                sigma.as_slice(),
+                d.as_slice(),
+                0.3,
+            );
+            mirror_lower(n, dynamic.as_mut_slice());
+            want.fill_upper_triangle_with_lower_triangle();
+            assert_eq!(cov, dynamic);
+            for (a, b) in cov.iter().zip(want.iter()) {
+                assert!(close(*a, *b, want.abs().max()), "{n}: {a} {b}");
+            }
+
+            for k_y in 1..=6 {
+                let theta = fill(n + 2, k_y, 2.9);
+                let theta_u = theta.rows(0, n);
+                let want_st = &sigma * theta_u;
+                let want = theta_u.transpose() * &want_st;
+                let read: Vec<usize> = (0..k_y).step_by(2).collect();
+                let (mut st, mut got) = (vec![0.0; n * k_y], DMatrix::zeros(k_y, k_y));
+                let (mut st_dyn, mut got_dyn) = (st.clone(), got.clone());
+                let t = theta.as_slice();
+                with_size!(n, |s| propagate_covariance(
+                    s,
+                    t,
+                    n + 2,
+                    sigma.as_slice(),
+                    &read,
+                    &mut st,
+                    &mut got
+                ));
+                propagate_covariance(
+                    n,
+                    t,
+                    n + 2,
+                    sigma.as_slice(),
+                    &read,
+                    &mut st_dyn,
+                    &mut got_dyn,
+                );
+                assert_eq!((&st, &got), (&st_dyn, &got_dyn));
+                for &u in &read {
+                    for a in 0..n {
+                        let scale = want_st.abs().max();
+                        assert!(close(st[u * n + a], want_st[(a, u)], scale));
+                    }
+                    for &v in &read {
+                        assert!(close(got[(u, v)], want[(u, v)], want.abs().max()));
+                        assert_eq!(got[(u, v)].to_bits(), got[(v, u)].to_bits());
+                    }
+                }
+            }
+        }
+    }
+}
