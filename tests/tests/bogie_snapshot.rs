@@ -33,8 +33,8 @@ fn set_format_version(file: &std::path::Path, version: u32) {
         + magic_bogies.len();
     assert_eq!(
         payload[at..at + 4],
-        2u32.to_le_bytes(),
-        "this build writes format 2"
+        3u32.to_le_bytes(),
+        "this build writes format 3"
     );
     payload[at..at + 4].copy_from_slice(&version.to_le_bytes());
     let mut header: serde_json::Value = serde_json::from_slice(header).unwrap();
@@ -99,7 +99,7 @@ fn a_bogie_snapshot_of_a_newer_format_is_refused_with_an_event_and_a_count() {
     };
     let reason = refused["reason"].as_str().unwrap();
     assert!(
-        reason.contains("format 7 (newer") && reason.contains("reads format 2"),
+        reason.contains("format 7 (newer") && reason.contains("reads format 3"),
         "{refused}"
     );
     assert!(

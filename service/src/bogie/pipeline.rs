@@ -472,8 +472,8 @@ const SAVED_BOGIES_MAGIC: &[u8] = b"railmon-bogies\0";
 /// The layout of [`SavedBogies`] and everything in it (`DamperMonitorState`: the RBPF's
 /// particles and states, the noise estimate, the EKF, the consistency check, the pause).
 /// Raise it with every change of any of them. Snapshots written before it existed have no
-/// version (format 1).
-const SAVED_BOGIES_FORMAT: u32 = 2;
+/// version (format 1); format 3 added the RBPF's jump-search sentinels (`RbpfState`).
+const SAVED_BOGIES_FORMAT: u32 = 3;
 
 impl SavedBogies {
     fn encode(&self) -> Option<Vec<u8>> {
