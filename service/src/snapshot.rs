@@ -138,6 +138,76 @@ impl SnapshotFile {
     }
 }
 
+/// The layout of one pipeline's saved state (its `Pipeline::save_state` bytes): a magic
+/// string, the format version (`u32`, little endian), then the bincode. Bincode has no schema:
+/// a state of another layout would fail to decode with a message about bytes, or worse decode
+/// into other numbers; the version says which layout it is before anything is read. Raise a
+/// pipeline's `version` with every change of anything its state holds. States written before
+/// versions existed are bare bincode (format 1).
+#[derive(Clone, Copy, Debug)]
+pub struct StateFormat {
+    pub magic: &'static [u8],
+    pub version: u32,
+    /// What it is, for messages: `bogie state`.
+    pub what: &'static str,
+}
+
+impl StateFormat {
+    pub fn encode<T: Serialize>(&self, state: &T) -> Option<Vec<u8>> {
+        let mut bytes = self.magic.to_vec();
+        bytes.extend_from_slice(&self.version.to_le_bytes());
+        bincode::serialize_into(&mut bytes, state).ok()?;
+        Some(bytes)
+    }
+
+    /// The state in `bytes` if it is of this build's format; else why not, with the version.
+    pub fn decode<T: serde::de::DeserializeOwned>(&self, bytes: &[u8]) -> Result<T, String> {
+        let (what, ours) = (self.what, self.version);
+        let Some(rest) = bytes.strip_prefix(self.magic) else {
+            return Err(format!(
+                "{what} without a format version (format 1, written before versions); \
+                 this build reads format {ours}"
+            ));
+        };
+        let Some((version, payload)) = rest.split_first_chunk::<4>() else {
+            return Err(format!("{what} truncated in its format version"));
+        };
+        let version = u32::from_le_bytes(*version);
+        if version != ours {
+            let which = if version > ours { "newer" } else { "older" };
+            return Err(format!(
+                "{what} format {version} ({which} than this build's); this build reads \
+                 format {ours}"
+            ));
+        }
+        bincode::deserialize(payload).map_err(|e| format!("{what} format {ours}: {e}"))
+    }
+}
+
+/// The `snapshot_refused` event of `stream`: the snapshot found at start in `file` did not fit
+/// (`reason`), so its estimator starts from its prior. Stored before the first frame: no
+/// stream time yet, subject empty.
+pub fn refused_event(
+    stream: railmon_bus::StreamKind,
+    file: &Path,
+    reason: &str,
+) -> crate::store::NewEvent {
+    let mut detail = serde_json::Map::new();
+    detail.insert("file".into(), file.display().to_string().into());
+    detail.insert("reason".into(), reason.into());
+    crate::store::NewEvent {
+        stream,
+        kind: "snapshot_refused".into(),
+        subject: String::new(),
+        time_utc_ns: railmon_bus::utc_now_ns(),
+        time_s: 0.0,
+        run: 0,
+        run_time_s: 0.0,
+        detail,
+        alarm: None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -180,5 +250,38 @@ mod tests {
         std::fs::write(file.path(), b"railmon-snapshot v1\n").unwrap();
         assert!(file.load(60.0).unwrap_err().contains("truncated"));
         let _ = std::fs::remove_dir_all(&d);
+    }
+
+    /// This build's format comes back; a newer or older version, or a state written before
+    /// versions (bare bincode), is refused with its version named, before its bytes are read.
+    #[test]
+    fn a_state_of_another_format_version_is_refused_by_its_version() {
+        const FORMAT: StateFormat = StateFormat {
+            magic: b"railmon-test\0",
+            version: 3,
+            what: "test state",
+        };
+        let bytes = FORMAT.encode(&state()).unwrap();
+        assert_eq!(FORMAT.decode::<IngestState>(&bytes), Ok(state()));
+        let at = FORMAT.magic.len();
+        for (version, which) in [(4, "newer"), (u32::MAX, "newer"), (1, "older")] {
+            let mut other = bytes.clone();
+            other[at..at + 4].copy_from_slice(&u32::to_le_bytes(version));
+            let e = FORMAT.decode::<IngestState>(&other).unwrap_err();
+            assert!(
+                e.contains(&format!("test state format {version} ({which}"))
+                    && e.contains("reads format 3"),
+                "{e}"
+            );
+        }
+        let unversioned = bincode::serialize(&state()).unwrap();
+        let e = FORMAT.decode::<IngestState>(&unversioned).unwrap_err();
+        assert!(e.contains("test state without a format version"), "{e}");
+        let e = FORMAT.decode::<IngestState>(&bytes[..at + 2]).unwrap_err();
+        assert!(e.contains("truncated"), "{e}");
+        let e = FORMAT
+            .decode::<IngestState>(&bytes[..bytes.len() - 2])
+            .unwrap_err();
+        assert!(e.starts_with("test state format 3: "), "{e}");
     }
 }

@@ -26,6 +26,7 @@ use super::BogieConfig;
 use crate::ingest::{CompletedStep, Pipeline, Rejection};
 use crate::metrics::{EstimateGauge, EstimateIntGauge, Metrics};
 use crate::outbox::{Stamp, Track};
+use crate::snapshot::StateFormat;
 use crate::store::ActiveAlarm;
 
 /// Gauges of one damper of one bogie, looked up once.
@@ -463,49 +464,15 @@ struct SavedBogies {
     clock: crate::outbox::TrackClock,
 }
 
-/// A saved [`SavedBogies`] starts with this, then its format version (`u32`, little endian),
-/// then the bincode. Bincode has no schema: a state of another layout would fail to decode
-/// with a message about bytes, or worse decode into other numbers; the version says which
-/// layout it is before anything is read.
-const SAVED_BOGIES_MAGIC: &[u8] = b"railmon-bogies\0";
-
 /// The layout of [`SavedBogies`] and everything in it (`DamperMonitorState`: the RBPF's
 /// particles and states, the noise estimate, the EKF, the consistency check, the pause).
-/// Raise it with every change of any of them. Snapshots written before it existed have no
-/// version (format 1); format 3 added the RBPF's jump-search sentinels (`RbpfState`).
-const SAVED_BOGIES_FORMAT: u32 = 3;
-
-impl SavedBogies {
-    fn encode(&self) -> Option<Vec<u8>> {
-        let mut bytes = SAVED_BOGIES_MAGIC.to_vec();
-        bytes.extend_from_slice(&SAVED_BOGIES_FORMAT.to_le_bytes());
-        bincode::serialize_into(&mut bytes, self).ok()?;
-        Some(bytes)
-    }
-
-    /// The state in `bytes` if it is of this build's format; else why not, with the version.
-    fn decode(bytes: &[u8]) -> Result<Self, String> {
-        let ours = SAVED_BOGIES_FORMAT;
-        let Some(rest) = bytes.strip_prefix(SAVED_BOGIES_MAGIC) else {
-            return Err(format!(
-                "bogie state without a format version (format 1, written before versions); \
-                 this build reads format {ours}"
-            ));
-        };
-        let Some((version, payload)) = rest.split_first_chunk::<4>() else {
-            return Err("bogie state truncated in its format version".into());
-        };
-        let version = u32::from_le_bytes(*version);
-        if version != ours {
-            let which = if version > ours { "newer" } else { "older" };
-            return Err(format!(
-                "bogie state format {version} ({which} than this build's); this build reads \
-                 format {ours}"
-            ));
-        }
-        bincode::deserialize(payload).map_err(|e| format!("bogie state format {ours}: {e}"))
-    }
-}
+/// Raise the version with every change of any of them: 3 added the RBPF's jump-search
+/// sentinels (`RbpfState`).
+const SAVED_BOGIES: StateFormat = StateFormat {
+    magic: b"railmon-bogies\0",
+    version: 3,
+    what: "bogie state",
+};
 
 impl Pipeline for BogiePipeline {
     type Frame = BogieFrame;
@@ -639,13 +606,13 @@ impl Pipeline for BogiePipeline {
                 .collect(),
             clock: self.track.clock(),
         };
-        saved.encode()
+        SAVED_BOGIES.encode(&saved)
     }
 
     /// Every bogie's monitor where the snapshot left it (built first: on error nothing
     /// changes); a bogie the snapshot does not hold starts from its prior on its first frame.
     fn resume_state(&mut self, state: &[u8]) -> Result<(), String> {
-        let saved = SavedBogies::decode(state)?;
+        let saved: SavedBogies = SAVED_BOGIES.decode(state)?;
         let table = self.table.clone().map_err(|r| r.message)?;
         let mut monitors = Vec::with_capacity(self.slots.len());
         for slot in &self.slots {
@@ -673,21 +640,8 @@ impl Pipeline for BogiePipeline {
     /// `snapshot_refused` event saying which file and why (the log has a warning too).
     fn snapshot_refused(&mut self, file: &std::path::Path, reason: &str) {
         self.snapshot_refused.inc();
-        let mut detail = serde_json::Map::new();
-        detail.insert("file".into(), file.display().to_string().into());
-        detail.insert("reason".into(), reason.into());
-        self.shared.store.append(vec![crate::store::NewEvent {
-            stream: StreamKind::Bogie,
-            kind: "snapshot_refused".into(),
-            subject: String::new(),
-            time_utc_ns: railmon_bus::utc_now_ns(),
-            // Before the first frame: no stream time yet.
-            time_s: 0.0,
-            run: 0,
-            run_time_s: 0.0,
-            detail,
-            alarm: None,
-        }]);
+        let event = crate::snapshot::refused_event(StreamKind::Bogie, file, reason);
+        self.shared.store.append(vec![event]);
     }
 
     fn publish(&mut self) {
@@ -721,38 +675,18 @@ mod tests {
         }
     }
 
-    /// This build's format comes back; a newer or older version, or a state written before
-    /// versions (bare bincode), is refused with its version named, before its bytes are read.
+    /// A bogie state comes back through its format (the versions are refused as in
+    /// `snapshot::tests`), and a state written before versions is refused.
     #[test]
-    fn a_bogie_state_of_another_format_version_is_refused_by_its_version() {
-        let bytes = saved().encode().unwrap();
+    fn a_bogie_state_comes_back_and_an_unversioned_one_is_refused() {
+        let bytes = SAVED_BOGIES.encode(&saved()).unwrap();
         // Compared as bytes: the states hold NaN (no window yet), and NaN != NaN.
-        let back = SavedBogies::decode(&bytes).unwrap();
-        assert_eq!(back.encode().unwrap(), bytes);
-        let at = SAVED_BOGIES_MAGIC.len();
-        for (version, which) in [
-            (SAVED_BOGIES_FORMAT + 1, "newer"),
-            (u32::MAX, "newer"),
-            (1, "older"),
-        ] {
-            let mut other = bytes.clone();
-            other[at..at + 4].copy_from_slice(&version.to_le_bytes());
-            let e = SavedBogies::decode(&other).unwrap_err();
-            assert!(
-                e.contains(&format!("format {version} ({which}"))
-                    && e.contains(&format!("reads format {SAVED_BOGIES_FORMAT}")),
-                "{e}"
-            );
-        }
+        let back: SavedBogies = SAVED_BOGIES.decode(&bytes).unwrap();
+        assert_eq!(SAVED_BOGIES.encode(&back).unwrap(), bytes);
         let unversioned = bincode::serialize(&saved()).unwrap();
-        let e = SavedBogies::decode(&unversioned).unwrap_err();
-        assert!(e.contains("without a format version"), "{e}");
-        let e = SavedBogies::decode(&bytes[..at + 2]).unwrap_err();
-        assert!(e.contains("truncated"), "{e}");
-        let e = SavedBogies::decode(&bytes[..bytes.len() - 8]).unwrap_err();
-        assert!(
-            e.contains(&format!("bogie state format {SAVED_BOGIES_FORMAT}: ")),
-            "{e}"
-        );
+        let e = SAVED_BOGIES
+            .decode::<SavedBogies>(&unversioned)
+            .unwrap_err();
+        assert!(e.contains("bogie state without a format version"), "{e}");
     }
 }

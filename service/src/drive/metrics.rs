@@ -1,6 +1,6 @@
 //! Metric families of the drive stream (label `drive`, 1-based).
 
-use prometheus::{CounterVec, IntCounterVec};
+use prometheus::{CounterVec, IntCounter, IntCounterVec};
 
 use crate::metrics::{EstimateGauge, EstimateGaugeVec, EstimateIntGaugeVec, Families};
 
@@ -13,6 +13,7 @@ pub struct DriveMetrics {
     pub global_torque: EstimateGauge,
     pub slip_events: IntCounterVec,
     pub slip_seconds: CounterVec,
+    pub snapshot_refused: IntCounter,
 }
 
 impl DriveMetrics {
@@ -57,6 +58,11 @@ impl DriveMetrics {
                 "drive_slip_seconds_total",
                 "Sample time the drive spent flagged slipping: its rate over any window shows slips shorter than a scrape interval.",
                 drive,
+            )?,
+            snapshot_refused: f.int_counter(
+                "drive_snapshot_refused_total",
+                "Drive snapshots found at start and refused (another format version, other \
+                 settings, too old, corrupt): the drives started from their prior.",
             )?,
         })
     }

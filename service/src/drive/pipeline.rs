@@ -13,6 +13,7 @@ use super::DriveConfig;
 use crate::ingest::{Pipeline, Rejection};
 use crate::metrics::{EstimateGauge, EstimateIntGauge, Metrics};
 use crate::outbox::{Stamp, Track};
+use crate::snapshot::StateFormat;
 use crate::store::ActiveAlarm;
 
 struct DriveGauges {
@@ -185,6 +186,15 @@ struct SavedDrive {
     clock: crate::outbox::TrackClock,
 }
 
+/// The layout of [`SavedDrive`] and everything in it (`SlipMonitor` (the EKFs, the adhesion method's state, the temporal model, the alarm inputs)). Raise the version with
+/// every change of any of them: a snapshot of another layout is refused by its version instead
+/// of failing to decode, or decoding into other numbers.
+const SAVED_DRIVES: StateFormat = StateFormat {
+    magic: b"railmon-drives\0",
+    version: 2,
+    what: "drive state",
+};
+
 impl Pipeline for DrivePipeline {
     type Frame = DriveFrame;
     /// One sample per drive, every value finite, the configured step.
@@ -293,16 +303,24 @@ impl Pipeline for DrivePipeline {
             monitor: self.monitor.clone()?,
             clock: self.track.clock(),
         };
-        bincode::serialize(&saved).ok()
+        SAVED_DRIVES.encode(&saved)
     }
 
     fn resume_state(&mut self, state: &[u8]) -> Result<(), String> {
-        let saved: SavedDrive = bincode::deserialize(state).map_err(|e| e.to_string())?;
+        let saved: SavedDrive = SAVED_DRIVES.decode(state)?;
         self.start_monitor(saved.monitor.n_drives())
             .map_err(|r| r.message)?;
         self.monitor = Some(saved.monitor);
         self.track.resume_clock(saved.clock);
         Ok(())
+    }
+
+    /// A snapshot that does not fit: the estimator starts from its prior, and the store gets a
+    /// `snapshot_refused` event saying which file and why (the log has a warning too).
+    fn snapshot_refused(&mut self, file: &std::path::Path, reason: &str) {
+        self.metrics.drive.snapshot_refused.inc();
+        let event = crate::snapshot::refused_event(StreamKind::Drive, file, reason);
+        self.shared.store.append(vec![event]);
     }
 
     fn publish(&mut self) {

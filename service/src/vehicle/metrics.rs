@@ -18,6 +18,7 @@ pub struct VehicleMetrics {
     pub regime_probability: EstimateGaugeVec,
     pub regime_active: IntGauge,
     pub regime_changes: IntCounter,
+    pub snapshot_refused: IntCounter,
     pub speed: EstimateGauge,
     pub initialising: IntGauge,
 }
@@ -61,6 +62,11 @@ impl VehicleMetrics {
             regime_changes: f.int_counter(
                 "vehicle_regime_changes_total",
                 "Changes of the most probable regime.",
+            )?,
+            snapshot_refused: f.int_counter(
+                "vehicle_snapshot_refused_total",
+                "Vehicle snapshots found at start and refused (another format version, other \
+                 settings, too old, corrupt): the fuel estimator started from its prior.",
             )?,
             speed: f.estimate_gauge(
                 "vehicle_speed_meters_per_second",

@@ -15,6 +15,7 @@ use super::VehicleConfig;
 use crate::ingest::{Pipeline, Rejection};
 use crate::metrics::{EstimateGauge, Metrics};
 use crate::outbox::{run_time_s, Stamp, Track};
+use crate::snapshot::StateFormat;
 
 /// Cubic metres per cubic centimetre: the metrics are in base units.
 const M3_PER_CM3: f64 = 1e-6;
@@ -299,6 +300,15 @@ struct SavedVehicle {
     clock: crate::outbox::TrackClock,
 }
 
+/// The layout of [`SavedVehicle`] and everything in it (`FuelMonitor` (the mixture, its forecasts and calibration, the regime names), the forecast errors). Raise the version with
+/// every change of any of them: a snapshot of another layout is refused by its version instead
+/// of failing to decode, or decoding into other numbers.
+const SAVED_VEHICLE: StateFormat = StateFormat {
+    magic: b"railmon-vehicle\0",
+    version: 2,
+    what: "vehicle state",
+};
+
 impl Pipeline for VehiclePipeline {
     type Frame = VehicleFrame;
     /// Known channel bits, every present value finite.
@@ -356,17 +366,25 @@ impl Pipeline for VehiclePipeline {
             speed_m_s: self.speed_m_s,
             clock: self.track.clock(),
         };
-        bincode::serialize(&saved).ok()
+        SAVED_VEHICLE.encode(&saved)
     }
 
     fn resume_state(&mut self, state: &[u8]) -> Result<(), String> {
-        let saved: SavedVehicle = bincode::deserialize(state).map_err(|e| e.to_string())?;
+        let saved: SavedVehicle = SAVED_VEHICLE.decode(state)?;
         self.monitor = Some(saved.monitor);
         self.errors = saved.errors;
         self.regime_changes = saved.regime_changes;
         self.speed_m_s = saved.speed_m_s;
         self.track.resume_clock(saved.clock);
         Ok(())
+    }
+
+    /// A snapshot that does not fit: the estimator starts from its prior, and the store gets a
+    /// `snapshot_refused` event saying which file and why (the log has a warning too).
+    fn snapshot_refused(&mut self, file: &std::path::Path, reason: &str) {
+        self.metrics.vehicle.snapshot_refused.inc();
+        let event = crate::snapshot::refused_event(StreamKind::Vehicle, file, reason);
+        self.shared.store.append(vec![event]);
     }
 
     fn publish(&mut self) {
