@@ -39,6 +39,7 @@ fn log_likelihood(config: &DamperMonitorConfig, v: &Variant, d: &Dampers, ys: &[
     c.rbpf.prior_ln_std = 0.0;
     c.rbpf.ln_diffusion_per_sqrt_s = 0.0;
     c.rbpf.regeneration_fraction = 0.0;
+    c.rbpf.jump_search.enabled = false;
     c.rbpf.kernel = KernelSchedule::AtResampling;
     c.rbpf.propagation = v.propagation;
     c.rbpf.taylor_order = v.taylor_order;

@@ -81,21 +81,26 @@ const VARIANTS: &[Variant] = &[
     }),
     (
         "static",
-        "no diffusion, no regeneration (the paper's static parameters)",
+        "no diffusion, no regeneration, no jump search (the paper's static parameters)",
         |c| {
             c.ln_diffusion_per_sqrt_s = 0.0;
             c.regeneration_fraction = 0.0;
+            c.jump_search.enabled = false;
         },
     ),
     (
         "every_step",
-        "Liu-West move every step (the paper's schedule)",
-        |c| c.kernel = KernelSchedule::EveryStep,
+        "Liu-West move every step (the paper's schedule; no jump search)",
+        |c| {
+            c.kernel = KernelSchedule::EveryStep;
+            c.jump_search.enabled = false;
+        },
     ),
     ("n4000", "N = 4000", |c| c.particles = 4000),
     ("static_n4000", "static and N = 4000", |c| {
         c.ln_diffusion_per_sqrt_s = 0.0;
         c.regeneration_fraction = 0.0;
+        c.jump_search.enabled = false;
         c.particles = 4000;
     }),
 ];

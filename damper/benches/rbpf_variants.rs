@@ -9,8 +9,10 @@
 //! - `+speed+noise`: both (the target);
 //! - `+speed+noise@10`: the same on a ramp 9 -> 11 m/s (the creep terms ~ 1 / v are stiffer:
 //!   a higher Taylor order);
-//! - `monitor`: `DamperMonitor::step` of the last (adds the EKF, the consistency check and the
-//!   posterior summary).
+//! - `+speed+noise+jump`: `+speed+noise` with the jump search's sentinels
+//!   (`[monitor.rbpf.jump_search]`; the variants above have it off);
+//! - `monitor`: `DamperMonitor::step` of the default configuration on the ramp (adds the EKF,
+//!   the consistency check and the posterior summary).
 //!
 //! Every filter first runs 3 s of its data (posterior narrowed, as in service; the speed
 //! nodes the ramp visits are solved before timing), then all variants run alternately in
@@ -110,8 +112,12 @@ fn main() {
         profile_m_s: vec![[0.0, 9.0], [n as f64 * config.dt_s, 11.0]],
     };
     let (_, slow) = samples(n, Some(slow_ramp));
-    let mut with_noise = config;
-    with_noise.rbpf.particles = particles;
+    let mut default = config;
+    default.rbpf.particles = particles;
+    let mut with_noise = default;
+    with_noise.rbpf.jump_search.enabled = false;
+    let mut with_jump = with_noise;
+    with_jump.rbpf.jump_search.enabled = true;
     let mut fixed = with_noise;
     fixed.rbpf.noise_scale.enabled = false;
     let start = Instant::now();
@@ -143,15 +149,12 @@ fn main() {
         ("+speed", rbpf(&fixed, true), &ramped),
         ("+speed+noise", rbpf(&with_noise, true), &ramped),
         ("+speed+noise@10", rbpf(&with_noise, true), &slow),
+        ("+speed+noise+jump", rbpf(&with_jump, true), &ramped),
         (
             "monitor",
             Runner::Monitor(Box::new(
-                DamperMonitor::with_gain_table(
-                    &with_noise,
-                    with_noise.rbpf.seed,
-                    Some(table.clone()),
-                )
-                .expect("monitor"),
+                DamperMonitor::with_gain_table(&default, default.rbpf.seed, Some(table.clone()))
+                    .expect("monitor"),
             )),
             &ramped,
         ),
@@ -189,7 +192,7 @@ fn main() {
     let steps = (BLOCK * rounds) as f64;
     println!("\nRBPF step, N = {particles}, {rounds} x {BLOCK} steps per variant, interleaved:");
     println!(
-        "{:>16} {:>12} {:>10} {:>12} {:>10}",
+        "{:>18} {:>12} {:>10} {:>12} {:>10}",
         "variant", "cpu us/step", "/ first", "wall us/step", "resamples"
     );
     for (((name, runner, _), (s, cpu)), r0) in variants
@@ -199,7 +202,7 @@ fn main() {
     {
         let resamples = runner.resamples() - r0;
         println!(
-            "{name:>16} {:>12.1} {:>10.3} {:>12.1} {resamples:>10}",
+            "{name:>18} {:>12.1} {:>10.3} {:>12.1} {resamples:>10}",
             cpu * 1e6 / steps,
             cpu / cpu_seconds[0],
             s * 1e6 / steps,

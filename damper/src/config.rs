@@ -7,6 +7,7 @@ use crate::alarm::DamperAlarmConfig;
 use crate::consistency::ConsistencyConfig;
 use crate::noise_scale::NoiseScaleConfig;
 use crate::params::{non_negative, positive, BogieParams, Dampers};
+use crate::rbpf::JumpSearchConfig;
 use crate::sample::SensorNoise;
 use crate::DamperError;
 
@@ -189,6 +190,9 @@ pub struct RbpfConfig {
     /// weights degenerate slowly (low speed) moves come seconds apart, and per move the
     /// search for a failed damper would slow down with the data.
     pub regeneration_interval_s: f64,
+    /// Evidence-triggered search for a failed damper (`crate::rbpf::jump`): sentinels beside
+    /// the particles whose posterior odds of a jump, once high enough, become particles.
+    pub jump_search: JumpSearchConfig,
     pub propagation: Propagation,
     pub kernel: KernelSchedule,
     /// Order of the Taylor series for `Phi(theta) x` (steady-state propagation). 6, 8 and 10
@@ -215,6 +219,7 @@ impl Default for RbpfConfig {
             regeneration_weight: 0.1,
             max_move_interval_s: 0.0,
             regeneration_interval_s: 0.0,
+            jump_search: JumpSearchConfig::default(),
             propagation: Propagation::SteadyState,
             kernel: KernelSchedule::AtResampling,
             taylor_order: 8,
@@ -294,6 +299,12 @@ impl RbpfConfig {
                 reason: "must exceed min_ratio",
             });
         }
+        if self.jump_search.enabled && self.kernel != KernelSchedule::AtResampling {
+            return Err(DamperError::Config(
+                "rbpf.jump_search needs kernel = \"at_resampling\"".into(),
+            ));
+        }
+        self.jump_search.validate()?;
         self.noise_scale.validate()
     }
 
@@ -429,6 +440,10 @@ impl DamperMonitorConfig {
                 kernel: KernelSchedule::EveryStep,
                 ln_diffusion_per_sqrt_s: 0.0,
                 regeneration_fraction: 0.0,
+                jump_search: JumpSearchConfig {
+                    enabled: false,
+                    ..d.rbpf.jump_search
+                },
                 ..d.rbpf
             },
             ..d

@@ -37,6 +37,7 @@ fn known_parameter_config(s: &DamperScenario, propagation: Propagation) -> Dampe
     c.rbpf.prior_ln_std = 0.0;
     c.rbpf.ln_diffusion_per_sqrt_s = 0.0;
     c.rbpf.regeneration_fraction = 0.0;
+    c.rbpf.jump_search.enabled = false;
     c.rbpf.kernel = KernelSchedule::EveryStep;
     c.rbpf.propagation = propagation;
     c.ekf.enabled = false;
@@ -253,6 +254,7 @@ fn exact_rbpf_and_ekf_covariances_stay_symmetric_positive_definite() {
     c.rbpf.particles = 4;
     c.rbpf.propagation = Propagation::Exact;
     c.rbpf.kernel = KernelSchedule::EveryStep;
+    c.rbpf.jump_search.enabled = false;
     let mut m = DamperMonitor::new(&c, 5).unwrap();
     for (k, (y, _)) in samples(&s).iter().enumerate() {
         m.step(y).unwrap();
@@ -409,4 +411,54 @@ fn noise_scale_estimate_matches_the_analytic_innovation_variance() {
             assert!((expected.add_scalar(-1.0)).amax() < 1e-8, "{expected}");
         }
     }
+}
+
+/// The jump search's sentinels carry the Shiryaev-Roberts posterior odds of a jump,
+/// `Q_k = (Q_{k-1} + lambda dt) p_j(y_k) / p_mix(y_k)`: recomputed here from independent
+/// known-parameter filters, one at each sentinel's coefficients, and the mixture's own
+/// evidence (every particle at nominal, so no resampling and no move: the sentinels stay put).
+#[test]
+fn jump_odds_are_the_shiryaev_roberts_statistic_of_independent_filters() {
+    let s = scenario("damper-seed", 0.3);
+    let mut c = known_parameter_config(&s, Propagation::SteadyState);
+    c.rbpf.kernel = KernelSchedule::AtResampling;
+    c.rbpf.jump_search.enabled = true;
+    c.rbpf.jump_search.materialise_odds = 1e300;
+    let table = Rbpf::gain_table(&c).unwrap();
+    let mut mixture = Rbpf::with_gain_table(&c, Some(table.clone())).unwrap();
+    let sentinels = mixture.jump_sentinels().unwrap().to_vec();
+    assert_eq!(sentinels.len(), N_SENTINELS);
+    let mut singles: Vec<Rbpf> = sentinels
+        .iter()
+        .map(|th| {
+            let mut cj = c;
+            cj.rbpf.jump_search.enabled = false;
+            cj.nominal = Dampers::from_ln(*th);
+            Rbpf::with_gain_table(&cj, Some(table.clone())).unwrap()
+        })
+        .collect();
+    let ln_hazard_step = (c.rbpf.jump_search.hazard_per_s * c.dt_s).ln();
+    let mut q = vec![f64::NEG_INFINITY; N_SENTINELS];
+    for (y, _) in samples(&s) {
+        let y = y.to_vector();
+        let mix_before = mixture.log_evidence();
+        mixture.step(&y).unwrap();
+        let ll_mix = mixture.log_evidence() - mix_before;
+        for (qj, f) in q.iter_mut().zip(singles.iter_mut()) {
+            let before = f.log_evidence();
+            f.step(&y).unwrap();
+            let ll_j = f.log_evidence() - before;
+            let prior = if *qj == f64::NEG_INFINITY {
+                ln_hazard_step
+            } else {
+                (qj.exp() + ln_hazard_step.exp()).ln()
+            };
+            *qj = prior + ll_j - ll_mix;
+        }
+        for (got, want) in mixture.jump_ln_odds().unwrap().iter().zip(&q) {
+            assert!((got - want).abs() < 1e-6, "{got} against {want}");
+        }
+    }
+    assert_eq!(mixture.jump_sentinels().unwrap(), &sentinels[..]);
+    assert_eq!(mixture.jump_count(), 0);
 }

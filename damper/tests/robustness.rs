@@ -19,7 +19,10 @@
 //! `ROBUST_NOISE_SCALE=0` runs the filter without its noise estimate, as before issue 9 item 2;
 //! `ROBUST_FIRST_SEED=2` starts at the third seed (9002) to add one to a table;
 //! `ROBUST_MAX_MOVE_S` sets `rbpf.max_move_interval_s`, `ROBUST_REGEN_S`
-//! `rbpf.regeneration_interval_s`;
+//! `rbpf.regeneration_interval_s`; `ROBUST_JUMP=0|1` sets `rbpf.jump_search.enabled`,
+//! `ROBUST_JUMP_HAZARD` its `hazard_per_s`, `ROBUST_JUMP_ODDS` its `materialise_odds`;
+//! `ROBUST_FILTER_SEED` sets `rbpf.seed` (the same data, other particles: the filter's own
+//! Monte Carlo spread);
 //! `ROBUST_VERBOSE=1` prints each false alarm; `ROBUST_MATCHED_NOISE=1` gives the filter each cell's true sensor noise: the reference
 //! the noise estimate is judged against).
 
@@ -206,6 +209,8 @@ struct Tally {
     noise_ratio_end: Vec<[f64; 2]>,
     /// When the plant's output stopped being finite, per run where it did.
     diverged_at_s: Vec<f64>,
+    /// Jump hypotheses that became particles in the healthy runs (`rbpf.jump_search`).
+    healthy_jumps: u64,
 }
 
 fn sample_is_finite(s: &railmon_damper::BogieSample) -> bool {
@@ -308,6 +313,9 @@ fn run(
         t.mismatch += usize::from(e.model_mismatch);
         t.nis_sum += e.nis_window_mean.unwrap_or(0.0);
     }
+    if spec.is_none() {
+        t.healthy_jumps += monitor.rbpf().jump_count();
+    }
     t.hours += scenario.duration_s / 3600.0;
     if spec.is_none() {
         t.runs += 1;
@@ -333,6 +341,11 @@ fn robustness_matrix() {
     config.rbpf.max_move_interval_s = env_or("ROBUST_MAX_MOVE_S", config.rbpf.max_move_interval_s);
     config.rbpf.regeneration_interval_s =
         env_or("ROBUST_REGEN_S", config.rbpf.regeneration_interval_s);
+    config.rbpf.seed = env_or("ROBUST_FILTER_SEED", config.rbpf.seed);
+    let js = &mut config.rbpf.jump_search;
+    js.enabled = env_or("ROBUST_JUMP", u8::from(js.enabled)) == 1;
+    js.hazard_per_s = env_or("ROBUST_JUMP_HAZARD", js.hazard_per_s);
+    js.materialise_odds = env_or("ROBUST_JUMP_ODDS", js.materialise_odds);
     let matched: bool = env_or("ROBUST_MATCHED_NOISE", 0u8) == 1;
     let table = Rbpf::gain_table(&config).unwrap();
     println!(
@@ -354,9 +367,9 @@ fn robustness_matrix() {
         },
     );
     println!(
-        "| cell | false degraded / h | both means within 5 % | csy covered | csay covered | model_mismatch | mean NIS / 5 | C_say step: delay s | error 10 s after | C_sy ramp: delay s after crossing | error 10 s after its end | noise std ratio at end (accel 1, gyro) |"
+        "| cell | false degraded / h | both means within 5 % | csy covered | csay covered | model_mismatch | mean NIS / 5 | C_say step: delay s | error 10 s after | C_sy ramp: delay s after crossing | error 10 s after its end | noise std ratio at end (accel 1, gyro) | jumps materialised / healthy h |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for cell in cells() {
         if !only.is_empty() && !only.iter().any(|o| cell.name.starts_with(o.as_str())) {
             continue;
@@ -401,7 +414,7 @@ fn robustness_matrix() {
             ),
         };
         println!(
-            "| {} | {:.1} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} | {} | {} | {} | {} | {} | ({:.0} s)",
+            "| {} | {:.1} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} | {} | {} | {} | {} | {} | {:.1} | ({:.0} s)",
             name,
             t.false_degraded as f64 / t.hours,
             pct(t.within),
@@ -414,6 +427,7 @@ fn robustness_matrix() {
             or_dash(t.ramp.delays()),
             or_dash(t.ramp.errors()),
             ratios.join(", "),
+            t.healthy_jumps as f64 / (t.runs.max(1) as f64 * duration_s / 3600.0),
             started.elapsed().as_secs_f64(),
         );
     }

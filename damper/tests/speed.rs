@@ -40,6 +40,7 @@ fn log_likelihood(
     c.rbpf.prior_ln_std = 0.0;
     c.rbpf.ln_diffusion_per_sqrt_s = 0.0;
     c.rbpf.regeneration_fraction = 0.0;
+    c.rbpf.jump_search.enabled = false;
     c.nominal.csay_ns_per_m *= csay_ratio;
     c.ekf.enabled = false;
     let mut m = DamperMonitor::with_gain_table(&c, 1, Some(table.clone())).unwrap();
@@ -264,7 +265,9 @@ fn the_information_about_the_anti_yaw_damper_grows_with_speed() {
 /// effective sample size and the resamplings since the step. Minutes in the dev profile:
 /// `cargo test --release -p railmon-damper --test speed finding_the_step -- --ignored --nocapture`
 /// (`SPEED_STEP_SEED`: another plant seed; `SPEED_STEP_MAX_MOVE_S`: `rbpf.max_move_interval_s`;
-/// `SPEED_STEP_REGEN_S`: `rbpf.regeneration_interval_s`).
+/// `SPEED_STEP_REGEN_S`: `rbpf.regeneration_interval_s`; `SPEED_STEP_JUMP=0|1`:
+/// `rbpf.jump_search.enabled`, `SPEED_STEP_JUMP_HAZARD` its `hazard_per_s`,
+/// `SPEED_STEP_JUMP_ODDS` its `materialise_odds`; `SPEED_STEP_SPEEDS=10,15`: only these speeds).
 #[test]
 #[ignore = "a diagnosis, about a minute in release: \
             cargo test --release -p railmon-damper --test speed finding_the_step -- --ignored --nocapture"]
@@ -282,12 +285,23 @@ fn finding_the_step_at_each_speed() {
     {
         config.rbpf.regeneration_interval_s = v;
     }
+    let var = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<f64>().ok());
+    let js = &mut config.rbpf.jump_search;
+    if let Some(v) = var("SPEED_STEP_JUMP") {
+        js.enabled = v == 1.0;
+    }
+    js.hazard_per_s = var("SPEED_STEP_JUMP_HAZARD").unwrap_or(js.hazard_per_s);
+    js.materialise_odds = var("SPEED_STEP_JUMP_ODDS").unwrap_or(js.materialise_odds);
+    let speeds: Vec<f64> = std::env::var("SPEED_STEP_SPEEDS")
+        .ok()
+        .map(|v| v.split(',').filter_map(|x| x.parse().ok()).collect())
+        .unwrap_or_else(|| INFORMATION_SPEEDS_M_S.to_vec());
     let seed: u64 = std::env::var("SPEED_STEP_SEED")
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(9000);
     let table = Rbpf::gain_table(&config).unwrap();
-    for v in INFORMATION_SPEEDS_M_S {
+    for v in speeds {
         let mut s = scenario("damper-seed", 45.0, &[[0.0, v]]);
         s.seed = seed;
         s.faults = vec![DamperFault {
@@ -301,6 +315,7 @@ fn finding_the_step_at_each_speed() {
         let mut alarms = DamperAlarm::pair(&config, [false; 2]);
         let mut sim = BogieSimulator::new(&s).unwrap();
         let mut resamples_at_step = 0;
+        let mut jumps_at_step = 0;
         let mut rows = vec![];
         let mut detected = None;
         while let Some((y, truth)) = sim.step() {
@@ -314,22 +329,26 @@ fn finding_the_step_at_each_speed() {
             let ms = (t * 1e3).round() as i64;
             if ms == 30_000 {
                 resamples_at_step = m.rbpf().resample_count();
+                jumps_at_step = m.rbpf().jump_count();
             }
             if ms >= 29_000 && ms % 1000 == 0 {
                 let nominal = config.nominal.csay_ns_per_m;
                 rows.push(format!(
-                    "{:.0}: {:.3} / {:.3} / {:.0} / {}",
+                    "{:.0}: {:.3} / {:.3} / {:.0} / {} / {} / {:.1}",
                     t - 30.0,
                     e.csay.mean_ns_per_m / nominal,
                     e.csay.q95_ns_per_m / nominal,
                     e.effective_sample_size,
                     m.rbpf().resample_count() as i64 - resamples_at_step as i64,
+                    m.rbpf().jump_count() as i64 - jumps_at_step as i64,
+                    m.rbpf().jump_max_ln_odds(),
                 ));
             }
         }
         println!(
-            "{v:.1} m/s: detected {} s after the step; seconds after the step: mean / q95 / ESS / resamplings since",
-            detected.map_or("never".into(), |d| format!("{d:.2}"))
+            "{v:.1} m/s: detected {} s after the step; seconds after the step: mean / q95 / ESS / resamplings since / jumps since / max ln odds; jumps before the step {}",
+            detected.map_or("never".into(), |d| format!("{d:.2}")),
+            jumps_at_step,
         );
         for r in rows {
             println!("  {r}");

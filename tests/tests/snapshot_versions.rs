@@ -16,7 +16,8 @@ fn fnv1a(bytes: &[u8]) -> u64 {
 
 /// Rewrites the format version of the stream state behind `state_magic` in `file` to
 /// `version`, with a checksum that fits, so that only the version is wrong.
-fn set_format_version(file: &std::path::Path, state_magic: &[u8], ours: u32, version: u32) {
+fn set_format_version(file: &std::path::Path, stream: &Stream, version: u32) {
+    let state_magic = stream.state_magic;
     let bytes = std::fs::read(file).unwrap();
     let mut parts = bytes.splitn(3, |&b| b == b'\n');
     let (magic, header, payload) = (
@@ -33,8 +34,10 @@ fn set_format_version(file: &std::path::Path, state_magic: &[u8], ours: u32, ver
         + state_magic.len();
     assert_eq!(
         payload[at..at + 4],
-        ours.to_le_bytes(),
-        "this build writes format {ours}"
+        stream.format.to_le_bytes(),
+        "this build writes {} format {}",
+        stream.name,
+        stream.format
     );
     payload[at..at + 4].copy_from_slice(&version.to_le_bytes());
     let mut header: serde_json::Value = serde_json::from_slice(header).unwrap();
@@ -53,7 +56,7 @@ struct Stream {
     replay: &'static [&'static str],
     steps: u64,
     state_magic: &'static [u8],
-    /// The format this build writes (`StateFormat::version` of the stream's pipeline).
+    /// The format version this build writes.
     format: u32,
     events: &'static str,
 }
@@ -84,7 +87,7 @@ const STREAMS: [Stream; 3] = [
         ],
         steps: 2000,
         state_magic: b"railmon-bogies\0",
-        format: 2,
+        format: 3,
         events: "/api/v1/bogies/events",
     },
     Stream {
@@ -134,7 +137,7 @@ fn a_snapshot_of_a_newer_format_is_refused_with_an_event_and_a_count_on_every_st
     for (version, stream) in (7..).zip(&STREAMS) {
         let file = data_dir.join(format!("snapshots/{}.snapshot", stream.name));
         assert!(file.exists(), "{}", file.display());
-        set_format_version(&file, stream.state_magic, stream.format, version);
+        set_format_version(&file, stream, version);
     }
 
     let service = Service::start(&bus, &settings);

@@ -304,6 +304,20 @@ impl Bank {
         }
     }
 
+    /// Gives particle `dst` the filter state of particle `src` of `from` (a bank of the same
+    /// propagation: the sentinels of `super::jump`).
+    pub(super) fn copy_particle(&mut self, dst: usize, from: &Bank, src: usize) {
+        match (self, from) {
+            (Bank::Exact(b), Bank::Exact(f)) => b.est[dst].clone_from(&f.est[src]),
+            (Bank::Steady(b), Bank::Steady(f)) => {
+                for s in 0..N_STATES {
+                    *at_mut(&mut b.x, N_STATES, s, dst) = at(&f.x, N_STATES, s, src);
+                }
+            }
+            _ => unreachable!("the sentinels are built with the particles' propagation"),
+        }
+    }
+
     /// Posterior state mean of particle `i` (for tests and diagnostics).
     pub(super) fn state(&self, i: usize) -> Vector17 {
         match self {

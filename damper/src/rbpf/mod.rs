@@ -13,6 +13,7 @@
 //!   vectorisable loops over particles.
 
 mod bank;
+mod jump;
 mod posterior;
 mod propagator;
 
@@ -35,6 +36,8 @@ use railmon_filter::resample::systematic_resample;
 
 pub use bank::BankState;
 use bank::{Bank, StepOutput, Whitening};
+use jump::Sentinels;
+pub use jump::{JumpSearchConfig, SentinelState, N_SENTINELS, SENTINEL_LN_OFFSETS};
 use posterior::SortedParticles;
 pub use posterior::{DamperPosterior, RbpfEstimate};
 pub use propagator::{SparsePropagator, BLOCK};
@@ -54,6 +57,7 @@ pub struct RbpfState {
     resamples: u64,
     nis_mean: f64,
     noise_scale: NoiseScale,
+    sentinels: Option<SentinelState>,
 }
 
 /// The filter.
@@ -86,6 +90,8 @@ pub struct Rbpf {
     log_evidence: f64,
     resamples: u64,
     sorted: SortedParticles,
+    /// The jump search's sentinels (`jump_search.enabled`).
+    sentinels: Option<Sentinels>,
 }
 
 impl Rbpf {
@@ -123,6 +129,16 @@ impl Rbpf {
         config.validate()?;
         let cfg = config.rbpf;
         let n = cfg.particles;
+        let sentinels = if cfg.jump_search.enabled {
+            let centre = Dampers {
+                csy_ns_per_m: config.nominal.csy_ns_per_m * cfg.prior_ratio,
+                csay_ns_per_m: config.nominal.csay_ns_per_m * cfg.prior_ratio,
+            }
+            .ln();
+            Some(Sentinels::new(config, table.clone(), centre)?)
+        } else {
+            None
+        };
         let bank = Bank::new(config, table)?;
         let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
         let centre = Dampers {
@@ -166,6 +182,7 @@ impl Rbpf {
                 stale: true,
                 ..SortedParticles::default()
             },
+            sentinels,
         })
     }
 
@@ -182,6 +199,7 @@ impl Rbpf {
             resamples: self.resamples,
             nis_mean: self.nis_mean,
             noise_scale: self.noise_scale,
+            sentinels: self.sentinels.as_ref().map(Sentinels::save),
         }
     }
 
@@ -207,6 +225,15 @@ impl Rbpf {
             return Err(DamperError::NonFinite {
                 what: "snapshot particles",
             });
+        }
+        match (&mut f.sentinels, state.sentinels) {
+            (Some(s), Some(saved)) => s.restore(saved)?,
+            (None, None) => {}
+            _ => {
+                return Err(DamperError::Config(
+                    "snapshot: jump_search enabled in one and not the other".into(),
+                ))
+            }
         }
         f.bank.restore(state.bank)?;
         f.ln_theta_next.clone_from(&state.ln_theta);
@@ -287,8 +314,14 @@ impl Rbpf {
             }
         }
         let log_increment = normalize_log_weights(&mut self.log_w_next)?;
+        if let Some(s) = &mut self.sentinels {
+            s.step(y, &whiten)?;
+        }
         // Commit.
         self.bank.commit();
+        if let Some(s) = &mut self.sentinels {
+            s.commit(log_increment);
+        }
         self.noise_scale.update(&z_mean);
         if every_step {
             self.sorted.stale = true;
@@ -324,14 +357,103 @@ impl Rbpf {
             normalize_log_weights(&mut self.log_w)?;
             self.ess = effective_sample_size(&self.log_w);
             self.sorted.stale = true;
+            if self.sentinels.is_some() {
+                let (mean, _) = self.ln_moments();
+                if let Some(s) = &mut self.sentinels {
+                    s.recentre(mean);
+                }
+            }
+        }
+        // Jump hypotheses due to become particles (`jump`). No resampling or move for them:
+        // a healthy bogie's cloud stays as it was but for the few particles replaced.
+        if let Some(ln_odds) = self.sentinels.as_ref().and_then(Sentinels::due) {
+            self.materialise(ln_odds.exp())?;
+            self.ess = effective_sample_size(&self.log_w);
+            self.sorted.stale = true;
         }
         Ok(())
+    }
+
+    /// The sentinels' jump hypotheses (total posterior odds `odds` against the cloud) become
+    /// particles (`jump` module docs): a share `odds / (1 + odds)` of the particles (at least
+    /// `min_newcomer_fraction`, at most half), at random, take a sentinel's coefficient
+    /// (jittered) and Kalman state, the sentinels drawn in proportion to their odds, and
+    /// share the mass `odds / (1 + odds)` equally; the others keep their relative weights in
+    /// the rest.
+    fn materialise(&mut self, odds: f64) -> Result<(), DamperError> {
+        let Some(sentinels) = self.sentinels.as_mut() else {
+            return Ok(());
+        };
+        let n = self.ln_theta.len();
+        let js = self.config.jump_search;
+        let mass = odds / (1.0 + odds);
+        let share = mass.max(js.min_newcomer_fraction);
+        let m = ((share * n as f64).round() as usize).clamp(1, n / 2);
+        // Which sentinel each newcomer stands for: systematic resampling of their odds.
+        let mut share = sentinels.ln_odds().to_vec();
+        normalize_log_weights(&mut share)?;
+        let mut of_sentinel = vec![0; m];
+        systematic_resample(&share, &mut of_sentinel, &mut self.rng);
+        // m distinct positions: the first m of a partial Fisher-Yates shuffle.
+        for (i, v) in self.indices.iter_mut().enumerate() {
+            *v = i;
+        }
+        for i in 0..m {
+            let r = self.rng.random_range(i..n);
+            self.indices.swap(i, r);
+        }
+        for &p in &self.indices[..m] {
+            self.log_w[p] = f64::NEG_INFINITY;
+        }
+        normalize_log_weights(&mut self.log_w)?;
+        let (ln_rest, ln_each) = (-odds.ln_1p(), (mass / m as f64).ln());
+        for w in self.log_w.iter_mut() {
+            *w += ln_rest;
+        }
+        for (&p, &j) in self.indices[..m].iter().zip(&of_sentinel) {
+            let (theta_j, bank) = sentinels.sentinel(j);
+            let k = j / SENTINEL_LN_OFFSETS.len();
+            let z: f64 = self.rng.sample(StandardNormal);
+            self.ln_theta[p][k] = sentinels.clamp(k, theta_j[k] + js.newcomer_ln_std * z);
+            self.log_w[p] = ln_each;
+            self.bank.copy_particle(p, bank, j);
+        }
+        normalize_log_weights(&mut self.log_w)?;
+        sentinels.materialised();
+        Ok(())
+    }
+
+    /// How many jump hypotheses became particles so far (0 without the jump search).
+    pub fn jump_count(&self) -> u64 {
+        self.sentinels.as_ref().map_or(0, Sentinels::fires)
+    }
+
+    /// Each sentinel's posterior log-odds of a jump (`jump` module docs), in the order of
+    /// [`Rbpf::jump_sentinels`]; `None` without the jump search.
+    pub fn jump_ln_odds(&self) -> Option<&[f64]> {
+        self.sentinels.as_ref().map(Sentinels::ln_odds)
+    }
+
+    /// The sentinels' `ln C_sy, ln C_say`: for each damper (C_sy first) the offsets
+    /// [`SENTINEL_LN_OFFSETS`] from the posterior mean; `None` without the jump search.
+    pub fn jump_sentinels(&self) -> Option<&[[f64; 2]]> {
+        self.sentinels.as_ref().map(Sentinels::ln_theta)
+    }
+
+    /// The largest posterior log-odds of a jump among the sentinels (`-inf` without them).
+    pub fn jump_max_ln_odds(&self) -> f64 {
+        self.sentinels
+            .as_ref()
+            .map_or(f64::NEG_INFINITY, Sentinels::max_ln_odds)
     }
 
     /// The vehicle's forward speed for the next steps (m/s; the caller keeps it within
     /// `speed`'s range: outside it the filter is paused, not stepped). Until the first call
     /// the filter assumes the configured vehicle speed.
     pub fn set_speed(&mut self, speed_m_s: f64) -> Result<(), DamperError> {
+        if let Some(s) = &mut self.sentinels {
+            s.set_speed(speed_m_s)?;
+        }
         self.bank.set_speed(speed_m_s)
     }
 
@@ -357,6 +479,9 @@ impl Rbpf {
                 z: &mut self.z,
             },
         )?;
+        if let Some(s) = &mut self.sentinels {
+            s.step_states(y, &whiten)?;
+        }
         self.bank.commit();
         Ok(())
     }
@@ -505,5 +630,68 @@ impl Rbpf {
             self.bank.state(i),
             self.bank.covariance(i),
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{BogieSimulator, DamperScenario};
+
+    /// A hypothesis becomes as many particles as its share of the posterior,
+    /// `odds / (1 + odds)`, holding exactly that mass, each with the sentinel's Kalman state and coefficient (the
+    /// other its own); the other particles keep their relative weights; every odds restarts.
+    #[test]
+    fn a_materialised_hypothesis_holds_its_posterior_mass() {
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../config/scenarios/damper-seed.toml"
+        ))
+        .unwrap();
+        let mut s = DamperScenario::from_toml_str(&text).unwrap();
+        s.duration_s = 0.2;
+        let mut c = s.monitor_config();
+        c.rbpf.particles = 64;
+        c.rbpf.jump_search.enabled = true;
+        c.rbpf.jump_search.materialise_odds = 1e300;
+        let mut f = Rbpf::new(&c).unwrap();
+        let mut sim = BogieSimulator::new(&s).unwrap();
+        while let Some((y, _)) = sim.step() {
+            f.step(&y.to_vector()).unwrap();
+        }
+        let (before_theta, before_w) = (f.ln_theta.clone(), f.log_w.clone());
+        // All the odds on one sentinel (C_say, offset -0.8): every newcomer stands for it.
+        let j = 6;
+        let k = 1;
+        let theta_j = f.jump_sentinels().unwrap()[j];
+        let sentinels = f.sentinels.as_mut().unwrap();
+        let state_j = sentinels.sentinel(j).1.state(j);
+        let odds: f64 = 0.25;
+        sentinels.ln_odds_mut().fill(f64::NEG_INFINITY);
+        sentinels.ln_odds_mut()[j] = odds.ln();
+        f.materialise(odds).unwrap();
+        let changed: Vec<usize> = (0..64)
+            .filter(|&i| f.ln_theta[i] != before_theta[i])
+            .collect();
+        assert_eq!(changed.len(), 13, "round(0.2 x 64) newcomers");
+        let mass: f64 = changed.iter().map(|&i| f.log_w[i].exp()).sum();
+        assert!((mass - odds / (1.0 + odds)).abs() < 1e-12, "{mass}");
+        for &i in &changed {
+            assert_eq!(f.ln_theta[i][1 - k], before_theta[i][1 - k]);
+            assert!((f.ln_theta[i][k] - theta_j[k]).abs() < 6.0 * 0.15);
+            assert_eq!(f.bank.state(i), state_j);
+        }
+        let kept: Vec<usize> = (0..64).filter(|i| !changed.contains(i)).collect();
+        let (a, b) = (kept[0], kept[kept.len() - 1]);
+        let ratio = |w: &[f64]| w[a] - w[b];
+        assert!((ratio(&f.log_w) - ratio(&before_w)).abs() < 1e-12);
+        let total: f64 = f.log_w.iter().map(|w| w.exp()).sum();
+        assert!((total - 1.0).abs() < 1e-12);
+        assert!(f
+            .jump_ln_odds()
+            .unwrap()
+            .iter()
+            .all(|q| *q == f64::NEG_INFINITY));
+        assert_eq!(f.jump_count(), 1);
     }
 }

@@ -466,10 +466,11 @@ struct SavedBogies {
 
 /// The layout of [`SavedBogies`] and everything in it (`DamperMonitorState`: the RBPF's
 /// particles and states, the noise estimate, the EKF, the consistency check, the pause).
-/// Raise the version with every change of any of them.
+/// Raise the version with every change of any of them: 3 added the RBPF's jump-search
+/// sentinels (`RbpfState`).
 const SAVED_BOGIES: StateFormat = StateFormat {
     magic: b"railmon-bogies\0",
-    version: 2,
+    version: 3,
     what: "bogie state",
 };
 
