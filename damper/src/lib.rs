@@ -43,7 +43,10 @@ pub use faults::{DamperFault, DamperId, FaultKind};
 pub use monitor::{DamperEstimate, DamperMonitor, DamperMonitorState};
 pub use noise_scale::{NoiseScale, NoiseScaleConfig};
 pub use params::{BogieParams, Dampers, DEFAULT_SPEED_M_S};
-pub use rbpf::{DamperPosterior, JumpSearchConfig, Rbpf, RbpfEstimate, RbpfState, N_SENTINELS};
+pub use rbpf::{
+    slowest_time_constant_s, DamperPosterior, JumpSearchConfig, Rbpf, RbpfEstimate, RbpfState,
+    N_SENTINELS,
+};
 pub use sample::{BogieSample, SensorNoise};
 pub use scenario::DamperScenario;
 pub use simulator::{BogieSimulator, BogieTruth};

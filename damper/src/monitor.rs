@@ -156,8 +156,9 @@ impl DamperMonitor {
     /// changes), then steps both filters.
     /// Outside the valid speed range (`speed`) the filters are not stepped: the posterior,
     /// the particles and their states stay bit for bit as they were, and the estimate says
-    /// `paused`. Back inside, the per-particle states run `speed.resume_settle_s` without
-    /// weighting (still `paused`) before the posterior learns again.
+    /// `paused`. Back inside, the per-particle states run `speed.resume_settle_s` (with the
+    /// jump search at least [`Rbpf::min_resume_settle_s`]) without weighting (still
+    /// `paused`) before the posterior learns again.
     pub fn step(&mut self, sample: &BogieSample) -> Result<&DamperEstimate, DamperError> {
         let y = sample.validate()?;
         let speed_m_s = sample.speed_m_s;
@@ -165,7 +166,12 @@ impl DamperMonitor {
             self.steps += 1;
             self.pause = PauseState {
                 reason: Some(reason),
-                settle_steps_left: (self.speed.resume_settle_s / self.dt_s).round() as u64,
+                settle_steps_left: (self
+                    .speed
+                    .resume_settle_s
+                    .max(self.rbpf.min_resume_settle_s())
+                    / self.dt_s)
+                    .round() as u64,
                 speed_m_s,
             };
             self.estimate.time_s = self.steps as f64 * self.dt_s;

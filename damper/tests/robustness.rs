@@ -20,7 +20,8 @@
 //! `ROBUST_FIRST_SEED=2` starts at the third seed (9002) to add one to a table;
 //! `ROBUST_MAX_MOVE_S` sets `rbpf.max_move_interval_s`, `ROBUST_REGEN_S`
 //! `rbpf.regeneration_interval_s`; `ROBUST_JUMP=0|1` sets `rbpf.jump_search.enabled`,
-//! `ROBUST_JUMP_HAZARD` its `hazard_per_s`, `ROBUST_JUMP_ODDS` its `materialise_odds`;
+//! `ROBUST_JUMP_HAZARD` its `hazard_per_s`, `ROBUST_JUMP_ODDS` its `materialise_odds`,
+//! `ROBUST_JUMP_HOLD` its `resume_hold_time_constants`;
 //! `ROBUST_FILTER_SEED` sets `rbpf.seed` (the same data, other particles: the filter's own
 //! Monte Carlo spread);
 //! `ROBUST_VERBOSE=1` prints each false alarm; `ROBUST_MATCHED_NOISE=1` gives the filter each cell's true sensor noise: the reference
@@ -346,6 +347,7 @@ fn robustness_matrix() {
     js.enabled = env_or("ROBUST_JUMP", u8::from(js.enabled)) == 1;
     js.hazard_per_s = env_or("ROBUST_JUMP_HAZARD", js.hazard_per_s);
     js.materialise_odds = env_or("ROBUST_JUMP_ODDS", js.materialise_odds);
+    js.resume_hold_time_constants = env_or("ROBUST_JUMP_HOLD", js.resume_hold_time_constants);
     let matched: bool = env_or("ROBUST_MATCHED_NOISE", 0u8) == 1;
     let table = Rbpf::gain_table(&config).unwrap();
     println!(

@@ -106,11 +106,11 @@ fn scheduled_gains_equal_the_direct_ones_at_a_node_and_stay_close_between() {
     }
 }
 
-/// Below `speed.min_m_s` nothing of the parameter posterior moves: every particle's
-/// `ln theta` and weight is bit for bit what it was before the stop, through the stop and
-/// the settling after it; then the filter learns again.
-#[test]
-fn a_low_speed_stretch_holds_the_parameter_particles_bit_for_bit() {
+/// What a stop does to the parameter particles: runs `c` through 1 s at 45.3 m/s, 0.5 s at
+/// 2 m/s, then 30 m/s, asserting that no particle's `ln theta` or weight moves while the
+/// estimate says `paused`. Returns the paused steps, whether the filter learnt again after
+/// them, and the jump search's log-odds at the last paused step (if it is on).
+fn stop_and_go(c: &DamperMonitorConfig, duration_s: f64) -> (usize, bool, Option<Vec<f64>>) {
     let profile = [
         [0.0, 45.3],
         [1.0, 45.3],
@@ -118,14 +118,12 @@ fn a_low_speed_stretch_holds_the_parameter_particles_bit_for_bit() {
         [1.5, 2.0],
         [1.501, 30.0],
     ];
-    let s = scenario("damper-seed", 2.5, &profile);
-    let mut c = s.monitor_config();
-    c.rbpf.particles = 64;
-    c.speed.resume_settle_s = 0.5;
+    let s = scenario("damper-seed", duration_s, &profile);
+    let n = c.rbpf.particles;
     let data = samples(&s);
-    let mut m = DamperMonitor::new(&c, 5).unwrap();
+    let mut m = DamperMonitor::new(c, 5).unwrap();
     let particles = |m: &DamperMonitor| {
-        (0..64)
+        (0..n)
             .map(|i| {
                 let (ln_theta, log_w, _, _) = m.rbpf().particle(i);
                 (ln_theta, log_w)
@@ -135,6 +133,7 @@ fn a_low_speed_stretch_holds_the_parameter_particles_bit_for_bit() {
     let mut held = None;
     let mut paused_steps = 0;
     let mut learnt_after = false;
+    let mut odds_at_resume = None;
     for y in &data {
         let before = particles(&m);
         let e = *m.step(y).unwrap();
@@ -146,6 +145,7 @@ fn a_low_speed_stretch_holds_the_parameter_particles_bit_for_bit() {
                 if y.speed_m_s < c.speed.min_m_s {
                     assert_eq!(reason, PauseReason::LowSpeed);
                 }
+                odds_at_resume = m.rbpf().jump_ln_odds().map(<[f64]>::to_vec);
             }
             None => {
                 if held.is_some() {
@@ -154,12 +154,47 @@ fn a_low_speed_stretch_holds_the_parameter_particles_bit_for_bit() {
             }
         }
     }
+    (paused_steps, learnt_after, odds_at_resume)
+}
+
+/// Below `speed.min_m_s` nothing of the parameter posterior moves: every particle's
+/// `ln theta` and weight is bit for bit what it was before the stop, through the stop and
+/// the settling after it; then the filter learns again.
+#[test]
+fn a_low_speed_stretch_holds_the_parameter_particles_bit_for_bit() {
+    let s = scenario("damper-seed", 2.5, &[[0.0, 45.3]]);
+    let mut c = s.monitor_config();
+    c.rbpf.particles = 64;
+    c.speed.resume_settle_s = 0.5;
+    let (paused_steps, learnt_after, _) = stop_and_go(&c, 2.5);
     // 0.5 s at 2 m/s and 0.5 s of settling.
     assert!((999..=1002).contains(&paused_steps), "{paused_steps}");
     assert!(
         learnt_after,
         "the filter never learnt again after the pause"
     );
+}
+
+/// With the jump search the settling after a stop lasts `resume_hold_time_constants` time
+/// constants of the model's slowest mode (longer than `speed.resume_settle_s`), the particles
+/// held through it, and the sentinels' odds start again from nothing.
+#[test]
+fn with_the_jump_search_a_stop_settles_for_the_slowest_mode() {
+    let s = scenario("damper-seed", 9.0, &[[0.0, 45.3]]);
+    let mut c = s.monitor_config();
+    c.rbpf.particles = 64;
+    c.rbpf.jump_search.enabled = true;
+    let tau = slowest_time_constant_s(&c).unwrap();
+    let settle_s = c.rbpf.jump_search.resume_hold_time_constants * tau;
+    assert!(settle_s > c.speed.resume_settle_s);
+    let (paused_steps, learnt_after, odds) = stop_and_go(&c, 9.0);
+    let expected = ((0.5 + settle_s) / c.dt_s).round();
+    assert!(
+        (paused_steps as f64 - expected).abs() <= 2.0,
+        "{paused_steps} steps, {expected} expected"
+    );
+    assert!(learnt_after);
+    assert!(odds.unwrap().iter().all(|q| *q == f64::NEG_INFINITY));
 }
 
 /// Solving speed nodes ahead of the filters (issue 9 item 4): `missing_near` names the

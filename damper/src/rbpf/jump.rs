@@ -47,7 +47,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::DamperMonitorConfig;
 use crate::gain_table::GainTable;
-use crate::model::{Vector5, N_OUTPUTS};
+use crate::model::{BogieModel, Vector5, N_OUTPUTS};
 use crate::params::positive;
 use crate::DamperError;
 use railmon_filter::logspace::log_sum_exp;
@@ -90,6 +90,17 @@ pub struct JumpSearchConfig {
     /// Spread of the newcomers' coefficient about the sentinel's (standard deviation in
     /// `ln C`; about half the sentinels' spacing).
     pub newcomer_ln_std: f64,
+    /// After a pause (low or high speed) the filter settles (its states run, its weights and
+    /// the sentinels' odds do not move) for at least this many time constants of the
+    /// slowest mode of the vehicle model ([`slowest_time_constant_s`]: 1.93 s for the
+    /// paper's vehicle over 5-55 m/s), or `speed.resume_settle_s` if longer; the odds then
+    /// start again from nothing. The states kept through a pause are those of its start:
+    /// their error decays with that mode, and until it has, the innovations favour whichever
+    /// hypothesis forgets them fastest, not the true dampers (after the 1 s settling alone,
+    /// a cascade of newcomers at 25-35 % of nominal within a second, then a false
+    /// `damper_degraded`, on the speed profile with stops; docs/damper.md "Low speed: the
+    /// jump search"). The filter without the search keeps `speed.resume_settle_s` alone.
+    pub resume_hold_time_constants: f64,
 }
 
 impl Default for JumpSearchConfig {
@@ -105,6 +116,8 @@ impl Default for JumpSearchConfig {
             materialise_odds: 0.01,
             min_newcomer_fraction: 0.01,
             newcomer_ln_std: 0.15,
+            // e^-3: 5 % of the stale states' error is left when the search judges again.
+            resume_hold_time_constants: 3.0,
         }
     }
 }
@@ -127,6 +140,10 @@ impl JumpSearchConfig {
                 reason: "must be finite and non-negative",
             });
         }
+        crate::params::non_negative(
+            "rbpf.jump_search.resume_hold_time_constants",
+            self.resume_hold_time_constants,
+        )?;
         Ok(())
     }
 }
@@ -228,7 +245,8 @@ impl Sentinels {
         }
     }
 
-    /// Runs the sentinels' filters without touching the odds (a pause's settling).
+    /// Runs the sentinels' filters during a pause's settling: the odds start again (what they
+    /// held came before the pause, and the settling's innovations are the stale states').
     pub(super) fn step_states(
         &mut self,
         y: &Vector5,
@@ -236,6 +254,7 @@ impl Sentinels {
     ) -> Result<(), DamperError> {
         self.step(y, whiten)?;
         self.bank.commit();
+        self.ln_odds.fill(f64::NEG_INFINITY);
         Ok(())
     }
 
@@ -317,6 +336,40 @@ impl Sentinels {
     }
 }
 
+/// The time constant of the slowest mode of the vehicle model over the speeds the filter runs
+/// at, with nominal dampers (s): `1 / min |Re lambda|` over the eigenvalues `lambda` of
+/// `A(nominal, v)` (but the two zero ones, the unobservable drift: `model` docs), `v` on a
+/// geometric grid of ratio `speed.grid_ratio` over `[speed.min_m_s, speed.max_m_s]`. A stale
+/// state's error decays at least this slowly in the plant's own dynamics (the filter's gain
+/// corrects it on top). For the paper's vehicle it is the body's lateral mode on the secondary
+/// suspension (0.67 Hz, decay 0.58 /s) at most speeds, and another mode at 5 m/s
+/// (0.52 Hz, decay 0.52 /s: 1.93 s); `tests::the_slowest_mode_is_the_body_at_speed`.
+pub fn slowest_time_constant_s(config: &DamperMonitorConfig) -> Result<f64, DamperError> {
+    let mut model = BogieModel::new(&config.vehicle, 0.0)?;
+    let sp = &config.speed;
+    let mut slowest_rate = f64::INFINITY;
+    let mut v = sp.min_m_s;
+    loop {
+        model.set_speed(v.min(sp.max_m_s))?;
+        let a = model.a_matrix(&config.nominal);
+        for z in a.complex_eigenvalues().iter() {
+            if z.norm() > 1e-9 {
+                slowest_rate = slowest_rate.min(-z.re);
+            }
+        }
+        if v >= sp.max_m_s {
+            break;
+        }
+        v *= sp.grid_ratio;
+    }
+    if slowest_rate.is_nan() || slowest_rate <= 0.0 {
+        return Err(DamperError::Config(
+            "jump_search: the vehicle model has an unstable mode within the speed range".into(),
+        ));
+    }
+    Ok(1.0 / slowest_rate)
+}
+
 /// The odds can exceed any float only on a plant that diverged (per-step log-likelihoods of
 /// 1e200 and more: conicity 0.25 in the robustness matrix, flagged `model_mismatch`): there
 /// `ln Q` is held at this bound instead of becoming infinite, so that a materialisation's
@@ -361,6 +414,33 @@ mod tests {
             updated_ln_odds(f64::NEG_INFINITY, h, f64::NEG_INFINITY),
             f64::NEG_INFINITY
         );
+    }
+
+    /// The hold's time constant is the slowest decay of the model (checked against a
+    /// simulation of the free response: a stale state's error shrinks by `e` in about it).
+    #[test]
+    fn the_slowest_mode_is_the_body_at_speed() {
+        let c = DamperMonitorConfig::default();
+        let tau = slowest_time_constant_s(&c).unwrap();
+        // The body's lateral mode alone, `2 m_bd / C_sy` = 1.625 s, bounds it from below:
+        // the couplings only slow it; at 5 m/s a bogie mode is slower still.
+        let body = 2.0 * c.vehicle.half_body_mass_kg / c.nominal.csy_ns_per_m;
+        assert!(tau > body && tau < 1.3 * body, "{tau} against {body}");
+        // Free response from a body displacement at 5 m/s: after 3 tau what is left is at
+        // most e^-3 of it, give or take the oscillation's phase (envelope).
+        let mut m = BogieModel::new(&c.vehicle, 0.0).unwrap();
+        m.set_speed(c.speed.min_m_s).unwrap();
+        let phi = crate::expm::expm(&(m.a_matrix(&c.nominal) * 0.01)).unwrap();
+        let mut x = crate::model::Vector17::zeros();
+        x[13] = 1.0;
+        let mut peak_late: f64 = 0.0;
+        for k in 1..=(6.0 * tau / 0.01) as usize {
+            x = phi * x;
+            if k as f64 * 0.01 >= 3.0 * tau {
+                peak_late = peak_late.max(x[13].abs());
+            }
+        }
+        assert!(peak_late < 3.0 * (-3.0f64).exp(), "{peak_late}");
     }
 
     #[test]

@@ -37,7 +37,9 @@ use railmon_filter::resample::systematic_resample;
 pub use bank::BankState;
 use bank::{Bank, StepOutput, Whitening};
 use jump::Sentinels;
-pub use jump::{JumpSearchConfig, SentinelState, N_SENTINELS, SENTINEL_LN_OFFSETS};
+pub use jump::{
+    slowest_time_constant_s, JumpSearchConfig, SentinelState, N_SENTINELS, SENTINEL_LN_OFFSETS,
+};
 use posterior::SortedParticles;
 pub use posterior::{DamperPosterior, RbpfEstimate};
 pub use propagator::{SparsePropagator, BLOCK};
@@ -92,6 +94,9 @@ pub struct Rbpf {
     sorted: SortedParticles,
     /// The jump search's sentinels (`jump_search.enabled`).
     sentinels: Option<Sentinels>,
+    /// The shortest settling after a pause (s): `jump_search.resume_hold_time_constants`
+    /// time constants of the model's slowest mode with the search, 0 without it.
+    min_resume_settle_s: f64,
 }
 
 impl Rbpf {
@@ -129,6 +134,11 @@ impl Rbpf {
         config.validate()?;
         let cfg = config.rbpf;
         let n = cfg.particles;
+        let min_resume_settle_s = if cfg.jump_search.enabled {
+            cfg.jump_search.resume_hold_time_constants * jump::slowest_time_constant_s(config)?
+        } else {
+            0.0
+        };
         let sentinels = if cfg.jump_search.enabled {
             let centre = Dampers {
                 csy_ns_per_m: config.nominal.csy_ns_per_m * cfg.prior_ratio,
@@ -183,6 +193,7 @@ impl Rbpf {
                 ..SortedParticles::default()
             },
             sentinels,
+            min_resume_settle_s,
         })
     }
 
@@ -455,6 +466,13 @@ impl Rbpf {
             s.set_speed(speed_m_s)?;
         }
         self.bank.set_speed(speed_m_s)
+    }
+
+    /// The shortest settling after a pause this filter needs (s; `speed.resume_settle_s` may
+    /// ask for more): with the jump search, `jump_search.resume_hold_time_constants` time
+    /// constants of the vehicle model's slowest mode; 0 without it.
+    pub fn min_resume_settle_s(&self) -> f64 {
+        self.min_resume_settle_s
     }
 
     /// Runs every particle's Kalman filter on `y` without weighting, resampling or moving the
