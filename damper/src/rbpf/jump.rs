@@ -339,9 +339,9 @@ impl Sentinels {
 /// The time constant of the slowest mode of the vehicle model over the speeds the filter runs
 /// at, with nominal dampers (s): `1 / min |Re lambda|` over the eigenvalues `lambda` of
 /// `A(nominal, v)` (but the two zero ones, the unobservable drift: `model` docs), `v` on a
-/// geometric grid of ratio `speed.grid_ratio` over `[speed.min_m_s, speed.max_m_s]`. A stale
-/// state's error decays at least this slowly in the plant's own dynamics (the filter's gain
-/// corrects it on top). For the paper's vehicle it is the body's lateral mode on the secondary
+/// geometric grid of ratio `speed.grid_ratio` over `[speed.min_m_s, speed.max_m_s]`. The
+/// slowest part of a stale state's error decays at this rate in the plant's own dynamics
+/// (open loop: the filter's gain corrects it on top). For the paper's vehicle it is the body's lateral mode on the secondary
 /// suspension (0.67 Hz, decay 0.58 /s) at most speeds, and another mode at 5 m/s
 /// (0.52 Hz, decay 0.52 /s: 1.93 s); `tests::the_slowest_mode_is_the_body_at_speed`.
 pub fn slowest_time_constant_s(config: &DamperMonitorConfig) -> Result<f64, DamperError> {
@@ -422,8 +422,8 @@ mod tests {
     fn the_slowest_mode_is_the_body_at_speed() {
         let c = DamperMonitorConfig::default();
         let tau = slowest_time_constant_s(&c).unwrap();
-        // The body's lateral mode alone, `2 m_bd / C_sy` = 1.625 s, bounds it from below:
-        // the couplings only slow it; at 5 m/s a bogie mode is slower still.
+        // The body's lateral mode alone, `2 m_bd / C_sy` = 1.625 s: coupled to the bogie it
+        // decays a little slower (0.58 /s), and at 5 m/s another mode slower still.
         let body = 2.0 * c.vehicle.half_body_mass_kg / c.nominal.csy_ns_per_m;
         assert!(tau > body && tau < 1.3 * body, "{tau} against {body}");
         // Free response from a body displacement at 5 m/s: after 3 tau what is left is at
