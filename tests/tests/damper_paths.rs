@@ -154,15 +154,16 @@ fn service_and_both_analyze_paths_raise_the_same_damper_events() {
     assert!((30.0..45.0).contains(&events[0].2), "{events:?}");
 }
 
-/// The first 10 s of the speed profile: the train starts at rest (the filter paused, low
-/// speed, from the first sample) and passes 5 m/s at 5 s (it learns again after 1 s of
-/// settling): a `damper_paused` and a `damper_resumed`, the same on every path.
+/// The first 12 s of the speed profile: the train starts at rest (the filter paused, low
+/// speed, from the first sample) and passes 5 m/s at 5 s (it learns again after settling for
+/// `resume_hold_time_constants` time constants of the model's slowest mode, with the jump
+/// search): a `damper_paused` and a `damper_resumed`, the same on every path.
 #[test]
 fn service_and_both_analyze_paths_raise_the_same_pause_events() {
     let events = same_events_on_every_path(
         "profile",
         "config/scenarios/damper-speed-profile.toml",
-        "10",
+        "12",
         11,
     );
     let kinds: Vec<(&str, &str)> = events
@@ -176,6 +177,21 @@ fn service_and_both_analyze_paths_raise_the_same_pause_events() {
     );
     assert_eq!(events[0].3["reason"], "low_speed");
     assert!(events[0].2 < 0.01, "{events:?}");
-    // 5 m/s at 5 s, then 1 s of settling.
-    assert!((5.9..6.1).contains(&events[1].2), "{events:?}");
+    // 5 m/s at 5 s, then the settling the scenario's monitor configuration asks for.
+    let text = std::fs::read_to_string(
+        railmon_system_tests::workspace_root().join("config/scenarios/damper-speed-profile.toml"),
+    )
+    .unwrap();
+    let config = railmon_damper::DamperScenario::from_toml_str(&text)
+        .unwrap()
+        .monitor_config();
+    let settle_s = (config.rbpf.jump_search.resume_hold_time_constants
+        * railmon_damper::slowest_time_constant_s(&config).unwrap())
+    .max(config.speed.resume_settle_s);
+    assert!(settle_s > 5.0, "{settle_s}");
+    assert!(
+        (events[1].2 - (5.0 + settle_s)).abs() < 0.05,
+        "resumed at {} s, expected 5 s + {settle_s:.3} s: {events:?}",
+        events[1].2
+    );
 }
