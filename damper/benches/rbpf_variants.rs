@@ -28,18 +28,7 @@
 
 use std::time::Instant;
 
-/// CPU time of the calling thread (s).
-fn thread_cpu_s() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid timespec to write into; the clock id is a constant.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    assert_eq!(rc, 0, "clock_gettime");
-    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
-}
-
+use railmon_bench_support::measure;
 use railmon_damper::{
     BogieSample, BogieSimulator, DamperMonitor, DamperMonitorConfig, DamperScenario, Rbpf,
     SpeedProfile,
@@ -180,13 +169,13 @@ fn main() {
         for k in 0..variants.len() {
             let v = (k + round) % variants.len();
             let (_, runner, data) = &mut variants[v];
-            let start = Instant::now();
-            let cpu_start = thread_cpu_s();
-            for s in &data[range.clone()] {
-                runner.step(s);
-            }
-            cpu_seconds[v] += thread_cpu_s() - cpu_start;
-            seconds[v] += start.elapsed().as_secs_f64();
+            let time = measure(|| {
+                for s in &data[range.clone()] {
+                    runner.step(s);
+                }
+            });
+            cpu_seconds[v] += time.cpu.as_secs_f64();
+            seconds[v] += time.wall.as_secs_f64();
         }
     }
     let steps = (BLOCK * rounds) as f64;

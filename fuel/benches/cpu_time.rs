@@ -1,25 +1,11 @@
 //! CPU time of `FuelMonitor::update`, alone and with every interval asked for, at `m_c` = 3
 //! and 10 (the samples and settings of `benches/mixture.rs`), from the thread's own CPU clock
-//! (`CLOCK_THREAD_CPUTIME_ID`): on the shared 2-core build machine criterion's wall-clock
-//! medians rise with the other jobs' load, the time this thread spends on a core much less.
+//! (`railmon_bench_support`): on the shared 2-core build machine criterion's wall-clock medians
+//! rise with the other jobs' load, the time this thread spends on a core much less.
 //! Prints a table. Run with `cargo bench -p railmon-fuel --bench cpu_time` (one row: `-- update/3`).
-
-use std::time::Instant;
 
 mod common;
 use common::{every_interval, initialised_monitor, sample};
-
-/// This thread's CPU time, ns.
-fn thread_cpu_ns() -> u128 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; the clock id is a constant Linux supports.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    assert_eq!(rc, 0, "clock_gettime(CLOCK_THREAD_CPUTIME_ID)");
-    ts.tv_sec as u128 * 1_000_000_000 + ts.tv_nsec as u128
-}
 
 /// CPU and wall time per step, µs, over `steps` steps after `warm_up` unmeasured ones.
 fn measure(m_c: usize, with_intervals: bool, warm_up: usize, steps: usize) -> (f64, f64) {
@@ -36,12 +22,11 @@ fn measure(m_c: usize, with_intervals: bool, warm_up: usize, steps: usize) -> (f
         std::hint::black_box(kept);
     };
     run(warm_up);
-    let (cpu, wall) = (thread_cpu_ns(), Instant::now());
-    run(steps);
+    let time = railmon_bench_support::measure(|| run(steps));
     let per_step = |ns: f64| ns / steps as f64 / 1e3;
     (
-        per_step((thread_cpu_ns() - cpu) as f64),
-        per_step(wall.elapsed().as_nanos() as f64),
+        per_step(time.cpu.as_nanos() as f64),
+        per_step(time.wall.as_nanos() as f64),
     )
 }
 

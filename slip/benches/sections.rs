@@ -10,7 +10,7 @@
 //! - what the service runs: the EKFs and the default method (`SlipMonitor`, temporal),
 //!
 //! printed as drive-steps per second of CPU time (one core), with the sum of the sections next
-//! to the measured whole. CPU time (`/proc/thread-self/schedstat`) instead of wall clock: on the
+//! to the measured whole. CPU time (`railmon_bench_support`) instead of wall clock: on the
 //! shared machine the wall clock includes waiting for a core.
 //!
 //! `cargo bench -p railmon-slip --bench sections [-- NAME]` (NAME: only scenarios whose file
@@ -21,6 +21,7 @@ use std::hint::black_box;
 mod scenarios_dir;
 use scenarios_dir::scenario_paths;
 
+use railmon_bench_support::thread_cpu_time;
 use railmon_slip::ekf::{ekf_step_dense, ekf_step_parts};
 use railmon_slip::model::DriveMatrix;
 use railmon_slip::{
@@ -28,25 +29,15 @@ use railmon_slip::{
     MultiMethodPipeline, SlipMonitor,
 };
 
-/// CPU time of this thread (ns), from `/proc/thread-self/schedstat` (Linux).
-fn thread_cpu_ns() -> u64 {
-    let text = std::fs::read_to_string("/proc/thread-self/schedstat").expect("schedstat");
-    text.split_whitespace()
-        .next()
-        .and_then(|t| t.parse().ok())
-        .expect("schedstat field")
-}
-
 /// CPU seconds of one run of `f`: the mean over as many runs as take 0.3 s of CPU time (at
-/// least one). The kernel updates the thread's CPU time at scheduler events, so a single
-/// short run can read as 0.
+/// least one), so that the short sections are averaged over several runs.
 fn cpu_seconds(mut f: impl FnMut()) -> f64 {
-    let start = thread_cpu_ns();
+    let start = thread_cpu_time();
     let mut runs = 0;
     loop {
         f();
         runs += 1;
-        let spent = (thread_cpu_ns() - start) as f64 * 1e-9;
+        let spent = (thread_cpu_time() - start).as_secs_f64();
         if spent >= 0.3 {
             return spent / runs as f64;
         }

@@ -10,11 +10,12 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use railmon_bench_support::measure;
 use railmon_slip::ekf::{ekf_step, DriveFilter};
 use railmon_slip::model::{DriveMatrix, DriveState};
 use railmon_slip::{
     AdhesionConfig, AdhesionEstimator, AdhesionMethod, AdhesionScenario, DriveSample,
-    DriveSimulator, EkfBank, MultiMethodPipeline,
+    DriveSimulator, EkfBank, MultiMethodPipeline, SlipMonitorConfig,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -95,6 +96,15 @@ fn bench_estimators(c: &mut Criterion) {
     group.finish();
 }
 
+/// One offline run of the whole pipeline (EKFs plus every method) over `frames`.
+fn run_pipeline(config: &SlipMonitorConfig, n_drives: usize, frames: &[Vec<DriveSample>]) -> f64 {
+    let mut pipe = MultiMethodPipeline::new(config, n_drives).expect("pipeline");
+    for f in frames {
+        pipe.step(f).expect("step");
+    }
+    black_box(pipe.torque_nm()[0])
+}
+
 fn bench_pipeline(c: &mut Criterion) {
     let (scenario, frames) = seed_frames();
     let config = scenario.monitor_config();
@@ -104,46 +114,27 @@ fn bench_pipeline(c: &mut Criterion) {
         (frames.len() * scenario.n_drives()) as u64,
     ));
     group.bench_function("seed_scenario_all_methods", |b| {
-        b.iter(|| {
-            let mut pipe =
-                MultiMethodPipeline::new(&config, scenario.n_drives()).expect("pipeline");
-            for f in &frames {
-                pipe.step(f).expect("step");
-            }
-            black_box(pipe.torque_nm()[0])
-        })
+        b.iter(|| run_pipeline(&config, scenario.n_drives(), &frames))
     });
     group.finish();
 }
 
-/// CPU time of this thread (ns), from `/proc/thread-self/schedstat` (Linux): on a shared
-/// machine the wall-clock times above include waiting for a core, this does not.
-fn thread_cpu_ns() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
-    text.split_whitespace().next()?.parse().ok()
-}
-
-/// Prints the pipeline's throughput per second of CPU time (five runs of the seed scenario).
+/// Prints the pipeline's throughput per second of this thread's CPU time (five runs of the seed
+/// scenario): on a shared machine the wall-clock times above include waiting for a core.
 fn bench_pipeline_cpu_time(_: &mut Criterion) {
     let (scenario, frames) = seed_frames();
     let config = scenario.monitor_config();
     let runs = 5;
-    let (Some(start), wall) = (thread_cpu_ns(), std::time::Instant::now()) else {
-        return;
-    };
-    for _ in 0..runs {
-        let mut pipe = MultiMethodPipeline::new(&config, scenario.n_drives()).expect("pipeline");
-        for f in &frames {
-            pipe.step(f).expect("step");
+    let time = measure(|| {
+        for _ in 0..runs {
+            run_pipeline(&config, scenario.n_drives(), &frames);
         }
-        black_box(pipe.torque_nm()[0]);
-    }
-    let cpu_s = (thread_cpu_ns().unwrap_or(start) - start) as f64 * 1e-9;
+    });
     let drive_steps = (runs * frames.len() * scenario.n_drives()) as f64;
     println!(
         "pipeline/seed_scenario_all_methods (thread CPU time): {:.0} drive-steps/s of CPU, {:.0} drive-steps/s of wall clock",
-        drive_steps / cpu_s,
-        drive_steps / wall.elapsed().as_secs_f64()
+        drive_steps / time.cpu.as_secs_f64(),
+        drive_steps / time.wall.as_secs_f64()
     );
 }
 
