@@ -2,10 +2,22 @@
 //!
 //! Binaries: a test of this package cannot name another package's binary with
 //! `env!("CARGO_BIN_EXE_...")`, and a dependency on a binary-only package is not possible on
-//! stable Cargo. So the first test that needs them runs `$CARGO build --bins -p
-//! railmon-service -p sensors-replay` into the same target directory and profile as the test
+//! stable Cargo. So the first test that needs them runs `$CARGO build --workspace --bin railmon
+//! --bin sensors-replay --examples` into the same target directory and profile as the test
 //! executable (derived from its path); Cargo holds no lock while tests run, and the build is a
 //! no-op when they are up to date.
+//!
+//! Why `--workspace` and `--examples`: Cargo unifies a dependency's features over the packages
+//! a command selects, and includes their dev-dependencies only when it builds a target that
+//! needs them (tests, examples, benches). `cargo test --workspace` (CI, the README) does both:
+//! criterion, a dev-dependency of the estimator crates, brings `half` (`zerocopy/derive`) and
+//! `regex` (more `regex-automata` features), and `rand` and `tracing-subscriber` use those two,
+//! so with `cargo build --bins -p railmon-service -p sensors-replay` every workspace library got
+//! other features and was compiled a second time (17 crates, 176 s on the shared 2 cores, after a
+//! warm `cargo test --workspace --no-run`). This command resolves features as `cargo test
+//! --workspace` does: there only `sensors-replay`'s binary is new (19 s; the examples are built
+//! by `cargo test` anyway). Run alone (`cargo test -p railmon-system-tests`, `cargo bench
+//! --bench e2e`), the first run also builds the examples and criterion in that profile.
 //!
 //! Isolation: every [`PrivateBus`] has its own iceoryx2 prefix, and every service listens on
 //! port 0 and reports its bound address through `--addr-file`, so tests run in parallel.
@@ -48,11 +60,12 @@ pub fn binaries() -> &'static Binaries {
         let status = Command::new(cargo)
             .args([
                 "build",
-                "--bins",
-                "-p",
-                "railmon-service",
-                "-p",
+                "--workspace",
+                "--bin",
+                "railmon",
+                "--bin",
                 "sensors-replay",
+                "--examples",
             ])
             .args(["--profile", profile])
             .arg("--target-dir")
