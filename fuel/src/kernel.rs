@@ -113,10 +113,10 @@ pub(crate) fn lower_times_norm_squared(
 }
 
 /// `Sigma theta` at the columns `read` into `sigma_theta` (`n x k_y`, column-major), and
-/// `theta' Sigma theta` at `(u, v)`, `u, v` in `read`, into `propagated` (`k_y x k_y`;
-/// `Sigma` symmetric: computed for `u <= v`, mirrored). `Sigma` is `n x n` (the regressor's
-/// uncertain part), `theta` `k_psi x k_y` with its first `n` rows read. Each column of `Sigma
-/// theta` is a sum of `Sigma`'s columns.
+/// `theta' Sigma theta` at `(u, v)`, `u, v` in `read`, into `propagated` (`k_y x k_y`,
+/// column-major; `Sigma` symmetric: computed for `u <= v`, mirrored). `Sigma` is `n x n` (the
+/// regressor's uncertain part), `theta` `k_psi x k_y` (column-major, `k_y` from its length)
+/// with its first `n` rows read. Each column of `Sigma theta` is a sum of `Sigma`'s columns.
 #[inline(always)]
 pub(crate) fn propagate_covariance(
     n: impl Size,
@@ -125,9 +125,10 @@ pub(crate) fn propagate_covariance(
     sigma: &[f64],
     read: &[usize],
     sigma_theta: &mut [f64],
-    propagated: &mut nalgebra::DMatrix<f64>,
+    propagated: &mut [f64],
 ) {
     let n = n.get();
+    let k_y = theta.len() / k_psi;
     let sigma = &sigma[..n * n];
     let theta_column = |u: usize| &theta[u * k_psi..u * k_psi + n];
     for &v in read {
@@ -150,10 +151,36 @@ pub(crate) fn propagate_covariance(
             for a in 0..n {
                 x += theta_u[a] * sigma_theta_v[a];
             }
-            propagated[(u, v)] = x;
-            propagated[(v, u)] = x;
+            propagated[v * k_y + u] = x;
+            propagated[u * k_y + v] = x;
         }
     }
+}
+
+/// `a . b` summed as nalgebra sums the dot product of two dynamic-size vectors (the same
+/// bits): in order from 0, except that from 8 elements on, blocks of 8 go to 8 partial sums
+/// first (nalgebra's `dotx`).
+#[inline(always)]
+pub(crate) fn nalgebra_dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut res = 0.0;
+    let mut acc = [0.0; 8];
+    let mut i = 0;
+    while n - i >= 8 {
+        for (l, acc) in acc.iter_mut().enumerate() {
+            *acc += a[i + l] * b[i + l];
+        }
+        i += 8;
+    }
+    res += acc[0] + acc[4];
+    res += acc[1] + acc[5];
+    res += acc[2] + acc[6];
+    res += acc[3] + acc[7];
+    for k in i..n {
+        res += a[k] * b[k];
+    }
+    res
 }
 
 /// `cov += (c + d d') mu` on the lower triangle of the `n x n` column-major `cov` (`c`
@@ -208,6 +235,18 @@ pub(crate) fn lower_inverse(n: impl Size, l: &[f64], out: &mut [f64]) {
 mod tests {
     use super::*;
     use nalgebra::DMatrix;
+
+    /// [`nalgebra_dot`] is nalgebra's dynamic-size dot product to the bit, below and above
+    /// its 8-element blocks.
+    #[test]
+    fn dot_is_nalgebras_to_the_bit() {
+        for n in 0..=20 {
+            let a = nalgebra::DVector::from_fn(n, |i, _| ((i * 13) as f64 + 0.3).sin() * 1e3);
+            let b = nalgebra::DVector::from_fn(n, |i, _| ((i * 7) as f64 + 1.1).cos() / 3.0);
+            let got = nalgebra_dot(a.as_slice(), b.as_slice());
+            assert_eq!(got.to_bits(), a.dot(&b).to_bits(), "{n}");
+        }
+    }
 
     /// The kernels at a compile-time size give the run-time size's numbers to the bit, and
     /// both nalgebra's products to rounding (every size 1 to 13, so the fallback too).
@@ -272,7 +311,7 @@ mod tests {
                 let want_st = &sigma * theta_u;
                 let want = theta_u.transpose() * &want_st;
                 let read: Vec<usize> = (0..k_y).step_by(2).collect();
-                let (mut st, mut got) = (vec![0.0; n * k_y], DMatrix::zeros(k_y, k_y));
+                let (mut st, mut got) = (vec![0.0; n * k_y], DMatrix::<f64>::zeros(k_y, k_y));
                 let (mut st_dyn, mut got_dyn) = (st.clone(), got.clone());
                 let t = theta.as_slice();
                 with_size!(n, |s| propagate_covariance(
@@ -282,7 +321,7 @@ mod tests {
                     sigma.as_slice(),
                     &read,
                     &mut st,
-                    &mut got
+                    got.as_mut_slice()
                 ));
                 propagate_covariance(
                     n,
@@ -291,7 +330,7 @@ mod tests {
                     sigma.as_slice(),
                     &read,
                     &mut st_dyn,
-                    &mut got_dyn,
+                    got_dyn.as_mut_slice(),
                 );
                 assert_eq!((&st, &got), (&st_dyn, &got_dyn));
                 for &u in &read {

@@ -698,14 +698,32 @@ impl FuelMonitor {
         let Some(st) = self.standardiser.as_ref() else {
             return ForecastPath::default();
         };
-        let horizon = self.config.forecast_horizon_steps;
-        let m = mixture.spec().components;
         // Gear and constant (the regressor's tail) are known: the covariance lives on the
         // lagged channels alone.
         let uncertain = self.lagged.len() * self.config.regression_memory;
-        work.fit(m, self.spec.k_y, self.spec.k_psi, uncertain);
-        self.regressor_sources(&mut work.sources);
-        work.read_sets();
+        if work.dims != (self.spec.k_y, self.spec.k_psi, uncertain) {
+            *work = ForecastWork::new(self, uncertain);
+        }
+        work.fit(mixture.spec().components);
+        crate::kernel::with_size!(uncertain, |n| self
+            .forecast_path_sized(n, st, mixture, work))
+    }
+
+    /// [`Self::forecast_path`] with the size of the regressor's uncertain part, `n`, a
+    /// [`crate::kernel::Size`]: the recursion's loops over it are the step's innermost, and
+    /// with a compile-time bound the compiler unrolls them and drops their bounds checks.
+    fn forecast_path_sized<N: crate::kernel::Size>(
+        &self,
+        n: N,
+        st: &Standardiser,
+        mixture: &Mixture,
+        work: &mut ForecastWork,
+    ) -> ForecastPath {
+        use crate::kernel::{lower_times_norm_squared, nalgebra_dot, propagate_covariance};
+        let horizon = self.config.forecast_horizon_steps;
+        let m = mixture.spec().components;
+        let (k_y, k_psi, n2) = (self.spec.k_y, self.spec.k_psi, n.get() * n.get());
+        let parameter_uncertainty = self.config.parameter_uncertainty;
         let ForecastWork {
             psi,
             sigma,
@@ -713,10 +731,12 @@ impl FuelMonitor {
             shifted_sigma,
             rows,
             mean,
+            psi_now,
             solve,
             sigma_theta,
             propagated,
             c_yy,
+            deviation,
             p,
             log_p,
             levels,
@@ -727,18 +747,17 @@ impl FuelMonitor {
             covariance_from,
             ..
         } = work;
-        covariance_sources(sources, uncertain, self.spec.k_y, covariance_from);
-        if self.config.parameter_uncertainty && horizon > 1 {
+        if parameter_uncertainty && horizon > 1 {
             for (comp, l_inv) in mixture.components().iter().zip(factor_inverse.iter_mut()) {
                 comp.v_psi_factor_inverse_into(l_inv);
             }
         }
         // Given c_{t+h+1} = i: the regressor's mean and covariance, and log p(c_{t+h+1}).
-        let psi0 = self.regressor(&self.past);
-        for (psi_i, sigma_i) in psi.iter_mut().zip(sigma.iter_mut()).take(m) {
-            psi_i.copy_from(&psi0);
-            sigma_i.fill(0.0);
+        psi_now.copy_from(&self.regressor(&self.past));
+        for psi_i in psi.chunks_exact_mut(k_psi).take(m) {
+            psi_i.copy_from_slice(psi_now.as_slice());
         }
+        sigma[..m * n2].fill(0.0);
         levels.clear();
         levels.extend(self.past.fuel_levels.iter().copied());
         let acceleration_level = self.past.acceleration_level;
@@ -754,63 +773,54 @@ impl FuelMonitor {
             let mut y0 = 0.0;
             let mut terms = Vec::with_capacity(m);
             for (i, comp) in mixture.components().iter().enumerate() {
-                if h == 0 {
-                    comp.mean_into(&psi[i], mean);
-                } else {
-                    // Beyond the first step only fuel and the lagged channels of the mean
-                    // are read.
-                    for &u in y_read.iter() {
-                        mean[u] = comp.theta().column(u).dot(&psi[i].column(0));
-                    }
-                }
-                let inflate = match (self.config.parameter_uncertainty, h) {
-                    (false, _) => 1.0,
-                    // The next update's step reads this one: its own numbers.
-                    (true, 0) => 1.0 + comp.zeta_with(&psi[i], solve),
-                    (true, _) => {
-                        let (l_inv, k_psi) = (factor_inverse[i].as_slice(), psi[i].len());
-                        let (x, work) = (psi[i].as_slice(), solve.as_mut_slice());
-                        1.0 + crate::kernel::with_size!(k_psi, |s| {
-                            crate::kernel::lower_times_norm_squared(s, l_inv, x, work)
-                        })
-                    }
-                };
-                if h == 0 {
+                let (theta, r) = (comp.theta().as_slice(), comp.r().as_slice());
+                let psi_i = &psi[i * k_psi..(i + 1) * k_psi];
+                let sigma_i = &sigma[i * n2..(i + 1) * n2];
+                let inflate = if h == 0 {
                     // The next update's virtual sensor and step predict at this regressor
-                    // from these statistics.
+                    // from these statistics: their own operations (psi_i is psi_now).
+                    comp.mean_into(psi_now, mean);
+                    let inflate = match parameter_uncertainty {
+                        true => 1.0 + comp.zeta_with(psi_now, solve),
+                        false => 1.0,
+                    };
                     path.first_predictions.push(crate::regression::Prediction {
                         mean: mean.clone(),
                         inflate,
                     });
-                }
-                if h > 0 {
+                    inflate
+                } else {
+                    // Beyond the first step only fuel and the lagged channels of the mean
+                    // are read.
+                    let mean = mean.as_mut_slice();
+                    for &u in y_read.iter() {
+                        mean[u] = nalgebra_dot(&theta[u * k_psi..(u + 1) * k_psi], psi_i);
+                    }
                     // Sigma theta and theta' Sigma theta: at the last step only the fuel
                     // element is read.
                     let read = if last { &[0][..] } else { &y_read[..] };
-                    let (theta, k_psi) = (comp.theta().as_slice(), comp.theta().nrows());
-                    let (sigma_i, sigma_theta) = (sigma[i].as_slice(), sigma_theta.as_mut_slice());
-                    crate::kernel::with_size!(sigma[i].nrows(), |s| {
-                        crate::kernel::propagate_covariance(
-                            s,
-                            theta,
-                            k_psi,
-                            sigma_i,
-                            read,
-                            sigma_theta,
-                            propagated,
-                        )
-                    });
-                }
-                let fuel_var =
-                    comp.r()[(0, 0)] * inflate + if h > 0 { propagated[(0, 0)] } else { 0.0 };
+                    propagate_covariance(n, theta, k_psi, sigma_i, read, sigma_theta, propagated);
+                    match parameter_uncertainty {
+                        true => {
+                            let (l_inv, work) =
+                                (factor_inverse[i].as_slice(), solve.as_mut_slice());
+                            1.0 + crate::kernel::with_size!(k_psi, |s| {
+                                lower_times_norm_squared(s, l_inv, psi_i, work)
+                            })
+                        }
+                        false => 1.0,
+                    }
+                };
+                let mean = mean.as_slice();
+                let fuel_var = r[0] * inflate + if h > 0 { propagated[0] } else { 0.0 };
                 terms.push(st.fuel_term(p[i], mean[0], fuel_var, comp.predictive_dof()));
                 y0 += mean[0] * p[i];
                 if !last {
                     // The elements of Cov(y) and Cov(psi, y) the shift reads.
                     for &v in y_lagged.iter() {
                         for &u in y_lagged.iter() {
-                            c_yy[(u, v)] = comp.r()[(u, v)] * inflate
-                                + if h > 0 { propagated[(u, v)] } else { 0.0 };
+                            let at = v * k_y + u;
+                            c_yy[at] = r[at] * inflate + if h > 0 { propagated[at] } else { 0.0 };
                         }
                     }
                     if h == 0 {
@@ -818,13 +828,22 @@ impl FuelMonitor {
                         sigma_theta.fill(0.0);
                     }
                     let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(mean[0]));
-                    shift_regressor(sources, &psi[i], mean, &mut shifted_psi[i]);
+                    let shifted = &mut shifted_psi[i * k_psi..(i + 1) * k_psi];
+                    for ((out, source), psi_a) in shifted.iter_mut().zip(sources.iter()).zip(psi_i)
+                    {
+                        *out = match *source {
+                            Source::Y(u) => mean[u],
+                            Source::Psi(u) => psi_i[u],
+                            Source::Known => *psi_a,
+                        };
+                    }
                     shift_regressor_covariance(
+                        n,
                         covariance_from,
-                        &sigma[i],
+                        sigma_i,
                         sigma_theta,
                         c_yy,
-                        &mut shifted_sigma[i],
+                        &mut shifted_sigma[i * n2..(i + 1) * n2],
                     );
                     rows[i] = self.switching_row_of(
                         std::iter::once(level)
@@ -837,15 +856,17 @@ impl FuelMonitor {
             path.push(st.fuel(y0), terms);
             if !last {
                 mix_regressors(
+                    n,
                     mixture,
                     &p[..m],
-                    &shifted_psi[..m],
-                    &shifted_sigma[..m],
+                    k_psi,
+                    &shifted_psi[..m * k_psi],
+                    &shifted_sigma[..m * n2],
                     &rows[..m],
-                    &mut psi[..m],
-                    &mut sigma[..m],
+                    &mut psi[..m * k_psi],
+                    &mut sigma[..m * n2],
                     &mut log_p[..m],
-                    solve,
+                    deviation,
                 );
             }
             let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(y0));
@@ -975,27 +996,33 @@ enum Source {
     Known,
 }
 
-/// The work space of [`FuelMonitor::forecast_path`]: per component (the first `m_c` used)
-/// the regressor's mean and covariance given the component, the same shifted by one step, the
-/// switching row at its forecast level; one component's mean, a `k_psi` vector (the mixing's
-/// deviations `d`, the solve of `zeta`), `Sigma theta` (which is also `Cov(psi, y)`),
-/// `theta' Sigma theta`, `Cov(y)`; the pointer; the forecast fuel levels; the sources of the
-/// shifted regressor. The covariances cover the regressor's uncertain part only, its lagged
-/// channels (the leading `uncertain` elements): gear and constant are known, their rows and
-/// columns zero. Not in snapshots (rebuilt on first use).
+/// The work space of [`FuelMonitor::forecast_path`], flat buffers sized once for the
+/// monitor's dimensions (`m_c` grows them): per component (the first `m_c` used, component
+/// `i` at `i * k_psi` and `i * n^2`) the regressor's mean and covariance given the component,
+/// the same shifted by one step, the switching row at its forecast level, `L^-1` of its
+/// `V_psi`; one component's mean, the regressor now, a `k_psi` vector (the solve of `zeta`),
+/// `Sigma theta` (which is also `Cov(psi, y)`, `n x k_y`), `theta' Sigma theta` and `Cov(y)`
+/// (`k_y x k_y`), the mixing's deviation (`n`); the pointer; the forecast fuel levels; the
+/// sources of the shifted regressor and of its covariance. The covariances cover the
+/// regressor's uncertain part only, its lagged channels (the leading `n` elements): gear and
+/// constant are known, their rows and columns zero. Matrices column-major, the covariances
+/// whole (both triangles). Not in snapshots (rebuilt on first use).
 #[derive(Clone, Debug, Default)]
 struct ForecastWork {
+    /// `(k_y, k_psi, n)` the buffers are made for.
     dims: (usize, usize, usize),
-    psi: Vec<DVector<f64>>,
-    sigma: Vec<DMatrix<f64>>,
-    shifted_psi: Vec<DVector<f64>>,
-    shifted_sigma: Vec<DMatrix<f64>>,
+    psi: Vec<f64>,
+    sigma: Vec<f64>,
+    shifted_psi: Vec<f64>,
+    shifted_sigma: Vec<f64>,
     rows: Vec<usize>,
     mean: DVector<f64>,
+    psi_now: DVector<f64>,
     solve: DVector<f64>,
-    sigma_theta: DMatrix<f64>,
-    propagated: DMatrix<f64>,
-    c_yy: DMatrix<f64>,
+    sigma_theta: Vec<f64>,
+    propagated: Vec<f64>,
+    c_yy: Vec<f64>,
+    deviation: Vec<f64>,
     p: Vec<f64>,
     log_p: Vec<f64>,
     levels: VecDeque<usize>,
@@ -1011,43 +1038,45 @@ struct ForecastWork {
 }
 
 impl ForecastWork {
-    /// `y_read` and `y_lagged` from `sources`.
-    fn read_sets(&mut self) {
-        self.y_lagged.clear();
-        for source in &self.sources {
+    /// The work space for `monitor`'s sizes, `n` of its regressor's elements uncertain, for
+    /// no component yet ([`Self::fit`]).
+    fn new(monitor: &FuelMonitor, n: usize) -> Self {
+        let (k_y, k_psi) = (monitor.spec.k_y, monitor.spec.k_psi);
+        let mut work = ForecastWork {
+            dims: (k_y, k_psi, n),
+            mean: DVector::zeros(k_y),
+            psi_now: DVector::zeros(k_psi),
+            solve: DVector::zeros(k_psi),
+            sigma_theta: vec![0.0; n * k_y],
+            propagated: vec![0.0; k_y * k_y],
+            c_yy: vec![0.0; k_y * k_y],
+            deviation: vec![0.0; n],
+            ..ForecastWork::default()
+        };
+        monitor.regressor_sources(&mut work.sources);
+        for source in &work.sources {
             if let Source::Y(u) = *source {
-                self.y_lagged.push(u);
+                work.y_lagged.push(u);
             }
         }
-        self.y_lagged.sort_unstable();
-        self.y_lagged.dedup();
-        self.y_read.clear();
-        self.y_read.push(0);
-        self.y_read.extend(self.y_lagged.iter().copied());
-        self.y_read.sort_unstable();
-        self.y_read.dedup();
+        work.y_lagged.sort_unstable();
+        work.y_lagged.dedup();
+        work.y_read.push(0);
+        work.y_read.extend(work.y_lagged.iter().copied());
+        work.y_read.sort_unstable();
+        work.y_read.dedup();
+        covariance_sources(&work.sources, n, k_y, &mut work.covariance_from);
+        work
     }
 
-    /// Room for `m` components of `k_y` channels and `k_psi` regressors, `uncertain` of them
-    /// with a covariance (allocates only when they grow or change).
-    fn fit(&mut self, m: usize, k_y: usize, k_psi: usize, uncertain: usize) {
-        if self.dims != (k_y, k_psi, uncertain) {
-            *self = ForecastWork {
-                dims: (k_y, k_psi, uncertain),
-                mean: DVector::zeros(k_y),
-                solve: DVector::zeros(k_psi),
-                sigma_theta: DMatrix::zeros(uncertain, k_y),
-                propagated: DMatrix::zeros(k_y, k_y),
-                c_yy: DMatrix::zeros(k_y, k_y),
-                ..ForecastWork::default()
-            };
-        }
-        if self.psi.len() < m {
-            self.psi.resize(m, DVector::zeros(k_psi));
-            self.sigma.resize(m, DMatrix::zeros(uncertain, uncertain));
-            self.shifted_psi.resize(m, DVector::zeros(k_psi));
-            self.shifted_sigma
-                .resize(m, DMatrix::zeros(uncertain, uncertain));
+    /// Room for `m` components (allocates only when `m` grows).
+    fn fit(&mut self, m: usize) {
+        let (_, k_psi, n) = self.dims;
+        if self.rows.len() < m {
+            self.psi.resize(m * k_psi, 0.0);
+            self.sigma.resize(m * n * n, 0.0);
+            self.shifted_psi.resize(m * k_psi, 0.0);
+            self.shifted_sigma.resize(m * n * n, 0.0);
             self.factor_inverse.resize(m, DMatrix::zeros(k_psi, k_psi));
             self.rows.resize(m, 0);
             self.p.resize(m, 0.0);
@@ -1057,24 +1086,33 @@ impl ForecastWork {
 }
 
 /// The interacting-multiple-model mixing step of [`FuelMonitor::forecast_path`]: from `p_j =
-/// p(c_{t+h} = j)` and each component's shifted regressor (mean, covariance, switching row at
-/// its level), the pointer `p_i' = sum_j alpha_{i|j,k_j} p_j` (written as logs into `log_p`)
-/// and each component's regressor given `c_{t+h+1} = i` (written into `psi`, `sigma`).
+/// p(c_{t+h} = j)` and each component's shifted regressor (mean, `k_psi` each, covariance,
+/// `n x n` each, switching row at its level), the pointer `p_i' = sum_j alpha_{i|j,k_j} p_j`
+/// (written as logs into `log_p`) and each component's regressor given `c_{t+h+1} = i`
+/// (written into `psi`, `sigma`). `d`: `n` numbers of scratch.
 #[allow(clippy::too_many_arguments)]
-fn mix_regressors(
+fn mix_regressors<N: crate::kernel::Size>(
+    n: N,
     mixture: &Mixture,
     p: &[f64],
-    shifted_psi: &[DVector<f64>],
-    shifted_sigma: &[DMatrix<f64>],
+    k_psi: usize,
+    shifted_psi: &[f64],
+    shifted_sigma: &[f64],
     rows: &[usize],
-    psi: &mut [DVector<f64>],
-    sigma: &mut [DMatrix<f64>],
+    psi: &mut [f64],
+    sigma: &mut [f64],
     log_p: &mut [f64],
-    d: &mut DVector<f64>,
+    d: &mut [f64],
 ) {
     let m = p.len();
+    let n2 = n.get() * n.get();
+    let d = &mut d[..n.get()];
     crate::mixture::with_scratch(m, |joint| {
-        for i in 0..m {
+        for (i, (mean, cov)) in psi
+            .chunks_exact_mut(k_psi)
+            .zip(sigma.chunks_exact_mut(n2))
+            .enumerate()
+        {
             // Unnormalised P(c_{t+h} = j, c_{t+h+1} = i).
             for (j, x) in joint.iter_mut().enumerate() {
                 *x = mixture.alpha(rows[j], j, i) * p[j];
@@ -1083,34 +1121,28 @@ fn mix_regressors(
             // A component no path reaches keeps the pointer's mix (its weight is ~0 anyway).
             let reached = total > 0.0 && total.is_finite();
             let mu = |j: usize| if reached { joint[j] / total } else { p[j] };
-            let mean = psi[i].as_mut_slice();
             mean.fill(0.0);
-            for (j, s) in shifted_psi.iter().enumerate() {
+            for (j, s) in shifted_psi.chunks_exact(k_psi).enumerate() {
                 let mu_j = mu(j);
-                for (a, b) in mean.iter_mut().zip(s.iter()) {
+                for (a, b) in mean.iter_mut().zip(s) {
                     *a += b * mu_j;
                 }
             }
             // cov += (c + d d') mu_j, d = s - mean, on the uncertain block, the lower
             // triangle (c is symmetric), mirrored after.
-            let n = sigma[i].nrows();
-            let cov = sigma[i].as_mut_slice();
             cov.fill(0.0);
-            for (j, (s, c)) in shifted_psi.iter().zip(shifted_sigma).enumerate() {
+            for (j, (s, c)) in shifted_psi
+                .chunks_exact(k_psi)
+                .zip(shifted_sigma.chunks_exact(n2))
+                .enumerate()
+            {
                 let mu_j = mu(j);
-                let d = &mut d.as_mut_slice()[..n];
-                for ((d, s), mean) in d.iter_mut().zip(s.iter()).zip(mean.iter()) {
+                for ((d, s), mean) in d.iter_mut().zip(s).zip(mean.iter()) {
                     *d = s - mean;
                 }
-                crate::kernel::with_size!(n, |size| crate::kernel::add_spread_lower(
-                    size,
-                    cov,
-                    c.as_slice(),
-                    d,
-                    mu_j
-                ));
+                crate::kernel::add_spread_lower(n, cov, c, d, mu_j);
             }
-            crate::kernel::with_size!(n, |size| crate::kernel::mirror_lower(size, cov));
+            crate::kernel::mirror_lower(n, cov);
             log_p[i] = total.ln();
         }
     });
@@ -1119,23 +1151,6 @@ fn mix_regressors(
         for (l, x) in log_p.iter_mut().zip(p) {
             *l = x.ln();
         }
-    }
-}
-
-/// The next forecast regressor's mean into `out`: `y`'s lagged channels in the newest lag, the
-/// older lags shifted, gear and constant as they are.
-fn shift_regressor(
-    sources: &[Source],
-    psi: &DVector<f64>,
-    y: &DVector<f64>,
-    out: &mut DVector<f64>,
-) {
-    for (a, source) in sources.iter().enumerate() {
-        out[a] = match *source {
-            Source::Y(u) => y[u],
-            Source::Psi(u) => psi[u],
-            Source::Known => psi[a],
-        };
     }
 }
 
@@ -1169,23 +1184,23 @@ fn covariance_sources(sources: &[Source], n: usize, k_y: usize, out: &mut Vec<Co
     }
 }
 
-/// Covariance of the next forecast regressor `psi'` into `out` (its uncertain part, `out`'s
-/// size), from that of `psi`, `Cov(psi, y)` and `Cov(y)` by the gather `from`
+/// Covariance of the next forecast regressor `psi'` into `out` (its uncertain part, `n x n`),
+/// from that of `psi`, `Cov(psi, y)` and `Cov(y)` by the gather `from`
 /// ([`covariance_sources`]), the lower triangle mirrored.
-fn shift_regressor_covariance(
+fn shift_regressor_covariance<N: crate::kernel::Size>(
+    n: N,
     from: &[CovarianceSource],
-    sigma_psi: &DMatrix<f64>,
-    c_psi_y: &DMatrix<f64>,
-    c_yy: &DMatrix<f64>,
-    out: &mut DMatrix<f64>,
+    sigma_psi: &[f64],
+    c_psi_y: &[f64],
+    c_yy: &[f64],
+    out: &mut [f64],
 ) {
-    let n = out.nrows();
-    let (sigma_psi, c_psi_y, c_yy) = (sigma_psi.as_slice(), c_psi_y.as_slice(), c_yy.as_slice());
-    let out = out.as_mut_slice();
+    let nn = n.get();
+    let out = &mut out[..nn * nn];
     let mut from = from.iter();
-    for b in 0..n {
-        for a in b..n {
-            out[b * n + a] = match from.next() {
+    for b in 0..nn {
+        for a in b..nn {
+            out[b * nn + a] = match from.next() {
                 Some(CovarianceSource::Y(x)) => c_yy[*x],
                 Some(CovarianceSource::PsiY(x)) => c_psi_y[*x],
                 Some(CovarianceSource::Psi(x)) => sigma_psi[*x],
@@ -1193,7 +1208,7 @@ fn shift_regressor_covariance(
             };
         }
     }
-    crate::kernel::with_size!(n, |size| crate::kernel::mirror_lower(size, out));
+    crate::kernel::mirror_lower(n, out);
 }
 
 /// One-sided 95 % point of the standard normal: the blend gives the mixture the lower end of
