@@ -231,6 +231,61 @@ pub(crate) fn lower_inverse(n: impl Size, l: &[f64], out: &mut [f64]) {
     }
 }
 
+/// nalgebra's `Cholesky::new` of the column-major `n x n` `a` in place, the same operations
+/// in the same order (so the same bits): the lower triangle becomes `L` (`a = L L'`), the
+/// upper is left as it was. `false` (and `a` part-way) where a pivot is zero, negative or
+/// not a number, where nalgebra answers `None`.
+#[inline(always)]
+pub(crate) fn cholesky_in_place(n: impl Size, a: &mut [f64]) -> bool {
+    let n = n.get();
+    let a = &mut a[..n * n];
+    for j in 0..n {
+        let (done, rest) = a.split_at_mut(j * n);
+        let column = &mut rest[..n];
+        for k in 0..j {
+            // nalgebra's axpy: `y = (a x) 1 + 1 y` with `a = -L_jk`, the same as `y + a x`.
+            let source = &done[k * n..(k + 1) * n];
+            let factor = -source[j];
+            for i in j..n {
+                column[i] += factor * source[i];
+            }
+        }
+        // nalgebra takes the root of a pivot that is not zero and `>= 0`: of one `> 0`.
+        let diagonal = column[j];
+        let root = match diagonal > 0.0 {
+            true => diagonal.sqrt(),
+            false => return false,
+        };
+        column[j] = root;
+        for x in &mut column[j + 1..] {
+            *x /= root;
+        }
+    }
+    true
+}
+
+/// nalgebra's `Cholesky::solve_mut` of one column `b` (length `n`) with the factor `l`
+/// (column-major `n x n`, its lower triangle read), the same operations in the same order:
+/// `L y = b` forward (`b_k <- b_k + (-y_i) L_ki`), then `L' x = y` backward with nalgebra's
+/// dot product.
+#[inline(always)]
+pub(crate) fn cholesky_solve_in_place(n: impl Size, l: &[f64], b: &mut [f64]) {
+    let n = n.get();
+    let (l, b) = (&l[..n * n], &mut b[..n]);
+    for i in 0..n {
+        let coeff = b[i] / l[i * n + i];
+        b[i] = coeff;
+        let column = &l[i * n..(i + 1) * n];
+        for k in i + 1..n {
+            b[k] += -coeff * column[k];
+        }
+    }
+    for i in (0..n).rev() {
+        let dot = nalgebra_dot(&l[i * n + i + 1..(i + 1) * n], &b[i + 1..]);
+        b[i] = (b[i] - dot) / l[i * n + i];
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -245,6 +300,35 @@ mod tests {
             let b = nalgebra::DVector::from_fn(n, |i, _| ((i * 7) as f64 + 1.1).cos() / 3.0);
             let got = nalgebra_dot(a.as_slice(), b.as_slice());
             assert_eq!(got.to_bits(), a.dot(&b).to_bits(), "{n}");
+        }
+    }
+
+    /// [`cholesky_in_place`] and [`cholesky_solve_in_place`] are nalgebra's `Cholesky::new`
+    /// and `solve_mut` to the bit (every size 1 to 13, so beyond nalgebra's 8-element dot
+    /// blocks and the compile-time sizes), and fail where nalgebra fails.
+    #[test]
+    fn cholesky_is_nalgebras_to_the_bit() {
+        for n in 1..=13 {
+            let half = DMatrix::from_fn(n, n + 2, |i, j| ((i * 31 + j * 17) as f64 + 0.4).sin());
+            let spd = &half * half.transpose() + DMatrix::from_diagonal_element(n, n, 1e-3);
+            let want = nalgebra::Cholesky::new(spd.clone()).expect("SPD");
+            let mut got = spd.clone();
+            assert!(with_size!(n, |s| cholesky_in_place(s, got.as_mut_slice())));
+            assert_eq!(&got, want.l_dirty(), "{n}");
+            let b = DMatrix::from_fn(n, 1, |i, _| (i as f64 * 0.7).cos() * 1e2);
+            let mut want_x = b.clone();
+            want.solve_mut(&mut want_x);
+            let mut x = b.clone();
+            with_size!(n, |s| cholesky_solve_in_place(
+                s,
+                got.as_slice(),
+                x.as_mut_slice()
+            ));
+            assert_eq!(x, want_x, "{n}");
+            let mut indefinite = spd.clone();
+            indefinite[(n - 1, n - 1)] = -1.0;
+            assert!(nalgebra::Cholesky::new(indefinite.clone()).is_none());
+            assert!(!cholesky_in_place(n, indefinite.as_mut_slice()));
         }
     }
 

@@ -11,6 +11,7 @@
 use nalgebra::{Cholesky, DMatrix, DMatrixView, DVector, SymmetricEigen};
 use railmon_filter::kalman::LN_2PI;
 
+use crate::kernel::{cholesky_in_place, cholesky_solve_in_place, with_size};
 use crate::FuelError;
 
 /// GiW statistics of one component and the point estimates derived from them.
@@ -165,9 +166,11 @@ impl RegressionStats {
         let k = self.k_y;
         let p = self.k_psi();
         // Keep V exactly symmetric: syger writes the lower triangle only.
-        for i in 0..k + p {
-            for j in (i + 1)..k + p {
-                self.v[(i, j)] = self.v[(j, i)];
+        let d = k + p;
+        let v = self.v.as_mut_slice();
+        for j in 0..d {
+            for i in (j + 1)..d {
+                v[i * d + j] = v[j * d + i];
             }
         }
         // Views of V; every result in a buffer of an earlier recompute (`Scratch`), filled by
@@ -180,14 +183,35 @@ impl RegressionStats {
             .ok_or(FuelError::Numerical("V_psi not positive definite"))?;
         let mut theta = self.scratch.take(|s| &mut s.theta, p, k);
         theta.copy_from(&v_psiy);
-        chol.solve_mut(&mut theta);
+        let l = chol.l_dirty().as_slice();
+        for column in theta.as_mut_slice().chunks_exact_mut(p) {
+            with_size!(p, |s| cholesky_solve_in_place(s, l, column));
+        }
         // r = (V_yy - V_psiy' theta) / kappa, element by element in the product's storage.
         let kappa = self.kappa.max(f64::MIN_POSITIVE);
-        let mut v_psiy_t = self.scratch.take(|s| &mut s.v_psiy_t, k, p);
-        v_psiy.transpose_to(&mut v_psiy_t);
         let mut r = self.scratch.take(|s| &mut s.r, k, k);
-        v_psiy_t.mul_to(&theta, &mut r);
-        self.scratch.v_psiy_t = Some(v_psiy_t);
+        if k > 5 && p > 5 {
+            // nalgebra's product of these sizes is `matrixmultiply`'s (its own order).
+            let mut v_psiy_t = self.scratch.take(|s| &mut s.v_psiy_t, k, p);
+            v_psiy.transpose_to(&mut v_psiy_t);
+            v_psiy_t.mul_to(&theta, &mut r);
+            self.scratch.v_psiy_t = Some(v_psiy_t);
+        } else {
+            // nalgebra's product below those sizes (`gemv` per column: each element the
+            // products summed in order, the first without an addition), read from V.
+            let (v, t, out) = (self.v.as_slice(), theta.as_slice(), r.as_mut_slice());
+            for j in 0..k {
+                let theta_j = &t[j * p..(j + 1) * p];
+                for i in 0..k {
+                    let v_i = &v[i * d + k..(i + 1) * d];
+                    let mut x = v_i[0] * theta_j[0];
+                    for a in 1..p {
+                        x += v_i[a] * theta_j[a];
+                    }
+                    out[j * k + i] = x;
+                }
+            }
+        }
         r.zip_apply(&self.v.view((0, 0), (k, k)), |x, v_yy| {
             *x = (v_yy - *x) / kappa
         });
@@ -203,13 +227,9 @@ impl RegressionStats {
             for i in 0..self.k_y {
                 shifted[(i, i)] -= self.min_variance;
             }
-            match Cholesky::new(shifted) {
-                Some(c) => {
-                    self.scratch.shifted = Some(c.unpack_dirty());
-                    true
-                }
-                None => false,
-            }
+            let positive = with_size!(k, |s| cholesky_in_place(s, shifted.as_mut_slice()));
+            self.scratch.shifted = Some(shifted);
+            positive
         };
         if !above_floor {
             let eig = SymmetricEigen::new(r);
@@ -266,7 +286,8 @@ impl RegressionStats {
     /// numbers).
     pub fn zeta_with(&self, psi: &DVector<f64>, work: &mut DVector<f64>) -> f64 {
         work.copy_from(psi);
-        self.v_psi_chol.solve_mut(work);
+        let (l, n) = (self.v_psi_chol.l_dirty().as_slice(), psi.len());
+        with_size!(n, |s| cholesky_solve_in_place(s, l, work.as_mut_slice()));
         psi.dot(work).max(0.0)
     }
 
@@ -318,7 +339,14 @@ impl RegressionStats {
     pub fn log_proximity_at(&self, y: &DVector<f64>, prediction: &Prediction) -> f64 {
         let e = y - &prediction.mean;
         let inflate = prediction.inflate;
-        let q = e.dot(&self.r_chol.solve(&e)) / inflate;
+        let mut solved = e.clone();
+        let l = self.r_chol.l_dirty().as_slice();
+        with_size!(self.k_y, |s| cholesky_solve_in_place(
+            s,
+            l,
+            solved.as_mut_slice()
+        ));
+        let q = e.dot(&solved) / inflate;
         let k = self.k_y as f64;
         -0.5 * (k * LN_2PI + self.r_log_det + k * inflate.ln() + q)
     }
@@ -470,10 +498,11 @@ fn symmetrise(m: &mut DMatrix<f64>) {
 /// fails).
 fn cholesky_with_jitter(
     m: DMatrixView<f64>,
-    copy: DMatrix<f64>,
+    mut copy: DMatrix<f64>,
 ) -> Option<Cholesky<f64, nalgebra::Dyn>> {
-    if let Some(c) = Cholesky::new(copy) {
-        return Some(c);
+    // nalgebra's `Cholesky::new(copy)`, on flat storage (the same bits).
+    if with_size!(copy.nrows(), |s| cholesky_in_place(s, copy.as_mut_slice())) {
+        return Some(Cholesky::pack_dirty(copy));
     }
     let scale = m.diagonal().iter().fold(0.0f64, |a, d| a.max(d.abs()));
     if !scale.is_finite() {
@@ -530,6 +559,32 @@ mod tests {
             };
             assert_eq!(bits(&spare), bits(&copy));
             std::mem::swap(&mut source, &mut spare);
+        }
+    }
+
+    /// The point estimates on flat storage are nalgebra's (`Cholesky::new`, `solve_mut`,
+    /// `transpose_to` and `mul_to`) to the bit, at sizes below and above nalgebra's switch to
+    /// `matrixmultiply` (`k_y` and `k_psi` both above 5).
+    #[test]
+    fn point_estimates_are_nalgebras_to_the_bit() {
+        for (k, p) in [(1, 1), (2, 3), (5, 7), (5, 12), (6, 5), (6, 7), (4, 13)] {
+            let d = k + p;
+            let half = DMatrix::from_fn(d, d + 3, |i, j| ((i * 29 + j * 13) as f64 + 0.2).sin());
+            let v = &half * half.transpose() + DMatrix::from_diagonal_element(d, d, 0.5);
+            let kappa = 7.0;
+            let s = RegressionStats::new(k, v.clone(), kappa, 1e-9).unwrap();
+            let chol = Cholesky::new(v.view((k, k), (p, p)).into_owned()).unwrap();
+            let mut theta = v.view((k, 0), (p, k)).into_owned();
+            chol.solve_mut(&mut theta);
+            let mut v_psiy_t = DMatrix::zeros(k, p);
+            v.view((k, 0), (p, k)).transpose_to(&mut v_psiy_t);
+            let mut r = DMatrix::zeros(k, k);
+            v_psiy_t.mul_to(&theta, &mut r);
+            r.zip_apply(&v.view((0, 0), (k, k)), |x, v_yy| *x = (v_yy - *x) / kappa);
+            symmetrise(&mut r);
+            assert_eq!(s.theta(), &theta, "{k} {p}");
+            assert_eq!(s.r(), &r, "{k} {p}");
+            assert_eq!(s.v_psi_chol.l_dirty(), chol.l_dirty(), "{k} {p}");
         }
     }
 
