@@ -763,11 +763,11 @@ impl FuelMonitor {
         let acceleration_level = self.past.acceleration_level;
         let row = self.switching_row_of(levels.iter().copied(), acceleration_level);
         mixture.predict_pointer_from(mixture.log_weights(), row, &mut log_p[..m]);
+        for (p_i, l) in p.iter_mut().zip(log_p.iter()).take(m) {
+            *p_i = l.exp();
+        }
         let mut path = ForecastPath::with_capacity(horizon);
         for h in 0..horizon {
-            for (p_i, l) in p.iter_mut().zip(log_p.iter()).take(m) {
-                *p_i = l.exp();
-            }
             let last = h + 1 == horizon;
             // Only the fuel of the mixture's mean is used (its value and its level).
             let mut y0 = 0.0;
@@ -868,6 +868,7 @@ impl FuelMonitor {
                     &mut log_p[..m],
                     deviation,
                 );
+                p[..m].copy_from_slice(&log_p[..m]);
             }
             let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(y0));
             levels.push_front(level);
@@ -1088,8 +1089,11 @@ impl ForecastWork {
 /// The interacting-multiple-model mixing step of [`FuelMonitor::forecast_path`]: from `p_j =
 /// p(c_{t+h} = j)` and each component's shifted regressor (mean, `k_psi` each, covariance,
 /// `n x n` each, switching row at its level), the pointer `p_i' = sum_j alpha_{i|j,k_j} p_j`
-/// (written as logs into `log_p`) and each component's regressor given `c_{t+h+1} = i`
-/// (written into `psi`, `sigma`). `d`: `n` numbers of scratch.
+/// (normalised, written into `p_next`) and each component's regressor given `c_{t+h+1} = i`
+/// (written into `psi`, `sigma`). `d`: `n` numbers of scratch. The pointer is normalised
+/// as probabilities, `p_i' / sum p'`, not through logarithms (`ln`, log-sum-exp, `exp`: four
+/// transcendental calls per component and step, a tenth of the monitor's step once the
+/// rest was lean); it differs from that by rounding and is not read by the mixture's step.
 #[allow(clippy::too_many_arguments)]
 fn mix_regressors<N: crate::kernel::Size>(
     n: N,
@@ -1101,7 +1105,7 @@ fn mix_regressors<N: crate::kernel::Size>(
     rows: &[usize],
     psi: &mut [f64],
     sigma: &mut [f64],
-    log_p: &mut [f64],
+    p_next: &mut [f64],
     d: &mut [f64],
 ) {
     let m = p.len();
@@ -1143,14 +1147,14 @@ fn mix_regressors<N: crate::kernel::Size>(
                 crate::kernel::add_spread_lower(n, cov, c, d, mu_j);
             }
             crate::kernel::mirror_lower(n, cov);
-            log_p[i] = total.ln();
+            p_next[i] = total;
         }
     });
-    if normalize_log_weights(log_p).is_err() {
+    let total: f64 = p_next.iter().sum();
+    match total > 0.0 && total.is_finite() {
+        true => p_next.iter_mut().for_each(|x| *x /= total),
         // No path reaches any component (cannot happen with a proper switching table).
-        for (l, x) in log_p.iter_mut().zip(p) {
-            *l = x.ln();
-        }
+        false => p_next.copy_from_slice(p),
     }
 }
 
