@@ -264,26 +264,68 @@ pub(crate) fn cholesky_in_place(n: impl Size, a: &mut [f64]) -> bool {
     true
 }
 
-/// nalgebra's `Cholesky::solve_mut` of one column `b` (length `n`) with the factor `l`
-/// (column-major `n x n`, its lower triangle read), the same operations in the same order:
-/// `L y = b` forward (`b_k <- b_k + (-y_i) L_ki`), then `L' x = y` backward with nalgebra's
-/// dot product.
+/// nalgebra's `Cholesky::solve_mut` of every column of `b` (column-major, `n` rows) with the
+/// factor `l` (column-major `n x n`, its lower triangle read), the same operations in the
+/// same order: per column `L y = b` forward (`b_k <- b_k + (-y_i) L_ki`), then `L' x = y`
+/// backward with nalgebra's dot product. The columns' operations are independent of each
+/// other and interleaved row by row (the same bits as one column after the other): each
+/// row's division waits for the previous row's, and the other columns fill that wait.
 #[inline(always)]
 pub(crate) fn cholesky_solve_in_place(n: impl Size, l: &[f64], b: &mut [f64]) {
     let n = n.get();
-    let (l, b) = (&l[..n * n], &mut b[..n]);
+    let l = &l[..n * n];
+    let columns = b.len() / n.max(1);
+    let b = &mut b[..columns * n];
     for i in 0..n {
-        let coeff = b[i] / l[i * n + i];
-        b[i] = coeff;
         let column = &l[i * n..(i + 1) * n];
-        for k in i + 1..n {
-            b[k] += -coeff * column[k];
+        let diagonal = column[i];
+        for b in b.chunks_exact_mut(n) {
+            let coeff = b[i] / diagonal;
+            b[i] = coeff;
+            for k in i + 1..n {
+                b[k] += -coeff * column[k];
+            }
         }
     }
     for i in (0..n).rev() {
-        let dot = nalgebra_dot(&l[i * n + i + 1..(i + 1) * n], &b[i + 1..]);
-        b[i] = (b[i] - dot) / l[i * n + i];
+        let below = &l[i * n + i + 1..(i + 1) * n];
+        let diagonal = l[i * n + i];
+        for b in b.chunks_exact_mut(n) {
+            let dot = nalgebra_dot(below, &b[i + 1..]);
+            b[i] = (b[i] - dot) / diagonal;
+        }
     }
+}
+
+/// nalgebra's product `a b` of a `rows x inner` and an `inner x cols` matrix (`a_at(i, l)`,
+/// `b_at(l, j)`) below the sizes where it calls `matrixmultiply` (see [`gemm_is_nalgebras`]),
+/// written into `out` (column-major `rows x cols`): each element the products in order, the
+/// first without an addition (nalgebra's `gemv` per column), so the same bits.
+#[inline(always)]
+pub(crate) fn small_product(
+    rows: usize,
+    inner: usize,
+    cols: usize,
+    a_at: impl Fn(usize, usize) -> f64,
+    b_at: impl Fn(usize, usize) -> f64,
+    out: &mut [f64],
+) {
+    for j in 0..cols {
+        for i in 0..rows {
+            let mut x = a_at(i, 0) * b_at(0, j);
+            for l in 1..inner {
+                x += a_at(i, l) * b_at(l, j);
+            }
+            out[j * rows + i] = x;
+        }
+    }
+}
+
+/// Whether nalgebra's dynamic-size product of a `rows x inner` and an `inner x cols` matrix
+/// is its own `gemv` per column, which [`small_product`] replicates (else it calls
+/// `matrixmultiply`, whose order is its own: all of `rows`, `cols`, `inner` above 5).
+pub(crate) fn gemm_is_nalgebras(rows: usize, inner: usize, cols: usize) -> bool {
+    !(rows > 5 && cols > 5 && inner > 5)
 }
 
 #[cfg(test)]
@@ -325,6 +367,29 @@ mod tests {
                 x.as_mut_slice()
             ));
             assert_eq!(x, want_x, "{n}");
+            let b3 = DMatrix::from_fn(n, 3, |i, j| ((i + 5 * j) as f64 * 0.7).cos() * 1e2);
+            let mut want_x3 = b3.clone();
+            want.solve_mut(&mut want_x3);
+            let mut x3 = b3.clone();
+            cholesky_solve_in_place(n, got.as_slice(), x3.as_mut_slice());
+            assert_eq!(x3, want_x3, "{n}");
+            for (rows, inner, cols) in [(n, n, n), (n, n + 2, 1), (1, n, n), (n, 5, n)] {
+                if !gemm_is_nalgebras(rows, inner, cols) {
+                    continue;
+                }
+                let a = DMatrix::from_fn(rows, inner, |i, j| ((i * 3 + j) as f64).sin());
+                let b = DMatrix::from_fn(inner, cols, |i, j| ((i + 7 * j) as f64).cos());
+                let mut got = DMatrix::zeros(rows, cols);
+                small_product(
+                    rows,
+                    inner,
+                    cols,
+                    |i, l| a[(i, l)],
+                    |l, j| b[(l, j)],
+                    got.as_mut_slice(),
+                );
+                assert_eq!(got, &a * &b, "{rows} {inner} {cols}");
+            }
             let mut indefinite = spd.clone();
             indefinite[(n - 1, n - 1)] = -1.0;
             assert!(nalgebra::Cholesky::new(indefinite.clone()).is_none());

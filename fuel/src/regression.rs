@@ -11,7 +11,9 @@
 use nalgebra::{Cholesky, DMatrix, DMatrixView, DVector, SymmetricEigen};
 use railmon_filter::kalman::LN_2PI;
 
-use crate::kernel::{cholesky_in_place, cholesky_solve_in_place, with_size};
+use crate::kernel::{
+    cholesky_in_place, cholesky_solve_in_place, gemm_is_nalgebras, small_product, with_size,
+};
 use crate::FuelError;
 
 /// GiW statistics of one component and the point estimates derived from them.
@@ -184,33 +186,27 @@ impl RegressionStats {
         let mut theta = self.scratch.take(|s| &mut s.theta, p, k);
         theta.copy_from(&v_psiy);
         let l = chol.l_dirty().as_slice();
-        for column in theta.as_mut_slice().chunks_exact_mut(p) {
-            with_size!(p, |s| cholesky_solve_in_place(s, l, column));
-        }
+        with_size!(p, |s| cholesky_solve_in_place(s, l, theta.as_mut_slice()));
         // r = (V_yy - V_psiy' theta) / kappa, element by element in the product's storage.
         let kappa = self.kappa.max(f64::MIN_POSITIVE);
         let mut r = self.scratch.take(|s| &mut s.r, k, k);
-        if k > 5 && p > 5 {
+        if !gemm_is_nalgebras(k, p, k) {
             // nalgebra's product of these sizes is `matrixmultiply`'s (its own order).
             let mut v_psiy_t = self.scratch.take(|s| &mut s.v_psiy_t, k, p);
             v_psiy.transpose_to(&mut v_psiy_t);
             v_psiy_t.mul_to(&theta, &mut r);
             self.scratch.v_psiy_t = Some(v_psiy_t);
         } else {
-            // nalgebra's product below those sizes (`gemv` per column: each element the
-            // products summed in order, the first without an addition), read from V.
-            let (v, t, out) = (self.v.as_slice(), theta.as_slice(), r.as_mut_slice());
-            for j in 0..k {
-                let theta_j = &t[j * p..(j + 1) * p];
-                for i in 0..k {
-                    let v_i = &v[i * d + k..(i + 1) * d];
-                    let mut x = v_i[0] * theta_j[0];
-                    for a in 1..p {
-                        x += v_i[a] * theta_j[a];
-                    }
-                    out[j * k + i] = x;
-                }
-            }
+            // The same product, V_psiy' read from V.
+            let (v, t) = (self.v.as_slice(), theta.as_slice());
+            small_product(
+                k,
+                p,
+                k,
+                |i, a| v[i * d + k + a],
+                |a, j| t[j * p + a],
+                r.as_mut_slice(),
+            );
         }
         r.zip_apply(&self.v.view((0, 0), (k, k)), |x, v_yy| {
             *x = (v_yy - *x) / kappa
@@ -240,7 +236,32 @@ impl RegressionStats {
                     self.min_variance
                 }
             });
-            r = &eig.eigenvectors * DMatrix::from_diagonal(&vals) * eig.eigenvectors.transpose();
+            if gemm_is_nalgebras(k, k, k) {
+                // Q diag(vals) Q', as nalgebra's two products compute it (zeros included),
+                // in r's own storage and the scratch's.
+                let q = eig.eigenvectors.as_slice();
+                let mut scaled = self.scratch.take(|s| &mut s.shifted, k, k);
+                let mut product = self.scratch.take(|s| &mut s.r_factor, k, k);
+                let diagonal = |a: usize, j: usize| if a == j { vals[a] } else { 0.0 };
+                small_product(
+                    k,
+                    k,
+                    k,
+                    |i, a| q[a * k + i],
+                    diagonal,
+                    scaled.as_mut_slice(),
+                );
+                let qd = scaled.as_slice();
+                let q_t = |a: usize, j: usize| q[a * k + j];
+                small_product(k, k, k, |i, a| qd[a * k + i], q_t, product.as_mut_slice());
+                r = product;
+                self.scratch.shifted = Some(scaled);
+                self.scratch.r_factor = Some(eig.eigenvectors);
+            } else {
+                r = &eig.eigenvectors
+                    * DMatrix::from_diagonal(&vals)
+                    * eig.eigenvectors.transpose();
+            }
             symmetrise(&mut r);
         }
         let mut r_factor = self.scratch.take(|s| &mut s.r_factor, k, k);
