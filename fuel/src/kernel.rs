@@ -276,6 +276,27 @@ pub(crate) fn cholesky_solve_in_place(n: impl Size, l: &[f64], b: &mut [f64]) {
     let l = &l[..n * n];
     let columns = b.len() / n.max(1);
     let b = &mut b[..columns * n];
+    lower_solve_in_place(n, l, b);
+    for i in (0..n).rev() {
+        let below = &l[i * n + i + 1..(i + 1) * n];
+        let diagonal = l[i * n + i];
+        for b in b.chunks_exact_mut(n) {
+            let dot = nalgebra_dot(below, &b[i + 1..]);
+            b[i] = (b[i] - dot) / diagonal;
+        }
+    }
+}
+
+/// nalgebra's `solve_lower_triangular_mut` (and the forward half of `Cholesky::solve_mut`) of
+/// every column of `b` (column-major, `n` rows) with the lower triangle of `l` (column-major
+/// `n x n`, its diagonal nonzero), the same operations in the same order, the columns
+/// interleaved row by row: `b_k <- b_k + (-y_i) L_ki` with `y_i = b_i / L_ii`.
+#[inline(always)]
+pub(crate) fn lower_solve_in_place(n: impl Size, l: &[f64], b: &mut [f64]) {
+    let n = n.get();
+    let l = &l[..n * n];
+    let columns = b.len() / n.max(1);
+    let b = &mut b[..columns * n];
     for i in 0..n {
         let column = &l[i * n..(i + 1) * n];
         let diagonal = column[i];
@@ -285,14 +306,6 @@ pub(crate) fn cholesky_solve_in_place(n: impl Size, l: &[f64], b: &mut [f64]) {
             for k in i + 1..n {
                 b[k] += -coeff * column[k];
             }
-        }
-    }
-    for i in (0..n).rev() {
-        let below = &l[i * n + i + 1..(i + 1) * n];
-        let diagonal = l[i * n + i];
-        for b in b.chunks_exact_mut(n) {
-            let dot = nalgebra_dot(below, &b[i + 1..]);
-            b[i] = (b[i] - dot) / diagonal;
         }
     }
 }

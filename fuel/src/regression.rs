@@ -12,7 +12,8 @@ use nalgebra::{Cholesky, DMatrix, DMatrixView, DVector, SymmetricEigen};
 use railmon_filter::kalman::LN_2PI;
 
 use crate::kernel::{
-    cholesky_in_place, cholesky_solve_in_place, gemm_is_nalgebras, small_product, with_size,
+    cholesky_in_place, cholesky_solve_in_place, gemm_is_nalgebras, lower_solve_in_place,
+    nalgebra_dot, small_product, with_size,
 };
 use crate::FuelError;
 
@@ -458,24 +459,49 @@ impl RegressionStats {
         // r_fo r_oo^-1 e = w.z does not depend on it, the Schur complement is
         // s (r_ff - w.w), e' (s r_oo)^-1 e = z.z / s and ln det(s r_oo) = ln det r_oo +
         // (k - 1) ln s. Two triangular solves on r's own block (no copies scaled by s).
-        let Some(chol) = Cholesky::new(self.r.view((1, 1), (k - 1, k - 1)).into_owned()) else {
+        // nalgebra's Cholesky factor, solves and dot products on flat storage (the same
+        // bits), on the stack up to 12 other channels: the virtual sensor asks at every step.
+        let o = k - 1;
+        let mut stack = [0.0; 12 * 14];
+        let mut heap = Vec::new();
+        let work: &mut [f64] = match stack.get_mut(..o * (o + 2)) {
+            Some(w) => w,
+            None => {
+                heap.resize(o * (o + 2), 0.0);
+                &mut heap
+            }
+        };
+        let (l, zw) = work.split_at_mut(o * o);
+        let r = self.r.as_slice();
+        for (b, column) in l.chunks_exact_mut(o).enumerate() {
+            column.copy_from_slice(&r[(b + 1) * k + 1..(b + 2) * k]);
+        }
+        if !with_size!(o, |s| cholesky_in_place(s, l)) {
             // Cannot happen: a principal block of an SPD matrix is SPD. Fall back to the mean.
             return unconditional;
-        };
-        let l = chol.l_dirty();
-        let mut z = y_other - mean.rows(1, k - 1);
-        let mut w = self.r.view((1, 0), (k - 1, 1)).into_owned();
-        l.solve_lower_triangular_mut(&mut z);
-        l.solve_lower_triangular_mut(&mut w);
-        let log_det: f64 = l.diagonal().iter().map(|l| 2.0 * l.ln()).sum();
-        let others = (k - 1) as f64;
+        }
+        let (z, w) = zw.split_at_mut(o);
+        for ((z, y), m) in z.iter_mut().zip(y_other.iter()).zip(&mean.as_slice()[1..]) {
+            *z = y - m;
+        }
+        w.copy_from_slice(&r[1..k]);
+        with_size!(o, |s| {
+            lower_solve_in_place(s, l, z);
+            lower_solve_in_place(s, l, w);
+        });
+        let log_det: f64 = (0..o).map(|i| 2.0 * l[i * o + i].ln()).sum();
+        let others = o as f64;
+        let (z, w) = (&*z, &*w);
         Conditional {
-            mean: mean[0] + w.dot(&z),
+            mean: mean[0] + nalgebra_dot(w, z),
             // Positive as r is PD (floored); the floor guards rounding.
-            variance: (unconditional.variance - w.norm_squared() * inflate)
+            variance: (unconditional.variance - (0.0 + nalgebra_dot(w, w)) * inflate)
                 .max(self.min_variance * inflate),
             log_density: -0.5
-                * (others * LN_2PI + log_det + others * inflate.ln() + z.norm_squared() / inflate),
+                * (others * LN_2PI
+                    + log_det
+                    + others * inflate.ln()
+                    + (0.0 + nalgebra_dot(z, z)) / inflate),
         }
     }
 }
