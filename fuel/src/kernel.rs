@@ -272,17 +272,26 @@ pub(crate) fn cholesky_in_place(n: impl Size, a: &mut [f64]) -> bool {
 /// row's division waits for the previous row's, and the other columns fill that wait.
 #[inline(always)]
 pub(crate) fn cholesky_solve_in_place(n: impl Size, l: &[f64], b: &mut [f64]) {
+    cholesky_solve_each(n, |_| l, b);
+}
+
+/// [`cholesky_solve_in_place`] with column `c` of `b` solved with the factor `factor(c)`
+/// (several components' solves interleaved).
+#[inline(always)]
+pub(crate) fn cholesky_solve_each<'a>(
+    n: impl Size,
+    factor: impl Fn(usize) -> &'a [f64],
+    b: &mut [f64],
+) {
     let n = n.get();
-    let l = &l[..n * n];
     let columns = b.len() / n.max(1);
     let b = &mut b[..columns * n];
-    lower_solve_in_place(n, l, b);
+    lower_solve_each(n, &factor, b);
     for i in (0..n).rev() {
-        let below = &l[i * n + i + 1..(i + 1) * n];
-        let diagonal = l[i * n + i];
-        for b in b.chunks_exact_mut(n) {
-            let dot = nalgebra_dot(below, &b[i + 1..]);
-            b[i] = (b[i] - dot) / diagonal;
+        for (c, b) in b.chunks_exact_mut(n).enumerate() {
+            let l = &factor(c)[..n * n];
+            let dot = nalgebra_dot(&l[i * n + i + 1..(i + 1) * n], &b[i + 1..]);
+            b[i] = (b[i] - dot) / l[i * n + i];
         }
     }
 }
@@ -293,15 +302,19 @@ pub(crate) fn cholesky_solve_in_place(n: impl Size, l: &[f64], b: &mut [f64]) {
 /// interleaved row by row: `b_k <- b_k + (-y_i) L_ki` with `y_i = b_i / L_ii`.
 #[inline(always)]
 pub(crate) fn lower_solve_in_place(n: impl Size, l: &[f64], b: &mut [f64]) {
+    lower_solve_each(n, |_| l, b);
+}
+
+/// [`lower_solve_in_place`] with column `c` of `b` solved with the factor `factor(c)`.
+#[inline(always)]
+fn lower_solve_each<'a>(n: impl Size, factor: impl Fn(usize) -> &'a [f64], b: &mut [f64]) {
     let n = n.get();
-    let l = &l[..n * n];
     let columns = b.len() / n.max(1);
     let b = &mut b[..columns * n];
     for i in 0..n {
-        let column = &l[i * n..(i + 1) * n];
-        let diagonal = column[i];
-        for b in b.chunks_exact_mut(n) {
-            let coeff = b[i] / diagonal;
+        for (c, b) in b.chunks_exact_mut(n).enumerate() {
+            let column = &factor(c)[i * n..(i + 1) * n];
+            let coeff = b[i] / column[i];
             b[i] = coeff;
             for k in i + 1..n {
                 b[k] += -coeff * column[k];
@@ -386,6 +399,19 @@ mod tests {
             let mut x3 = b3.clone();
             cholesky_solve_in_place(n, got.as_slice(), x3.as_mut_slice());
             assert_eq!(x3, want_x3, "{n}");
+            // Each column with its own factor (here the factor and its double's).
+            let want2 = nalgebra::Cholesky::new(&spd * 2.0).expect("SPD");
+            let mut want_second = b.clone();
+            want2.solve_mut(&mut want_second);
+            let mut both = DMatrix::from_columns(&[b.column(0), b.column(0)]);
+            let factors = [want.l_dirty().as_slice(), want2.l_dirty().as_slice()];
+            with_size!(n, |s| cholesky_solve_each(
+                s,
+                |c| factors[c],
+                both.as_mut_slice()
+            ));
+            assert_eq!(both.column(0), want_x.column(0), "{n}");
+            assert_eq!(both.column(1), want_second.column(0), "{n}");
             for (rows, inner, cols) in [(n, n, n), (n, n + 2, 1), (1, n, n), (n, 5, n)] {
                 if !gemm_is_nalgebras(rows, inner, cols) {
                     continue;

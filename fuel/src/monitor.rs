@@ -610,7 +610,15 @@ impl FuelMonitor {
         self.blend.observe(p.y[0], self.config.blend_forgetting);
         self.calibration.observe(0, &virtual_terms, p.y[0]);
         self.calibration.observe_forecasts(p.y[0]);
-        self.pending_forecast = self.blended_forecast();
+        let next = self.blended_forecast();
+        let old = std::mem::replace(&mut self.pending_forecast, next);
+        let spare = &mut self.forecast_work.spare_terms;
+        spare.extend(
+            old.terms
+                .into_iter()
+                .take(self.config.forecast_horizon_steps),
+        );
+        spare.truncate(self.config.forecast_horizon_steps);
         let previous = self.estimate.mixture.as_ref();
         self.active_streak = match self.active_streak {
             (regime, n) if regime == active => (regime, n + 1),
@@ -632,14 +640,24 @@ impl FuelMonitor {
             });
         let cumulative_virtual =
             previous.map_or(0.0, |e| e.cumulative_virtual_fuel_cm3) + virtual_sensor * dt;
+        // The forecast's copies in the buffers of the estimate this one replaces.
+        let (mut forecast_cm3_s, mut forecast_predictive) = match self.estimate.mixture.as_mut() {
+            Some(e) => (
+                std::mem::take(&mut e.forecast_cm3_s),
+                std::mem::take(&mut e.forecast_predictive),
+            ),
+            None => Default::default(),
+        };
+        forecast_cm3_s.clone_from(&self.pending_forecast.mean_cm3_s);
+        forecast_predictive.clone_from(&self.pending_forecast.terms);
         Ok(MixtureEstimate {
             zero_step_cm3_s: zero_step,
             one_step_forecast_cm3_s: one_step.unwrap_or(f64::NAN),
             one_step_predictive: one_step_terms.unwrap_or_default(),
             virtual_sensor_cm3_s: virtual_sensor,
             virtual_sensor_predictive: virtual_terms,
-            forecast_cm3_s: self.pending_forecast.mean_cm3_s.clone(),
-            forecast_predictive: self.pending_forecast.terms.clone(),
+            forecast_cm3_s,
+            forecast_predictive,
             regime_probabilities,
             active_regime: active,
             regime,
@@ -745,6 +763,8 @@ impl FuelMonitor {
             y_lagged,
             factor_inverse,
             covariance_from,
+            first_zeta,
+            spare_terms,
             ..
         } = work;
         if parameter_uncertainty && horizon > 1 {
@@ -758,6 +778,18 @@ impl FuelMonitor {
             psi_i.copy_from_slice(psi_now.as_slice());
         }
         sigma[..m * n2].fill(0.0);
+        // The first step's `zeta` of every component, `psi' V_psi^-1 psi` as `zeta_with`
+        // computes it (the next update's step reads it), the components' solves interleaved.
+        if parameter_uncertainty {
+            let solved = &mut first_zeta[..m * k_psi];
+            for x in solved.chunks_exact_mut(k_psi) {
+                x.copy_from_slice(psi_now.as_slice());
+            }
+            let factor = |c: usize| mixture.components()[c].v_psi_factor();
+            crate::kernel::with_size!(k_psi, |s| crate::kernel::cholesky_solve_each(
+                s, factor, solved
+            ));
+        }
         levels.clear();
         levels.extend(self.past.fuel_levels.iter().copied());
         let acceleration_level = self.past.acceleration_level;
@@ -771,7 +803,8 @@ impl FuelMonitor {
             let last = h + 1 == horizon;
             // Only the fuel of the mixture's mean is used (its value and its level).
             let mut y0 = 0.0;
-            let mut terms = Vec::with_capacity(m);
+            let mut terms = spare_terms.pop().unwrap_or_default();
+            terms.clear();
             for (i, comp) in mixture.components().iter().enumerate() {
                 let (theta, r) = (comp.theta().as_slice(), comp.r().as_slice());
                 let psi_i = &psi[i * k_psi..(i + 1) * k_psi];
@@ -781,7 +814,10 @@ impl FuelMonitor {
                     // from these statistics: their own operations (psi_i is psi_now).
                     comp.mean_into(psi_now, mean);
                     let inflate = match parameter_uncertainty {
-                        true => 1.0 + comp.zeta_with(psi_now, solve),
+                        true => {
+                            let x = &first_zeta[i * k_psi..(i + 1) * k_psi];
+                            1.0 + nalgebra_dot(psi_now.as_slice(), x).max(0.0)
+                        }
                         false => 1.0,
                     };
                     path.first_predictions.push(crate::regression::Prediction {
@@ -1036,6 +1072,10 @@ struct ForecastWork {
     factor_inverse: Vec<DMatrix<f64>>,
     /// The shift's gather of the covariance ([`covariance_sources`]).
     covariance_from: Vec<CovarianceSource>,
+    /// Per component the first step's solve `V_psi^-1 psi` (`k_psi` each).
+    first_zeta: Vec<f64>,
+    /// The term lists of the forecast path the last one replaced (buffers for the next).
+    spare_terms: Vec<Vec<StudentT>>,
 }
 
 impl ForecastWork {
@@ -1075,6 +1115,7 @@ impl ForecastWork {
         let (_, k_psi, n) = self.dims;
         if self.rows.len() < m {
             self.psi.resize(m * k_psi, 0.0);
+            self.first_zeta.resize(m * k_psi, 0.0);
             self.sigma.resize(m * n * n, 0.0);
             self.shifted_psi.resize(m * k_psi, 0.0);
             self.shifted_sigma.resize(m * n * n, 0.0);

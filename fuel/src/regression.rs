@@ -313,6 +313,13 @@ impl RegressionStats {
         psi.dot(work).max(0.0)
     }
 
+    /// The lower Cholesky factor `L` of `V_psi` (`V_psi = L L'`), column-major, its lower
+    /// triangle (the upper holds other numbers): the forecast solves with the factors of all
+    /// components at once ([`crate::kernel::cholesky_solve_each`]), as [`Self::zeta_with`].
+    pub(crate) fn v_psi_factor(&self) -> &[f64] {
+        self.v_psi_chol.l_dirty().as_slice()
+    }
+
     /// `L^-1`, `L` the lower Cholesky factor of `V_psi` (`V_psi = L L'`), written into `out`
     /// (resized to fit; zero above the diagonal): with it `zeta = |L^-1 psi|^2` is a
     /// triangular product of independent rows, for the forecast's steps beyond its first.
