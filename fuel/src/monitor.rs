@@ -740,7 +740,7 @@ impl FuelMonitor {
         use crate::kernel::{lower_times_norm_squared, nalgebra_dot, propagate_covariance};
         let horizon = self.config.forecast_horizon_steps;
         let m = mixture.spec().components;
-        let (k_y, k_psi, n2) = (self.spec.k_y, self.spec.k_psi, n.get() * n.get());
+        let (k_psi, n2) = (self.spec.k_psi, n.get() * n.get());
         let parameter_uncertainty = self.config.parameter_uncertainty;
         let ForecastWork {
             psi,
@@ -753,14 +753,12 @@ impl FuelMonitor {
             solve,
             sigma_theta,
             propagated,
-            c_yy,
             deviation,
             p,
             log_p,
             levels,
             sources,
             y_read,
-            y_lagged,
             factor_inverse,
             covariance_from,
             first_zeta,
@@ -852,13 +850,10 @@ impl FuelMonitor {
                 terms.push(st.fuel_term(p[i], mean[0], fuel_var, comp.predictive_dof()));
                 y0 += mean[0] * p[i];
                 if !last {
-                    // The elements of Cov(y) and Cov(psi, y) the shift reads.
-                    for &v in y_lagged.iter() {
-                        for &u in y_lagged.iter() {
-                            let at = v * k_y + u;
-                            c_yy[at] = r[at] * inflate + if h > 0 { propagated[at] } else { 0.0 };
-                        }
-                    }
+                    // The elements of Cov(y) the shift reads, computed where it reads them.
+                    let propagated = &propagated[..];
+                    let c_yy =
+                        |at: usize| r[at] * inflate + if h > 0 { propagated[at] } else { 0.0 };
                     if h == 0 {
                         // Sigma = 0: so is Cov(psi, y) = Sigma theta.
                         sigma_theta.fill(0.0);
@@ -1038,8 +1033,9 @@ enum Source {
 /// `i` at `i * k_psi` and `i * n^2`) the regressor's mean and covariance given the component,
 /// the same shifted by one step, the switching row at its forecast level, `L^-1` of its
 /// `V_psi`; one component's mean, the regressor now, a `k_psi` vector (the solve of `zeta`),
-/// `Sigma theta` (which is also `Cov(psi, y)`, `n x k_y`), `theta' Sigma theta` and `Cov(y)`
-/// (`k_y x k_y`), the mixing's deviation (`n`); the pointer; the forecast fuel levels; the
+/// `Sigma theta` (which is also `Cov(psi, y)`, `n x k_y`), `theta' Sigma theta` (`k_y x
+/// k_y`), the mixing's deviation (`n`), the first step's solves; the pointer; the forecast
+/// fuel levels; the term lists of the replaced path; the
 /// sources of the shifted regressor and of its covariance. The covariances cover the
 /// regressor's uncertain part only, its lagged channels (the leading `n` elements): gear and
 /// constant are known, their rows and columns zero. Matrices column-major, the covariances
@@ -1058,7 +1054,6 @@ struct ForecastWork {
     solve: DVector<f64>,
     sigma_theta: Vec<f64>,
     propagated: Vec<f64>,
-    c_yy: Vec<f64>,
     deviation: Vec<f64>,
     p: Vec<f64>,
     log_p: Vec<f64>,
@@ -1090,7 +1085,6 @@ impl ForecastWork {
             solve: DVector::zeros(k_psi),
             sigma_theta: vec![0.0; n * k_y],
             propagated: vec![0.0; k_y * k_y],
-            c_yy: vec![0.0; k_y * k_y],
             deviation: vec![0.0; n],
             ..ForecastWork::default()
         };
@@ -1230,14 +1224,15 @@ fn covariance_sources(sources: &[Source], n: usize, k_y: usize, out: &mut Vec<Co
 }
 
 /// Covariance of the next forecast regressor `psi'` into `out` (its uncertain part, `n x n`),
-/// from that of `psi`, `Cov(psi, y)` and `Cov(y)` by the gather `from`
-/// ([`covariance_sources`]), the lower triangle mirrored.
+/// from that of `psi`, `Cov(psi, y)` and `Cov(y)` (`c_yy(v k_y + u)`, column-major) by the
+/// gather `from` ([`covariance_sources`]), the lower triangle mirrored.
+#[inline(always)]
 fn shift_regressor_covariance<N: crate::kernel::Size>(
     n: N,
     from: &[CovarianceSource],
     sigma_psi: &[f64],
     c_psi_y: &[f64],
-    c_yy: &[f64],
+    c_yy: impl Fn(usize) -> f64,
     out: &mut [f64],
 ) {
     let nn = n.get();
@@ -1246,7 +1241,7 @@ fn shift_regressor_covariance<N: crate::kernel::Size>(
     for b in 0..nn {
         for a in b..nn {
             out[b * nn + a] = match from.next() {
-                Some(CovarianceSource::Y(x)) => c_yy[*x],
+                Some(CovarianceSource::Y(x)) => c_yy(*x),
                 Some(CovarianceSource::PsiY(x)) => c_psi_y[*x],
                 Some(CovarianceSource::Psi(x)) => sigma_psi[*x],
                 Some(CovarianceSource::Zero) | None => 0.0,
