@@ -5,6 +5,12 @@
 //! same loop over a run-time bound spends more on its control than on its arithmetic.
 //! [`with_size!`] calls a kernel with a compile-time size for 1 to 12 and the run-time size
 //! beyond.
+//!
+//! Also nalgebra's own dense operations on flat storage, each with nalgebra's operations in
+//! nalgebra's order (its dynamic-size dot product, Cholesky factor and solve, small product):
+//! the mixture's step must keep its rounding (docs/fuel.md, "Benchmark": `V_psi` is badly
+//! conditioned and the recursion carries any difference on), and on flat storage with
+//! compile-time sizes the same operations cost less than nalgebra's generic dynamic code.
 
 /// A dimension: [`Fixed`] (known at compile time) or `usize` (at run time).
 pub(crate) trait Size: Copy {
