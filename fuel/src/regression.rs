@@ -181,11 +181,17 @@ impl RegressionStats {
         let v_psiy = self.v.view((k, 0), (p, k));
         let v_psi = self.v.view((k, k), (p, p));
         let mut factor = self.scratch.take(|s| &mut s.v_psi_factor, p, p);
-        factor.copy_from(&v_psi);
+        // The blocks of V copied column by column (nalgebra's strided copy, the same numbers).
+        let v = self.v.as_slice();
+        for (b, column) in factor.as_mut_slice().chunks_exact_mut(p).enumerate() {
+            column.copy_from_slice(&v[(k + b) * d + k..(k + b + 1) * d]);
+        }
         let chol = cholesky_with_jitter(v_psi, factor)
             .ok_or(FuelError::Numerical("V_psi not positive definite"))?;
         let mut theta = self.scratch.take(|s| &mut s.theta, p, k);
-        theta.copy_from(&v_psiy);
+        for (j, column) in theta.as_mut_slice().chunks_exact_mut(p).enumerate() {
+            column.copy_from_slice(&v[j * d + k..(j + 1) * d]);
+        }
         let l = chol.l_dirty().as_slice();
         with_size!(p, |s| cholesky_solve_in_place(s, l, theta.as_mut_slice()));
         // r = (V_yy - V_psiy' theta) / kappa, element by element in the product's storage.
@@ -209,9 +215,11 @@ impl RegressionStats {
                 r.as_mut_slice(),
             );
         }
-        r.zip_apply(&self.v.view((0, 0), (k, k)), |x, v_yy| {
-            *x = (v_yy - *x) / kappa
-        });
+        for (j, column) in r.as_mut_slice().chunks_exact_mut(k).enumerate() {
+            for (x, v_yy) in column.iter_mut().zip(&v[j * d..j * d + k]) {
+                *x = (v_yy - *x) / kappa;
+            }
+        }
         // Floor the eigenvalues at `min_variance`: rounding in V_yy - V_psiy' theta (a
         // difference of two large, nearly equal numbers after 10^6 steps) can leave r
         // indefinite. Fast path: `r - floor I` positive definite means no eigenvalue is below
@@ -220,9 +228,9 @@ impl RegressionStats {
         let above_floor = r.iter().all(|v| v.is_finite()) && {
             // r - floor I, in one copy of r.
             let mut shifted = self.scratch.take(|s| &mut s.shifted, k, k);
-            shifted.copy_from(&r);
-            for i in 0..self.k_y {
-                shifted[(i, i)] -= self.min_variance;
+            shifted.as_mut_slice().copy_from_slice(r.as_slice());
+            for i in 0..k {
+                shifted.as_mut_slice()[i * k + i] -= self.min_variance;
             }
             let positive = with_size!(k, |s| cholesky_in_place(s, shifted.as_mut_slice()));
             self.scratch.shifted = Some(shifted);
@@ -266,7 +274,7 @@ impl RegressionStats {
             symmetrise(&mut r);
         }
         let mut r_factor = self.scratch.take(|s| &mut s.r_factor, k, k);
-        r_factor.copy_from(&r);
+        r_factor.as_mut_slice().copy_from_slice(r.as_slice());
         let r_chol = cholesky_with_jitter(r.as_view(), r_factor).ok_or(FuelError::Numerical(
             "noise covariance not positive definite",
         ))?;
@@ -535,11 +543,13 @@ pub struct Conditional {
 /// `m <- (m + m') / 2` in place (each element as `(m_ij + m_ji) * 0.5`, the diagonal too: the
 /// same numbers as the expression, without its two temporaries).
 fn symmetrise(m: &mut DMatrix<f64>) {
-    for i in 0..m.nrows() {
-        for j in i..m.ncols() {
-            let s = (m[(i, j)] + m[(j, i)]) * 0.5;
-            m[(i, j)] = s;
-            m[(j, i)] = s;
+    let n = m.nrows().min(m.ncols());
+    let m = &mut m.as_mut_slice()[..n * n];
+    for i in 0..n {
+        for j in i..n {
+            let s = (m[j * n + i] + m[i * n + j]) * 0.5;
+            m[j * n + i] = s;
+            m[i * n + j] = s;
         }
     }
 }
