@@ -763,6 +763,7 @@ impl FuelMonitor {
             covariance_from,
             first_zeta,
             spare_terms,
+            joint,
             ..
         } = work;
         if parameter_uncertainty && horizon > 1 {
@@ -897,6 +898,7 @@ impl FuelMonitor {
                     &mut psi[..m * k_psi],
                     &mut sigma[..m * n2],
                     &mut log_p[..m],
+                    &mut joint[..m],
                     deviation,
                 );
                 p[..m].copy_from_slice(&log_p[..m]);
@@ -1071,6 +1073,8 @@ struct ForecastWork {
     first_zeta: Vec<f64>,
     /// The term lists of the forecast path the last one replaced (buffers for the next).
     spare_terms: Vec<Vec<StudentT>>,
+    /// The mixing's joint probabilities of one target component (`m_c`).
+    joint: Vec<f64>,
 }
 
 impl ForecastWork {
@@ -1117,6 +1121,7 @@ impl ForecastWork {
             self.rows.resize(m, 0);
             self.p.resize(m, 0.0);
             self.log_p.resize(m, 0.0);
+            self.joint.resize(m, 0.0);
         }
     }
 }
@@ -1125,7 +1130,7 @@ impl ForecastWork {
 /// p(c_{t+h} = j)` and each component's shifted regressor (mean, `k_psi` each, covariance,
 /// `n x n` each, switching row at its level), the pointer `p_i' = sum_j alpha_{i|j,k_j} p_j`
 /// (normalised, written into `p_next`) and each component's regressor given `c_{t+h+1} = i`
-/// (written into `psi`, `sigma`). `d`: `n` numbers of scratch. The pointer is normalised
+/// (written into `psi`, `sigma`). `joint` (`m_c`) and `d` (`n`): scratch. The pointer is normalised
 /// as probabilities, `p_i' / sum p'`, not through logarithms (`ln`, log-sum-exp, `exp`: four
 /// transcendental calls per component and step, a tenth of the monitor's step once the
 /// rest was lean); it differs from that by rounding and is not read by the mixture's step.
@@ -1141,50 +1146,49 @@ fn mix_regressors<N: crate::kernel::Size>(
     psi: &mut [f64],
     sigma: &mut [f64],
     p_next: &mut [f64],
+    joint: &mut [f64],
     d: &mut [f64],
 ) {
-    let m = p.len();
+    let joint = &mut joint[..p.len()];
     let n2 = n.get() * n.get();
     let d = &mut d[..n.get()];
-    crate::mixture::with_scratch(m, |joint| {
-        for (i, (mean, cov)) in psi
-            .chunks_exact_mut(k_psi)
-            .zip(sigma.chunks_exact_mut(n2))
+    for (i, (mean, cov)) in psi
+        .chunks_exact_mut(k_psi)
+        .zip(sigma.chunks_exact_mut(n2))
+        .enumerate()
+    {
+        // Unnormalised P(c_{t+h} = j, c_{t+h+1} = i).
+        for (j, x) in joint.iter_mut().enumerate() {
+            *x = mixture.alpha(rows[j], j, i) * p[j];
+        }
+        let total: f64 = joint.iter().sum();
+        // A component no path reaches keeps the pointer's mix (its weight is ~0 anyway).
+        let reached = total > 0.0 && total.is_finite();
+        let mu = |j: usize| if reached { joint[j] / total } else { p[j] };
+        mean.fill(0.0);
+        for (j, s) in shifted_psi.chunks_exact(k_psi).enumerate() {
+            let mu_j = mu(j);
+            for (a, b) in mean.iter_mut().zip(s) {
+                *a += b * mu_j;
+            }
+        }
+        // cov += (c + d d') mu_j, d = s - mean, on the uncertain block, the lower
+        // triangle (c is symmetric), mirrored after.
+        cov.fill(0.0);
+        for (j, (s, c)) in shifted_psi
+            .chunks_exact(k_psi)
+            .zip(shifted_sigma.chunks_exact(n2))
             .enumerate()
         {
-            // Unnormalised P(c_{t+h} = j, c_{t+h+1} = i).
-            for (j, x) in joint.iter_mut().enumerate() {
-                *x = mixture.alpha(rows[j], j, i) * p[j];
+            let mu_j = mu(j);
+            for ((d, s), mean) in d.iter_mut().zip(s).zip(mean.iter()) {
+                *d = s - mean;
             }
-            let total: f64 = joint.iter().sum();
-            // A component no path reaches keeps the pointer's mix (its weight is ~0 anyway).
-            let reached = total > 0.0 && total.is_finite();
-            let mu = |j: usize| if reached { joint[j] / total } else { p[j] };
-            mean.fill(0.0);
-            for (j, s) in shifted_psi.chunks_exact(k_psi).enumerate() {
-                let mu_j = mu(j);
-                for (a, b) in mean.iter_mut().zip(s) {
-                    *a += b * mu_j;
-                }
-            }
-            // cov += (c + d d') mu_j, d = s - mean, on the uncertain block, the lower
-            // triangle (c is symmetric), mirrored after.
-            cov.fill(0.0);
-            for (j, (s, c)) in shifted_psi
-                .chunks_exact(k_psi)
-                .zip(shifted_sigma.chunks_exact(n2))
-                .enumerate()
-            {
-                let mu_j = mu(j);
-                for ((d, s), mean) in d.iter_mut().zip(s).zip(mean.iter()) {
-                    *d = s - mean;
-                }
-                crate::kernel::add_spread_lower(n, cov, c, d, mu_j);
-            }
-            crate::kernel::mirror_lower(n, cov);
-            p_next[i] = total;
+            crate::kernel::add_spread_lower(n, cov, c, d, mu_j);
         }
-    });
+        crate::kernel::mirror_lower(n, cov);
+        p_next[i] = total;
+    }
     let total: f64 = p_next.iter().sum();
     match total > 0.0 && total.is_finite() {
         true => p_next.iter_mut().for_each(|x| *x /= total),
