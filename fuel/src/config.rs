@@ -184,21 +184,29 @@ pub struct FuelMonitorConfig {
     /// density of all of `y_t`. Worse named regimes on both railcar routes, so no preset uses
     /// it.
     pub measured_proximity: bool,
-    /// Names of channels of `y_t` (measured, not `fuel`, or derived: `speed`, `acceleration`,
-    /// `gradient`, ...) whose levels weigh the pointer: the evidence for a component is fuel
-    /// given every other channel now and the lags (its regression) plus the density of these
-    /// channels' values under a static Gauss-inverse-Wishart of the component (no lags), updated
-    /// with the same weights (`Mixture`, docs/fuel.md "The pointer weighed by levels"). Changes
-    /// the pointer and therefore the update weights; the regressions, the virtual sensor and
-    /// the forecasts are computed as before from them. Empty: off (the evidence of
-    /// `measured_proximity` or the paper's).
+    /// Names of channels of `y_t` (measured, `fuel` included, or derived: `speed`,
+    /// `specific_force`, ...) whose levels weigh the pointer: the evidence for a component is
+    /// the density of these channels' values under a static Gauss-inverse-Wishart of the
+    /// component (no lags), updated with the pointer's weights, plus, when `fuel` is not among
+    /// them, fuel given every other channel now and the lags (its regression); and the notch's
+    /// term (`Mixture`, docs/fuel.md "The pointer weighed by levels"). Changes the pointer and
+    /// so the update weights; the regressions, the virtual sensor (weighted by the same
+    /// evidence without fuel) and the forecasts are computed from them as before. Empty: off
+    /// (the evidence of `measured_proximity` or the paper's). Not in a preset: on the railcar
+    /// routes `["fuel", "speed", "specific_force"]` with `pointer_level_min_variance = 3e-2`
+    /// names more seconds right on every seed and recognises coasting, but 32-37 % of the
+    /// railcar route's standing seconds are not named idle (mostly coasting; docs/fuel.md).
     pub pointer_levels: Vec<String>,
     /// Names of channels of `y_t` the `pointer_levels` are conditioned on in each component's
     /// static model (the `gradient`: coasting downhill speeds up, uphill slows down, so its
     /// acceleration is a level only given the grade). Regressors, not modelled: a
     /// piecewise-constant channel adds no density of its own. Only with `pointer_levels`.
     pub pointer_level_regressors: Vec<String>,
-    /// Floor on the eigenvalues of the level statistics' covariance (standardised units).
+    /// Floor on the eigenvalues of the level statistics' covariance (standardised units). A
+    /// standing train's speed is exactly 0 and a station's grade exactly constant, so a level
+    /// component's covariance collapses to its floor; at `min_noise_variance`'s 1e-6 a stop
+    /// at another grade then costs hundreds of nats and another component takes it
+    /// (docs/fuel.md: 3e-2 there). 1e-6 by default, which only matters with `pointer_levels`.
     pub pointer_level_min_variance: f64,
     /// Blend each h-step fuel forecast of the mixture with that of a single regression run
     /// alongside (same settings, one component), weighted per horizon by the convex

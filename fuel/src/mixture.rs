@@ -41,11 +41,13 @@ pub struct MixtureSpec {
     /// ([`RegressionStats::log_proximity_measured`]); `None`: of all of `y` (the paper's).
     #[serde(default)]
     pub measured_channels: Option<usize>,
-    /// Non-empty: the pointer is weighed by levels ([`LevelEvidence`]): `ln N(y_0 | y_1..k_y,
-    /// psi)` (fuel given every other channel now and the lags: the regression, the other
-    /// channels as regressors only) plus `ln N(x | c)` of the channels of `y` at these indices
-    /// (never 0, the fuel) under a static Gauss-inverse-Wishart per component (`psi = [1]`)
-    /// updated with the same weights. Empty: [`MixtureSpec::measured_channels`] or the paper's.
+    /// Non-empty: the pointer is weighed by levels (docs/fuel.md, "The pointer weighed by
+    /// levels"): `ln N(x | c)` of the channels of `y` at these indices under a static
+    /// Gauss-inverse-Wishart per component (regressor `[level_regressors; 1]`, no lags),
+    /// updated with the pointer's weights, plus, unless the fuel (index 0) is among them,
+    /// `ln N(y_0 | y_1..k_y, psi)` (fuel given every other channel now and the lags: the
+    /// regression, the other channels as regressors only). Empty:
+    /// [`MixtureSpec::measured_channels`] or the paper's.
     #[serde(default)]
     pub level_channels: Vec<usize>,
     /// Indices into `y` of channels the level statistics are conditioned on (the gradient):
@@ -689,19 +691,22 @@ fn level_prior(spec: &MixtureSpec) -> Result<RegressionStats, FuelError> {
 }
 
 /// The pointer's evidence for one component weighed by levels ([`MixtureSpec::level_channels`]),
-/// from its regression's `prediction` at `psi` and the level data vector `x = [levels; 1]`.
+/// from its regression's `prediction` at `psi` and the level data.
 ///
 /// By the chain rule, `ln f(y_t | psi_t, c) = ln f(y_1.. | psi_t, c) + ln f(y_0 | y_1.., psi_t,
-/// c)`: the fuel's term is the regression's conditional (fuel given every other channel now and
-/// the lags), the rest is the density of the other channels. Of those, the derived channels are
-/// functions of the speed now and `psi` (degenerate: a variance at the floor, docs/fuel.md), and
-/// with the speed lagged the speed's own density given `psi` does not say how fast the vehicle
-/// goes. So the second factor is replaced by the density of the level channels under the
-/// component's static model, `f(levels | c)` with no lags: the levels are what tells a standing
-/// train from a coasting one. Each datum enters once: fuel only in the first term (so fuel is
-/// never a level channel, `Mixture::new` refuses index 0), the levels only in the second; the
-/// approximation is `f(levels | psi, c) ~ f(levels | c)`, the lags' information about the
-/// levels given up for the pointer (the regression keeps it for the forecasts).
+/// c)`: the fuel's conditional (the regression: fuel given every other channel now and the
+/// lags) plus the density of the other channels. Of those, the derived channels are functions
+/// of the speed now and `psi` (degenerate: a variance at the floor, docs/fuel.md), and with the
+/// speed lagged the speed's own density given `psi` does not say how fast the vehicle goes. So
+/// the second factor is replaced by `f(levels | c)`, the level channels under the component's
+/// static model (no lags): the levels are what tells a standing train from a coasting one. The
+/// same holds for the fuel: given its own lag any component predicts a steady fuel flow, so the
+/// regression's term cannot tell an idling engine from one under load once the level has held
+/// for a second. With the fuel among the levels its regression term is left out, so that each
+/// datum enters once: `ln f(fuel, levels | c)` alone (with the notch's term, the caller's).
+/// The approximation is `f(levels | psi, c) ~ f(levels | c)`: the lags' information about the
+/// levels is given up for the pointer (the regression keeps it for the forecasts and the
+/// virtual sensor).
 fn level_evidence(
     comp: &RegressionStats,
     level: &RegressionStats,
