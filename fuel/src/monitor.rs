@@ -275,6 +275,9 @@ impl FuelMonitor {
             switching_prior_move: config.switching_prior_move,
             measured_channels: (config.measured_proximity && !derived.is_empty())
                 .then_some(channels.len()),
+            level_channels: config.pointer_level_indices()?,
+            level_regressors: config.pointer_level_regressor_indices()?,
+            level_min_variance: config.pointer_level_min_variance,
         };
         Ok(FuelMonitor {
             config: config.clone(),
@@ -361,7 +364,12 @@ impl FuelMonitor {
             let v = sample.checked(Channel::Speed, ranges)?;
             let dt = self.previous_time_s.map_or(1.0, |p| sample.time_s - p);
             let a = self.previous_speed_m_s.map_or(0.0, |p| (v - p) / dt);
-            y.extend(self.derived.iter().map(|d| d.value(v, a)));
+            let gradient = if self.derived.contains(&DerivedChannel::SpecificForce) {
+                sample.checked(Channel::Gradient, ranges)?
+            } else {
+                0.0
+            };
+            y.extend(self.derived.iter().map(|d| d.value(v, a, gradient)));
             (bin_index(&self.config.acceleration_bins_m_s2, a), Some(v))
         } else {
             (0, None)
@@ -509,8 +517,11 @@ impl FuelMonitor {
             self.config.init_weight,
         )?;
         let baseline = if self.config.forecast_blend && m > 1 {
+            // One component: its pointer is 1 whatever the evidence, so no level statistics.
             let spec = MixtureSpec {
                 components: 1,
+                level_channels: Vec::new(),
+                level_regressors: Vec::new(),
                 ..self.spec.clone()
             };
             let zeros = vec![0; labels.len()];
@@ -562,7 +573,9 @@ impl FuelMonitor {
         };
         for (i, comp) in mixture.components().iter().enumerate() {
             let c = comp.condition_first_on_rest_at(&predictions[i], &y_other);
-            log_v[i] = log_pred[i] + c.log_density + mixture.log_category(i, category);
+            log_v[i] = log_pred[i]
+                + mixture.log_evidence_without_fuel(i, &y, &c)
+                + mixture.log_category(i, category);
             cond.push(c);
         }
         normalize_log_weights(&mut log_v)?;

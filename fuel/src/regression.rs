@@ -411,9 +411,9 @@ impl RegressionStats {
             return self.log_proximity(y, psi, parameter_uncertainty);
         }
         let y_other = y.rows(1, k - 1).into_owned();
-        let fuel = self.condition_first_on_rest(psi, &y_other, parameter_uncertainty);
-        let e0 = y[0] - fuel.mean;
-        let log_fuel = -0.5 * (LN_2PI + fuel.variance.ln() + e0 * e0 / fuel.variance);
+        let log_fuel = self
+            .condition_first_on_rest(psi, &y_other, parameter_uncertainty)
+            .log_density_of(y[0]);
         let others = measured.clamp(1, k) - 1;
         if others == 0 {
             return log_fuel;
@@ -425,12 +425,26 @@ impl RegressionStats {
         };
         let r_mm = self.r.view((1, 1), (others, others)).into_owned() * inflate;
         let e = y.rows(1, others) - self.mean(psi).rows(1, others);
-        let Some(chol) = Cholesky::new(r_mm) else {
-            // Cannot happen: a principal block of an SPD matrix is SPD.
-            return log_fuel;
-        };
-        let log_det: f64 = chol.l().diagonal().iter().map(|l| 2.0 * l.ln()).sum();
-        log_fuel - 0.5 * (others as f64 * LN_2PI + log_det + e.dot(&chol.solve(&e)))
+        log_fuel + gaussian_log_density(r_mm, &e.into_owned())
+    }
+
+    /// Log-density of channels `channels` of `y` (`y` of length `k_y`, the others ignored)
+    /// under the marginal of the component's predictive Gaussian at `psi`: the principal
+    /// block of `N(theta' psi, r (1 + zeta))` (`1 + zeta` with `parameter_uncertainty`).
+    pub fn log_marginal_density(
+        &self,
+        channels: &[usize],
+        y: &DVector<f64>,
+        psi: &DVector<f64>,
+        parameter_uncertainty: bool,
+    ) -> f64 {
+        let prediction = self.predict(psi, parameter_uncertainty);
+        let n = channels.len();
+        let r = DMatrix::from_fn(n, n, |a, b| {
+            self.r[(channels[a], channels[b])] * prediction.inflate
+        });
+        let e = DVector::from_fn(n, |a, _| y[channels[a]] - prediction.mean[channels[a]]);
+        gaussian_log_density(r, &e)
     }
 
     /// Degrees of freedom of the Student-t predictive of one channel: `kappa - k_y + 1` (the
@@ -538,6 +552,26 @@ pub struct Conditional {
     pub variance: f64,
     /// Log-density of the other channels under the component (0 without them).
     pub log_density: f64,
+}
+
+impl Conditional {
+    /// `ln N(y_0; mean, variance)`: the log-density of the first channel's value `y0` under
+    /// this conditional.
+    pub fn log_density_of(&self, y0: f64) -> f64 {
+        let e = y0 - self.mean;
+        -0.5 * (LN_2PI + self.variance.ln() + e * e / self.variance)
+    }
+}
+
+/// `ln N(e; 0, r)` for a covariance `r` (a principal block of an SPD matrix: SPD; should its
+/// factorisation fail all the same, the density is 0, `-inf`).
+fn gaussian_log_density(r: DMatrix<f64>, e: &DVector<f64>) -> f64 {
+    let n = e.len() as f64;
+    let Some(chol) = Cholesky::new(r) else {
+        return f64::NEG_INFINITY;
+    };
+    let log_det: f64 = chol.l().diagonal().iter().map(|l| 2.0 * l.ln()).sum();
+    -0.5 * (n * LN_2PI + log_det + e.dot(&chol.solve(e)))
 }
 
 /// `m <- (m + m') / 2` in place (each element as `(m_ij + m_ji) * 0.5`, the diagonal too: the
