@@ -41,6 +41,24 @@ pub struct MixtureSpec {
     /// ([`RegressionStats::log_proximity_measured`]); `None`: of all of `y` (the paper's).
     #[serde(default)]
     pub measured_channels: Option<usize>,
+    /// Non-empty: the pointer is weighed by levels (docs/fuel.md, "The pointer weighed by
+    /// levels"): `ln N(x | c)` of the channels of `y` at these indices under a static
+    /// Gauss-inverse-Wishart per component (regressor `[level_regressors; 1]`, no lags),
+    /// updated with the pointer's weights, plus, unless the fuel (index 0) is among them,
+    /// `ln N(y_0 | y_1..k_y, psi)` (fuel given every other channel now and the lags: the
+    /// regression, the other channels as regressors only). Empty:
+    /// [`MixtureSpec::measured_channels`] or the paper's.
+    #[serde(default)]
+    pub level_channels: Vec<usize>,
+    /// Indices into `y` of channels the level statistics are conditioned on (the gradient):
+    /// regressors of the levels, `psi = [y at these indices; 1]`, not modelled (so a
+    /// piecewise-constant channel adds no degenerate density). Only with `level_channels`.
+    #[serde(default)]
+    pub level_regressors: Vec<usize>,
+    /// Floor on the eigenvalues of the level statistics' covariance (standardised units; 0:
+    /// `min_noise_variance`).
+    #[serde(default)]
+    pub level_min_variance: f64,
 }
 
 /// One step's data for the mixture.
@@ -73,6 +91,10 @@ pub struct Mixture {
     /// `ln alpha` and `alpha` of every cell of `switching`, refreshed where the table changes.
     #[serde(skip)]
     alpha: AlphaCache,
+    /// Per component, the static statistics of the level channels
+    /// ([`MixtureSpec::level_channels`], `psi = [1]`); empty when those are.
+    #[serde(default)]
+    levels: Vec<RegressionStats>,
     /// The buffers a step updates the statistics in (the components of two steps ago; empty
     /// after a restore).
     #[serde(skip)]
@@ -130,6 +152,23 @@ impl Mixture {
             spec.min_noise_variance,
         )?;
         let m = spec.components;
+        if spec
+            .level_channels
+            .iter()
+            .chain(&spec.level_regressors)
+            .any(|&c| c >= spec.k_y)
+            || (spec.level_channels.is_empty() && !spec.level_regressors.is_empty())
+        {
+            return Err(FuelError::invalid(
+                "level_channels",
+                format!("{:?}", spec.level_channels),
+                "must index channels of y",
+            ));
+        }
+        let levels = match spec.level_channels.len() {
+            0 => Vec::new(),
+            _ => vec![level_prior(&spec)?; m],
+        };
         let categorical = if spec.categories > 0 {
             vec![
                 CountTable::new(spec.categorical_rows, spec.categories, |_, _| spec
@@ -149,6 +188,7 @@ impl Mixture {
         });
         Ok(Mixture {
             components: vec![comp; m],
+            levels,
             categorical,
             switching,
             log_w: vec![-(m as f64).ln(); m],
@@ -198,6 +238,12 @@ impl Mixture {
 
     pub fn components(&self) -> &[RegressionStats] {
         &self.components
+    }
+
+    /// Per component, the static statistics of the level channels (empty unless
+    /// [`MixtureSpec::level_channels`] is set): `theta` their mean, `r` their covariance.
+    pub fn levels(&self) -> &[RegressionStats] {
+        &self.levels
     }
 
     pub fn categorical(&self) -> &[CountTable] {
@@ -275,6 +321,33 @@ impl Mixture {
         }
     }
 
+    /// The evidence of the channels other than fuel for component `i` (the virtual sensor's
+    /// weight of the component besides the predicted pointer and the category):
+    /// `conditional.log_density` (their density under the regression, the paper's) or, with
+    /// level channels, their levels' density under the component's level statistics (fuel's
+    /// level left out: the virtual sensor must not see fuel now) -- the same evidence the
+    /// pointer weighs, without fuel.
+    pub fn log_evidence_without_fuel(
+        &self,
+        i: usize,
+        y: &DVector<f64>,
+        conditional: &crate::regression::Conditional,
+    ) -> f64 {
+        let Some(data) = LevelData::of(&self.spec, y) else {
+            return conditional.log_density;
+        };
+        let level = &self.levels[i];
+        let pu = self.spec.parameter_uncertainty;
+        match self.spec.level_channels.iter().position(|&c| c == 0) {
+            None => level.log_proximity(&data.x, &data.psi, pu),
+            // Fuel among the levels: the marginal of the others (drop fuel's row and column).
+            Some(fuel) => {
+                let others: Vec<usize> = (0..data.x.len()).filter(|&k| k != fuel).collect();
+                level.log_marginal_density(&others, &data.x, &data.psi, pu)
+            }
+        }
+    }
+
     fn check_input(&self, input: &MixtureInput) -> Result<(), FuelError> {
         let bad = input.y.len() != self.spec.k_y
             || input.psi.len() != self.spec.k_psi
@@ -344,12 +417,22 @@ impl Mixture {
         // Steps 2-4: proximities of y_t, probabilities of z_t, alpha_k and w_{t-1}, in logs.
         let log_alpha = self.log_alpha_block(k);
         let mut log_joint = vec![0.0; m * m];
+        let x = LevelData::of(&self.spec, input.y);
         for i in 0..m {
             // The kept predictions serve the default proximity (same bits); the measured-data
             // density (off by default) is computed from the input.
-            let evidence = match self.spec.measured_channels {
-                Some(_) => proximity(&self.spec, &self.components[i], input),
-                None => self.components[i].log_proximity_at(input.y, &predictions[i]),
+            let evidence = match (&x, self.spec.measured_channels) {
+                (Some(x), _) => level_evidence(
+                    &self.components[i],
+                    &self.levels[i],
+                    input.y,
+                    &predictions[i],
+                    x,
+                    self.spec.level_channels.contains(&0),
+                    self.spec.parameter_uncertainty,
+                ),
+                (None, Some(_)) => proximity(&self.spec, &self.components[i], input),
+                (None, None) => self.components[i].log_proximity_at(input.y, &predictions[i]),
             } + self.log_category(i, input.category);
             for j in 0..m {
                 log_joint[i * m + j] = evidence + log_alpha[j * m + i] + self.log_w[j];
@@ -376,7 +459,25 @@ impl Mixture {
             let forget = (lambda < 1.0).then(|| (lambda.powf(w), &self.v0, self.spec.prior_kappa));
             comp.update(&d, w, forget)?;
         }
+        // The level statistics with the same weights and forgetting (a few numbers each).
+        let levels = match &x {
+            Some(x) => {
+                let level_v0 = level_v0(&self.spec);
+                let mut levels = self.levels.clone();
+                for (i, level) in levels.iter_mut().enumerate() {
+                    let w = log_w[i].exp();
+                    let forget =
+                        (lambda < 1.0).then(|| (lambda.powf(w), &level_v0, self.spec.prior_kappa));
+                    level.update(&x.d, w, forget)?;
+                }
+                Some(levels)
+            }
+            None => None,
+        };
         self.spare = std::mem::replace(&mut self.components, updated);
+        if let Some(levels) = levels {
+            self.levels = levels;
+        }
         if let Some((q, l)) = input.category {
             for (i, table) in self.categorical.iter_mut().enumerate() {
                 let w = log_w[i].exp();
@@ -428,8 +529,16 @@ impl Mixture {
             .iter()
             .map(|&l| (0..m).map(|i| if i == l { 1.0 } else { 0.0 }).collect())
             .collect();
-        let prior = mix.components[0].clone();
-        let fit = |resp: &[Vec<f64>], w: f64| -> Result<Vec<RegressionStats>, FuelError> {
+        // The level channels' data vectors `[x; 1]` (empty without them).
+        let xs: Vec<DVector<f64>> = data
+            .iter()
+            .filter_map(|x| LevelData::of(&mix.spec, x.y).map(|l| l.d))
+            .collect();
+        let fit = |prior: &RegressionStats,
+                   ds: &[DVector<f64>],
+                   resp: &[Vec<f64>],
+                   w: f64|
+         -> Result<Vec<RegressionStats>, FuelError> {
             (0..m)
                 .map(|i| {
                     let mut c = prior.clone();
@@ -441,14 +550,35 @@ impl Mixture {
                 })
                 .collect()
         };
+        let prior = mix.components[0].clone();
+        let level_prior = mix.levels.first().cloned();
+        let fit_levels = |resp: &[Vec<f64>], w: f64| match &level_prior {
+            Some(prior) => fit(prior, &xs, resp, w),
+            None => Ok(Vec::new()),
+        };
         for _ in 0..iterations {
-            let comps = fit(&resp, 1.0)?;
+            let comps = fit(&prior, &ds, &resp, 1.0)?;
+            let levels = fit_levels(&resp, 1.0)?;
             let log_pi: Vec<f64> = (0..m)
                 .map(|i| (resp.iter().map(|r| r[i]).sum::<f64>() + 1.0).ln())
                 .collect();
             for (input, r) in data.iter().zip(resp.iter_mut()) {
                 let mut l: Vec<f64> = (0..m)
-                    .map(|i| log_pi[i] + proximity(&mix.spec, &comps[i], input))
+                    .map(|i| {
+                        log_pi[i]
+                            + match LevelData::of(&mix.spec, input.y) {
+                                Some(x) => level_evidence(
+                                    &comps[i],
+                                    &levels[i],
+                                    input.y,
+                                    &comps[i].predict(input.psi, mix.spec.parameter_uncertainty),
+                                    &x,
+                                    mix.spec.level_channels.contains(&0),
+                                    mix.spec.parameter_uncertainty,
+                                ),
+                                None => proximity(&mix.spec, &comps[i], input),
+                            }
+                    })
                     .collect();
                 normalize_log_weights(&mut l)?;
                 for (ri, li) in r.iter_mut().zip(&l) {
@@ -456,7 +586,10 @@ impl Mixture {
                 }
             }
         }
-        mix.components = fit(&resp, weight)?;
+        mix.components = fit(&prior, &ds, &resp, weight)?;
+        if level_prior.is_some() {
+            mix.levels = fit_levels(&resp, weight)?;
+        }
         for (t, input) in data.iter().enumerate() {
             if let Some((q, l)) = input.category {
                 for (i, table) in mix.categorical.iter_mut().enumerate() {
@@ -511,6 +644,86 @@ fn proximity(spec: &MixtureSpec, c: &RegressionStats, input: &MixtureInput) -> f
         Some(m) => c.log_proximity_measured(input.y, input.psi, spec.parameter_uncertainty, m),
         None => c.log_proximity(input.y, input.psi, spec.parameter_uncertainty),
     }
+}
+
+/// One sample's data for the level statistics.
+struct LevelData {
+    /// The level channels (the outputs of the static model).
+    x: DVector<f64>,
+    /// Its regressor `[level regressors; 1]`.
+    psi: DVector<f64>,
+    /// `[x; psi]`, the data vector of the statistics.
+    d: DVector<f64>,
+}
+
+impl LevelData {
+    /// The level data of `y` (`None` without level channels).
+    fn of(spec: &MixtureSpec, y: &DVector<f64>) -> Option<Self> {
+        if spec.level_channels.is_empty() {
+            return None;
+        }
+        let pick = |idx: &[usize]| idx.iter().map(|&c| y[c]).collect::<Vec<_>>();
+        let x = DVector::from_vec(pick(&spec.level_channels));
+        let mut psi = pick(&spec.level_regressors);
+        psi.push(1.0);
+        let psi = DVector::from_vec(psi);
+        let d = concat(&x, &psi);
+        Some(LevelData { x, psi, d })
+    }
+}
+
+/// The prior information matrix of the level statistics, `prior_information I` over `[x; psi]`.
+fn level_v0(spec: &MixtureSpec) -> DMatrix<f64> {
+    let d = spec.level_channels.len() + spec.level_regressors.len() + 1;
+    DMatrix::identity(d, d) * spec.prior_information
+}
+
+/// A component's level statistics at the prior: a Gauss-inverse-Wishart regression of the
+/// level channels on `[level regressors; 1]` and no lags (with no regressors, `psi = [1]`:
+/// `theta` is the mean and `r` the covariance).
+fn level_prior(spec: &MixtureSpec) -> Result<RegressionStats, FuelError> {
+    RegressionStats::new(
+        spec.level_channels.len(),
+        level_v0(spec),
+        spec.prior_kappa,
+        spec.level_min_variance.max(spec.min_noise_variance),
+    )
+}
+
+/// The pointer's evidence for one component weighed by levels ([`MixtureSpec::level_channels`]),
+/// from its regression's `prediction` at `psi` and the level data.
+///
+/// By the chain rule, `ln f(y_t | psi_t, c) = ln f(y_1.. | psi_t, c) + ln f(y_0 | y_1.., psi_t,
+/// c)`: the fuel's conditional (the regression: fuel given every other channel now and the
+/// lags) plus the density of the other channels. Of those, the derived channels are functions
+/// of the speed now and `psi` (degenerate: a variance at the floor, docs/fuel.md), and with the
+/// speed lagged the speed's own density given `psi` does not say how fast the vehicle goes. So
+/// the second factor is replaced by `f(levels | c)`, the level channels under the component's
+/// static model (no lags): the levels are what tells a standing train from a coasting one. The
+/// same holds for the fuel: given its own lag any component predicts a steady fuel flow, so the
+/// regression's term cannot tell an idling engine from one under load once the level has held
+/// for a second. With the fuel among the levels its regression term is left out, so that each
+/// datum enters once: `ln f(fuel, levels | c)` alone (with the notch's term, the caller's).
+/// The approximation is `f(levels | psi, c) ~ f(levels | c)`: the lags' information about the
+/// levels is given up for the pointer (the regression keeps it for the forecasts and the
+/// virtual sensor).
+fn level_evidence(
+    comp: &RegressionStats,
+    level: &RegressionStats,
+    y: &DVector<f64>,
+    prediction: &Prediction,
+    data: &LevelData,
+    fuel_is_level: bool,
+    parameter_uncertainty: bool,
+) -> f64 {
+    // Fuel's level among the levels: its density there, not again through the regression.
+    let log_fuel = if fuel_is_level {
+        0.0
+    } else {
+        comp.condition_first_on_rest_at(prediction, &y.rows(1, comp.k_y() - 1).into_owned())
+            .log_density_of(y[0])
+    };
+    log_fuel + level.log_proximity(&data.x, &data.psi, parameter_uncertainty)
 }
 
 /// `[y; psi]`.

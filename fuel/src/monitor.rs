@@ -275,6 +275,9 @@ impl FuelMonitor {
             switching_prior_move: config.switching_prior_move,
             measured_channels: (config.measured_proximity && !derived.is_empty())
                 .then_some(channels.len()),
+            level_channels: config.pointer_level_indices()?,
+            level_regressors: config.pointer_level_regressor_indices()?,
+            level_min_variance: config.pointer_level_min_variance,
         };
         Ok(FuelMonitor {
             config: config.clone(),
@@ -361,7 +364,12 @@ impl FuelMonitor {
             let v = sample.checked(Channel::Speed, ranges)?;
             let dt = self.previous_time_s.map_or(1.0, |p| sample.time_s - p);
             let a = self.previous_speed_m_s.map_or(0.0, |p| (v - p) / dt);
-            y.extend(self.derived.iter().map(|d| d.value(v, a)));
+            let gradient = if self.derived.contains(&DerivedChannel::SpecificForce) {
+                sample.checked(Channel::Gradient, ranges)?
+            } else {
+                0.0
+            };
+            y.extend(self.derived.iter().map(|d| d.value(v, a, gradient)));
             (bin_index(&self.config.acceleration_bins_m_s2, a), Some(v))
         } else {
             (0, None)
@@ -509,8 +517,11 @@ impl FuelMonitor {
             self.config.init_weight,
         )?;
         let baseline = if self.config.forecast_blend && m > 1 {
+            // One component: its pointer is 1 whatever the evidence, so no level statistics.
             let spec = MixtureSpec {
                 components: 1,
+                level_channels: Vec::new(),
+                level_regressors: Vec::new(),
                 ..self.spec.clone()
             };
             let zeros = vec![0; labels.len()];
@@ -562,7 +573,9 @@ impl FuelMonitor {
         };
         for (i, comp) in mixture.components().iter().enumerate() {
             let c = comp.condition_first_on_rest_at(&predictions[i], &y_other);
-            log_v[i] = log_pred[i] + c.log_density + mixture.log_category(i, category);
+            log_v[i] = log_pred[i]
+                + mixture.log_evidence_without_fuel(i, &y, &c)
+                + mixture.log_category(i, category);
             cond.push(c);
         }
         normalize_log_weights(&mut log_v)?;
@@ -610,7 +623,15 @@ impl FuelMonitor {
         self.blend.observe(p.y[0], self.config.blend_forgetting);
         self.calibration.observe(0, &virtual_terms, p.y[0]);
         self.calibration.observe_forecasts(p.y[0]);
-        self.pending_forecast = self.blended_forecast();
+        let next = self.blended_forecast();
+        let old = std::mem::replace(&mut self.pending_forecast, next);
+        let spare = &mut self.forecast_work.spare_terms;
+        spare.extend(
+            old.terms
+                .into_iter()
+                .take(self.config.forecast_horizon_steps),
+        );
+        spare.truncate(self.config.forecast_horizon_steps);
         let previous = self.estimate.mixture.as_ref();
         self.active_streak = match self.active_streak {
             (regime, n) if regime == active => (regime, n + 1),
@@ -632,14 +653,24 @@ impl FuelMonitor {
             });
         let cumulative_virtual =
             previous.map_or(0.0, |e| e.cumulative_virtual_fuel_cm3) + virtual_sensor * dt;
+        // The forecast's copies in the buffers of the estimate this one replaces.
+        let (mut forecast_cm3_s, mut forecast_predictive) = match self.estimate.mixture.as_mut() {
+            Some(e) => (
+                std::mem::take(&mut e.forecast_cm3_s),
+                std::mem::take(&mut e.forecast_predictive),
+            ),
+            None => Default::default(),
+        };
+        forecast_cm3_s.clone_from(&self.pending_forecast.mean_cm3_s);
+        forecast_predictive.clone_from(&self.pending_forecast.terms);
         Ok(MixtureEstimate {
             zero_step_cm3_s: zero_step,
             one_step_forecast_cm3_s: one_step.unwrap_or(f64::NAN),
             one_step_predictive: one_step_terms.unwrap_or_default(),
             virtual_sensor_cm3_s: virtual_sensor,
             virtual_sensor_predictive: virtual_terms,
-            forecast_cm3_s: self.pending_forecast.mean_cm3_s.clone(),
-            forecast_predictive: self.pending_forecast.terms.clone(),
+            forecast_cm3_s,
+            forecast_predictive,
             regime_probabilities,
             active_regime: active,
             regime,
@@ -698,14 +729,32 @@ impl FuelMonitor {
         let Some(st) = self.standardiser.as_ref() else {
             return ForecastPath::default();
         };
-        let horizon = self.config.forecast_horizon_steps;
-        let m = mixture.spec().components;
         // Gear and constant (the regressor's tail) are known: the covariance lives on the
         // lagged channels alone.
         let uncertain = self.lagged.len() * self.config.regression_memory;
-        work.fit(m, self.spec.k_y, self.spec.k_psi, uncertain);
-        self.regressor_sources(&mut work.sources);
-        work.read_sets();
+        if work.dims != (self.spec.k_y, self.spec.k_psi, uncertain) {
+            *work = ForecastWork::new(self, uncertain);
+        }
+        work.fit(mixture.spec().components);
+        crate::kernel::with_size!(uncertain, |n| self
+            .forecast_path_sized(n, st, mixture, work))
+    }
+
+    /// [`Self::forecast_path`] with the size of the regressor's uncertain part, `n`, a
+    /// [`crate::kernel::Size`]: the recursion's loops over it are the step's innermost, and
+    /// with a compile-time bound the compiler unrolls them and drops their bounds checks.
+    fn forecast_path_sized<N: crate::kernel::Size>(
+        &self,
+        n: N,
+        st: &Standardiser,
+        mixture: &Mixture,
+        work: &mut ForecastWork,
+    ) -> ForecastPath {
+        use crate::kernel::{lower_times_norm_squared, nalgebra_dot, propagate_covariance};
+        let horizon = self.config.forecast_horizon_steps;
+        let m = mixture.spec().components;
+        let (k_psi, n2) = (self.spec.k_psi, n.get() * n.get());
+        let parameter_uncertainty = self.config.parameter_uncertainty;
         let ForecastWork {
             psi,
             sigma,
@@ -713,118 +762,133 @@ impl FuelMonitor {
             shifted_sigma,
             rows,
             mean,
+            psi_now,
             solve,
             sigma_theta,
             propagated,
-            c_yy,
+            deviation,
             p,
             log_p,
             levels,
             sources,
             y_read,
-            y_lagged,
             factor_inverse,
             covariance_from,
+            first_zeta,
+            spare_terms,
+            joint,
             ..
         } = work;
-        covariance_sources(sources, uncertain, self.spec.k_y, covariance_from);
-        if self.config.parameter_uncertainty && horizon > 1 {
+        if parameter_uncertainty && horizon > 1 {
             for (comp, l_inv) in mixture.components().iter().zip(factor_inverse.iter_mut()) {
                 comp.v_psi_factor_inverse_into(l_inv);
             }
         }
         // Given c_{t+h+1} = i: the regressor's mean and covariance, and log p(c_{t+h+1}).
-        let psi0 = self.regressor(&self.past);
-        for (psi_i, sigma_i) in psi.iter_mut().zip(sigma.iter_mut()).take(m) {
-            psi_i.copy_from(&psi0);
-            sigma_i.fill(0.0);
+        psi_now.copy_from(&self.regressor(&self.past));
+        for psi_i in psi.chunks_exact_mut(k_psi).take(m) {
+            psi_i.copy_from_slice(psi_now.as_slice());
+        }
+        sigma[..m * n2].fill(0.0);
+        // The first step's `zeta` of every component, `psi' V_psi^-1 psi` as `zeta_with`
+        // computes it (the next update's step reads it), the components' solves interleaved.
+        if parameter_uncertainty {
+            let solved = &mut first_zeta[..m * k_psi];
+            for x in solved.chunks_exact_mut(k_psi) {
+                x.copy_from_slice(psi_now.as_slice());
+            }
+            let factor = |c: usize| mixture.components()[c].v_psi_factor();
+            crate::kernel::with_size!(k_psi, |s| crate::kernel::cholesky_solve_each(
+                s, factor, solved
+            ));
         }
         levels.clear();
         levels.extend(self.past.fuel_levels.iter().copied());
         let acceleration_level = self.past.acceleration_level;
         let row = self.switching_row_of(levels.iter().copied(), acceleration_level);
         mixture.predict_pointer_from(mixture.log_weights(), row, &mut log_p[..m]);
+        for (p_i, l) in p.iter_mut().zip(log_p.iter()).take(m) {
+            *p_i = l.exp();
+        }
         let mut path = ForecastPath::with_capacity(horizon);
         for h in 0..horizon {
-            for (p_i, l) in p.iter_mut().zip(log_p.iter()).take(m) {
-                *p_i = l.exp();
-            }
             let last = h + 1 == horizon;
             // Only the fuel of the mixture's mean is used (its value and its level).
             let mut y0 = 0.0;
-            let mut terms = Vec::with_capacity(m);
+            let mut terms = spare_terms.pop().unwrap_or_default();
+            terms.clear();
             for (i, comp) in mixture.components().iter().enumerate() {
-                if h == 0 {
-                    comp.mean_into(&psi[i], mean);
-                } else {
-                    // Beyond the first step only fuel and the lagged channels of the mean
-                    // are read.
-                    for &u in y_read.iter() {
-                        mean[u] = comp.theta().column(u).dot(&psi[i].column(0));
-                    }
-                }
-                let inflate = match (self.config.parameter_uncertainty, h) {
-                    (false, _) => 1.0,
-                    // The next update's step reads this one: its own numbers.
-                    (true, 0) => 1.0 + comp.zeta_with(&psi[i], solve),
-                    (true, _) => {
-                        let (l_inv, k_psi) = (factor_inverse[i].as_slice(), psi[i].len());
-                        let (x, work) = (psi[i].as_slice(), solve.as_mut_slice());
-                        1.0 + crate::kernel::with_size!(k_psi, |s| {
-                            crate::kernel::lower_times_norm_squared(s, l_inv, x, work)
-                        })
-                    }
-                };
-                if h == 0 {
+                let (theta, r) = (comp.theta().as_slice(), comp.r().as_slice());
+                let psi_i = &psi[i * k_psi..(i + 1) * k_psi];
+                let sigma_i = &sigma[i * n2..(i + 1) * n2];
+                let inflate = if h == 0 {
                     // The next update's virtual sensor and step predict at this regressor
-                    // from these statistics.
+                    // from these statistics: their own operations (psi_i is psi_now).
+                    comp.mean_into(psi_now, mean);
+                    let inflate = match parameter_uncertainty {
+                        true => {
+                            let x = &first_zeta[i * k_psi..(i + 1) * k_psi];
+                            1.0 + nalgebra_dot(psi_now.as_slice(), x).max(0.0)
+                        }
+                        false => 1.0,
+                    };
                     path.first_predictions.push(crate::regression::Prediction {
                         mean: mean.clone(),
                         inflate,
                     });
-                }
-                if h > 0 {
+                    inflate
+                } else {
+                    // Beyond the first step only fuel and the lagged channels of the mean
+                    // are read.
+                    let mean = mean.as_mut_slice();
+                    for &u in y_read.iter() {
+                        mean[u] = nalgebra_dot(&theta[u * k_psi..(u + 1) * k_psi], psi_i);
+                    }
                     // Sigma theta and theta' Sigma theta: at the last step only the fuel
                     // element is read.
                     let read = if last { &[0][..] } else { &y_read[..] };
-                    let (theta, k_psi) = (comp.theta().as_slice(), comp.theta().nrows());
-                    let (sigma_i, sigma_theta) = (sigma[i].as_slice(), sigma_theta.as_mut_slice());
-                    crate::kernel::with_size!(sigma[i].nrows(), |s| {
-                        crate::kernel::propagate_covariance(
-                            s,
-                            theta,
-                            k_psi,
-                            sigma_i,
-                            read,
-                            sigma_theta,
-                            propagated,
-                        )
-                    });
-                }
-                let fuel_var =
-                    comp.r()[(0, 0)] * inflate + if h > 0 { propagated[(0, 0)] } else { 0.0 };
+                    propagate_covariance(n, theta, k_psi, sigma_i, read, sigma_theta, propagated);
+                    match parameter_uncertainty {
+                        true => {
+                            let (l_inv, work) =
+                                (factor_inverse[i].as_slice(), solve.as_mut_slice());
+                            1.0 + crate::kernel::with_size!(k_psi, |s| {
+                                lower_times_norm_squared(s, l_inv, psi_i, work)
+                            })
+                        }
+                        false => 1.0,
+                    }
+                };
+                let mean = mean.as_slice();
+                let fuel_var = r[0] * inflate + if h > 0 { propagated[0] } else { 0.0 };
                 terms.push(st.fuel_term(p[i], mean[0], fuel_var, comp.predictive_dof()));
                 y0 += mean[0] * p[i];
                 if !last {
-                    // The elements of Cov(y) and Cov(psi, y) the shift reads.
-                    for &v in y_lagged.iter() {
-                        for &u in y_lagged.iter() {
-                            c_yy[(u, v)] = comp.r()[(u, v)] * inflate
-                                + if h > 0 { propagated[(u, v)] } else { 0.0 };
-                        }
-                    }
+                    // The elements of Cov(y) the shift reads, computed where it reads them.
+                    let propagated = &propagated[..];
+                    let c_yy =
+                        |at: usize| r[at] * inflate + if h > 0 { propagated[at] } else { 0.0 };
                     if h == 0 {
                         // Sigma = 0: so is Cov(psi, y) = Sigma theta.
                         sigma_theta.fill(0.0);
                     }
                     let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(mean[0]));
-                    shift_regressor(sources, &psi[i], mean, &mut shifted_psi[i]);
+                    let shifted = &mut shifted_psi[i * k_psi..(i + 1) * k_psi];
+                    for ((out, source), psi_a) in shifted.iter_mut().zip(sources.iter()).zip(psi_i)
+                    {
+                        *out = match *source {
+                            Source::Y(u) => mean[u],
+                            Source::Psi(u) => psi_i[u],
+                            Source::Known => *psi_a,
+                        };
+                    }
                     shift_regressor_covariance(
+                        n,
                         covariance_from,
-                        &sigma[i],
+                        sigma_i,
                         sigma_theta,
                         c_yy,
-                        &mut shifted_sigma[i],
+                        &mut shifted_sigma[i * n2..(i + 1) * n2],
                     );
                     rows[i] = self.switching_row_of(
                         std::iter::once(level)
@@ -837,16 +901,20 @@ impl FuelMonitor {
             path.push(st.fuel(y0), terms);
             if !last {
                 mix_regressors(
+                    n,
                     mixture,
                     &p[..m],
-                    &shifted_psi[..m],
-                    &shifted_sigma[..m],
+                    k_psi,
+                    &shifted_psi[..m * k_psi],
+                    &shifted_sigma[..m * n2],
                     &rows[..m],
-                    &mut psi[..m],
-                    &mut sigma[..m],
+                    &mut psi[..m * k_psi],
+                    &mut sigma[..m * n2],
                     &mut log_p[..m],
-                    solve,
+                    &mut joint[..m],
+                    deviation,
                 );
+                p[..m].copy_from_slice(&log_p[..m]);
             }
             let level = bin_index(&self.config.fuel_bins_cm3_s, st.fuel(y0));
             levels.push_front(level);
@@ -975,27 +1043,33 @@ enum Source {
     Known,
 }
 
-/// The work space of [`FuelMonitor::forecast_path`]: per component (the first `m_c` used)
-/// the regressor's mean and covariance given the component, the same shifted by one step, the
-/// switching row at its forecast level; one component's mean, a `k_psi` vector (the mixing's
-/// deviations `d`, the solve of `zeta`), `Sigma theta` (which is also `Cov(psi, y)`),
-/// `theta' Sigma theta`, `Cov(y)`; the pointer; the forecast fuel levels; the sources of the
-/// shifted regressor. The covariances cover the regressor's uncertain part only, its lagged
-/// channels (the leading `uncertain` elements): gear and constant are known, their rows and
-/// columns zero. Not in snapshots (rebuilt on first use).
+/// The work space of [`FuelMonitor::forecast_path`], flat buffers sized once for the
+/// monitor's dimensions (`m_c` grows them): per component (the first `m_c` used, component
+/// `i` at `i * k_psi` and `i * n^2`) the regressor's mean and covariance given the component,
+/// the same shifted by one step, the switching row at its forecast level, `L^-1` of its
+/// `V_psi`; one component's mean, the regressor now, a `k_psi` vector (the solve of `zeta`),
+/// `Sigma theta` (which is also `Cov(psi, y)`, `n x k_y`), `theta' Sigma theta` (`k_y x
+/// k_y`), the mixing's deviation (`n`), the first step's solves; the pointer; the forecast
+/// fuel levels; the term lists of the replaced path; the
+/// sources of the shifted regressor and of its covariance. The covariances cover the
+/// regressor's uncertain part only, its lagged channels (the leading `n` elements): gear and
+/// constant are known, their rows and columns zero. Matrices column-major, the covariances
+/// whole (both triangles). Not in snapshots (rebuilt on first use).
 #[derive(Clone, Debug, Default)]
 struct ForecastWork {
+    /// `(k_y, k_psi, n)` the buffers are made for.
     dims: (usize, usize, usize),
-    psi: Vec<DVector<f64>>,
-    sigma: Vec<DMatrix<f64>>,
-    shifted_psi: Vec<DVector<f64>>,
-    shifted_sigma: Vec<DMatrix<f64>>,
+    psi: Vec<f64>,
+    sigma: Vec<f64>,
+    shifted_psi: Vec<f64>,
+    shifted_sigma: Vec<f64>,
     rows: Vec<usize>,
     mean: DVector<f64>,
+    psi_now: DVector<f64>,
     solve: DVector<f64>,
-    sigma_theta: DMatrix<f64>,
-    propagated: DMatrix<f64>,
-    c_yy: DMatrix<f64>,
+    sigma_theta: Vec<f64>,
+    propagated: Vec<f64>,
+    deviation: Vec<f64>,
     p: Vec<f64>,
     log_p: Vec<f64>,
     levels: VecDeque<usize>,
@@ -1008,134 +1082,131 @@ struct ForecastWork {
     factor_inverse: Vec<DMatrix<f64>>,
     /// The shift's gather of the covariance ([`covariance_sources`]).
     covariance_from: Vec<CovarianceSource>,
+    /// Per component the first step's solve `V_psi^-1 psi` (`k_psi` each).
+    first_zeta: Vec<f64>,
+    /// The term lists of the forecast path the last one replaced (buffers for the next).
+    spare_terms: Vec<Vec<StudentT>>,
+    /// The mixing's joint probabilities of one target component (`m_c`).
+    joint: Vec<f64>,
 }
 
 impl ForecastWork {
-    /// `y_read` and `y_lagged` from `sources`.
-    fn read_sets(&mut self) {
-        self.y_lagged.clear();
-        for source in &self.sources {
+    /// The work space for `monitor`'s sizes, `n` of its regressor's elements uncertain, for
+    /// no component yet ([`Self::fit`]).
+    fn new(monitor: &FuelMonitor, n: usize) -> Self {
+        let (k_y, k_psi) = (monitor.spec.k_y, monitor.spec.k_psi);
+        let mut work = ForecastWork {
+            dims: (k_y, k_psi, n),
+            mean: DVector::zeros(k_y),
+            psi_now: DVector::zeros(k_psi),
+            solve: DVector::zeros(k_psi),
+            sigma_theta: vec![0.0; n * k_y],
+            propagated: vec![0.0; k_y * k_y],
+            deviation: vec![0.0; n],
+            ..ForecastWork::default()
+        };
+        monitor.regressor_sources(&mut work.sources);
+        for source in &work.sources {
             if let Source::Y(u) = *source {
-                self.y_lagged.push(u);
+                work.y_lagged.push(u);
             }
         }
-        self.y_lagged.sort_unstable();
-        self.y_lagged.dedup();
-        self.y_read.clear();
-        self.y_read.push(0);
-        self.y_read.extend(self.y_lagged.iter().copied());
-        self.y_read.sort_unstable();
-        self.y_read.dedup();
+        work.y_lagged.sort_unstable();
+        work.y_lagged.dedup();
+        work.y_read.push(0);
+        work.y_read.extend(work.y_lagged.iter().copied());
+        work.y_read.sort_unstable();
+        work.y_read.dedup();
+        covariance_sources(&work.sources, n, k_y, &mut work.covariance_from);
+        work
     }
 
-    /// Room for `m` components of `k_y` channels and `k_psi` regressors, `uncertain` of them
-    /// with a covariance (allocates only when they grow or change).
-    fn fit(&mut self, m: usize, k_y: usize, k_psi: usize, uncertain: usize) {
-        if self.dims != (k_y, k_psi, uncertain) {
-            *self = ForecastWork {
-                dims: (k_y, k_psi, uncertain),
-                mean: DVector::zeros(k_y),
-                solve: DVector::zeros(k_psi),
-                sigma_theta: DMatrix::zeros(uncertain, k_y),
-                propagated: DMatrix::zeros(k_y, k_y),
-                c_yy: DMatrix::zeros(k_y, k_y),
-                ..ForecastWork::default()
-            };
-        }
-        if self.psi.len() < m {
-            self.psi.resize(m, DVector::zeros(k_psi));
-            self.sigma.resize(m, DMatrix::zeros(uncertain, uncertain));
-            self.shifted_psi.resize(m, DVector::zeros(k_psi));
-            self.shifted_sigma
-                .resize(m, DMatrix::zeros(uncertain, uncertain));
+    /// Room for `m` components (allocates only when `m` grows).
+    fn fit(&mut self, m: usize) {
+        let (_, k_psi, n) = self.dims;
+        if self.rows.len() < m {
+            self.psi.resize(m * k_psi, 0.0);
+            self.first_zeta.resize(m * k_psi, 0.0);
+            self.sigma.resize(m * n * n, 0.0);
+            self.shifted_psi.resize(m * k_psi, 0.0);
+            self.shifted_sigma.resize(m * n * n, 0.0);
             self.factor_inverse.resize(m, DMatrix::zeros(k_psi, k_psi));
             self.rows.resize(m, 0);
             self.p.resize(m, 0.0);
             self.log_p.resize(m, 0.0);
+            self.joint.resize(m, 0.0);
         }
     }
 }
 
 /// The interacting-multiple-model mixing step of [`FuelMonitor::forecast_path`]: from `p_j =
-/// p(c_{t+h} = j)` and each component's shifted regressor (mean, covariance, switching row at
-/// its level), the pointer `p_i' = sum_j alpha_{i|j,k_j} p_j` (written as logs into `log_p`)
-/// and each component's regressor given `c_{t+h+1} = i` (written into `psi`, `sigma`).
+/// p(c_{t+h} = j)` and each component's shifted regressor (mean, `k_psi` each, covariance,
+/// `n x n` each, switching row at its level), the pointer `p_i' = sum_j alpha_{i|j,k_j} p_j`
+/// (normalised, written into `p_next`) and each component's regressor given `c_{t+h+1} = i`
+/// (written into `psi`, `sigma`). `joint` (`m_c`) and `d` (`n`): scratch. The pointer is normalised
+/// as probabilities, `p_i' / sum p'`, not through logarithms (`ln`, log-sum-exp, `exp`: four
+/// transcendental calls per component and step, a tenth of the monitor's step once the
+/// rest was lean); it differs from that by rounding and is not read by the mixture's step.
 #[allow(clippy::too_many_arguments)]
-fn mix_regressors(
+fn mix_regressors<N: crate::kernel::Size>(
+    n: N,
     mixture: &Mixture,
     p: &[f64],
-    shifted_psi: &[DVector<f64>],
-    shifted_sigma: &[DMatrix<f64>],
+    k_psi: usize,
+    shifted_psi: &[f64],
+    shifted_sigma: &[f64],
     rows: &[usize],
-    psi: &mut [DVector<f64>],
-    sigma: &mut [DMatrix<f64>],
-    log_p: &mut [f64],
-    d: &mut DVector<f64>,
+    psi: &mut [f64],
+    sigma: &mut [f64],
+    p_next: &mut [f64],
+    joint: &mut [f64],
+    d: &mut [f64],
 ) {
-    let m = p.len();
-    crate::mixture::with_scratch(m, |joint| {
-        for i in 0..m {
-            // Unnormalised P(c_{t+h} = j, c_{t+h+1} = i).
-            for (j, x) in joint.iter_mut().enumerate() {
-                *x = mixture.alpha(rows[j], j, i) * p[j];
-            }
-            let total: f64 = joint.iter().sum();
-            // A component no path reaches keeps the pointer's mix (its weight is ~0 anyway).
-            let reached = total > 0.0 && total.is_finite();
-            let mu = |j: usize| if reached { joint[j] / total } else { p[j] };
-            let mean = psi[i].as_mut_slice();
-            mean.fill(0.0);
-            for (j, s) in shifted_psi.iter().enumerate() {
-                let mu_j = mu(j);
-                for (a, b) in mean.iter_mut().zip(s.iter()) {
-                    *a += b * mu_j;
-                }
-            }
-            // cov += (c + d d') mu_j, d = s - mean, on the uncertain block, the lower
-            // triangle (c is symmetric), mirrored after.
-            let n = sigma[i].nrows();
-            let cov = sigma[i].as_mut_slice();
-            cov.fill(0.0);
-            for (j, (s, c)) in shifted_psi.iter().zip(shifted_sigma).enumerate() {
-                let mu_j = mu(j);
-                let d = &mut d.as_mut_slice()[..n];
-                for ((d, s), mean) in d.iter_mut().zip(s.iter()).zip(mean.iter()) {
-                    *d = s - mean;
-                }
-                crate::kernel::with_size!(n, |size| crate::kernel::add_spread_lower(
-                    size,
-                    cov,
-                    c.as_slice(),
-                    d,
-                    mu_j
-                ));
-            }
-            crate::kernel::with_size!(n, |size| crate::kernel::mirror_lower(size, cov));
-            log_p[i] = total.ln();
+    let joint = &mut joint[..p.len()];
+    let n2 = n.get() * n.get();
+    let d = &mut d[..n.get()];
+    for (i, (mean, cov)) in psi
+        .chunks_exact_mut(k_psi)
+        .zip(sigma.chunks_exact_mut(n2))
+        .enumerate()
+    {
+        // Unnormalised P(c_{t+h} = j, c_{t+h+1} = i).
+        for (j, x) in joint.iter_mut().enumerate() {
+            *x = mixture.alpha(rows[j], j, i) * p[j];
         }
-    });
-    if normalize_log_weights(log_p).is_err() {
-        // No path reaches any component (cannot happen with a proper switching table).
-        for (l, x) in log_p.iter_mut().zip(p) {
-            *l = x.ln();
+        let total: f64 = joint.iter().sum();
+        // A component no path reaches keeps the pointer's mix (its weight is ~0 anyway).
+        let reached = total > 0.0 && total.is_finite();
+        let mu = |j: usize| if reached { joint[j] / total } else { p[j] };
+        mean.fill(0.0);
+        for (j, s) in shifted_psi.chunks_exact(k_psi).enumerate() {
+            let mu_j = mu(j);
+            for (a, b) in mean.iter_mut().zip(s) {
+                *a += b * mu_j;
+            }
         }
+        // cov += (c + d d') mu_j, d = s - mean, on the uncertain block, the lower
+        // triangle (c is symmetric), mirrored after.
+        cov.fill(0.0);
+        for (j, (s, c)) in shifted_psi
+            .chunks_exact(k_psi)
+            .zip(shifted_sigma.chunks_exact(n2))
+            .enumerate()
+        {
+            let mu_j = mu(j);
+            for ((d, s), mean) in d.iter_mut().zip(s).zip(mean.iter()) {
+                *d = s - mean;
+            }
+            crate::kernel::add_spread_lower(n, cov, c, d, mu_j);
+        }
+        crate::kernel::mirror_lower(n, cov);
+        p_next[i] = total;
     }
-}
-
-/// The next forecast regressor's mean into `out`: `y`'s lagged channels in the newest lag, the
-/// older lags shifted, gear and constant as they are.
-fn shift_regressor(
-    sources: &[Source],
-    psi: &DVector<f64>,
-    y: &DVector<f64>,
-    out: &mut DVector<f64>,
-) {
-    for (a, source) in sources.iter().enumerate() {
-        out[a] = match *source {
-            Source::Y(u) => y[u],
-            Source::Psi(u) => psi[u],
-            Source::Known => psi[a],
-        };
+    let total: f64 = p_next.iter().sum();
+    match total > 0.0 && total.is_finite() {
+        true => p_next.iter_mut().for_each(|x| *x /= total),
+        // No path reaches any component (cannot happen with a proper switching table).
+        false => p_next.copy_from_slice(p),
     }
 }
 
@@ -1169,31 +1240,32 @@ fn covariance_sources(sources: &[Source], n: usize, k_y: usize, out: &mut Vec<Co
     }
 }
 
-/// Covariance of the next forecast regressor `psi'` into `out` (its uncertain part, `out`'s
-/// size), from that of `psi`, `Cov(psi, y)` and `Cov(y)` by the gather `from`
-/// ([`covariance_sources`]), the lower triangle mirrored.
-fn shift_regressor_covariance(
+/// Covariance of the next forecast regressor `psi'` into `out` (its uncertain part, `n x n`),
+/// from that of `psi`, `Cov(psi, y)` and `Cov(y)` (`c_yy(v k_y + u)`, column-major) by the
+/// gather `from` ([`covariance_sources`]), the lower triangle mirrored.
+#[inline(always)]
+fn shift_regressor_covariance<N: crate::kernel::Size>(
+    n: N,
     from: &[CovarianceSource],
-    sigma_psi: &DMatrix<f64>,
-    c_psi_y: &DMatrix<f64>,
-    c_yy: &DMatrix<f64>,
-    out: &mut DMatrix<f64>,
+    sigma_psi: &[f64],
+    c_psi_y: &[f64],
+    c_yy: impl Fn(usize) -> f64,
+    out: &mut [f64],
 ) {
-    let n = out.nrows();
-    let (sigma_psi, c_psi_y, c_yy) = (sigma_psi.as_slice(), c_psi_y.as_slice(), c_yy.as_slice());
-    let out = out.as_mut_slice();
+    let nn = n.get();
+    let out = &mut out[..nn * nn];
     let mut from = from.iter();
-    for b in 0..n {
-        for a in b..n {
-            out[b * n + a] = match from.next() {
-                Some(CovarianceSource::Y(x)) => c_yy[*x],
+    for b in 0..nn {
+        for a in b..nn {
+            out[b * nn + a] = match from.next() {
+                Some(CovarianceSource::Y(x)) => c_yy(*x),
                 Some(CovarianceSource::PsiY(x)) => c_psi_y[*x],
                 Some(CovarianceSource::Psi(x)) => sigma_psi[*x],
                 Some(CovarianceSource::Zero) | None => 0.0,
             };
         }
     }
-    crate::kernel::with_size!(n, |size| crate::kernel::mirror_lower(size, out));
+    crate::kernel::mirror_lower(n, out);
 }
 
 /// One-sided 95 % point of the standard normal: the blend gives the mixture the lower end of

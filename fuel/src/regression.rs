@@ -11,6 +11,10 @@
 use nalgebra::{Cholesky, DMatrix, DMatrixView, DVector, SymmetricEigen};
 use railmon_filter::kalman::LN_2PI;
 
+use crate::kernel::{
+    cholesky_in_place, cholesky_solve_in_place, gemm_is_nalgebras, lower_solve_in_place,
+    nalgebra_dot, small_product, with_size,
+};
 use crate::FuelError;
 
 /// GiW statistics of one component and the point estimates derived from them.
@@ -165,9 +169,11 @@ impl RegressionStats {
         let k = self.k_y;
         let p = self.k_psi();
         // Keep V exactly symmetric: syger writes the lower triangle only.
-        for i in 0..k + p {
-            for j in (i + 1)..k + p {
-                self.v[(i, j)] = self.v[(j, i)];
+        let d = k + p;
+        let v = self.v.as_mut_slice();
+        for j in 0..d {
+            for i in (j + 1)..d {
+                v[i * d + j] = v[j * d + i];
             }
         }
         // Views of V; every result in a buffer of an earlier recompute (`Scratch`), filled by
@@ -175,22 +181,45 @@ impl RegressionStats {
         let v_psiy = self.v.view((k, 0), (p, k));
         let v_psi = self.v.view((k, k), (p, p));
         let mut factor = self.scratch.take(|s| &mut s.v_psi_factor, p, p);
-        factor.copy_from(&v_psi);
+        // The blocks of V copied column by column (nalgebra's strided copy, the same numbers).
+        let v = self.v.as_slice();
+        for (b, column) in factor.as_mut_slice().chunks_exact_mut(p).enumerate() {
+            column.copy_from_slice(&v[(k + b) * d + k..(k + b + 1) * d]);
+        }
         let chol = cholesky_with_jitter(v_psi, factor)
             .ok_or(FuelError::Numerical("V_psi not positive definite"))?;
         let mut theta = self.scratch.take(|s| &mut s.theta, p, k);
-        theta.copy_from(&v_psiy);
-        chol.solve_mut(&mut theta);
+        for (j, column) in theta.as_mut_slice().chunks_exact_mut(p).enumerate() {
+            column.copy_from_slice(&v[j * d + k..(j + 1) * d]);
+        }
+        let l = chol.l_dirty().as_slice();
+        with_size!(p, |s| cholesky_solve_in_place(s, l, theta.as_mut_slice()));
         // r = (V_yy - V_psiy' theta) / kappa, element by element in the product's storage.
         let kappa = self.kappa.max(f64::MIN_POSITIVE);
-        let mut v_psiy_t = self.scratch.take(|s| &mut s.v_psiy_t, k, p);
-        v_psiy.transpose_to(&mut v_psiy_t);
         let mut r = self.scratch.take(|s| &mut s.r, k, k);
-        v_psiy_t.mul_to(&theta, &mut r);
-        self.scratch.v_psiy_t = Some(v_psiy_t);
-        r.zip_apply(&self.v.view((0, 0), (k, k)), |x, v_yy| {
-            *x = (v_yy - *x) / kappa
-        });
+        if !gemm_is_nalgebras(k, p, k) {
+            // nalgebra's product of these sizes is `matrixmultiply`'s (its own order).
+            let mut v_psiy_t = self.scratch.take(|s| &mut s.v_psiy_t, k, p);
+            v_psiy.transpose_to(&mut v_psiy_t);
+            v_psiy_t.mul_to(&theta, &mut r);
+            self.scratch.v_psiy_t = Some(v_psiy_t);
+        } else {
+            // The same product, V_psiy' read from V.
+            let (v, t) = (self.v.as_slice(), theta.as_slice());
+            small_product(
+                k,
+                p,
+                k,
+                |i, a| v[i * d + k + a],
+                |a, j| t[j * p + a],
+                r.as_mut_slice(),
+            );
+        }
+        for (j, column) in r.as_mut_slice().chunks_exact_mut(k).enumerate() {
+            for (x, v_yy) in column.iter_mut().zip(&v[j * d..j * d + k]) {
+                *x = (v_yy - *x) / kappa;
+            }
+        }
         // Floor the eigenvalues at `min_variance`: rounding in V_yy - V_psiy' theta (a
         // difference of two large, nearly equal numbers after 10^6 steps) can leave r
         // indefinite. Fast path: `r - floor I` positive definite means no eigenvalue is below
@@ -199,17 +228,13 @@ impl RegressionStats {
         let above_floor = r.iter().all(|v| v.is_finite()) && {
             // r - floor I, in one copy of r.
             let mut shifted = self.scratch.take(|s| &mut s.shifted, k, k);
-            shifted.copy_from(&r);
-            for i in 0..self.k_y {
-                shifted[(i, i)] -= self.min_variance;
+            shifted.as_mut_slice().copy_from_slice(r.as_slice());
+            for i in 0..k {
+                shifted.as_mut_slice()[i * k + i] -= self.min_variance;
             }
-            match Cholesky::new(shifted) {
-                Some(c) => {
-                    self.scratch.shifted = Some(c.unpack_dirty());
-                    true
-                }
-                None => false,
-            }
+            let positive = with_size!(k, |s| cholesky_in_place(s, shifted.as_mut_slice()));
+            self.scratch.shifted = Some(shifted);
+            positive
         };
         if !above_floor {
             let eig = SymmetricEigen::new(r);
@@ -220,11 +245,36 @@ impl RegressionStats {
                     self.min_variance
                 }
             });
-            r = &eig.eigenvectors * DMatrix::from_diagonal(&vals) * eig.eigenvectors.transpose();
+            if gemm_is_nalgebras(k, k, k) {
+                // Q diag(vals) Q', as nalgebra's two products compute it (zeros included),
+                // in r's own storage and the scratch's.
+                let q = eig.eigenvectors.as_slice();
+                let mut scaled = self.scratch.take(|s| &mut s.shifted, k, k);
+                let mut product = self.scratch.take(|s| &mut s.r_factor, k, k);
+                let diagonal = |a: usize, j: usize| if a == j { vals[a] } else { 0.0 };
+                small_product(
+                    k,
+                    k,
+                    k,
+                    |i, a| q[a * k + i],
+                    diagonal,
+                    scaled.as_mut_slice(),
+                );
+                let qd = scaled.as_slice();
+                let q_t = |a: usize, j: usize| q[a * k + j];
+                small_product(k, k, k, |i, a| qd[a * k + i], q_t, product.as_mut_slice());
+                r = product;
+                self.scratch.shifted = Some(scaled);
+                self.scratch.r_factor = Some(eig.eigenvectors);
+            } else {
+                r = &eig.eigenvectors
+                    * DMatrix::from_diagonal(&vals)
+                    * eig.eigenvectors.transpose();
+            }
             symmetrise(&mut r);
         }
         let mut r_factor = self.scratch.take(|s| &mut s.r_factor, k, k);
-        r_factor.copy_from(&r);
+        r_factor.as_mut_slice().copy_from_slice(r.as_slice());
         let r_chol = cholesky_with_jitter(r.as_view(), r_factor).ok_or(FuelError::Numerical(
             "noise covariance not positive definite",
         ))?;
@@ -266,8 +316,16 @@ impl RegressionStats {
     /// numbers).
     pub fn zeta_with(&self, psi: &DVector<f64>, work: &mut DVector<f64>) -> f64 {
         work.copy_from(psi);
-        self.v_psi_chol.solve_mut(work);
+        let (l, n) = (self.v_psi_chol.l_dirty().as_slice(), psi.len());
+        with_size!(n, |s| cholesky_solve_in_place(s, l, work.as_mut_slice()));
         psi.dot(work).max(0.0)
+    }
+
+    /// The lower Cholesky factor `L` of `V_psi` (`V_psi = L L'`), column-major, its lower
+    /// triangle (the upper holds other numbers): the forecast solves with the factors of all
+    /// components at once ([`crate::kernel::cholesky_solve_each`]), as [`Self::zeta_with`].
+    pub(crate) fn v_psi_factor(&self) -> &[f64] {
+        self.v_psi_chol.l_dirty().as_slice()
     }
 
     /// `L^-1`, `L` the lower Cholesky factor of `V_psi` (`V_psi = L L'`), written into `out`
@@ -318,7 +376,14 @@ impl RegressionStats {
     pub fn log_proximity_at(&self, y: &DVector<f64>, prediction: &Prediction) -> f64 {
         let e = y - &prediction.mean;
         let inflate = prediction.inflate;
-        let q = e.dot(&self.r_chol.solve(&e)) / inflate;
+        let mut solved = e.clone();
+        let l = self.r_chol.l_dirty().as_slice();
+        with_size!(self.k_y, |s| cholesky_solve_in_place(
+            s,
+            l,
+            solved.as_mut_slice()
+        ));
+        let q = e.dot(&solved) / inflate;
         let k = self.k_y as f64;
         -0.5 * (k * LN_2PI + self.r_log_det + k * inflate.ln() + q)
     }
@@ -346,9 +411,9 @@ impl RegressionStats {
             return self.log_proximity(y, psi, parameter_uncertainty);
         }
         let y_other = y.rows(1, k - 1).into_owned();
-        let fuel = self.condition_first_on_rest(psi, &y_other, parameter_uncertainty);
-        let e0 = y[0] - fuel.mean;
-        let log_fuel = -0.5 * (LN_2PI + fuel.variance.ln() + e0 * e0 / fuel.variance);
+        let log_fuel = self
+            .condition_first_on_rest(psi, &y_other, parameter_uncertainty)
+            .log_density_of(y[0]);
         let others = measured.clamp(1, k) - 1;
         if others == 0 {
             return log_fuel;
@@ -360,12 +425,26 @@ impl RegressionStats {
         };
         let r_mm = self.r.view((1, 1), (others, others)).into_owned() * inflate;
         let e = y.rows(1, others) - self.mean(psi).rows(1, others);
-        let Some(chol) = Cholesky::new(r_mm) else {
-            // Cannot happen: a principal block of an SPD matrix is SPD.
-            return log_fuel;
-        };
-        let log_det: f64 = chol.l().diagonal().iter().map(|l| 2.0 * l.ln()).sum();
-        log_fuel - 0.5 * (others as f64 * LN_2PI + log_det + e.dot(&chol.solve(&e)))
+        log_fuel + gaussian_log_density(r_mm, &e.into_owned())
+    }
+
+    /// Log-density of channels `channels` of `y` (`y` of length `k_y`, the others ignored)
+    /// under the marginal of the component's predictive Gaussian at `psi`: the principal
+    /// block of `N(theta' psi, r (1 + zeta))` (`1 + zeta` with `parameter_uncertainty`).
+    pub fn log_marginal_density(
+        &self,
+        channels: &[usize],
+        y: &DVector<f64>,
+        psi: &DVector<f64>,
+        parameter_uncertainty: bool,
+    ) -> f64 {
+        let prediction = self.predict(psi, parameter_uncertainty);
+        let n = channels.len();
+        let r = DMatrix::from_fn(n, n, |a, b| {
+            self.r[(channels[a], channels[b])] * prediction.inflate
+        });
+        let e = DVector::from_fn(n, |a, _| y[channels[a]] - prediction.mean[channels[a]]);
+        gaussian_log_density(r, &e)
     }
 
     /// Degrees of freedom of the Student-t predictive of one channel: `kappa - k_y + 1` (the
@@ -409,24 +488,49 @@ impl RegressionStats {
         // r_fo r_oo^-1 e = w.z does not depend on it, the Schur complement is
         // s (r_ff - w.w), e' (s r_oo)^-1 e = z.z / s and ln det(s r_oo) = ln det r_oo +
         // (k - 1) ln s. Two triangular solves on r's own block (no copies scaled by s).
-        let Some(chol) = Cholesky::new(self.r.view((1, 1), (k - 1, k - 1)).into_owned()) else {
+        // nalgebra's Cholesky factor, solves and dot products on flat storage (the same
+        // bits), on the stack up to 12 other channels: the virtual sensor asks at every step.
+        let o = k - 1;
+        let mut stack = [0.0; 12 * 14];
+        let mut heap = Vec::new();
+        let work: &mut [f64] = match stack.get_mut(..o * (o + 2)) {
+            Some(w) => w,
+            None => {
+                heap.resize(o * (o + 2), 0.0);
+                &mut heap
+            }
+        };
+        let (l, zw) = work.split_at_mut(o * o);
+        let r = self.r.as_slice();
+        for (b, column) in l.chunks_exact_mut(o).enumerate() {
+            column.copy_from_slice(&r[(b + 1) * k + 1..(b + 2) * k]);
+        }
+        if !with_size!(o, |s| cholesky_in_place(s, l)) {
             // Cannot happen: a principal block of an SPD matrix is SPD. Fall back to the mean.
             return unconditional;
-        };
-        let l = chol.l_dirty();
-        let mut z = y_other - mean.rows(1, k - 1);
-        let mut w = self.r.view((1, 0), (k - 1, 1)).into_owned();
-        l.solve_lower_triangular_mut(&mut z);
-        l.solve_lower_triangular_mut(&mut w);
-        let log_det: f64 = l.diagonal().iter().map(|l| 2.0 * l.ln()).sum();
-        let others = (k - 1) as f64;
+        }
+        let (z, w) = zw.split_at_mut(o);
+        for ((z, y), m) in z.iter_mut().zip(y_other.iter()).zip(&mean.as_slice()[1..]) {
+            *z = y - m;
+        }
+        w.copy_from_slice(&r[1..k]);
+        with_size!(o, |s| {
+            lower_solve_in_place(s, l, z);
+            lower_solve_in_place(s, l, w);
+        });
+        let log_det: f64 = (0..o).map(|i| 2.0 * l[i * o + i].ln()).sum();
+        let others = o as f64;
+        let (z, w) = (&*z, &*w);
         Conditional {
-            mean: mean[0] + w.dot(&z),
+            mean: mean[0] + nalgebra_dot(w, z),
             // Positive as r is PD (floored); the floor guards rounding.
-            variance: (unconditional.variance - w.norm_squared() * inflate)
+            variance: (unconditional.variance - (0.0 + nalgebra_dot(w, w)) * inflate)
                 .max(self.min_variance * inflate),
             log_density: -0.5
-                * (others * LN_2PI + log_det + others * inflate.ln() + z.norm_squared() / inflate),
+                * (others * LN_2PI
+                    + log_det
+                    + others * inflate.ln()
+                    + (0.0 + nalgebra_dot(z, z)) / inflate),
         }
     }
 }
@@ -450,14 +554,36 @@ pub struct Conditional {
     pub log_density: f64,
 }
 
+impl Conditional {
+    /// `ln N(y_0; mean, variance)`: the log-density of the first channel's value `y0` under
+    /// this conditional.
+    pub fn log_density_of(&self, y0: f64) -> f64 {
+        let e = y0 - self.mean;
+        -0.5 * (LN_2PI + self.variance.ln() + e * e / self.variance)
+    }
+}
+
+/// `ln N(e; 0, r)` for a covariance `r` (a principal block of an SPD matrix: SPD; should its
+/// factorisation fail all the same, the density is 0, `-inf`).
+fn gaussian_log_density(r: DMatrix<f64>, e: &DVector<f64>) -> f64 {
+    let n = e.len() as f64;
+    let Some(chol) = Cholesky::new(r) else {
+        return f64::NEG_INFINITY;
+    };
+    let log_det: f64 = chol.l().diagonal().iter().map(|l| 2.0 * l.ln()).sum();
+    -0.5 * (n * LN_2PI + log_det + e.dot(&chol.solve(e)))
+}
+
 /// `m <- (m + m') / 2` in place (each element as `(m_ij + m_ji) * 0.5`, the diagonal too: the
 /// same numbers as the expression, without its two temporaries).
 fn symmetrise(m: &mut DMatrix<f64>) {
-    for i in 0..m.nrows() {
-        for j in i..m.ncols() {
-            let s = (m[(i, j)] + m[(j, i)]) * 0.5;
-            m[(i, j)] = s;
-            m[(j, i)] = s;
+    let n = m.nrows().min(m.ncols());
+    let m = &mut m.as_mut_slice()[..n * n];
+    for i in 0..n {
+        for j in i..n {
+            let s = (m[j * n + i] + m[i * n + j]) * 0.5;
+            m[j * n + i] = s;
+            m[i * n + j] = s;
         }
     }
 }
@@ -470,10 +596,11 @@ fn symmetrise(m: &mut DMatrix<f64>) {
 /// fails).
 fn cholesky_with_jitter(
     m: DMatrixView<f64>,
-    copy: DMatrix<f64>,
+    mut copy: DMatrix<f64>,
 ) -> Option<Cholesky<f64, nalgebra::Dyn>> {
-    if let Some(c) = Cholesky::new(copy) {
-        return Some(c);
+    // nalgebra's `Cholesky::new(copy)`, on flat storage (the same bits).
+    if with_size!(copy.nrows(), |s| cholesky_in_place(s, copy.as_mut_slice())) {
+        return Some(Cholesky::pack_dirty(copy));
     }
     let scale = m.diagonal().iter().fold(0.0f64, |a, d| a.max(d.abs()));
     if !scale.is_finite() {
@@ -530,6 +657,32 @@ mod tests {
             };
             assert_eq!(bits(&spare), bits(&copy));
             std::mem::swap(&mut source, &mut spare);
+        }
+    }
+
+    /// The point estimates on flat storage are nalgebra's (`Cholesky::new`, `solve_mut`,
+    /// `transpose_to` and `mul_to`) to the bit, at sizes below and above nalgebra's switch to
+    /// `matrixmultiply` (`k_y` and `k_psi` both above 5).
+    #[test]
+    fn point_estimates_are_nalgebras_to_the_bit() {
+        for (k, p) in [(1, 1), (2, 3), (5, 7), (5, 12), (6, 5), (6, 7), (4, 13)] {
+            let d = k + p;
+            let half = DMatrix::from_fn(d, d + 3, |i, j| ((i * 29 + j * 13) as f64 + 0.2).sin());
+            let v = &half * half.transpose() + DMatrix::from_diagonal_element(d, d, 0.5);
+            let kappa = 7.0;
+            let s = RegressionStats::new(k, v.clone(), kappa, 1e-9).unwrap();
+            let chol = Cholesky::new(v.view((k, k), (p, p)).into_owned()).unwrap();
+            let mut theta = v.view((k, 0), (p, k)).into_owned();
+            chol.solve_mut(&mut theta);
+            let mut v_psiy_t = DMatrix::zeros(k, p);
+            v.view((k, 0), (p, k)).transpose_to(&mut v_psiy_t);
+            let mut r = DMatrix::zeros(k, k);
+            v_psiy_t.mul_to(&theta, &mut r);
+            r.zip_apply(&v.view((0, 0), (k, k)), |x, v_yy| *x = (v_yy - *x) / kappa);
+            symmetrise(&mut r);
+            assert_eq!(s.theta(), &theta, "{k} {p}");
+            assert_eq!(s.r(), &r, "{k} {p}");
+            assert_eq!(s.v_psi_chol.l_dirty(), chol.l_dirty(), "{k} {p}");
         }
     }
 

@@ -130,7 +130,15 @@ pub enum DerivedChannel {
     SpeedSquared,
     /// `v_t^3`, m^3/s^3: aerodynamic power per unit drag.
     SpeedCubed,
+    /// `a_t + g i_t / 1000`, m/s^2, `i_t` the gradient (per mille, from the sample's gradient
+    /// channel): the acceleration net of the grade, the specific force the engine and brakes
+    /// (with the rolling resistance) act with. A coasting train speeds up downhill and slows
+    /// uphill by its grade; net of it, it slows by its running resistance only.
+    SpecificForce,
 }
+
+/// Standard gravity, m/s^2 (the grade's share of the specific force).
+pub const STANDARD_GRAVITY_M_S2: f64 = 9.80665;
 
 impl DerivedChannel {
     pub fn name(self) -> &'static str {
@@ -139,16 +147,19 @@ impl DerivedChannel {
             DerivedChannel::PowerDemand => "power_demand",
             DerivedChannel::SpeedSquared => "speed_squared",
             DerivedChannel::SpeedCubed => "speed_cubed",
+            DerivedChannel::SpecificForce => "specific_force",
         }
     }
 
     /// The value from speed `v` (m/s) and acceleration `a` (m/s^2).
-    pub fn value(self, v: f64, a: f64) -> f64 {
+    /// (`gradient_permille` for [`DerivedChannel::SpecificForce`], ignored by the others).
+    pub fn value(self, v: f64, a: f64, gradient_permille: f64) -> f64 {
         match self {
             DerivedChannel::Acceleration => a,
             DerivedChannel::PowerDemand => a.max(0.0) * v,
             DerivedChannel::SpeedSquared => v * v,
             DerivedChannel::SpeedCubed => v * v * v,
+            DerivedChannel::SpecificForce => a + STANDARD_GRAVITY_M_S2 * gradient_permille / 1000.0,
         }
     }
 
@@ -159,6 +170,7 @@ impl DerivedChannel {
             DerivedChannel::PowerDemand => 0.5,
             DerivedChannel::SpeedSquared => 1.0,
             DerivedChannel::SpeedCubed => 10.0,
+            DerivedChannel::SpecificForce => 0.05,
         }
     }
 }
@@ -230,6 +242,21 @@ pub fn bin_index(edges: &[f64], value: f64) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_specific_force_is_the_acceleration_net_of_the_grade() {
+        // Coasting down 12 per mille and speeding up by g * 0.012 - 0.05 m/s^2 (0.05 of
+        // running resistance): net of the grade it slows by the resistance alone.
+        let g = 9.80665;
+        let a = g * 0.012 - 0.05;
+        let f = DerivedChannel::SpecificForce.value(20.0, a, -12.0);
+        assert!((f + 0.05).abs() < 1e-12, "{f}");
+        // Uphill the same train slows by grade and resistance; net of the grade, 0.05 again.
+        let f = DerivedChannel::SpecificForce.value(20.0, -g * 0.012 - 0.05, 12.0);
+        assert!((f + 0.05).abs() < 1e-12, "{f}");
+        // The others ignore the gradient.
+        assert_eq!(DerivedChannel::PowerDemand.value(20.0, 0.5, 30.0), 10.0);
+    }
 
     #[test]
     fn bins_count_edges_below() {

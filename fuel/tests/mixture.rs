@@ -23,6 +23,9 @@ fn spec(components: usize, k_y: usize, k_psi: usize) -> MixtureSpec {
         switching_prior_stay: 2.0,
         switching_prior_move: 1.0,
         measured_channels: None,
+        level_channels: Vec::new(),
+        level_regressors: Vec::new(),
+        level_min_variance: 0.0,
     }
 }
 
@@ -373,4 +376,176 @@ fn a_failed_step_changes_nothing_and_the_next_steps_are_unaffected() {
         twin.step(input).unwrap();
         assert_eq!(state(&mixture), state(&twin));
     }
+}
+
+/// `[fuel, speed, acceleration]` regressed on `[fuel, speed]` a sample ago and a constant, the
+/// speed and acceleration as level channels.
+fn level_spec(components: usize) -> MixtureSpec {
+    MixtureSpec {
+        min_noise_variance: 1e-6,
+        level_channels: vec![1, 2],
+        ..spec(components, 3, 3)
+    }
+}
+
+/// A railcar-like sequence: stretches of `stretch` samples alternating between standing
+/// (regime 0: speed ~0) and coasting (regime 1: ~20 m/s, slowing by 0.05 m/s^2), both at the
+/// idle fuel rate (10 cm^3/s, noise 0.5). `y = [fuel, speed, acceleration]` with the
+/// acceleration exactly the speed now minus the speed a sample ago (in `psi`), as the monitor's
+/// derived channel. Returns `(y, psi, regime)` per sample.
+fn standing_and_coasting(
+    stretches: usize,
+    stretch: usize,
+    seed: u64,
+) -> Vec<(DVector<f64>, DVector<f64>, usize)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let fuel_noise = Normal::new(0.0, 0.5).unwrap();
+    let speed_noise = Normal::new(0.0, 0.02).unwrap();
+    let (mut fuel_lag, mut speed_lag) = (10.0, 0.0);
+    let mut out = Vec::new();
+    for s in 0..stretches {
+        let regime = s % 2;
+        for t in 0..stretch {
+            let speed: f64 = match regime {
+                0 => f64::abs(speed_noise.sample(&mut rng)),
+                _ => 20.0 - 0.05 * t as f64 + speed_noise.sample(&mut rng),
+            };
+            let fuel = 10.0 + fuel_noise.sample(&mut rng);
+            let y = DVector::from_vec(vec![fuel, speed, speed - speed_lag]);
+            let psi = DVector::from_vec(vec![fuel_lag, speed_lag, 1.0]);
+            out.push((y, psi, regime));
+            (fuel_lag, speed_lag) = (fuel, speed);
+        }
+    }
+    out
+}
+
+fn inputs(data: &[(DVector<f64>, DVector<f64>, usize)]) -> Vec<MixtureInput<'_>> {
+    data.iter()
+        .map(|(y, psi, _)| MixtureInput {
+            y,
+            psi,
+            category: None,
+            switching_row: 0,
+        })
+        .collect()
+}
+
+#[test]
+fn level_statistics_are_the_weighted_mean_and_covariance_of_the_level_channels() {
+    let data = standing_and_coasting(6, 40, 3);
+    let (init, online) = data.split_at(80);
+    let labels: Vec<usize> = init.iter().map(|d| d.2).collect();
+    let spec = level_spec(2);
+    let eps = spec.prior_information;
+    let mut mix = Mixture::from_batch(spec, &inputs(init), &labels, 0, 1.0).unwrap();
+    // Sums of w, w x, w x x' per component, from the initial partition and the pointer.
+    let mut sums = vec![(0.0, DVector::zeros(2), DMatrix::zeros(2, 2)); 2];
+    let mut add = |w: &[f64], y: &DVector<f64>| {
+        let x = DVector::from_vec(vec![y[1], y[2]]);
+        for (s, w) in sums.iter_mut().zip(w) {
+            s.0 += w;
+            s.1 += &x * *w;
+            s.2 += &x * x.transpose() * *w;
+        }
+    };
+    for (y, _, l) in init {
+        add(if *l == 0 { &[1.0, 0.0] } else { &[0.0, 1.0] }, y);
+    }
+    for input in inputs(online) {
+        mix.step(&input).unwrap();
+        add(&mix.weights(), input.y);
+    }
+    for (level, (w, wx, wxx)) in mix.levels().iter().zip(&sums) {
+        // Prior V_0 = eps I over [x; 1], kappa_0 = 1: mean = sum w x / (eps + sum w),
+        // r = (eps I + sum w x x' - (sum w x)(sum w x)' / (eps + sum w)) / (1 + sum w).
+        let mean = wx / (eps + w);
+        let r = (DMatrix::identity(2, 2) * eps + wxx - wx * wx.transpose() / (eps + w)) / (1.0 + w);
+        for c in 0..2 {
+            assert!((level.theta()[(0, c)] - mean[c]).abs() < 1e-9 * (1.0 + mean[c].abs()));
+            for d in 0..2 {
+                assert!(
+                    (level.r()[(c, d)] - r[(c, d)]).abs() < 1e-9 * (1.0 + r[(c, d)].abs()),
+                    "r[{c},{d}] {} vs {}",
+                    level.r()[(c, d)],
+                    r[(c, d)]
+                );
+            }
+        }
+        assert!(*w > 50.0, "each component took a share of the data ({w})");
+    }
+}
+
+#[test]
+fn level_evidence_is_the_fuel_regression_plus_the_levels_not_the_derived_channels_density() {
+    let data = standing_and_coasting(4, 40, 5);
+    let (init, online) = data.split_at(80);
+    let labels: Vec<usize> = init.iter().map(|d| d.2).collect();
+    let mut mix = Mixture::from_batch(level_spec(2), &inputs(init), &labels, 0, 1.0).unwrap();
+    for input in inputs(&online[..30]) {
+        mix.step(&input).unwrap();
+    }
+    let (y, psi, _) = &online[30];
+    let before = mix.clone();
+    mix.step(&inputs(std::slice::from_ref(&online[30]))[0])
+        .unwrap();
+    // w_i ~ exp(evidence_i) sum_j alpha_{i|j} w_j, with evidence_i = ln N(fuel | speed,
+    // acceleration, psi) + ln N([speed, acceleration] | level statistics).
+    let one = DVector::from_element(1, 1.0);
+    let x = DVector::from_vec(vec![y[1], y[2]]);
+    let y_other = DVector::from_vec(vec![y[1], y[2]]);
+    let evidence = |i: usize| {
+        before.components()[i]
+            .condition_first_on_rest(psi, &y_other, true)
+            .log_density_of(y[0])
+            + before.levels()[i].log_proximity(&x, &one, true)
+    };
+    let w0 = before.weights();
+    let unnormalised: Vec<f64> = (0..2)
+        .map(|i| evidence(i).exp() * (0..2).map(|j| before.alpha(0, j, i) * w0[j]).sum::<f64>())
+        .collect();
+    let total: f64 = unnormalised.iter().sum();
+    for (w, u) in mix.weights().iter().zip(&unnormalised) {
+        assert!((w - u / total).abs() < 1e-9, "{w} vs {}", u / total);
+    }
+    // The joint density of all of y (the paper's) differs: it holds the acceleration's
+    // degenerate density given the speeds, which the level evidence leaves out.
+    let joint = |i: usize| before.components()[i].log_proximity(y, psi, true);
+    let gap_levels = evidence(1) - evidence(0);
+    let gap_joint = joint(1) - joint(0);
+    assert!(
+        (gap_levels - gap_joint).abs() > 1.0,
+        "{gap_levels} vs {gap_joint}"
+    );
+}
+
+#[test]
+fn levels_separate_standing_from_coasting_at_the_same_fuel() {
+    let data = standing_and_coasting(20, 60, 11);
+    let (init, online) = data.split_at(120);
+    let labels: Vec<usize> = init.iter().map(|d| d.2).collect();
+    let accuracy = |spec: MixtureSpec| {
+        let mut mix = Mixture::from_batch(spec, &inputs(init), &labels, 0, 1.0).unwrap();
+        let mut right = 0;
+        for (input, d) in inputs(online).iter().zip(online) {
+            mix.step(input).unwrap();
+            right += usize::from(mix.active() == d.2);
+        }
+        right as f64 / online.len() as f64
+    };
+    // Fuel by its regression and speed, acceleration as levels; and fuel as a level too (no
+    // regression term). Both burn the same fuel: the speed's level alone tells them apart.
+    let levels = accuracy(level_spec(2));
+    let with_fuel = accuracy(MixtureSpec {
+        level_channels: vec![0, 1, 2],
+        ..level_spec(2)
+    });
+    assert!(levels > 0.95, "levels: {levels}");
+    assert!(with_fuel > 0.95, "levels with fuel: {with_fuel}");
+    // Only the fuel's level: the regimes share it, so no separation beyond chance.
+    let fuel_only = accuracy(MixtureSpec {
+        level_channels: vec![0],
+        ..level_spec(2)
+    });
+    assert!(fuel_only < 0.8, "fuel level only: {fuel_only}");
 }

@@ -147,6 +147,37 @@ rejects!(rejects_zero_sample_period, "sample_period_s", |c| c
     .sample_period_s =
     0.0);
 
+rejects!(
+    rejects_a_pointer_level_that_is_no_channel,
+    "pointer_levels",
+    |c| c.pointer_levels = vec!["acceleration".into()]
+);
+rejects!(
+    rejects_a_pointer_level_listed_twice,
+    "pointer_levels",
+    |c| c.pointer_levels = vec!["speed".into(), "speed".into()]
+);
+rejects!(
+    rejects_pointer_levels_with_the_measured_density,
+    "pointer_levels",
+    |c| {
+        c.pointer_levels = vec!["speed".into()];
+        c.measured_proximity = true;
+    }
+);
+
+#[test]
+fn pointer_levels_index_y_as_the_monitor_lays_it_out() {
+    // y = [fuel, speed, gradient, acceleration, power_demand, speed_squared] (fuel first, then
+    // the other measured channels in order, then the derived ones).
+    let c = FuelMonitorConfig {
+        channels: vec![Channel::Speed, Channel::Fuel, Channel::Gradient],
+        pointer_levels: vec!["acceleration".into(), "speed".into(), "fuel".into()],
+        ..FuelMonitorConfig::railcar()
+    };
+    assert_eq!(c.pointer_level_indices().unwrap(), vec![3, 1, 0]);
+}
+
 #[test]
 fn config_errors_name_field_and_value() {
     let c = FuelMonitorConfig {

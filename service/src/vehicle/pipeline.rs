@@ -306,7 +306,9 @@ struct SavedVehicle {
 const SAVED_VEHICLE: StateFormat = StateFormat {
     magic: b"railmon-vehicle\0",
     // 3: the mixture's spec gained `measured_channels` (issue 14's measured-data density).
-    version: 3,
+    // 4: the mixture gained `level_channels` and the level statistics (the pointer weighed by
+    // levels, issue 14 item 3).
+    version: 4,
     what: "vehicle state",
 };
 
