@@ -490,9 +490,9 @@ fn railcar_regimes_are_named_right_on_two_routes() {
 
 /// Issue 14 item 3, the pointer weighed by levels (option `pointer_levels`, docs/fuel.md "The
 /// pointer weighed by levels"): on both routes it names more seconds right than the preset,
-/// recognises coasting (measured 68 % and 87 % of the coasting seconds; the preset 44 % and 3 %),
-/// its virtual sensor is significantly better than the single regression's (DM -2.82 and
-/// -4.77), and no forecast is significantly worse. Not in the preset: standing is named idle
+/// recognises coasting (measured 67 % and 87 % of the coasting seconds; the preset 44 % and 3 %),
+/// its virtual sensor is significantly better than the single regression's (DM -2.95 and
+/// -4.50), and no forecast is significantly worse. Not in the preset: standing is named idle
 /// 66 % of its seconds on the first route (measured; the preset's test above asks 90 %).
 #[test]
 fn levels_recognise_coasting_on_two_routes() {

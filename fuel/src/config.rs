@@ -194,8 +194,9 @@ pub struct FuelMonitorConfig {
     /// evidence without fuel) and the forecasts are computed from them as before. Empty: off
     /// (the evidence of `measured_proximity` or the paper's). Not in a preset: on the railcar
     /// routes `["fuel", "speed", "specific_force"]` with `pointer_level_min_variance = 3e-2`
-    /// names more seconds right on every seed and recognises coasting, but 32-37 % of the
-    /// railcar route's standing seconds are not named idle (mostly coasting; docs/fuel.md).
+    /// names more seconds right on every seed and recognises coasting, but 21-34 % of the
+    /// railcar route's standing seconds are not named idle (its standing component also holds
+    /// the slow creep into the platform and is named coasting; docs/fuel.md).
     pub pointer_levels: Vec<String>,
     /// Names of channels of `y_t` the `pointer_levels` are conditioned on in each component's
     /// static model (the `gradient`: coasting downhill speeds up, uphill slows down, so its
@@ -208,6 +209,18 @@ pub struct FuelMonitorConfig {
     /// at another grade then costs hundreds of nats and another component takes it
     /// (docs/fuel.md: 3e-2 there). 1e-6 by default, which only matters with `pointer_levels`.
     pub pointer_level_min_variance: f64,
+    /// Per channel of `pointer_levels` (same order), its physical resolution (its units: m/s,
+    /// cm^3/s, m/s^2): the level statistics' covariance is floored at the squares of these,
+    /// channel by channel, instead of at `pointer_level_min_variance` in standardised units
+    /// (which it then replaces). Empty: off.
+    pub pointer_level_resolutions: Vec<f64>,
+    /// Whether the vehicle stands (speed below `naming.standstill_speed_m_s`) enters the
+    /// pointer as a categorical level beside the notch: the categorical channel becomes the
+    /// pair (notch, standing), so each component's Dirichlet learns how often it stands and a
+    /// component holding both stops and slow coasting pays for it in the categorical term.
+    /// Components are then named `idle` by that share (above one half), not by their mean
+    /// speed (`crate::regime`). Needs `categorical` and `speed`. Off by default.
+    pub pointer_standing: bool,
     /// Blend each h-step fuel forecast of the mixture with that of a single regression run
     /// alongside (same settings, one component), weighted per horizon by the convex
     /// combination with the smallest squared error so far (errors of forecasts whose target has
@@ -301,6 +314,8 @@ impl Default for FuelMonitorConfig {
             pointer_levels: Vec::new(),
             pointer_level_regressors: Vec::new(),
             pointer_level_min_variance: 1e-6,
+            pointer_level_resolutions: Vec::new(),
+            pointer_standing: false,
             forecast_blend: true,
             blend_forgetting: 0.999,
             categorical: None,
@@ -488,6 +503,17 @@ impl FuelMonitorConfig {
         self.fuel_levels().pow(self.switching_memory as u32) * self.acceleration_levels()
     }
 
+    /// Categories of the categorical channel itself (the notch or gear groups; 0 without).
+    pub fn notch_categories(&self) -> usize {
+        self.categorical.as_ref().map_or(0, |c| c.gear_groups.len())
+    }
+
+    /// Categories of the mixture's categorical component: the notch's, times two (standing or
+    /// not) with `pointer_standing`.
+    pub fn mixture_categories(&self) -> usize {
+        self.notch_categories() * (1 + usize::from(self.pointer_standing))
+    }
+
     /// Number of values of the discretised speed `s`.
     pub fn speed_levels(&self) -> usize {
         self.speed_bins_m_s.len() + 1
@@ -633,6 +659,28 @@ impl FuelMonitorConfig {
         }
         self.pointer_level_indices()?;
         self.pointer_level_regressor_indices()?;
+        if !self.pointer_level_resolutions.is_empty()
+            && (self.pointer_level_resolutions.len() != self.pointer_levels.len()
+                || self
+                    .pointer_level_resolutions
+                    .iter()
+                    .any(|r| !(r.is_finite() && *r > 0.0)))
+        {
+            return Err(FuelError::invalid(
+                "pointer_level_resolutions",
+                format!("{:?}", self.pointer_level_resolutions),
+                "must be one finite value > 0 per channel of `pointer_levels`",
+            ));
+        }
+        if self.pointer_standing
+            && (self.categorical.is_none() || !self.channels.contains(&Channel::Speed))
+        {
+            return Err(FuelError::invalid(
+                "pointer_standing",
+                true,
+                "needs `categorical` and `speed` in `channels`",
+            ));
+        }
         if self.measured_proximity && !self.pointer_levels.is_empty() {
             return Err(FuelError::invalid(
                 "pointer_levels",

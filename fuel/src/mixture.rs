@@ -59,6 +59,12 @@ pub struct MixtureSpec {
     /// `min_noise_variance`).
     #[serde(default)]
     pub level_min_variance: f64,
+    /// Per level channel, the unit it enters the level statistics in (standardised units;
+    /// empty: 1 each): the channel is divided by it, so `level_min_variance` floors each
+    /// channel's variance at that many squared units (the monitor sets them from the channels'
+    /// physical resolutions, `pointer_level_resolutions`).
+    #[serde(default)]
+    pub level_scales: Vec<f64>,
 }
 
 /// One step's data for the mixture.
@@ -663,7 +669,10 @@ impl LevelData {
             return None;
         }
         let pick = |idx: &[usize]| idx.iter().map(|&c| y[c]).collect::<Vec<_>>();
-        let x = DVector::from_vec(pick(&spec.level_channels));
+        let mut x = DVector::from_vec(pick(&spec.level_channels));
+        for (x, scale) in x.iter_mut().zip(&spec.level_scales) {
+            *x /= scale;
+        }
         let mut psi = pick(&spec.level_regressors);
         psi.push(1.0);
         let psi = DVector::from_vec(psi);

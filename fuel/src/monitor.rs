@@ -140,6 +140,9 @@ struct Prepared {
     /// Continuous channels in the monitor's order (fuel first), raw units.
     y: Vec<f64>,
     category: Option<usize>,
+    /// Speed below the standstill threshold (only with `pointer_standing`; false otherwise).
+    #[serde(default)]
+    standing: bool,
     speed_level: usize,
     fuel_level: usize,
     /// Discretised `v_t - v_{t-1}` (0 when acceleration bins are off or on the first sample).
@@ -254,16 +257,13 @@ impl FuelMonitor {
                 .collect(),
             None => (0..channels.len()).collect(),
         };
-        let categories = config
-            .categorical
-            .as_ref()
-            .map_or(0, |c| c.gear_groups.len());
+        let categories = config.mixture_categories();
         let spec = MixtureSpec {
             components: config.components,
             k_y,
             k_psi: lagged.len() * config.regression_memory + usize::from(categories > 0) + 1,
             categories,
-            categorical_rows: categories.max(1) * config.speed_levels(),
+            categorical_rows: config.notch_categories().max(1) * config.speed_levels(),
             switching_rows: config.switching_rows(),
             forgetting: config.forgetting,
             parameter_uncertainty: config.parameter_uncertainty,
@@ -277,7 +277,11 @@ impl FuelMonitor {
                 .then_some(channels.len()),
             level_channels: config.pointer_level_indices()?,
             level_regressors: config.pointer_level_regressor_indices()?,
-            level_min_variance: config.pointer_level_min_variance,
+            level_min_variance: match config.pointer_level_resolutions.is_empty() {
+                true => config.pointer_level_min_variance,
+                false => 1.0,
+            },
+            level_scales: Vec::new(),
         };
         Ok(FuelMonitor {
             config: config.clone(),
@@ -358,6 +362,8 @@ impl FuelMonitor {
             }
             None => (None, 0),
         };
+        let standing = self.config.pointer_standing
+            && sample.checked(Channel::Speed, ranges)? < self.config.naming.standstill_speed_m_s;
         let needs_speed =
             !(self.config.acceleration_bins_m_s2.is_empty() && self.derived.is_empty());
         let (acceleration_level, speed_m_s) = if needs_speed {
@@ -365,7 +371,11 @@ impl FuelMonitor {
             let dt = self.previous_time_s.map_or(1.0, |p| sample.time_s - p);
             let a = self.previous_speed_m_s.map_or(0.0, |p| (v - p) / dt);
             let gradient = if self.derived.contains(&DerivedChannel::SpecificForce) {
-                sample.checked(Channel::Gradient, ranges)?
+                crate::sample::effective_gradient_permille(
+                    v,
+                    sample.checked(Channel::Gradient, ranges)?,
+                    self.config.naming.standstill_speed_m_s,
+                )
             } else {
                 0.0
             };
@@ -381,6 +391,7 @@ impl FuelMonitor {
             fuel_level: bin_index(&self.config.fuel_bins_cm3_s, y[0]),
             y,
             category,
+            standing,
             speed_level,
         })
     }
@@ -418,21 +429,26 @@ impl FuelMonitor {
         for y in past.y.iter().take(self.config.regression_memory) {
             psi.extend(self.lagged.iter().map(|&i| y[i]));
         }
-        if self.spec.categories > 0 {
+        let notches = self.config.notch_categories();
+        if notches > 0 {
             // The paper puts the gear itself in psi (section 4.2); centred, so that it does
             // not compete with the constant.
             let l = past.category.unwrap_or(0) as f64;
-            psi.push(l - 0.5 * (self.spec.categories - 1) as f64);
+            psi.push(l - 0.5 * (notches - 1) as f64);
         }
         psi.push(1.0);
         DVector::from_vec(psi)
     }
 
-    fn category_cell(&self, past: &Past, now: Option<usize>) -> Option<(usize, usize)> {
-        now.map(|l| {
+    /// The categorical cell `(q, l)` of the sample `now`: `q` the previous notch and speed
+    /// level, `l` the notch now, or with `pointer_standing` the pair (notch, standing) as
+    /// `notch + standing * notches`.
+    fn category_cell(&self, past: &Past, now: &Prepared) -> Option<(usize, usize)> {
+        let standing = usize::from(now.standing) * self.config.notch_categories();
+        now.category.map(|l| {
             (
                 past.category.unwrap_or(0) * self.config.speed_levels() + past.speed_level,
-                l,
+                l + standing,
             )
         })
     }
@@ -474,6 +490,12 @@ impl FuelMonitor {
             .chain(self.derived.iter().map(|d| d.min_scale()))
             .collect();
         let st = Standardiser::from_samples(&min_scales, &self.initial);
+        // The level channels in units of their resolution (a floor of 1 is the resolution's
+        // square), now that their standardised scale is known.
+        self.spec.level_scales = (self.spec.level_channels.iter())
+            .zip(&self.config.pointer_level_resolutions)
+            .map(|(&c, r)| r / st.scale[c])
+            .collect();
         let (m_y, m_alpha) = (self.config.regression_memory, self.config.switching_memory);
         let start = m_y.max(m_alpha);
         let mut past = Past::default();
@@ -485,7 +507,7 @@ impl FuelMonitor {
             let y = st.apply(&p.y);
             if t >= start {
                 psis.push(self.regressor(&past));
-                cells.push(self.category_cell(&past, p.category));
+                cells.push(self.category_cell(&past, p));
                 rows.push(self.switching_row(&past));
                 ys.push(y.clone());
             }
@@ -550,7 +572,7 @@ impl FuelMonitor {
         };
         let y = st.apply(&p.y);
         let psi = self.regressor(&self.past);
-        let category = self.category_cell(&self.past, p.category);
+        let category = self.category_cell(&self.past, p);
         let k = self.switching_row(&self.past);
         let m = self.config.components;
 
@@ -983,9 +1005,38 @@ impl FuelMonitor {
                     fuel_cm3_s: physical(0, 0),
                     speed_m_s,
                     acceleration_m_s2,
+                    standing_share: None,
                 }
             })
+            .zip(0..)
+            .map(|(point, i)| OperatingPoint {
+                standing_share: self.standing_share(mixture, i),
+                ..point
+            })
             .collect()
+    }
+
+    /// Component `i`'s weighted share of standing samples: its Dirichlet counts of the
+    /// (notch, standing) pair less their prior, standing columns over all, summed over the
+    /// conditions (`None` unless `pointer_standing`).
+    fn standing_share(&self, mixture: &Mixture, i: usize) -> Option<f64> {
+        let table = mixture
+            .categorical()
+            .get(i)
+            .filter(|_| self.config.pointer_standing)?;
+        let notches = self.config.notch_categories();
+        let prior = self.spec.dirichlet_prior;
+        let (mut standing, mut all) = (0.0, 0.0);
+        for q in 0..table.rows() {
+            for l in 0..table.cols() {
+                let n = (table.count(q, l) - prior).max(0.0);
+                all += n;
+                if l >= notches {
+                    standing += n;
+                }
+            }
+        }
+        Some(if all > 0.0 { standing / all } else { 0.0 })
     }
 
     /// What each component means (`crate::regime`), from the operating points: a name unique

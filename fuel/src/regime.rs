@@ -11,7 +11,8 @@
 //! now and a lag ago when speed is lagged in `psi`). In this order:
 //!
 //! 1. fewer than `min_samples` weighted samples: `unsettled` (not converged);
-//! 2. mean speed below `standstill_speed_m_s`: `idle`;
+//! 2. mean speed below `standstill_speed_m_s`: `idle` (with the standing share, see
+//!    [`OperatingPoint::standing_share`]: that share above one half instead);
 //! 3. mean acceleration at least `acceleration_m_s2`: `accelerating`;
 //! 4. mean acceleration at most `-acceleration_m_s2`: `braking`;
 //! 5. mean fuel at most `coasting_fuel_cm3_s` (no traction power: engine idling or fuel cut
@@ -201,10 +202,12 @@ impl RegimeNaming {
     pub fn name(&self, point: &OperatingPoint) -> RegimeName {
         if point.samples.is_nan() || point.samples < self.min_samples {
             RegimeName::Unsettled
-        } else if point
-            .speed_m_s
-            .is_some_and(|v| v < self.standstill_speed_m_s)
-        {
+        } else if match point.standing_share {
+            Some(share) => share > 0.5,
+            None => point
+                .speed_m_s
+                .is_some_and(|v| v < self.standstill_speed_m_s),
+        } {
             RegimeName::Idle
         } else if point
             .acceleration_m_s2
@@ -386,6 +389,13 @@ pub struct OperatingPoint {
     pub speed_m_s: Option<f64>,
     /// `None` without the acceleration channel or a lagged speed.
     pub acceleration_m_s2: Option<f64>,
+    /// The component's share of standing samples (weighted, speed below the standstill
+    /// threshold), from its Dirichlet counts of the (notch, standing) pair; `None` unless
+    /// `pointer_standing`. A mean speed mixes stops with slow coasting (a component holding
+    /// both had a mean above the threshold and was named `coasting` at platforms); the share
+    /// of standing does not.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub standing_share: Option<f64>,
 }
 
 #[cfg(test)]
@@ -398,6 +408,7 @@ mod tests {
             fuel_cm3_s: fuel,
             speed_m_s: Some(v),
             acceleration_m_s2: Some(a),
+            standing_share: None,
         }
     }
 
@@ -428,8 +439,18 @@ mod tests {
             fuel_cm3_s: 40.0,
             speed_m_s: None,
             acceleration_m_s2: None,
+            standing_share: None,
         };
         assert_eq!(n.name(&fuel_only), RegimeName::Cruising);
+        // With the standing share, it decides idle, not the mean speed: a component holding
+        // stops and slow coasting (mean speed 1.2 m/s) that stands 60 % of its weight is idle,
+        // one at 0.3 m/s that stands 40 % is not.
+        let share = |v: f64, s: f64| OperatingPoint {
+            standing_share: Some(s),
+            ..point(100.0, 10.4, v, -0.02)
+        };
+        assert_eq!(n.name(&share(1.2, 0.6)), RegimeName::Idle);
+        assert_eq!(n.name(&share(0.3, 0.4)), RegimeName::Coasting);
         // NaN samples (a broken statistic) never get a name.
         assert_eq!(
             n.name(&point(f64::NAN, 10.0, 0.0, 0.0)),

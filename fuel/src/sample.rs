@@ -137,6 +137,23 @@ pub enum DerivedChannel {
     SpecificForce,
 }
 
+/// The gradient (per mille) the specific force nets out at speed `v_m_s`: the sample's while
+/// moving, 0 below `standstill_speed_m_s`. Standing, the brakes hold the grade: no traction or
+/// braking force is asked and the specific force is the acceleration alone (0), not `g i / 1000`
+/// (which made each station's grade a level of its own: a standing component then spread over
+/// the stations' grades, docs/fuel.md).
+pub fn effective_gradient_permille(
+    v_m_s: f64,
+    gradient_permille: f64,
+    standstill_speed_m_s: f64,
+) -> f64 {
+    if v_m_s < standstill_speed_m_s {
+        0.0
+    } else {
+        gradient_permille
+    }
+}
+
 /// Standard gravity, m/s^2 (the grade's share of the specific force).
 pub const STANDARD_GRAVITY_M_S2: f64 = 9.80665;
 
@@ -254,6 +271,11 @@ mod tests {
         // Uphill the same train slows by grade and resistance; net of the grade, 0.05 again.
         let f = DerivedChannel::SpecificForce.value(20.0, -g * 0.012 - 0.05, 12.0);
         assert!((f + 0.05).abs() < 1e-12, "{f}");
+        // Standing on the same grade (brakes holding): 0, not g i / 1000; moving at the
+        // threshold the grade counts.
+        let standing = effective_gradient_permille(0.0, 12.0, 0.5);
+        assert_eq!(DerivedChannel::SpecificForce.value(0.0, 0.0, standing), 0.0);
+        assert_eq!(effective_gradient_permille(0.5, 12.0, 0.5), 12.0);
         // The others ignore the gradient.
         assert_eq!(DerivedChannel::PowerDemand.value(20.0, 0.5, 30.0), 10.0);
     }

@@ -26,6 +26,7 @@ fn spec(components: usize, k_y: usize, k_psi: usize) -> MixtureSpec {
         level_channels: Vec::new(),
         level_regressors: Vec::new(),
         level_min_variance: 0.0,
+        level_scales: Vec::new(),
     }
 }
 

@@ -166,6 +166,78 @@ rejects!(
     }
 );
 
+rejects!(
+    rejects_standing_without_a_categorical_channel,
+    "pointer_standing",
+    |c| {
+        c.pointer_standing = true;
+        c.categorical = None;
+    }
+);
+rejects!(
+    rejects_a_resolution_per_level_that_does_not_match,
+    "pointer_level_resolutions",
+    |c| {
+        c.pointer_levels = vec!["speed".into()];
+        c.pointer_level_resolutions = vec![0.1, 0.2];
+    }
+);
+rejects!(
+    rejects_a_zero_resolution,
+    "pointer_level_resolutions",
+    |c| {
+        c.pointer_levels = vec!["speed".into()];
+        c.pointer_level_resolutions = vec![0.0];
+    }
+);
+
+/// With `pointer_standing`, a single component without forgetting that stood on every fifth
+/// sample has a standing share of one fifth (its Dirichlet counts of the (gear, standing) pair
+/// less the prior), and the share, not the mean speed, names it: not idle. Without the option
+/// there is no share.
+#[test]
+fn the_standing_share_is_the_weighted_share_of_standing_samples() {
+    let config = FuelMonitorConfig {
+        components: 1,
+        forgetting: 1.0,
+        pointer_standing: true,
+        ..FuelMonitorConfig::paper()
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let samples: Vec<VehicleSample> = (0..600)
+        .map(|t| {
+            let s = sample(t, &mut rng);
+            match t % 5 {
+                0 => VehicleSample {
+                    speed_m_s: Some(0.0),
+                    ..s
+                },
+                _ => s,
+            }
+        })
+        .collect();
+    let mut monitor = FuelMonitor::new(&config).unwrap();
+    for s in &samples {
+        monitor.update(s).unwrap();
+    }
+    let point = monitor.operating_points()[0];
+    let share = point.standing_share.unwrap();
+    assert!((share - 0.2).abs() < 0.01, "{point:?}");
+    assert_ne!(
+        monitor.regime_names()[0].regime,
+        railmon_fuel::RegimeName::Idle
+    );
+    let without = FuelMonitorConfig {
+        pointer_standing: false,
+        ..config
+    };
+    let mut monitor = FuelMonitor::new(&without).unwrap();
+    for s in &samples {
+        monitor.update(s).unwrap();
+    }
+    assert_eq!(monitor.operating_points()[0].standing_share, None);
+}
+
 #[test]
 fn pointer_levels_index_y_as_the_monitor_lays_it_out() {
     // y = [fuel, speed, gradient, acceleration, power_demand, speed_squared] (fuel first, then

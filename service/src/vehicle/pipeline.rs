@@ -308,7 +308,10 @@ const SAVED_VEHICLE: StateFormat = StateFormat {
     // 3: the mixture's spec gained `measured_channels` (issue 14's measured-data density).
     // 4: the mixture gained `level_channels` and the level statistics (the pointer weighed by
     // levels, issue 14 item 3).
-    version: 4,
+    // 5: the config gained `pointer_standing` and `pointer_level_resolutions`, the mixture's
+    // spec `level_scales`, the kept samples `standing` (issue 14 item 3; bincode has no field
+    // defaults).
+    version: 5,
     what: "vehicle state",
 };
 
