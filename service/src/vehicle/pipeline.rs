@@ -80,6 +80,7 @@ fn rejection_of(e: FuelError) -> Rejection {
         FuelError::MissingChannel { .. } | FuelError::MissingGear { .. } => "missing_channel",
         FuelError::NonFinite { .. } => "not_finite",
         FuelError::OutOfRange { .. } => "out_of_range",
+        FuelError::AccelerationOutOfRange { .. } => "acceleration_out_of_range",
         FuelError::UnknownCategory { .. } => "unknown_category",
         FuelError::TimeNotIncreasing { .. } => "time_not_increasing",
         // The sample clock refuses these first; the estimator's own check is the same rule.
@@ -308,7 +309,8 @@ const SAVED_VEHICLE: StateFormat = StateFormat {
     // 3: the mixture's spec gained `measured_channels` (issue 14's measured-data density).
     // 4: the mixture gained `level_channels` and the level statistics (the pointer weighed by
     // levels, issue 14 item 3).
-    version: 4,
+    // 5: the channel ranges in its settings gained `acceleration_m_s2`.
+    version: 5,
     what: "vehicle state",
 };
 
@@ -321,6 +323,7 @@ impl Pipeline for VehiclePipeline {
         "not_finite",
         "missing_channel",
         "out_of_range",
+        "acceleration_out_of_range",
         "unknown_category",
         "time_not_increasing",
     ];
