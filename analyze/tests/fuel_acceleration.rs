@@ -96,6 +96,21 @@ fn shipped_inputs_pass_and_their_speed_in_km_h_is_refused() {
             refused as f64 / kmh.samples as f64,
             kmh.first_refusal_s.map_or("none".into(), |s| s.to_string()),
         );
+        if *ranges == ChannelRanges::road_car() {
+            // Tighter bounds than a car's grip, for the record (docs/fuel.md): what they
+            // would catch of the km/h data.
+            for bounds in [[-12.0, 10.0], [-10.0, 8.0]] {
+                let tighter = ChannelRanges {
+                    acceleration_m_s2: bounds,
+                    ..ChannelRanges::road_car()
+                };
+                let t = tally(&input.samples, &tighter, 3.6);
+                println!(
+                    "  {} with acceleration {bounds:?}: {} refused by acceleration in km/h",
+                    input.name, t.acceleration_refused
+                );
+            }
+        }
         // No false refusal: every input we ship passes with the settings it is analysed with.
         assert_eq!(
             good.range_refused + good.acceleration_refused,
