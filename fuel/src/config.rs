@@ -60,7 +60,9 @@ impl CategoricalConfig {
 /// the statistics (a single 1e200 would overflow `V` for good; speed in km/h read as m/s would
 /// be estimated as if it were right). A property of the vehicle, not of the estimator, so a
 /// table of its own: `Default` is a road car's ([`ChannelRanges::road_car`]),
-/// [`ChannelRanges::railcar`] a diesel railcar's or locomotive's.
+/// [`ChannelRanges::railcar`] a diesel railcar's or locomotive's. `acceleration_m_s2` bounds
+/// the speed's change since the last accepted sample ([`ChannelRanges::check_acceleration`]):
+/// a km/h speed that stays inside the m/s range still accelerates 3.6 times too fast.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ChannelRanges {
@@ -70,6 +72,9 @@ pub struct ChannelRanges {
     pub engine_torque_nm: [f64; 2],
     pub engine_speed_rpm: [f64; 2],
     pub gradient_permille: [f64; 2],
+    /// `(v_t - v_p) / (t - t_p)`, m/s^2, from the last accepted sample `p`: the vehicle's
+    /// hardest braking and full-power acceleration (with margin), not its usual driving.
+    pub acceleration_m_s2: [f64; 2],
 }
 
 impl Default for ChannelRanges {
@@ -83,6 +88,12 @@ impl ChannelRanges {
     /// 100 leaves a truck's worth of margin; small negative values are flow-meter noise around
     /// zero. Speed up to 70 m/s (252 km/h): a file in km/h at motorway speed (100+) is refused
     /// rather than read as 100 m/s. Gradients up to 35 % (350 per mille), the steepest roads.
+    /// Acceleration within +-12 m/s^2: tyre grip bounds both braking and traction at
+    /// `mu g`, and the peak road adhesion of dry asphalt is 0.8-0.9 (Wong, Theory of Ground
+    /// Vehicles, table 1.1), 1.2 leaves margin for performance tyres; an ABS stop of a
+    /// current car (100-0 km/h in ~36 m) averages ~10.7 m/s^2. The shipped data stay within
+    /// 3.5 (docs/fuel.md). A launch-control EV exceeds it (Tesla Model S Plaid, 0-60 mph in
+    /// 1.99 s by Tesla's figure: 13.5 m/s^2 on average): give such a car its own range.
     pub fn road_car() -> Self {
         ChannelRanges {
             fuel_cm3_s: [-1.0, 100.0],
@@ -91,6 +102,7 @@ impl ChannelRanges {
             engine_torque_nm: [-1000.0, 5000.0],
             engine_speed_rpm: [-100.0, 20000.0],
             gradient_permille: [-350.0, 350.0],
+            acceleration_m_s2: [-12.0, 12.0],
         }
     }
 
@@ -100,7 +112,16 @@ impl ChannelRanges {
     /// (567 kW, Cummins, 25 Apr 2014) 39 cm^3/s. Speed up to 60 m/s (216 km/h; DMUs run at
     /// 120-200 km/h): km/h at line speed is refused. Gradients up to 80 per mille (adhesion
     /// lines stay below ~70). Engine speed of a high-speed diesel (idle ~600, rated 1800-2100
-    /// rpm), torque of a 95 l engine (~17 kN m at rated power).
+    /// rpm), torque of a 95 l engine (~17 kN m at rated power). Acceleration within
+    /// [-4, 2] m/s^2: wheel-rail adhesion is at most ~0.4 (dry, sanded rail; **assumed**, the
+    /// upper end of the usual figures), and a DMU drives at most half its axles (one powered
+    /// bogie per car, as the simulated 3 x QSK19-R set), so traction stays below
+    /// 0.5 x 0.4 g = 2.0 m/s^2 (the simulator's 150 kN starting effort on 190 t: 0.77 at most);
+    /// braking on every axle below 0.4 g = 3.9 m/s^2, beyond a tram's emergency braking with
+    /// magnetic track brakes (at least 2.73 m/s^2, BOStrab section 36) and the simulator's
+    /// service brake (0.7 m/s^2, up to 0.91 into a platform, and -3.3 in the last second where
+    /// `railcar.rs` stops the train at the platform). A locomotive running light (all axles
+    /// driven, no train) can exceed +2: give it its own range.
     pub fn railcar() -> Self {
         ChannelRanges {
             fuel_cm3_s: [-1.0, 300.0],
@@ -109,6 +130,7 @@ impl ChannelRanges {
             engine_torque_nm: [-5000.0, 30000.0],
             engine_speed_rpm: [-100.0, 3000.0],
             gradient_permille: [-80.0, 80.0],
+            acceleration_m_s2: [-4.0, 2.0],
         }
     }
 
@@ -128,7 +150,48 @@ impl ChannelRanges {
                 ));
             }
         }
+        let [min, max] = self.acceleration_m_s2;
+        if !(min.is_finite() && max.is_finite() && min < 0.0 && 0.0 < max) {
+            return Err(FuelError::invalid(
+                "ranges",
+                format!("acceleration_m_s2 = [{min}, {max}]"),
+                "must be finite with min < 0 < max (a vehicle keeping its speed is plausible)",
+            ));
+        }
         Ok(())
+    }
+
+    /// The acceleration `(speed_m_s - v_p) / (time_s - t_p)` from the last accepted sample
+    /// `previous = (t_p, v_p)` (0 without one), checked against `acceleration_m_s2`. Refused
+    /// samples are never `previous`, so a bad sample does not make the next good one look
+    /// bad; after a gap or refused samples the step is longer and the quotient is the mean
+    /// acceleration over it, which lies within the vehicle's bounds whenever every
+    /// instantaneous one did (mean value theorem): a gap cannot cause a refusal either.
+    pub fn check_acceleration(
+        &self,
+        previous: Option<(f64, f64)>,
+        time_s: f64,
+        speed_m_s: f64,
+    ) -> Result<f64, FuelError> {
+        let Some((previous_s, previous_speed_m_s)) = previous else {
+            return Ok(0.0);
+        };
+        let step_s = time_s - previous_s;
+        let acceleration_m_s2 = (speed_m_s - previous_speed_m_s) / step_s;
+        let [min, max] = self.acceleration_m_s2;
+        if (min..=max).contains(&acceleration_m_s2) {
+            Ok(acceleration_m_s2)
+        } else {
+            Err(FuelError::AccelerationOutOfRange {
+                speed_m_s,
+                previous_speed_m_s,
+                step_s,
+                acceleration_m_s2,
+                min,
+                max,
+                time_s,
+            })
+        }
     }
 }
 

@@ -35,6 +35,23 @@ pub enum FuelError {
         max: f64,
         time_s: f64,
     },
+    /// The speed changed faster than the vehicle can accelerate or brake since the last
+    /// accepted sample (`ChannelRanges::acceleration_m_s2`): speed in another unit (km/h read
+    /// as m/s multiplies every acceleration by 3.6) or a faulty speed sensor.
+    #[error(
+        "sample at t = {time_s} s: speed {speed_m_s} m/s after {previous_speed_m_s} m/s {step_s} s \
+         before is an acceleration of {acceleration_m_s2:.3} m/s^2, outside [{min}, {max}] (speed \
+         in km/h?)"
+    )]
+    AccelerationOutOfRange {
+        speed_m_s: f64,
+        previous_speed_m_s: f64,
+        step_s: f64,
+        acceleration_m_s2: f64,
+        min: f64,
+        max: f64,
+        time_s: f64,
+    },
     /// The time stamp is not finite or does not increase.
     #[error("sample time {time_s} s does not follow the previous time {previous_s} s")]
     TimeNotIncreasing { time_s: f64, previous_s: f64 },
@@ -69,6 +86,7 @@ impl FuelError {
             | FuelError::MissingGear { time_s }
             | FuelError::NonFinite { time_s, .. }
             | FuelError::OutOfRange { time_s, .. }
+            | FuelError::AccelerationOutOfRange { time_s, .. }
             | FuelError::TimeNotIncreasing { time_s, .. }
             | FuelError::SamplePeriod { time_s, .. }
             | FuelError::UnknownCategory { time_s, .. } => Some(*time_s),
@@ -85,6 +103,9 @@ impl FuelError {
             FuelError::NonFinite { channel, value, .. }
             | FuelError::OutOfRange { channel, value, .. } => {
                 Some((channel.column(), value.to_string()))
+            }
+            FuelError::AccelerationOutOfRange { speed_m_s, .. } => {
+                Some((Channel::Speed.column(), speed_m_s.to_string()))
             }
             FuelError::TimeNotIncreasing { time_s, .. }
             | FuelError::SamplePeriod { time_s, .. } => Some(("time_s", time_s.to_string())),

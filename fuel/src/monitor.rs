@@ -366,23 +366,36 @@ impl FuelMonitor {
             && sample.checked(Channel::Speed, ranges)? < self.config.naming.standstill_speed_m_s;
         let needs_speed =
             !(self.config.acceleration_bins_m_s2.is_empty() && self.derived.is_empty());
-        let (acceleration_level, speed_m_s) = if needs_speed {
-            let v = sample.checked(Channel::Speed, ranges)?;
-            let dt = self.previous_time_s.map_or(1.0, |p| sample.time_s - p);
-            let a = self.previous_speed_m_s.map_or(0.0, |p| (v - p) / dt);
-            let gradient = if self.derived.contains(&DerivedChannel::SpecificForce) {
-                crate::sample::effective_gradient_permille(
-                    v,
-                    sample.checked(Channel::Gradient, ranges)?,
-                    self.config.naming.standstill_speed_m_s,
-                )
-            } else {
-                0.0
-            };
-            y.extend(self.derived.iter().map(|d| d.value(v, a, gradient)));
-            (bin_index(&self.config.acceleration_bins_m_s2, a), Some(v))
-        } else {
-            (0, None)
+        // Whenever the estimator uses the speed, its change since the last accepted sample
+        // must be one the vehicle can make (km/h read as m/s is 3.6 times too fast).
+        let speed_m_s = match needs_speed || self.channels.contains(&Channel::Speed) {
+            true => Some(sample.checked(Channel::Speed, ranges)?),
+            false => None,
+        };
+        let acceleration_m_s2 = match speed_m_s {
+            Some(v) => ranges.check_acceleration(
+                self.previous_time_s.zip(self.previous_speed_m_s),
+                sample.time_s,
+                v,
+            )?,
+            None => 0.0,
+        };
+        let acceleration_level = match (needs_speed, speed_m_s) {
+            (true, Some(v)) => {
+                let a = acceleration_m_s2;
+                let gradient = if self.derived.contains(&DerivedChannel::SpecificForce) {
+                    crate::sample::effective_gradient_permille(
+                        v,
+                        sample.checked(Channel::Gradient, ranges)?,
+                        self.config.naming.standstill_speed_m_s,
+                    )
+                } else {
+                    0.0
+                };
+                y.extend(self.derived.iter().map(|d| d.value(v, a, gradient)));
+                bin_index(&self.config.acceleration_bins_m_s2, a)
+            }
+            _ => 0,
         };
         Ok(Prepared {
             acceleration_level,

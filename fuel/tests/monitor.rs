@@ -1,5 +1,6 @@
 //! The monitor on vehicle samples: validation, bad input, long runs, output consistency.
 
+use railmon_fuel::config::ChannelRanges;
 use railmon_fuel::{
     CategoricalConfig, Channel, FuelError, FuelMonitor, FuelMonitorConfig, VehicleSample,
 };
@@ -260,6 +261,11 @@ fn config_errors_name_field_and_value() {
     assert!(msg.contains("forgetting") && msg.contains("1.5"), "{msg}");
     assert!(FuelMonitorConfig::default().validate().is_ok());
     assert!(FuelMonitorConfig::paper().validate().is_ok());
+    // An acceleration range must contain 0 (a vehicle keeping its speed).
+    let mut c = FuelMonitorConfig::railcar();
+    c.ranges.acceleration_m_s2 = [0.5, 2.0];
+    let msg = c.validate().unwrap_err().to_string();
+    assert!(msg.contains("acceleration_m_s2 = [0.5, 2]"), "{msg}");
 }
 
 #[test]
@@ -333,6 +339,52 @@ fn time_stamps_in_milliseconds_are_refused_after_the_first_sample() {
     monitor.update(&locomotive_sample(3, 1.0)).unwrap();
 }
 
+/// A railcar's speed in km/h (the locomotive profile departing from standing at 0.6 m/s^2,
+/// i.e. 2.16 "m/s^2") is refused by the acceleration bound while its speed is still far inside
+/// the range, nothing of it reaches the statistics, and the same monitor takes the m/s data
+/// that follow: the reference is the last accepted sample.
+#[test]
+fn a_railcar_speed_in_km_h_is_refused_by_its_acceleration_and_changes_nothing() {
+    let departure = |t: usize, factor: f64| VehicleSample {
+        speed_m_s: Some((0.6 * t as f64).min(30.0) * factor),
+        ..locomotive_sample(t, 1.0)
+    };
+    let config = FuelMonitorConfig::railcar();
+    // Sees only the samples the other one accepts: t = 3..9 never arrive (a gap).
+    let mut clean = FuelMonitor::new(&config).unwrap();
+    let mut faulty = FuelMonitor::new(&config).unwrap();
+    for t in 0..3 {
+        clean.update(&departure(t, 1.0)).unwrap();
+        faulty.update(&departure(t, 1.0)).unwrap();
+    }
+    for t in 3..10 {
+        let err = faulty.update(&departure(t, 3.6)).unwrap_err();
+        // Judged against t = 2 (1.2 m/s), over t - 2 seconds.
+        let want = (0.6 * 3.6 * t as f64 - 1.2) / (t - 2) as f64;
+        match err {
+            FuelError::AccelerationOutOfRange {
+                acceleration_m_s2,
+                previous_speed_m_s,
+                step_s,
+                ..
+            } => {
+                assert!((acceleration_m_s2 - want).abs() < 1e-9, "{err}");
+                assert_eq!((previous_speed_m_s, step_s), (1.2, (t - 2) as f64));
+            }
+            other => panic!("{other}"),
+        }
+    }
+    assert_eq!(faulty.estimate().samples, 3);
+    // The good data after the refused run: 0.6 m/s^2 on average since t = 2, accepted, and
+    // the same estimates as without the refused samples, to the bit.
+    for t in 10..200 {
+        let a = clean.update(&departure(t, 1.0)).unwrap().clone();
+        let b = faulty.update(&departure(t, 1.0)).unwrap().clone();
+        assert_eq!(a, b, "diverged at {t}");
+    }
+    assert!(faulty.estimate().mixture.is_some());
+}
+
 #[test]
 fn bad_samples_are_errors_and_leave_the_state_untouched() {
     let config = FuelMonitorConfig::paper();
@@ -343,7 +395,7 @@ fn bad_samples_are_errors_and_leave_the_state_untouched() {
     for (t, s) in samples.iter().enumerate() {
         if t % 50 == 7 {
             let mut bad = *s;
-            match (t / 50) % 8 {
+            match (t / 50) % 9 {
                 0 => bad.fuel_cm3_s = Some(f64::NAN),
                 1 => bad.engine_torque_nm = Some(f64::INFINITY),
                 2 => bad.pedal_pct = None,
@@ -352,10 +404,13 @@ fn bad_samples_are_errors_and_leave_the_state_untouched() {
                 5 => bad.time_s += 0.5,
                 // 320 km/h read as m/s: above the road car's 70 m/s.
                 6 => bad.speed_m_s = Some(320.0),
+                // 13 m/s faster than a second ago (inside the range): 13 m/s^2, beyond a
+                // road car's 12.
+                7 => bad.speed_m_s = Some(samples[t - 1].speed_m_s.unwrap() + 13.0),
                 _ => bad.time_s = -1.0,
             }
             let err = faulty.update(&bad).unwrap_err();
-            match (t / 50) % 8 {
+            match (t / 50) % 9 {
                 0 => assert!(matches!(
                     err,
                     FuelError::NonFinite {
@@ -388,6 +443,10 @@ fn bad_samples_are_errors_and_leave_the_state_untouched() {
                         ..
                     }
                 )),
+                7 => assert!(
+                    matches!(err, FuelError::AccelerationOutOfRange { max: 12.0, .. }),
+                    "{err}"
+                ),
                 _ => assert!(matches!(err, FuelError::TimeNotIncreasing { .. })),
             }
         }
@@ -439,9 +498,16 @@ fn monitor_outputs_stay_finite_over_extreme_samples() {
     // plausible range, long constant runs (zero variance) and exact zeros, gear and fuel
     // levels changing at random. Default config (forgetting on) and 3 components. (The 10^6-step
     // version on the mixture itself is in tests/mixture.rs.)
+    // The speed jumps from end to end of its range in a second, which the acceleration bound
+    // refuses: opened here so that these extremes reach the statistics.
+    let ranges = ChannelRanges {
+        acceleration_m_s2: [-100.0, 100.0],
+        ..ChannelRanges::default()
+    };
     let config = FuelMonitorConfig {
         categorical: Some(CategoricalConfig::default()),
         forecast_horizon_steps: 1,
+        ranges,
         ..Default::default()
     };
     let mut monitor = FuelMonitor::new(&config).unwrap();

@@ -434,7 +434,12 @@ async fn vehicle_reports_fuel_forecast_regime_and_metrics_in_base_units() {
         ),
         250.0
     );
-    for reason in ["not_finite", "unknown_category", "missing_channel"] {
+    for reason in [
+        "not_finite",
+        "unknown_category",
+        "missing_channel",
+        "acceleration_out_of_range",
+    ] {
         let name = format!(
             "railmon_stream_samples_rejected_total{{reason=\"{reason}\",stream=\"vehicle\"}}"
         );

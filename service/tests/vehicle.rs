@@ -189,6 +189,24 @@ fn a_missing_or_implausible_channel_is_rejected_and_changes_nothing() {
     rejected_without_effect(FuelMonitorConfig::default(), late, "time_not_increasing");
 }
 
+/// A speed 13 m/s above the last accepted one a second later: inside the road car's range,
+/// beyond its 12 m/s^2. Counted as `acceleration_out_of_range`; the next good sample is
+/// judged against the last accepted one and the estimates go on as if nothing had come.
+#[test]
+fn an_implausible_acceleration_is_rejected_and_changes_nothing() {
+    let previous = fuel_cycles()[299].speed_m_s.unwrap();
+    let jump = VehicleSample {
+        speed_m_s: Some(previous + 13.0),
+        ..next_sample()
+    };
+    assert!(jump.speed_m_s.unwrap() < 70.0);
+    rejected_without_effect(
+        FuelMonitorConfig::default(),
+        jump,
+        "acceleration_out_of_range",
+    );
+}
+
 #[test]
 fn unknown_channel_bits_are_rejected_at_the_frame_check() {
     let harness = VehicleHarness::new(vehicle_config());

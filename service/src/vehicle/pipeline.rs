@@ -80,6 +80,7 @@ fn rejection_of(e: FuelError) -> Rejection {
         FuelError::MissingChannel { .. } | FuelError::MissingGear { .. } => "missing_channel",
         FuelError::NonFinite { .. } => "not_finite",
         FuelError::OutOfRange { .. } => "out_of_range",
+        FuelError::AccelerationOutOfRange { .. } => "acceleration_out_of_range",
         FuelError::UnknownCategory { .. } => "unknown_category",
         FuelError::TimeNotIncreasing { .. } => "time_not_increasing",
         // The sample clock refuses these first; the estimator's own check is the same rule.
@@ -311,7 +312,8 @@ const SAVED_VEHICLE: StateFormat = StateFormat {
     // 5: the config gained `pointer_standing` and `pointer_level_resolutions`, the mixture's
     // spec `level_scales`, the kept samples `standing` (issue 14 item 3; bincode has no field
     // defaults).
-    version: 5,
+    // 6: the channel ranges in its settings gained `acceleration_m_s2`.
+    version: 6,
     what: "vehicle state",
 };
 
@@ -324,6 +326,7 @@ impl Pipeline for VehiclePipeline {
         "not_finite",
         "missing_channel",
         "out_of_range",
+        "acceleration_out_of_range",
         "unknown_category",
         "time_not_increasing",
     ];
