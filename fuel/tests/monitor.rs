@@ -198,10 +198,16 @@ rejects!(
 /// there is no share.
 #[test]
 fn the_standing_share_is_the_weighted_share_of_standing_samples() {
+    // Every fifth sample stands (speed 0) between moving ones, a 12 m/s change in a second that
+    // the acceleration bound refuses: opened here so that the test counts standing samples.
     let config = FuelMonitorConfig {
         components: 1,
         forgetting: 1.0,
         pointer_standing: true,
+        ranges: ChannelRanges {
+            acceleration_m_s2: [-100.0, 100.0],
+            ..FuelMonitorConfig::paper().ranges
+        },
         ..FuelMonitorConfig::paper()
     };
     let mut rng = ChaCha8Rng::seed_from_u64(5);
