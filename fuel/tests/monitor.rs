@@ -577,8 +577,8 @@ fn horizon_one_forecast_is_the_next_one_step_forecast() {
 
 #[test]
 fn fuel_only_virtual_sensor_is_the_one_step_forecast() {
-    // Without the blend (which moves the forecast, not the virtual sensor) and without the
-    // channels derived from the speed.
+    // Without the blend (which moves the forecast and the virtual sensor, each by its own
+    // weight) and without the channels derived from the speed.
     let config = FuelMonitorConfig {
         channels: vec![Channel::Fuel],
         derived_channels: Vec::new(),
