@@ -289,7 +289,10 @@ pub struct FuelMonitorConfig {
     /// combination with the smallest squared error so far (errors of forecasts whose target has
     /// been measured, data up to `t` only, forgotten with `blend_forgetting`). The mixture's
     /// mean forecast loses the regime after a few steps (the pointer is propagated, not known);
-    /// the blend then moves towards the single regression. Off: the mixture alone (the paper).
+    /// the blend then moves towards the single regression. The virtual sensor is blended by
+    /// the same rule (its own weight, from its own errors): on some routes the mixture's is
+    /// significantly worse than the single regression's (docs/fuel.md). Off: the mixture alone
+    /// (the paper).
     pub forecast_blend: bool,
     /// Forgetting of the squared-error sums that set the blend weights, in (0, 1].
     pub blend_forgetting: f64,

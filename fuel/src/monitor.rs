@@ -41,7 +41,8 @@ pub struct MixtureEstimate {
     /// Virtual fuel sensor: fuel now from the other channels now (and data up to `t-1`), each
     /// component's Gaussian conditioned on the observed channels, weighted by the predicted
     /// pointer times the likelihood of those channels. Equals the 1-step forecast when fuel is
-    /// the only continuous channel (and there is no gear).
+    /// the only continuous channel (and there is no gear). Blended with the single
+    /// regression's virtual sensor when `forecast_blend` is on (horizon 0 of the blend).
     pub virtual_sensor_cm3_s: f64,
     /// Predictive of the virtual sensor: the mixture over components of each one's Student-t
     /// of fuel given the other channels, weighted as the virtual sensor is. Its 90 % interval:
@@ -222,7 +223,8 @@ pub struct FuelMonitor {
     standardiser: Option<Standardiser>,
     past: Past,
     mixture: Option<Mixture>,
-    /// The single regression the forecasts are blended with (`forecast_blend`, `m_c > 1`).
+    /// The single regression the forecasts and the virtual sensor are blended with
+    /// (`forecast_blend`, `m_c > 1`).
     baseline: Option<Mixture>,
     blend: Blend,
     /// Forecast path made at the previous step (blended, calibrated).
@@ -615,13 +617,29 @@ impl FuelMonitor {
         }
         normalize_log_weights(&mut log_v)?;
         let virtual_std: f64 = (0..m).map(|i| log_v[i].exp() * cond[i].mean).sum();
-        let virtual_sensor = st.fuel(virtual_std);
-        let mut virtual_terms: Vec<StudentT> = (0..m)
+        let own_sensor = st.fuel(virtual_std);
+        let own_terms: Vec<StudentT> = (0..m)
             .map(|i| {
                 let dof = mixture.components()[i].predictive_dof();
                 st.fuel_term(log_v[i].exp(), cond[i].mean, cond[i].variance, dof)
             })
             .collect();
+        // Blended with the single regression's virtual sensor as the forecasts are (horizon 0
+        // of [`Blend`]: weights from the errors up to `t-1`), then calibrated as they are.
+        let single_sensor = self.baseline.as_ref().map(|b| {
+            let c = b.components()[0].condition_first_on_rest_at(&b.predictions(&psi)[0], &y_other);
+            let dof = b.components()[0].predictive_dof();
+            (
+                st.fuel(c.mean),
+                vec![st.fuel_term(1.0, c.mean, c.variance, dof)],
+            )
+        });
+        let (virtual_sensor, mut virtual_terms) = match &single_sensor {
+            Some((single, terms)) => self
+                .blend
+                .pool(0, (own_sensor, &own_terms), (*single, terms)),
+            None => (own_sensor, own_terms),
+        };
         self.calibration
             .scale(0, virtual_sensor, &mut virtual_terms);
 
@@ -656,6 +674,10 @@ impl FuelMonitor {
         let one_step = self.pending_forecast.mean_cm3_s.first().copied();
         let one_step_terms = self.pending_forecast.terms.first().cloned();
         self.blend.observe(p.y[0], self.config.blend_forgetting);
+        if let Some((single, _)) = single_sensor {
+            self.blend
+                .observe_sensor(own_sensor, single, p.y[0], self.config.blend_forgetting);
+        }
         self.calibration.observe(0, &virtual_terms, p.y[0]);
         self.calibration.observe_forecasts(p.y[0]);
         let next = self.blended_forecast();
@@ -1336,9 +1358,11 @@ fn shift_regressor_covariance<N: crate::kernel::Size>(
 /// the one-sided 95 % confidence interval of its least-squares weight ([`HorizonSums::weight`]).
 const BLEND_WEIGHT_Z: f64 = 1.644_853_626_951_472;
 
-/// Per-horizon blend of the mixture's forecast with the single regression's: per horizon the
-/// forgotten sums that give the combination weight and its standard error, and the forecast
-/// paths still waiting for their targets (newest first).
+/// Blend of the mixture with the single regression, per horizon: index 0 the virtual sensor,
+/// `h` the forecast `h` steps ahead. Per horizon the forgotten sums that give the combination
+/// weight and its standard error, and the forecast paths still waiting for their targets
+/// (newest first). The virtual sensor's target is measured at the step it is made for, so its
+/// errors do not overlap and its sums have no lag beyond 0 (as the 1-step forecast's).
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 struct Blend {
     sums: Vec<HorizonSums>,
@@ -1429,14 +1453,14 @@ impl HorizonSums {
 impl Blend {
     fn new(horizon: usize) -> Self {
         Blend {
-            sums: (1..=horizon).map(HorizonSums::new).collect(),
+            sums: (0..=horizon).map(|h| HorizonSums::new(h.max(1))).collect(),
             waiting: VecDeque::with_capacity(horizon + 1),
         }
     }
 
-    /// Weight of the mixture at horizon `h` (1-based), [`HorizonSums::weight`].
+    /// Weight of the mixture at horizon `h` (0 the virtual sensor), [`HorizonSums::weight`].
     fn weight(&self, h: usize) -> f64 {
-        self.sums[h - 1].weight()
+        self.sums[h].weight()
     }
 
     /// Scores the waiting forecasts of this sample's measured fuel (forgetting older errors).
@@ -1445,36 +1469,54 @@ impl Blend {
             let (Some(m), Some(s)) = (own.get(age), single.get(age)) else {
                 continue;
             };
-            self.sums[age].observe(m - fuel_cm3_s, s - fuel_cm3_s, forgetting);
+            self.sums[age + 1].observe(m - fuel_cm3_s, s - fuel_cm3_s, forgetting);
         }
+    }
+
+    /// Scores this sample's virtual sensors (mixture `own`, single regression `single`) of its
+    /// measured fuel; they were made before it was seen, so the next weight is causal.
+    fn observe_sensor(&mut self, own: f64, single: f64, fuel_cm3_s: f64, forgetting: f64) {
+        self.sums[0].observe(own - fuel_cm3_s, single - fuel_cm3_s, forgetting);
     }
 
     fn remember(&mut self, own: Vec<f64>, single: Vec<f64>) {
         self.waiting.push_front((own, single));
-        self.waiting.truncate(self.sums.len());
+        self.waiting.truncate(self.sums.len() - 1);
     }
 
-    /// The blended path (without intervals): means `w m + (1 - w) s`, predictive the pool of
-    /// both mixtures with weights `w` and `1 - w`.
+    /// Horizon `h`'s blend (0 the virtual sensor): mean `w m + (1 - w) s`, predictive the pool
+    /// of both mixtures' terms with weights `w` and `1 - w`.
+    fn pool(
+        &self,
+        h: usize,
+        (own_mean, own_terms): (f64, &[StudentT]),
+        (single_mean, single_terms): (f64, &[StudentT]),
+    ) -> (f64, Vec<StudentT>) {
+        let w = self.weight(h);
+        let scaled = |terms: &[StudentT], by: f64| {
+            terms
+                .iter()
+                .map(move |t| StudentT {
+                    weight: t.weight * by,
+                    ..*t
+                })
+                .collect::<Vec<_>>()
+        };
+        let mut terms = scaled(own_terms, w);
+        terms.extend(scaled(single_terms, 1.0 - w));
+        (w * own_mean + (1.0 - w) * single_mean, terms)
+    }
+
+    /// The blended forecast path (without intervals), [`Blend::pool`] per horizon.
     fn combine(&self, own: &ForecastPath, single: &ForecastPath) -> ForecastPath {
         let mut out = ForecastPath::with_capacity(own.mean_cm3_s.len());
         for h in 1..=own.mean_cm3_s.len() {
-            let w = self.weight(h);
-            let scaled = |terms: &[StudentT], by: f64| {
-                terms
-                    .iter()
-                    .map(move |t| StudentT {
-                        weight: t.weight * by,
-                        ..*t
-                    })
-                    .collect::<Vec<_>>()
-            };
-            let mut terms = scaled(&own.terms[h - 1], w);
-            terms.extend(scaled(&single.terms[h - 1], 1.0 - w));
-            out.push(
-                w * own.mean_cm3_s[h - 1] + (1.0 - w) * single.mean_cm3_s[h - 1],
-                terms,
+            let (mean, terms) = self.pool(
+                h,
+                (own.mean_cm3_s[h - 1], &own.terms[h - 1]),
+                (single.mean_cm3_s[h - 1], &single.terms[h - 1]),
             );
+            out.push(mean, terms);
         }
         out
     }
@@ -1581,6 +1623,68 @@ impl IntervalCalibration {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The virtual sensor's blend (horizon 0), on seeded errors with known truth. Where the
+    /// mixture's sensor is the single regression's plus independent noise (true weight 0) the
+    /// weight is 0 nearly always and the blend's squared error is the single regression's
+    /// (the least-squares weight itself would be positive half of the time). Where the
+    /// mixture's error is `(e_s + n) / 2`, `n` independent of `e_s` with its variance (true
+    /// weight 1, its standard error about `1 / sqrt(632)` with forgetting 0.999) the weight
+    /// stays near 1.
+    #[test]
+    fn virtual_sensor_blend_is_the_single_regression_unless_the_mixture_helps_significantly() {
+        use rand::SeedableRng;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(14);
+        let mut normal = || -> f64 { rand::Rng::sample(&mut rng, rand_distr::StandardNormal) };
+        let unit = |location: f64| {
+            vec![StudentT {
+                weight: 1.0,
+                location,
+                scale: 1.0,
+                dof: 1e9,
+            }]
+        };
+        let (mut useless, mut better) = (Blend::new(10), Blend::new(10));
+        let (mut zero_weights, mut weight_sum) = (0, 0.0);
+        let mut squares = [0.0; 4]; // blended useless, single, blended better, mixture better
+        for t in 0..1000 {
+            let fuel = 10.0 + normal();
+            let single = fuel + normal();
+            let noisy = single + normal();
+            let good = fuel + 0.5 * (single - fuel) + 0.5 * normal();
+            if t >= 200 {
+                let w = useless.weight(0);
+                zero_weights += usize::from(w == 0.0);
+                let (blended, terms) =
+                    useless.pool(0, (noisy, &unit(noisy)), (single, &unit(single)));
+                assert_eq!(blended, w * noisy + (1.0 - w) * single);
+                assert_eq!(terms.len(), 2);
+                assert_eq!(terms[0].weight, w);
+                weight_sum += better.weight(0);
+                let (blended_good, _) =
+                    better.pool(0, (good, &unit(good)), (single, &unit(single)));
+                for (sum, e) in squares
+                    .iter_mut()
+                    .zip([blended, single, blended_good, good])
+                {
+                    *sum += (e - fuel).powi(2);
+                }
+            }
+            useless.observe_sensor(noisy, single, fuel, 0.999);
+            better.observe_sensor(good, single, fuel, 0.999);
+        }
+        assert!(
+            zero_weights >= 720,
+            "{zero_weights} of 800 steps at weight 0"
+        );
+        assert!(squares[0] <= 1.01 * squares[1], "{squares:?}");
+        assert!(weight_sum / 800.0 > 0.85, "{weight_sum}");
+        assert!(better.weight(0) > 0.85, "{}", better.weight(0));
+        assert!(squares[2] <= 1.02 * squares[3], "{squares:?}");
+        assert!(squares[2] < 0.6 * squares[1], "{squares:?}");
+        // The forecast horizons are untouched by the sensor's errors.
+        assert!((1..=10).all(|h| better.weight(h) == 0.0));
+    }
 
     /// The calibration's guarantee on targets its predictive gets wrong (a unit normal against
     /// Student-t targets with 2 degrees of freedom and twice the scale, seeded): the share of

@@ -313,7 +313,8 @@ const SAVED_VEHICLE: StateFormat = StateFormat {
     // spec `level_scales`, the kept samples `standing` (issue 14 item 3; bincode has no field
     // defaults).
     // 6: the channel ranges in its settings gained `acceleration_m_s2`.
-    version: 6,
+    // 7: the forecast blend gained horizon 0 (the virtual sensor's weight sums).
+    version: 7,
     what: "vehicle state",
 };
 
