@@ -2,14 +2,24 @@
 //! and 10 (the samples and settings of `benches/mixture.rs`), from the thread's own CPU clock
 //! (`railmon_bench_support`): on the shared 2-core build machine criterion's wall-clock medians
 //! rise with the other jobs' load, the time this thread spends on a core much less.
+//! Rows `update` and `update_and_intervals` run the paper's setting (the bench item);
+//! `update_default` runs `FuelMonitorConfig::default()`, the service's setting (fuel, speed and
+//! derived channels, forecasts and virtual sensor blended with the single regression).
 //! Prints a table. Run with `cargo bench -p railmon-fuel --bench cpu_time` (one row: `-- update/3`).
 
 mod common;
 use common::{every_interval, initialised_monitor, sample};
+use railmon_fuel::FuelMonitorConfig;
 
 /// CPU and wall time per step, µs, over `steps` steps after `warm_up` unmeasured ones.
-fn measure(m_c: usize, with_intervals: bool, warm_up: usize, steps: usize) -> (f64, f64) {
-    let (mut monitor, mut t) = initialised_monitor(m_c);
+fn measure(
+    setting: FuelMonitorConfig,
+    m_c: usize,
+    with_intervals: bool,
+    warm_up: usize,
+    steps: usize,
+) -> (f64, f64) {
+    let (mut monitor, mut t) = initialised_monitor(setting, m_c);
     let mut run = |n: usize| {
         let mut kept = 0.0;
         for _ in 0..n {
@@ -39,26 +49,30 @@ fn main() {
         .collect();
     println!("| row | m_c | CPU µs/step | steps/s (CPU) | wall µs/step |");
     println!("|---|---|---|---|---|");
-    for m_c in [3usize, 10] {
-        for with_intervals in [false, true] {
-            let steps = match (m_c, with_intervals) {
-                (3, false) => 20_000,
-                (3, true) | (10, false) => 4_000,
-                _ => 1_000,
-            };
+    let paper_rows = [3usize, 10].into_iter().flat_map(|m_c| {
+        [false, true].map(|with_intervals| {
             let row = if with_intervals {
                 "update_and_intervals"
             } else {
                 "update"
             };
-            if !only.is_empty() && !only.contains(&format!("{row}/{m_c}")) {
-                continue;
-            }
-            let (cpu_us, wall_us) = measure(m_c, with_intervals, steps / 10, steps);
-            println!(
-                "| {row} | {m_c} | {cpu_us:.2} | {:.0} | {wall_us:.2} |",
-                1e6 / cpu_us
-            );
+            (row, FuelMonitorConfig::paper(), m_c, with_intervals)
+        })
+    });
+    let default_row = ("update_default", FuelMonitorConfig::default(), 3, false);
+    for (row, setting, m_c, with_intervals) in paper_rows.chain([default_row]) {
+        let steps = match (m_c, with_intervals) {
+            (3, false) => 20_000,
+            (3, true) | (10, false) => 4_000,
+            _ => 1_000,
+        };
+        if !only.is_empty() && !only.contains(&format!("{row}/{m_c}")) {
+            continue;
         }
+        let (cpu_us, wall_us) = measure(setting, m_c, with_intervals, steps / 10, steps);
+        println!(
+            "| {row} | {m_c} | {cpu_us:.2} | {:.0} | {wall_us:.2} |",
+            1e6 / cpu_us
+        );
     }
 }

@@ -19,12 +19,13 @@ pub fn sample(t: usize) -> VehicleSample {
     }
 }
 
-/// A monitor in the paper's setting with `m_c` components, past its initial samples, and the
-/// index of the next sample.
-pub fn initialised_monitor(m_c: usize) -> (FuelMonitor, usize) {
+/// A monitor in `setting` (the paper's for the bench item; `FuelMonitorConfig::default()`
+/// is what the service runs) with `m_c` components, past its initial samples, and the index of
+/// the next sample.
+pub fn initialised_monitor(setting: FuelMonitorConfig, m_c: usize) -> (FuelMonitor, usize) {
     let config = FuelMonitorConfig {
         components: m_c,
-        ..FuelMonitorConfig::paper()
+        ..setting
     };
     let mut monitor = FuelMonitor::new(&config).expect("valid config");
     let mut t = 0;
