@@ -65,6 +65,23 @@ pub struct MixtureSpec {
     /// physical resolutions, `pointer_level_resolutions`).
     #[serde(default)]
     pub level_scales: Vec<f64>,
+    /// With level channels, `Some(channels)`: a standing vehicle (`MixtureInput::standing`) is
+    /// a state of its own, not a point of the levels' continuum. Its speed is exactly 0 (and
+    /// so is every level derived from it): as a Gaussian level that point mass either costs a
+    /// tuning floor or pulls a standing component onto the slow creep into a platform
+    /// (docs/fuel.md). So at standstill the evidence is the density of these level channels
+    /// (indices into `y`, those measured while standing: the fuel) under a second set of
+    /// static statistics per component, updated only with standing samples; the left-out
+    /// channels are point masses at 0, the same for every component, so they drop out of the
+    /// pointer. Standstill is observed, so it is a regime given, not learned: component 0 is
+    /// the standing one, every standing sample is its and no moving sample is
+    /// (`ln P_i(standing)` is 0 or minus infinity). A learned share (a Beta-Bernoulli count
+    /// per component) was measured first: a component that brakes to a stop and stands pays
+    /// only `ln 2` a sample for mixing both, and on the loaded railcar route one did, its name
+    /// flipping between `braking` and `idle` at every stop (docs/fuel.md). `None`: every
+    /// sample under the one set of level statistics.
+    #[serde(default)]
+    pub standing_level_channels: Option<Vec<usize>>,
 }
 
 /// One step's data for the mixture.
@@ -78,6 +95,8 @@ pub struct MixtureInput<'a> {
     pub category: Option<(usize, usize)>,
     /// The configuration `k` of `phi_{t-1}`.
     pub switching_row: usize,
+    /// The vehicle stands (only read with [`MixtureSpec::standing_level_channels`]).
+    pub standing: bool,
 }
 
 /// The estimator state: component statistics, categorical counts, switching counts, pointer.
@@ -101,6 +120,11 @@ pub struct Mixture {
     /// ([`MixtureSpec::level_channels`], `psi = [1]`); empty when those are.
     #[serde(default)]
     levels: Vec<RegressionStats>,
+    /// Per component, the static statistics of the levels measured at standstill
+    /// ([`MixtureSpec::standing_level_channels`]), updated with standing samples only; empty
+    /// without them.
+    #[serde(default)]
+    standing_levels: Vec<RegressionStats>,
     /// The buffers a step updates the statistics in (the components of two steps ago; empty
     /// after a restore).
     #[serde(skip)]
@@ -173,8 +197,22 @@ impl Mixture {
         }
         let levels = match spec.level_channels.len() {
             0 => Vec::new(),
-            _ => vec![level_prior(&spec)?; m],
+            n => vec![level_prior(&spec, n)?; m],
         };
+        let standing_levels = match &spec.standing_level_channels {
+            None => Vec::new(),
+            Some(kept) => {
+                if kept.is_empty() || kept.iter().any(|c| !spec.level_channels.contains(c)) {
+                    return Err(FuelError::invalid(
+                        "standing_level_channels",
+                        format!("{kept:?}"),
+                        "must be some of the level channels",
+                    ));
+                }
+                vec![level_prior(&spec, kept.len())?; m]
+            }
+        };
+
         let categorical = if spec.categories > 0 {
             vec![
                 CountTable::new(spec.categorical_rows, spec.categories, |_, _| spec
@@ -195,6 +233,7 @@ impl Mixture {
         Ok(Mixture {
             components: vec![comp; m],
             levels,
+            standing_levels,
             categorical,
             switching,
             log_w: vec![-(m as f64).ln(); m],
@@ -337,20 +376,51 @@ impl Mixture {
         &self,
         i: usize,
         y: &DVector<f64>,
+        standing: bool,
         conditional: &crate::regression::Conditional,
     ) -> f64 {
-        let Some(data) = LevelData::of(&self.spec, y) else {
+        let Some(data) = LevelData::of(&self.spec, y, standing) else {
             return conditional.log_density;
         };
-        let level = &self.levels[i];
+        let level = self.level_stats(i, &data);
         let pu = self.spec.parameter_uncertainty;
-        match self.spec.level_channels.iter().position(|&c| c == 0) {
-            None => level.log_proximity(&data.x, &data.psi, pu),
-            // Fuel among the levels: the marginal of the others (drop fuel's row and column).
-            Some(fuel) => {
-                let others: Vec<usize> = (0..data.x.len()).filter(|&k| k != fuel).collect();
-                level.log_marginal_density(&others, &data.x, &data.psi, pu)
+        self.log_standing(i, standing)
+            + match data.fuel {
+                None => level.log_proximity(&data.x, &data.psi, pu),
+                // Fuel the only level (at standstill): nothing else to weigh.
+                Some(_) if data.x.len() == 1 => 0.0,
+                // Fuel among the levels: the marginal of the others (drop fuel's row and column).
+                Some(fuel) => {
+                    let others: Vec<usize> = (0..data.x.len()).filter(|&k| k != fuel).collect();
+                    level.log_marginal_density(&others, &data.x, &data.psi, pu)
+                }
             }
+    }
+
+    /// `ln P_i(standing)` (or moving) of component `i`: 0 without standing levels, else 0 for
+    /// the standing component (0) on standing samples and the others on moving ones, minus
+    /// infinity otherwise.
+    fn log_standing(&self, i: usize, standing: bool) -> f64 {
+        log_standing(&self.spec, i, standing)
+    }
+
+    /// Component `i`'s share of standing samples (`None` without standing levels): 1 for the
+    /// standing component, 0 for the others.
+    pub fn standing_share(&self, i: usize) -> Option<f64> {
+        self.spec.standing_level_channels.as_ref().map(|_| {
+            if i == STANDING_COMPONENT {
+                1.0
+            } else {
+                0.0
+            }
+        })
+    }
+
+    /// Component `i`'s level statistics for `data`'s kind of sample (standing or not).
+    fn level_stats(&self, i: usize, data: &LevelData) -> &RegressionStats {
+        match data.standing {
+            true => &self.standing_levels[i],
+            false => &self.levels[i],
         }
     }
 
@@ -423,23 +493,23 @@ impl Mixture {
         // Steps 2-4: proximities of y_t, probabilities of z_t, alpha_k and w_{t-1}, in logs.
         let log_alpha = self.log_alpha_block(k);
         let mut log_joint = vec![0.0; m * m];
-        let x = LevelData::of(&self.spec, input.y);
+        let x = LevelData::of(&self.spec, input.y, input.standing);
         for i in 0..m {
             // The kept predictions serve the default proximity (same bits); the measured-data
             // density (off by default) is computed from the input.
             let evidence = match (&x, self.spec.measured_channels) {
                 (Some(x), _) => level_evidence(
                     &self.components[i],
-                    &self.levels[i],
+                    self.level_stats(i, x),
                     input.y,
                     &predictions[i],
                     x,
-                    self.spec.level_channels.contains(&0),
                     self.spec.parameter_uncertainty,
                 ),
                 (None, Some(_)) => proximity(&self.spec, &self.components[i], input),
                 (None, None) => self.components[i].log_proximity_at(input.y, &predictions[i]),
-            } + self.log_category(i, input.category);
+            } + self.log_category(i, input.category)
+                + self.log_standing(i, input.standing);
             for j in 0..m {
                 log_joint[i * m + j] = evidence + log_alpha[j * m + i] + self.log_w[j];
             }
@@ -465,24 +535,31 @@ impl Mixture {
             let forget = (lambda < 1.0).then(|| (lambda.powf(w), &self.v0, self.spec.prior_kappa));
             comp.update(&d, w, forget)?;
         }
-        // The level statistics with the same weights and forgetting (a few numbers each).
+        // The level statistics of the sample's kind with the same weights and forgetting (a
+        // few numbers each); a standing sample leaves the moving statistics alone, and the
+        // other way round.
         let levels = match &x {
             Some(x) => {
-                let level_v0 = level_v0(&self.spec);
-                let mut levels = self.levels.clone();
+                let level_v0 = level_v0(&self.spec, x.x.len());
+                let mut levels = match x.standing {
+                    true => self.standing_levels.clone(),
+                    false => self.levels.clone(),
+                };
                 for (i, level) in levels.iter_mut().enumerate() {
                     let w = log_w[i].exp();
                     let forget =
                         (lambda < 1.0).then(|| (lambda.powf(w), &level_v0, self.spec.prior_kappa));
                     level.update(&x.d, w, forget)?;
                 }
-                Some(levels)
+                Some((x.standing, levels))
             }
             None => None,
         };
         self.spare = std::mem::replace(&mut self.components, updated);
-        if let Some(levels) = levels {
-            self.levels = levels;
+        match levels {
+            Some((true, levels)) => self.standing_levels = levels,
+            Some((false, levels)) => self.levels = levels,
+            None => {}
         }
         if let Some((q, l)) = input.category {
             for (i, table) in self.categorical.iter_mut().enumerate() {
@@ -535,20 +612,19 @@ impl Mixture {
             .iter()
             .map(|&l| (0..m).map(|i| if i == l { 1.0 } else { 0.0 }).collect())
             .collect();
-        // The level channels' data vectors `[x; 1]` (empty without them).
-        let xs: Vec<DVector<f64>> = data
+        // The level data of every sample (`None` without level channels).
+        let xs: Vec<Option<LevelData>> = data
             .iter()
-            .filter_map(|x| LevelData::of(&mix.spec, x.y).map(|l| l.d))
+            .map(|x| LevelData::of(&mix.spec, x.y, x.standing))
             .collect();
         let fit = |prior: &RegressionStats,
-                   ds: &[DVector<f64>],
-                   resp: &[Vec<f64>],
+                   ds: &[(&DVector<f64>, &[f64])],
                    w: f64|
          -> Result<Vec<RegressionStats>, FuelError> {
             (0..m)
                 .map(|i| {
                     let mut c = prior.clone();
-                    for (d, r) in ds.iter().zip(resp) {
+                    for (d, r) in ds {
                         c.accumulate(d, w * r[i]);
                     }
                     c.recompute()?;
@@ -557,29 +633,59 @@ impl Mixture {
                 .collect()
         };
         let prior = mix.components[0].clone();
-        let level_prior = mix.levels.first().cloned();
-        let fit_levels = |resp: &[Vec<f64>], w: f64| match &level_prior {
-            Some(prior) => fit(prior, &xs, resp, w),
-            None => Ok(Vec::new()),
+        // The moving and the standing level statistics, each from its own kind of sample.
+        let level_priors = (
+            mix.levels.first().cloned(),
+            mix.standing_levels.first().cloned(),
+        );
+        let fit_levels = |resp: &[Vec<f64>], w: f64| {
+            let of_kind = |standing: bool| -> Vec<(&DVector<f64>, &[f64])> {
+                (xs.iter().zip(resp))
+                    .filter_map(|(x, r)| x.as_ref().map(|x| (x, r)))
+                    .filter(|(x, _)| x.standing == standing)
+                    .map(|(x, r)| (&x.d, r.as_slice()))
+                    .collect()
+            };
+            let fit_kind = |prior: &Option<RegressionStats>, standing: bool| match prior {
+                Some(prior) => fit(prior, &of_kind(standing), w),
+                None => Ok(Vec::new()),
+            };
+            Ok::<_, FuelError>((
+                fit_kind(&level_priors.0, false)?,
+                fit_kind(&level_priors.1, true)?,
+            ))
         };
+        fn weighted<'a>(
+            ds: &'a [DVector<f64>],
+            resp: &'a [Vec<f64>],
+        ) -> Vec<(&'a DVector<f64>, &'a [f64])> {
+            ds.iter()
+                .zip(resp)
+                .map(|(d, r)| (d, r.as_slice()))
+                .collect()
+        }
         for _ in 0..iterations {
-            let comps = fit(&prior, &ds, &resp, 1.0)?;
-            let levels = fit_levels(&resp, 1.0)?;
+            let comps = fit(&prior, &weighted(&ds, &resp), 1.0)?;
+            let (levels, standing_levels) = fit_levels(&resp, 1.0)?;
             let log_pi: Vec<f64> = (0..m)
                 .map(|i| (resp.iter().map(|r| r[i]).sum::<f64>() + 1.0).ln())
                 .collect();
-            for (input, r) in data.iter().zip(resp.iter_mut()) {
+
+            for ((input, x), r) in data.iter().zip(&xs).zip(resp.iter_mut()) {
                 let mut l: Vec<f64> = (0..m)
                     .map(|i| {
                         log_pi[i]
-                            + match LevelData::of(&mix.spec, input.y) {
+                            + mix.log_standing(i, input.standing)
+                            + match x {
                                 Some(x) => level_evidence(
                                     &comps[i],
-                                    &levels[i],
+                                    match x.standing {
+                                        true => &standing_levels[i],
+                                        false => &levels[i],
+                                    },
                                     input.y,
                                     &comps[i].predict(input.psi, mix.spec.parameter_uncertainty),
-                                    &x,
-                                    mix.spec.level_channels.contains(&0),
+                                    x,
                                     mix.spec.parameter_uncertainty,
                                 ),
                                 None => proximity(&mix.spec, &comps[i], input),
@@ -592,16 +698,15 @@ impl Mixture {
                 }
             }
         }
-        mix.components = fit(&prior, &ds, &resp, weight)?;
-        if level_prior.is_some() {
-            mix.levels = fit_levels(&resp, weight)?;
-        }
+        mix.components = fit(&prior, &weighted(&ds, &resp), weight)?;
+        (mix.levels, mix.standing_levels) = fit_levels(&resp, weight)?;
         for (t, input) in data.iter().enumerate() {
             if let Some((q, l)) = input.category {
                 for (i, table) in mix.categorical.iter_mut().enumerate() {
                     table.add(q, l, weight * resp[t][i]);
                 }
             }
+
             if t > 0 {
                 let k = input.switching_row;
                 for j in 0..m {
@@ -652,48 +757,80 @@ fn proximity(spec: &MixtureSpec, c: &RegressionStats, input: &MixtureInput) -> f
     }
 }
 
+/// The component that holds every standing sample when standstill is a regime given
+/// ([`MixtureSpec::standing_level_channels`]).
+pub const STANDING_COMPONENT: usize = 0;
+
+/// `ln P_i(standing)` of [`Mixture::log_standing`].
+fn log_standing(spec: &MixtureSpec, i: usize, standing: bool) -> f64 {
+    match spec.standing_level_channels {
+        Some(_) if (i == STANDING_COMPONENT) != standing => f64::NEG_INFINITY,
+        _ => 0.0,
+    }
+}
+
 /// One sample's data for the level statistics.
 struct LevelData {
-    /// The level channels (the outputs of the static model).
+    /// The level channels (the outputs of the static model): at standstill (with
+    /// [`MixtureSpec::standing_level_channels`]) those measured there only.
     x: DVector<f64>,
     /// Its regressor `[level regressors; 1]`.
     psi: DVector<f64>,
     /// `[x; psi]`, the data vector of the statistics.
     d: DVector<f64>,
+    /// Whose statistics: the standing ones or the moving ones.
+    standing: bool,
+    /// The fuel's position in `x`, if it is a level.
+    fuel: Option<usize>,
 }
 
 impl LevelData {
-    /// The level data of `y` (`None` without level channels).
-    fn of(spec: &MixtureSpec, y: &DVector<f64>) -> Option<Self> {
+    /// The level data of `y` (`None` without level channels), `standing` or not.
+    fn of(spec: &MixtureSpec, y: &DVector<f64>, standing: bool) -> Option<Self> {
         if spec.level_channels.is_empty() {
             return None;
         }
-        let pick = |idx: &[usize]| idx.iter().map(|&c| y[c]).collect::<Vec<_>>();
-        let mut x = DVector::from_vec(pick(&spec.level_channels));
-        for (x, scale) in x.iter_mut().zip(&spec.level_scales) {
-            *x /= scale;
-        }
-        let mut psi = pick(&spec.level_regressors);
+        let (channels, standing) = match (&spec.standing_level_channels, standing) {
+            (Some(kept), true) => (kept.as_slice(), true),
+            _ => (spec.level_channels.as_slice(), false),
+        };
+        let x = channels.iter().map(|&c| {
+            // Scales are per level channel (empty: 1 each).
+            let scale = (spec.level_channels.iter().position(|&l| l == c))
+                .and_then(|k| spec.level_scales.get(k))
+                .unwrap_or(&1.0);
+            y[c] / scale
+        });
+        let x = DVector::from_iterator(channels.len(), x);
+        let mut psi: Vec<f64> = spec.level_regressors.iter().map(|&c| y[c]).collect();
         psi.push(1.0);
         let psi = DVector::from_vec(psi);
         let d = concat(&x, &psi);
-        Some(LevelData { x, psi, d })
+        let fuel = channels.iter().position(|&c| c == 0);
+        Some(LevelData {
+            x,
+            psi,
+            d,
+            standing,
+            fuel,
+        })
     }
 }
 
-/// The prior information matrix of the level statistics, `prior_information I` over `[x; psi]`.
-fn level_v0(spec: &MixtureSpec) -> DMatrix<f64> {
-    let d = spec.level_channels.len() + spec.level_regressors.len() + 1;
+/// The prior information matrix of level statistics of `channels` levels, `prior_information
+/// I` over `[x; psi]`.
+fn level_v0(spec: &MixtureSpec, channels: usize) -> DMatrix<f64> {
+    let d = channels + spec.level_regressors.len() + 1;
     DMatrix::identity(d, d) * spec.prior_information
 }
 
-/// A component's level statistics at the prior: a Gauss-inverse-Wishart regression of the
-/// level channels on `[level regressors; 1]` and no lags (with no regressors, `psi = [1]`:
-/// `theta` is the mean and `r` the covariance).
-fn level_prior(spec: &MixtureSpec) -> Result<RegressionStats, FuelError> {
+/// A component's statistics of `channels` levels at the prior: a Gauss-inverse-Wishart
+/// regression of the level channels on `[level regressors; 1]` and no lags (with no
+/// regressors, `psi = [1]`: `theta` is the mean and `r` the covariance).
+fn level_prior(spec: &MixtureSpec, channels: usize) -> Result<RegressionStats, FuelError> {
     RegressionStats::new(
-        spec.level_channels.len(),
-        level_v0(spec),
+        channels,
+        level_v0(spec, channels),
         spec.prior_kappa,
         spec.level_min_variance.max(spec.min_noise_variance),
     )
@@ -722,11 +859,10 @@ fn level_evidence(
     y: &DVector<f64>,
     prediction: &Prediction,
     data: &LevelData,
-    fuel_is_level: bool,
     parameter_uncertainty: bool,
 ) -> f64 {
     // Fuel's level among the levels: its density there, not again through the regression.
-    let log_fuel = if fuel_is_level {
+    let log_fuel = if data.fuel.is_some() {
         0.0
     } else {
         comp.condition_first_on_rest_at(prediction, &y.rows(1, comp.k_y() - 1).into_owned())

@@ -259,7 +259,7 @@ impl FuelMonitor {
                 .collect(),
             None => (0..channels.len()).collect(),
         };
-        let categories = config.mixture_categories();
+        let categories = config.notch_categories();
         let spec = MixtureSpec {
             components: config.components,
             k_y,
@@ -284,6 +284,26 @@ impl FuelMonitor {
                 false => 1.0,
             },
             level_scales: Vec::new(),
+            // With the levels, standstill is a state of its own: only the measured channels
+            // other than the speed stay levels there (speed and everything derived from it
+            // are 0).
+            standing_level_channels: (config.pointer_standing
+                && !config.pointer_levels.is_empty())
+            .then(|| {
+                let levels = config.pointer_level_indices()?;
+                let kept: Vec<usize> = (levels.iter().copied())
+                    .filter(|&c| c < channels.len() && channels[c] != Channel::Speed)
+                    .collect();
+                match kept.is_empty() {
+                    true => Err(FuelError::invalid(
+                        "pointer_levels",
+                        format!("{:?}", config.pointer_levels),
+                        "with `pointer_standing`, must hold a channel measured at standstill (fuel)",
+                    )),
+                    false => Ok(kept),
+                }
+            })
+            .transpose()?,
         };
         Ok(FuelMonitor {
             config: config.clone(),
@@ -456,14 +476,12 @@ impl FuelMonitor {
     }
 
     /// The categorical cell `(q, l)` of the sample `now`: `q` the previous notch and speed
-    /// level, `l` the notch now, or with `pointer_standing` the pair (notch, standing) as
-    /// `notch + standing * notches`.
+    /// level, `l` the notch now.
     fn category_cell(&self, past: &Past, now: &Prepared) -> Option<(usize, usize)> {
-        let standing = usize::from(now.standing) * self.config.notch_categories();
         now.category.map(|l| {
             (
                 past.category.unwrap_or(0) * self.config.speed_levels() + past.speed_level,
-                l + standing,
+                l,
             )
         })
     }
@@ -518,9 +536,11 @@ impl FuelMonitor {
         let mut psis = Vec::new();
         let mut cells = Vec::new();
         let mut rows = Vec::new();
+        let mut standing = Vec::new();
         for (t, p) in self.initial.iter().enumerate() {
             let y = st.apply(&p.y);
             if t >= start {
+                standing.push(p.standing);
                 psis.push(self.regressor(&past));
                 cells.push(self.category_cell(&past, p));
                 rows.push(self.switching_row(&past));
@@ -534,6 +554,7 @@ impl FuelMonitor {
                 psi: &psis[t],
                 category: cells[t],
                 switching_row: rows[t],
+                standing: standing[t],
             })
             .collect();
         let m = self.config.components;
@@ -542,9 +563,13 @@ impl FuelMonitor {
             // Component 0 the lowest fuel, m_c - 1 the highest.
             order.sort_by(|&a, &b| ys[a][0].total_cmp(&ys[b][0]));
         }
-        let mut labels = vec![0; ys.len()];
+        // With standstill a regime given, its samples are the standing component's and the
+        // moving ones share the others.
+        let given = usize::from(self.spec.standing_level_channels.is_some());
+        order.retain(|&t| given == 0 || !standing[t]);
+        let mut labels = vec![crate::mixture::STANDING_COMPONENT; ys.len()];
         for (rank, &t) in order.iter().enumerate() {
-            labels[t] = rank * m / ys.len();
+            labels[t] = given + rank * (m - given) / order.len();
         }
         let mixture = Mixture::from_batch(
             self.spec.clone(),
@@ -559,6 +584,7 @@ impl FuelMonitor {
                 components: 1,
                 level_channels: Vec::new(),
                 level_regressors: Vec::new(),
+                standing_level_channels: None,
                 ..self.spec.clone()
             };
             let zeros = vec![0; labels.len()];
@@ -611,7 +637,7 @@ impl FuelMonitor {
         for (i, comp) in mixture.components().iter().enumerate() {
             let c = comp.condition_first_on_rest_at(&predictions[i], &y_other);
             log_v[i] = log_pred[i]
-                + mixture.log_evidence_without_fuel(i, &y, &c)
+                + mixture.log_evidence_without_fuel(i, &y, p.standing, &c)
                 + mixture.log_category(i, category);
             cond.push(c);
         }
@@ -648,6 +674,7 @@ impl FuelMonitor {
             psi: &psi,
             category,
             switching_row: k,
+            standing: p.standing,
         };
         // Mixture::step changes nothing when it fails; the baseline is stepped on a copy first
         // so that a failure of either leaves the monitor as it was.
@@ -1045,33 +1072,10 @@ impl FuelMonitor {
             })
             .zip(0..)
             .map(|(point, i)| OperatingPoint {
-                standing_share: self.standing_share(mixture, i),
+                standing_share: mixture.standing_share(i),
                 ..point
             })
             .collect()
-    }
-
-    /// Component `i`'s weighted share of standing samples: its Dirichlet counts of the
-    /// (notch, standing) pair less their prior, standing columns over all, summed over the
-    /// conditions (`None` unless `pointer_standing`).
-    fn standing_share(&self, mixture: &Mixture, i: usize) -> Option<f64> {
-        let table = mixture
-            .categorical()
-            .get(i)
-            .filter(|_| self.config.pointer_standing)?;
-        let notches = self.config.notch_categories();
-        let prior = self.spec.dirichlet_prior;
-        let (mut standing, mut all) = (0.0, 0.0);
-        for q in 0..table.rows() {
-            for l in 0..table.cols() {
-                let n = (table.count(q, l) - prior).max(0.0);
-                all += n;
-                if l >= notches {
-                    standing += n;
-                }
-            }
-        }
-        Some(if all > 0.0 { standing / all } else { 0.0 })
     }
 
     /// What each component means (`crate::regime`), from the operating points: a name unique

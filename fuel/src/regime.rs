@@ -389,11 +389,11 @@ pub struct OperatingPoint {
     pub speed_m_s: Option<f64>,
     /// `None` without the acceleration channel or a lagged speed.
     pub acceleration_m_s2: Option<f64>,
-    /// The component's share of standing samples (weighted, speed below the standstill
-    /// threshold), from its Dirichlet counts of the (notch, standing) pair; `None` unless
-    /// `pointer_standing`. A mean speed mixes stops with slow coasting (a component holding
-    /// both had a mean above the threshold and was named `coasting` at platforms); the share
-    /// of standing does not.
+    /// The component's share of standing samples (speed below the standstill threshold): with
+    /// `pointer_standing` standstill is a regime given, so 1 for the standing component and 0
+    /// for the others; `None` without it. A mean speed mixes stops with slow coasting (a
+    /// component holding both had a mean above the threshold and was named `coasting` at
+    /// platforms); the share of standing does not.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub standing_share: Option<f64>,
 }

@@ -27,6 +27,7 @@ fn spec(components: usize, k_y: usize, k_psi: usize) -> MixtureSpec {
         level_regressors: Vec::new(),
         level_min_variance: 0.0,
         level_scales: Vec::new(),
+        standing_level_channels: None,
     }
 }
 
@@ -102,6 +103,7 @@ fn single_component_mixture_is_recursive_least_squares() {
             psi,
             category: None,
             switching_row: 0,
+            standing: false,
         })
         .unwrap();
         assert_eq!(mix.weights(), vec![1.0]);
@@ -149,6 +151,7 @@ fn one_component_counts_are_the_hand_counted_transitions() {
             psi: &psi,
             category: Some((q, l)),
             switching_row: k,
+            standing: false,
         })
         .unwrap();
     }
@@ -180,6 +183,7 @@ fn two_component_counts_add_the_joint_posterior() {
             psi: &psi,
             category: Some((q, l)),
             switching_row: k,
+            standing: false,
         })
         .unwrap();
         // Brute force in probabilities (not logs): W_ij ∝ prox_i beta_i(l|q) alpha_{i|j,k} w_j.
@@ -274,6 +278,7 @@ fn pointer_weights_sum_to_one_over_a_million_extreme_steps() {
             psi: &psi,
             category: Some((rng.random_range(0..20), rng.random_range(0..5))),
             switching_row: rng.random_range(0..9),
+            standing: false,
         })
         .unwrap();
         let w = mix.weights();
@@ -310,6 +315,7 @@ fn kept_switching_probabilities_are_the_tables_to_the_bit() {
             psi,
             category: None,
             switching_row: t % 3,
+            standing: false,
         })
         .collect();
     let labels: Vec<usize> = (0..100).map(|t| t % 3).collect();
@@ -355,6 +361,7 @@ fn a_failed_step_changes_nothing_and_the_next_steps_are_unaffected() {
             psi,
             category: None,
             switching_row: 0,
+            standing: false,
         })
         .collect();
     let labels: Vec<usize> = (0..50).map(|t| t % 2).collect();
@@ -428,6 +435,7 @@ fn inputs(data: &[(DVector<f64>, DVector<f64>, usize)]) -> Vec<MixtureInput<'_>>
             psi,
             category: None,
             switching_row: 0,
+            standing: false,
         })
         .collect()
 }

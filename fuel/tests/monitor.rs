@@ -167,12 +167,24 @@ rejects!(
     }
 );
 
+rejects!(rejects_standing_without_levels, "pointer_standing", |c| c
+    .pointer_standing =
+    true);
 rejects!(
-    rejects_standing_without_a_categorical_channel,
+    rejects_standing_with_one_component,
     "pointer_standing",
     |c| {
+        c.pointer_levels = vec!["fuel".into(), "speed".into()];
         c.pointer_standing = true;
-        c.categorical = None;
+        c.components = 1;
+    }
+);
+rejects!(
+    rejects_standing_without_a_level_measured_at_standstill,
+    "pointer_levels",
+    |c| {
+        c.pointer_levels = vec!["speed".into()];
+        c.pointer_standing = true;
     }
 );
 rejects!(
@@ -192,17 +204,17 @@ rejects!(
     }
 );
 
-/// With `pointer_standing`, a single component without forgetting that stood on every fifth
-/// sample has a standing share of one fifth (its Dirichlet counts of the (gear, standing) pair
-/// less the prior), and the share, not the mean speed, names it: not idle. Without the option
-/// there is no share.
+/// With `pointer_standing`, standstill is a regime given: every standing sample is component
+/// 0's (pointer 1) and no moving one is (pointer 0), component 0 is named idle by its share of
+/// standing samples (1) and the others have none. Without the option there is no share.
 #[test]
-fn the_standing_share_is_the_weighted_share_of_standing_samples() {
+fn standstill_is_the_standing_components_and_only_its() {
     // Every fifth sample stands (speed 0) between moving ones, a 12 m/s change in a second that
     // the acceleration bound refuses: opened here so that the test counts standing samples.
     let config = FuelMonitorConfig {
-        components: 1,
-        forgetting: 1.0,
+        components: 3,
+        pointer_levels: vec!["fuel".into(), "speed".into()],
+        pointer_level_min_variance: 3e-2,
         pointer_standing: true,
         ranges: ChannelRanges {
             acceleration_m_s2: [-100.0, 100.0],
@@ -211,7 +223,7 @@ fn the_standing_share_is_the_weighted_share_of_standing_samples() {
         ..FuelMonitorConfig::paper()
     };
     let mut rng = ChaCha8Rng::seed_from_u64(5);
-    let samples: Vec<VehicleSample> = (0..600)
+    let samples: Vec<VehicleSample> = (0..1800)
         .map(|t| {
             let s = sample(t, &mut rng);
             match t % 5 {
@@ -224,16 +236,29 @@ fn the_standing_share_is_the_weighted_share_of_standing_samples() {
         })
         .collect();
     let mut monitor = FuelMonitor::new(&config).unwrap();
+    let mut checked = 0;
     for s in &samples {
-        monitor.update(s).unwrap();
+        let e = monitor.update(s).unwrap();
+        if let Some(m) = &e.mixture {
+            let standing = s.speed_m_s == Some(0.0);
+            assert_eq!(
+                m.regime_probabilities[0],
+                f64::from(u8::from(standing)),
+                "{s:?}"
+            );
+            checked += 1;
+        }
     }
-    let point = monitor.operating_points()[0];
-    let share = point.standing_share.unwrap();
-    assert!((share - 0.2).abs() < 0.01, "{point:?}");
-    assert_ne!(
-        monitor.regime_names()[0].regime,
-        railmon_fuel::RegimeName::Idle
-    );
+    assert!(checked > 1000, "{checked}");
+    let shares: Vec<_> = (monitor.operating_points().iter())
+        .map(|p| p.standing_share)
+        .collect();
+    assert_eq!(shares, vec![Some(1.0), Some(0.0), Some(0.0)]);
+    let names = monitor.regime_names();
+    assert_eq!(names[0].regime, railmon_fuel::RegimeName::Idle);
+    assert!(names[1..]
+        .iter()
+        .all(|n| n.regime != railmon_fuel::RegimeName::Idle));
     let without = FuelMonitorConfig {
         pointer_standing: false,
         ..config

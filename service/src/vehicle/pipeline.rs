@@ -314,7 +314,9 @@ const SAVED_VEHICLE: StateFormat = StateFormat {
     // defaults).
     // 6: the channel ranges in its settings gained `acceleration_m_s2`.
     // 7: the forecast blend gained horizon 0 (the virtual sensor's weight sums).
-    version: 7,
+    // 8: the mixture's spec gained `standing_level_channels` and the mixture the standing
+    // level statistics (standstill a regime given); `pointer_standing` changed meaning.
+    version: 8,
     what: "vehicle state",
 };
 
