@@ -415,7 +415,11 @@ impl RailcarSimulator {
         // stall short of it): the distance to a stop at today's resistance.
         let mass_kg = self.p.mass_t * self.mass_factor * 1000.0;
         let drag_m_s2 = self.resistance_n(v, gradient) / mass_kg;
-        let carries = drag_m_s2 <= 0.0 || v * v / (2.0 * drag_m_s2) > to_stop.min(2000.0);
+        // A standing train does not coast off: its brakes hold it (`step` keeps a train at rest
+        // at notch 0), so on a down grade "gravity carries it" chose coasting for ever at the
+        // first station; it takes power instead.
+        let carries =
+            v > 0.0 && (drag_m_s2 <= 0.0 || v * v / (2.0 * drag_m_s2) > to_stop.min(2000.0));
         if carries && (to_stop < self.p.coast_before_stop_m || v > limit - 0.3) {
             return (0, 0.0, 3);
         }
@@ -579,6 +583,21 @@ mod tests {
         // Full power: three engines at rated power burn 3 x 38.7 cm^3/s.
         assert!(max_fuel > 110.0 && max_fuel < 120.0, "{max_fuel}");
         assert!(n < 3600, "{n} s for 16 km");
+    }
+
+    /// A station on a down grade closer than `coast_before_stop_m` to the next: the train used to
+    /// choose coasting at rest (gravity would carry it) while its brakes held it, and stood
+    /// "coasting" until the step limit (a week).
+    #[test]
+    fn a_train_leaves_a_station_on_a_down_grade_close_to_the_next() {
+        let mut s = flat_line();
+        s.round_trips = 1;
+        s.sections[0].length_m = 1000.0;
+        s.sections[0].gradient_permille = -12.0;
+        let mut sim = RailcarSimulator::new(&s).unwrap();
+        let steps = std::iter::from_fn(|| sim.step()).count();
+        assert!(sim.done, "still running after {steps} s");
+        assert!(steps < 600, "{steps} s for 2 km");
     }
 
     #[test]
