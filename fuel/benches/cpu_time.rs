@@ -4,12 +4,13 @@
 //! rise with the other jobs' load, the time this thread spends on a core much less.
 //! Rows `update` and `update_and_intervals` run the paper's setting (the bench item);
 //! `update_default` runs `FuelMonitorConfig::default()`, the service's setting (fuel, speed and
-//! derived channels, forecasts and virtual sensor blended with the single regression).
-//! Prints a table. Run with `cargo bench -p railmon-fuel --bench cpu_time` (one row: `-- update/3`).
+//! derived channels, forecasts and virtual sensor blended with the single regression);
+//! `update_railcar` runs `FuelMonitorConfig::railcar()` (5 components, the pointer weighed by
+//! levels with standstill a regime given) on the shipped railcar route. Prints a table. Run with `cargo bench -p railmon-fuel --bench cpu_time` (one row: `-- update/3`).
 
 mod common;
-use common::{every_interval, initialised_monitor, sample};
-use railmon_fuel::FuelMonitorConfig;
+use common::{every_interval, initialised_monitor, railcar_route, sample};
+use railmon_fuel::{FuelMonitorConfig, VehicleSample};
 
 /// CPU and wall time per step, µs, over `steps` steps after `warm_up` unmeasured ones.
 fn measure(
@@ -18,8 +19,9 @@ fn measure(
     with_intervals: bool,
     warm_up: usize,
     steps: usize,
+    sample: impl Fn(usize) -> VehicleSample,
 ) -> (f64, f64) {
-    let (mut monitor, mut t) = initialised_monitor(setting, m_c);
+    let (mut monitor, mut t) = initialised_monitor(setting, m_c, &sample);
     let mut run = |n: usize| {
         let mut kept = 0.0;
         for _ in 0..n {
@@ -60,16 +62,25 @@ fn main() {
         })
     });
     let default_row = ("update_default", FuelMonitorConfig::default(), 3, false);
-    for (row, setting, m_c, with_intervals) in paper_rows.chain([default_row]) {
-        let steps = match (m_c, with_intervals) {
-            (3, false) => 20_000,
-            (3, true) | (10, false) => 4_000,
+    let railcar_row = ("update_railcar", FuelMonitorConfig::railcar(), 5, false);
+    let rows = paper_rows.chain([default_row, railcar_row]);
+    for (row, setting, m_c, with_intervals) in rows {
+        let steps = match (row, m_c, with_intervals) {
+            // The route is 7229 samples long: 150 initial, 500 to warm up, 6000 measured.
+            ("update_railcar", _, _) => 6_000,
+            (_, 3, false) => 20_000,
+            (_, 3, true) | (_, 10, false) => 4_000,
             _ => 1_000,
         };
         if !only.is_empty() && !only.contains(&format!("{row}/{m_c}")) {
             continue;
         }
-        let (cpu_us, wall_us) = measure(setting, m_c, with_intervals, steps / 10, steps);
+        let (cpu_us, wall_us) = if row == "update_railcar" {
+            let route = railcar_route();
+            measure(setting, m_c, with_intervals, 500, steps, |t| route[t])
+        } else {
+            measure(setting, m_c, with_intervals, steps / 10, steps, sample)
+        };
         println!(
             "| {row} | {m_c} | {cpu_us:.2} | {:.0} | {wall_us:.2} |",
             1e6 / cpu_us

@@ -13,7 +13,7 @@ fn bench_steps(c: &mut Criterion) {
     let mut group = c.benchmark_group("fuel_monitor_step");
     group.throughput(Throughput::Elements(1));
     for m_c in [3usize, 10] {
-        let (mut monitor, mut t) = initialised_monitor(FuelMonitorConfig::paper(), m_c);
+        let (mut monitor, mut t) = initialised_monitor(FuelMonitorConfig::paper(), m_c, sample);
         // The step alone: what the service pays per sample.
         group.bench_with_input(BenchmarkId::new("update", m_c), &m_c, |b, _| {
             b.iter(|| {

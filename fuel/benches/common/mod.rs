@@ -1,6 +1,8 @@
 //! The sample stream the fuel benches share.
 
-use railmon_fuel::{FuelMonitor, FuelMonitorConfig, Interval, VehicleSample};
+use railmon_fuel::{
+    FuelMonitor, FuelMonitorConfig, Interval, RailcarScenario, RailcarSimulator, VehicleSample,
+};
 
 /// A deterministic, varied stream of plausible samples (no RNG needed for a timing run).
 pub fn sample(t: usize) -> VehicleSample {
@@ -19,10 +21,27 @@ pub fn sample(t: usize) -> VehicleSample {
     }
 }
 
+/// The shipped railcar route (`config/scenarios/fuel-railcar.toml`, 7229 samples), simulated.
+#[allow(dead_code)] // not every bench reads it
+pub fn railcar_route() -> Vec<VehicleSample> {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../config/scenarios/fuel-railcar.toml"
+    );
+    let text = std::fs::read_to_string(path).expect("the shipped railcar scenario");
+    let scenario = RailcarScenario::from_toml_str(&text).expect("a valid scenario");
+    let mut simulator = RailcarSimulator::new(&scenario).expect("a valid scenario");
+    std::iter::from_fn(|| simulator.step().map(|(sample, _)| sample)).collect()
+}
+
 /// A monitor in `setting` (the paper's for the bench item; `FuelMonitorConfig::default()`
-/// is what the service runs) with `m_c` components, past its initial samples, and the index of
-/// the next sample.
-pub fn initialised_monitor(setting: FuelMonitorConfig, m_c: usize) -> (FuelMonitor, usize) {
+/// is what the service runs) with `m_c` components, past its initial samples of `sample`, and
+/// the index of the next sample.
+pub fn initialised_monitor(
+    setting: FuelMonitorConfig,
+    m_c: usize,
+    sample: impl Fn(usize) -> VehicleSample,
+) -> (FuelMonitor, usize) {
     let config = FuelMonitorConfig {
         components: m_c,
         ..setting
