@@ -74,6 +74,15 @@ pub struct MixtureEstimate {
     pub regime_change: Option<RegimeChange>,
     /// Fuel integrated from the virtual sensor since initialisation, cm^3.
     pub cumulative_virtual_fuel_cm3: f64,
+    /// The fuel channel's plausible range (`ranges`), cm^3/s, its lower end at least 0. Every
+    /// fuel value above and every interval end is projected into it: a fuel flow is never
+    /// negative, but a regression's mean is not bounded. Near fuel cut-off the means dip a little below 0 (the Camry files:
+    /// 21-85 virtual-sensor values per file, down to -1.13 cm^3/s), and a component
+    /// that has just become active (unsettled, its regression near the prior) extrapolated a
+    /// railcar's virtual sensor to -95.75 cm^3/s once (docs/fuel.md). Projected, every error
+    /// against a measured value in the range is at most the unprojected one, and every
+    /// interval covers the same measured values.
+    pub fuel_range_cm3_s: [f64; 2],
 }
 
 /// The intervals are computed from the predictive terms only when asked: each end is a quantile
@@ -84,20 +93,29 @@ pub struct MixtureEstimate {
 impl MixtureEstimate {
     /// 90 % predictive interval of the 1-step forecast (NaN while no forecast was made).
     pub fn one_step_interval_cm3_s(&self) -> Interval {
-        central_interval(&self.one_step_predictive, INTERVAL_MASS)
+        self.interval(&self.one_step_predictive)
     }
 
     /// 90 % predictive interval of the virtual sensor.
     pub fn virtual_sensor_interval_cm3_s(&self) -> Interval {
-        central_interval(&self.virtual_sensor_predictive, INTERVAL_MASS)
+        self.interval(&self.virtual_sensor_predictive)
     }
 
     /// 90 % predictive interval of each forecast step (`t+1 .. t+H`).
     pub fn forecast_interval_cm3_s(&self) -> Vec<Interval> {
-        self.forecast_predictive
-            .iter()
-            .map(|terms| central_interval(terms, INTERVAL_MASS))
+        (self.forecast_predictive.iter())
+            .map(|terms| self.interval(terms))
             .collect()
+    }
+
+    /// The central 90 % interval of `terms`, its ends in the fuel's range.
+    fn interval(&self, terms: &[StudentT]) -> Interval {
+        let i = central_interval(terms, INTERVAL_MASS);
+        let [min, max] = self.fuel_range_cm3_s;
+        Interval {
+            lower: i.lower.clamp(min, max),
+            upper: i.upper.clamp(min, max),
+        }
     }
 }
 
@@ -643,7 +661,7 @@ impl FuelMonitor {
         }
         normalize_log_weights(&mut log_v)?;
         let virtual_std: f64 = (0..m).map(|i| log_v[i].exp() * cond[i].mean).sum();
-        let own_sensor = st.fuel(virtual_std);
+        let own_sensor = self.in_fuel_range(st.fuel(virtual_std));
         let own_terms: Vec<StudentT> = (0..m)
             .map(|i| {
                 let dof = mixture.components()[i].predictive_dof();
@@ -656,7 +674,7 @@ impl FuelMonitor {
             let c = b.components()[0].condition_first_on_rest_at(&b.predictions(&psi)[0], &y_other);
             let dof = b.components()[0].predictive_dof();
             (
-                st.fuel(c.mean),
+                self.in_fuel_range(st.fuel(c.mean)),
                 vec![st.fuel_term(1.0, c.mean, c.variance, dof)],
             )
         });
@@ -748,7 +766,7 @@ impl FuelMonitor {
         forecast_cm3_s.clone_from(&self.pending_forecast.mean_cm3_s);
         forecast_predictive.clone_from(&self.pending_forecast.terms);
         Ok(MixtureEstimate {
-            zero_step_cm3_s: zero_step,
+            zero_step_cm3_s: self.in_fuel_range(zero_step),
             one_step_forecast_cm3_s: one_step.unwrap_or(f64::NAN),
             one_step_predictive: one_step_terms.unwrap_or_default(),
             virtual_sensor_cm3_s: virtual_sensor,
@@ -762,7 +780,25 @@ impl FuelMonitor {
             regime_names,
             regime_change,
             cumulative_virtual_fuel_cm3: cumulative_virtual,
+            fuel_range_cm3_s: self.fuel_range_cm3_s(),
         })
+    }
+
+    /// `fuel_cm3_s` projected into the fuel's plausible range: every fuel mean a forecaster
+    /// makes (the mixture's and the single regression's virtual sensor and forecasts, the 0-step
+    /// estimate) is projected before it is blended, scored by the blend or published, so the
+    /// blend's weights are fitted to what is published (`MixtureEstimate::fuel_range_cm3_s`).
+    fn in_fuel_range(&self, fuel_cm3_s: f64) -> f64 {
+        let [min, max] = self.fuel_range_cm3_s();
+        fuel_cm3_s.clamp(min, max)
+    }
+
+    /// The range fuel estimates are projected into: the fuel channel's plausible range, its
+    /// lower end at least 0 (the range admits a meter's small negative readings, -1 cm^3/s on
+    /// the road car; a flow is never negative).
+    fn fuel_range_cm3_s(&self) -> [f64; 2] {
+        let [min, max] = self.config.ranges.of(Channel::Fuel);
+        [min.max(0.0), max]
     }
 
     /// The forecast path of the mixture, blended with the baseline's (when there is one) by
@@ -982,7 +1018,7 @@ impl FuelMonitor {
                     );
                 }
             }
-            path.push(st.fuel(y0), terms);
+            path.push(self.in_fuel_range(st.fuel(y0)), terms);
             if !last {
                 mix_regressors(
                     n,

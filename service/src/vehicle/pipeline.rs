@@ -316,7 +316,8 @@ const SAVED_VEHICLE: StateFormat = StateFormat {
     // 7: the forecast blend gained horizon 0 (the virtual sensor's weight sums).
     // 8: the mixture's spec gained `standing_level_channels` and the mixture the standing
     // level statistics (standstill a regime given); `pointer_standing` changed meaning.
-    version: 8,
+    // 9: the mixture's estimate gained `fuel_range_cm3_s` (estimates in the fuel's range).
+    version: 9,
     what: "vehicle state",
 };
 
