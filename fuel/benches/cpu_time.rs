@@ -66,7 +66,7 @@ fn main() {
     let rows = paper_rows.chain([default_row, railcar_row]);
     for (row, setting, m_c, with_intervals) in rows {
         let steps = match (row, m_c, with_intervals) {
-            // The route is 7229 samples long: 150 initial, 500 to warm up, 6000 measured.
+            // The route is 7228 samples long: 150 initial, 500 to warm up, 6000 measured.
             ("update_railcar", _, _) => 6_000,
             (_, 3, false) => 20_000,
             (_, 3, true) | (_, 10, false) => 4_000,

@@ -151,12 +151,24 @@ fn camry_events_of_the_service_equal_analyze_input() {
 
 #[test]
 fn scenario_events_are_the_same_on_every_path() {
-    let scenario = "config/scenarios/fuel-cycles.toml";
-    let dir = scratch("scenario");
+    // The scenario's [monitor] is the driving_style preset: the service is told the same.
+    same_events_on_every_path("config/scenarios/fuel-cycles.toml", "driving_style", 9675);
+}
+
+/// The railcar preset (the pointer weighed by levels, standstill a regime given: issue 14 item
+/// 3) on its route: the same regime changes live, from the scenario and from the recording.
+#[test]
+fn railcar_events_are_the_same_on_every_path() {
+    same_events_on_every_path("config/scenarios/fuel-railcar.toml", "railcar", 7228);
+}
+
+/// The service fed `scenario` by `sensors-replay` (told `preset`, the scenario's own), `railmon
+/// analyze fuel --scenario` and `--input` on the replay's recording raise the same events.
+fn same_events_on_every_path(scenario: &str, preset: &str, samples: usize) {
+    let dir = scratch(preset);
     let record = dir.join("record.csv");
     let record_arg = record.to_str().unwrap();
-    // The scenario's [monitor] is the driving_style preset: the service is told the same.
-    let preset = [("RAILMON_VEHICLE__ESTIMATOR__PRESET", "driving_style")];
+    let settings = [("RAILMON_VEHICLE__ESTIMATOR__PRESET", preset)];
     let args = [
         "--scenario",
         scenario,
@@ -165,16 +177,19 @@ fn scenario_events_are_the_same_on_every_path() {
         "--record",
         record_arg,
     ];
-    let live = replayed_events(&preset, &args, 9675);
+    let live = replayed_events(&settings, &args, samples);
     let from_scenario = analyze_events(&["--scenario", scenario], &dir.join("scenario"));
     let config = dir.join("monitor.toml");
-    std::fs::write(&config, "preset = \"driving_style\"\n").unwrap();
+    std::fs::write(&config, format!("preset = \"{preset}\"\n")).unwrap();
     let from_input = analyze_events(
         &["--input", record_arg, "--config", config.to_str().unwrap()],
         &dir.join("input"),
     );
     assert!(!live.is_empty());
-    assert_eq!(live, from_scenario, "service vs analyze --scenario");
-    assert_eq!(live, from_input, "service vs analyze --input");
+    assert_eq!(
+        live, from_scenario,
+        "{scenario}: service vs analyze --scenario"
+    );
+    assert_eq!(live, from_input, "{scenario}: service vs analyze --input");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -21,7 +21,7 @@ pub fn sample(t: usize) -> VehicleSample {
     }
 }
 
-/// The shipped railcar route (`config/scenarios/fuel-railcar.toml`, 7229 samples), simulated.
+/// The shipped railcar route (`config/scenarios/fuel-railcar.toml`, 7228 samples), simulated.
 #[allow(dead_code)] // not every bench reads it
 pub fn railcar_route() -> Vec<VehicleSample> {
     let path = concat!(
