@@ -70,8 +70,8 @@ pub struct MixtureSpec {
     /// so is every level derived from it): as a Gaussian level that point mass either costs a
     /// tuning floor or pulls a standing component onto the slow creep into a platform
     /// (docs/fuel.md). So at standstill the evidence is the density of these level channels
-    /// (indices into `y`, those measured while standing: the fuel) under a second set of
-    /// static statistics per component, updated only with standing samples; the left-out
+    /// (indices into `y`, those measured while standing: the fuel) under the standing
+    /// component's own static statistics, updated only with standing samples; the left-out
     /// channels are point masses at 0, the same for every component, so they drop out of the
     /// pointer. Standstill is observed, so it is a regime given, not learned: component 0 is
     /// the standing one, every standing sample is its and no moving sample is
@@ -120,11 +120,11 @@ pub struct Mixture {
     /// ([`MixtureSpec::level_channels`], `psi = [1]`); empty when those are.
     #[serde(default)]
     levels: Vec<RegressionStats>,
-    /// Per component, the static statistics of the levels measured at standstill
-    /// ([`MixtureSpec::standing_level_channels`]), updated with standing samples only; empty
-    /// without them.
+    /// The standing component's static statistics of the levels measured at standstill
+    /// ([`MixtureSpec::standing_level_channels`]), updated with the standing samples (all its,
+    /// and only they); `None` without them.
     #[serde(default)]
-    standing_levels: Vec<RegressionStats>,
+    standing_level: Option<RegressionStats>,
     /// The buffers a step updates the statistics in (the components of two steps ago; empty
     /// after a restore).
     #[serde(skip)]
@@ -199,8 +199,8 @@ impl Mixture {
             0 => Vec::new(),
             n => vec![level_prior(&spec, n)?; m],
         };
-        let standing_levels = match &spec.standing_level_channels {
-            None => Vec::new(),
+        let standing_level = match &spec.standing_level_channels {
+            None => None,
             Some(kept) => {
                 if kept.is_empty() || kept.iter().any(|c| !spec.level_channels.contains(c)) {
                     return Err(FuelError::invalid(
@@ -209,7 +209,7 @@ impl Mixture {
                         "must be some of the level channels",
                     ));
                 }
-                vec![level_prior(&spec, kept.len())?; m]
+                Some(level_prior(&spec, kept.len())?)
             }
         };
 
@@ -233,7 +233,7 @@ impl Mixture {
         Ok(Mixture {
             components: vec![comp; m],
             levels,
-            standing_levels,
+            standing_level,
             categorical,
             switching,
             log_w: vec![-(m as f64).ln(); m],
@@ -382,26 +382,21 @@ impl Mixture {
         let Some(data) = LevelData::of(&self.spec, y, standing) else {
             return conditional.log_density;
         };
-        let level = self.level_stats(i, &data);
+        // A standing sample is only the standing component's, a moving one never.
+        let Some(level) = level_stats(&self.levels, self.standing_level.as_ref(), i, &data) else {
+            return f64::NEG_INFINITY;
+        };
         let pu = self.spec.parameter_uncertainty;
-        self.log_standing(i, standing)
-            + match data.fuel {
-                None => level.log_proximity(&data.x, &data.psi, pu),
-                // Fuel the only level (at standstill): nothing else to weigh.
-                Some(_) if data.x.len() == 1 => 0.0,
-                // Fuel among the levels: the marginal of the others (drop fuel's row and column).
-                Some(fuel) => {
-                    let others: Vec<usize> = (0..data.x.len()).filter(|&k| k != fuel).collect();
-                    level.log_marginal_density(&others, &data.x, &data.psi, pu)
-                }
+        match data.fuel {
+            None => level.log_proximity(&data.x, &data.psi, pu),
+            // Fuel the only level (at standstill): nothing else to weigh.
+            Some(_) if data.x.len() == 1 => 0.0,
+            // Fuel among the levels: the marginal of the others (drop fuel's row and column).
+            Some(fuel) => {
+                let others: Vec<usize> = (0..data.x.len()).filter(|&k| k != fuel).collect();
+                level.log_marginal_density(&others, &data.x, &data.psi, pu)
             }
-    }
-
-    /// `ln P_i(standing)` (or moving) of component `i`: 0 without standing levels, else 0 for
-    /// the standing component (0) on standing samples and the others on moving ones, minus
-    /// infinity otherwise.
-    fn log_standing(&self, i: usize, standing: bool) -> f64 {
-        log_standing(&self.spec, i, standing)
+        }
     }
 
     /// Component `i`'s share of standing samples (`None` without standing levels): 1 for the
@@ -414,14 +409,6 @@ impl Mixture {
                 0.0
             }
         })
-    }
-
-    /// Component `i`'s level statistics for `data`'s kind of sample (standing or not).
-    fn level_stats(&self, i: usize, data: &LevelData) -> &RegressionStats {
-        match data.standing {
-            true => &self.standing_levels[i],
-            false => &self.levels[i],
-        }
     }
 
     fn check_input(&self, input: &MixtureInput) -> Result<(), FuelError> {
@@ -498,18 +485,22 @@ impl Mixture {
             // The kept predictions serve the default proximity (same bits); the measured-data
             // density (off by default) is computed from the input.
             let evidence = match (&x, self.spec.measured_channels) {
-                (Some(x), _) => level_evidence(
-                    &self.components[i],
-                    self.level_stats(i, x),
-                    input.y,
-                    &predictions[i],
-                    x,
-                    self.spec.parameter_uncertainty,
-                ),
+                (Some(x), _) => {
+                    match level_stats(&self.levels, self.standing_level.as_ref(), i, x) {
+                        Some(level) => level_evidence(
+                            &self.components[i],
+                            level,
+                            input.y,
+                            &predictions[i],
+                            x,
+                            self.spec.parameter_uncertainty,
+                        ),
+                        None => f64::NEG_INFINITY,
+                    }
+                }
                 (None, Some(_)) => proximity(&self.spec, &self.components[i], input),
                 (None, None) => self.components[i].log_proximity_at(input.y, &predictions[i]),
-            } + self.log_category(i, input.category)
-                + self.log_standing(i, input.standing);
+            } + self.log_category(i, input.category);
             for j in 0..m {
                 log_joint[i * m + j] = evidence + log_alpha[j * m + i] + self.log_w[j];
             }
@@ -538,28 +529,36 @@ impl Mixture {
         // The level statistics of the sample's kind with the same weights and forgetting (a
         // few numbers each); a standing sample leaves the moving statistics alone, and the
         // other way round.
-        let levels = match &x {
-            Some(x) => {
-                let level_v0 = level_v0(&self.spec, x.x.len());
-                let mut levels = match x.standing {
-                    true => self.standing_levels.clone(),
-                    false => self.levels.clone(),
-                };
-                for (i, level) in levels.iter_mut().enumerate() {
-                    let w = log_w[i].exp();
-                    let forget =
-                        (lambda < 1.0).then(|| (lambda.powf(w), &level_v0, self.spec.prior_kappa));
-                    level.update(&x.d, w, forget)?;
+        let (mut levels, mut standing_level) = (None, None);
+        if let Some(x) = &x {
+            let level_v0 = level_v0(&self.spec, x.x.len());
+            let update = |level: &mut RegressionStats, i: usize| {
+                let w = log_w[i].exp();
+                let forget =
+                    (lambda < 1.0).then(|| (lambda.powf(w), &level_v0, self.spec.prior_kappa));
+                level.update(&x.d, w, forget)
+            };
+            match (x.standing, &self.standing_level) {
+                (true, Some(level)) => {
+                    let mut level = level.clone();
+                    update(&mut level, STANDING_COMPONENT)?;
+                    standing_level = Some(level);
                 }
-                Some((x.standing, levels))
+                _ => {
+                    let mut all = self.levels.clone();
+                    for (i, level) in all.iter_mut().enumerate() {
+                        update(level, i)?;
+                    }
+                    levels = Some(all);
+                }
             }
-            None => None,
-        };
+        }
         self.spare = std::mem::replace(&mut self.components, updated);
-        match levels {
-            Some((true, levels)) => self.standing_levels = levels,
-            Some((false, levels)) => self.levels = levels,
-            None => {}
+        if let Some(levels) = levels {
+            self.levels = levels;
+        }
+        if standing_level.is_some() {
+            self.standing_level = standing_level;
         }
         if let Some((q, l)) = input.category {
             for (i, table) in self.categorical.iter_mut().enumerate() {
@@ -634,10 +633,7 @@ impl Mixture {
         };
         let prior = mix.components[0].clone();
         // The moving and the standing level statistics, each from its own kind of sample.
-        let level_priors = (
-            mix.levels.first().cloned(),
-            mix.standing_levels.first().cloned(),
-        );
+        let level_priors = (mix.levels.first().cloned(), mix.standing_level.clone());
         let fit_levels = |resp: &[Vec<f64>], w: f64| {
             let of_kind = |standing: bool| -> Vec<(&DVector<f64>, &[f64])> {
                 (xs.iter().zip(resp))
@@ -650,10 +646,11 @@ impl Mixture {
                 Some(prior) => fit(prior, &of_kind(standing), w),
                 None => Ok(Vec::new()),
             };
-            Ok::<_, FuelError>((
-                fit_kind(&level_priors.0, false)?,
-                fit_kind(&level_priors.1, true)?,
-            ))
+            // The standing statistics are the standing component's only.
+            let standing = fit_kind(&level_priors.1, true)?
+                .into_iter()
+                .nth(STANDING_COMPONENT);
+            Ok::<_, FuelError>((fit_kind(&level_priors.0, false)?, standing))
         };
         fn weighted<'a>(
             ds: &'a [DVector<f64>],
@@ -666,7 +663,7 @@ impl Mixture {
         }
         for _ in 0..iterations {
             let comps = fit(&prior, &weighted(&ds, &resp), 1.0)?;
-            let (levels, standing_levels) = fit_levels(&resp, 1.0)?;
+            let (levels, standing_level) = fit_levels(&resp, 1.0)?;
             let log_pi: Vec<f64> = (0..m)
                 .map(|i| (resp.iter().map(|r| r[i]).sum::<f64>() + 1.0).ln())
                 .collect();
@@ -675,19 +672,21 @@ impl Mixture {
                 let mut l: Vec<f64> = (0..m)
                     .map(|i| {
                         log_pi[i]
-                            + mix.log_standing(i, input.standing)
                             + match x {
-                                Some(x) => level_evidence(
-                                    &comps[i],
-                                    match x.standing {
-                                        true => &standing_levels[i],
-                                        false => &levels[i],
-                                    },
-                                    input.y,
-                                    &comps[i].predict(input.psi, mix.spec.parameter_uncertainty),
-                                    x,
-                                    mix.spec.parameter_uncertainty,
-                                ),
+                                Some(x) => {
+                                    match level_stats(&levels, standing_level.as_ref(), i, x) {
+                                        Some(level) => level_evidence(
+                                            &comps[i],
+                                            level,
+                                            input.y,
+                                            &comps[i]
+                                                .predict(input.psi, mix.spec.parameter_uncertainty),
+                                            x,
+                                            mix.spec.parameter_uncertainty,
+                                        ),
+                                        None => f64::NEG_INFINITY,
+                                    }
+                                }
                                 None => proximity(&mix.spec, &comps[i], input),
                             }
                     })
@@ -699,7 +698,7 @@ impl Mixture {
             }
         }
         mix.components = fit(&prior, &weighted(&ds, &resp), weight)?;
-        (mix.levels, mix.standing_levels) = fit_levels(&resp, weight)?;
+        (mix.levels, mix.standing_level) = fit_levels(&resp, weight)?;
         for (t, input) in data.iter().enumerate() {
             if let Some((q, l)) = input.category {
                 for (i, table) in mix.categorical.iter_mut().enumerate() {
@@ -761,11 +760,20 @@ fn proximity(spec: &MixtureSpec, c: &RegressionStats, input: &MixtureInput) -> f
 /// ([`MixtureSpec::standing_level_channels`]).
 pub const STANDING_COMPONENT: usize = 0;
 
-/// `ln P_i(standing)` of [`Mixture::log_standing`].
-fn log_standing(spec: &MixtureSpec, i: usize, standing: bool) -> f64 {
-    match spec.standing_level_channels {
-        Some(_) if (i == STANDING_COMPONENT) != standing => f64::NEG_INFINITY,
-        _ => 0.0,
+/// Component `i`'s level statistics for `data`'s kind of sample, from the moving `levels` and
+/// the `standing` component's: `None` where the sample cannot be the component's (`ln P_i` of
+/// standing or moving is minus infinity: a standing sample is only the standing component's,
+/// a moving one never is, [`MixtureSpec::standing_level_channels`]).
+fn level_stats<'a>(
+    levels: &'a [RegressionStats],
+    standing: Option<&'a RegressionStats>,
+    i: usize,
+    data: &LevelData,
+) -> Option<&'a RegressionStats> {
+    match (standing, data.standing) {
+        (Some(level), true) => (i == STANDING_COMPONENT).then_some(level),
+        (Some(_), false) if i == STANDING_COMPONENT => None,
+        _ => levels.get(i),
     }
 }
 

@@ -76,12 +76,12 @@ pub struct MixtureEstimate {
     pub cumulative_virtual_fuel_cm3: f64,
     /// The fuel channel's plausible range (`ranges`), cm^3/s, its lower end at least 0. Every
     /// fuel value above and every interval end is projected into it: a fuel flow is never
-    /// negative, but a regression's mean is not bounded. Near fuel cut-off the means dip a little below 0 (the Camry files:
-    /// 21-85 virtual-sensor values per file, down to -1.13 cm^3/s), and a component
-    /// that has just become active (unsettled, its regression near the prior) extrapolated a
-    /// railcar's virtual sensor to -95.75 cm^3/s once (docs/fuel.md). Projected, every error
-    /// against a measured value in the range is at most the unprojected one, and every
-    /// interval covers the same measured values.
+    /// negative, but a regression's mean is not bounded. Near fuel cut-off the means dip a
+    /// little below 0 (the Camry files: 21-85 virtual-sensor values per file, down to -1.13
+    /// cm^3/s), and a component that has just become active (unsettled, its regression near the
+    /// prior) extrapolated a railcar's virtual sensor to -95.75 cm^3/s once (docs/fuel.md).
+    /// Projected, every error against a measured value in the range is at most the unprojected
+    /// one, and every interval covers the same measured values.
     pub fuel_range_cm3_s: [f64; 2],
 }
 

@@ -317,7 +317,9 @@ const SAVED_VEHICLE: StateFormat = StateFormat {
     // 8: the mixture's spec gained `standing_level_channels` and the mixture the standing
     // level statistics (standstill a regime given); `pointer_standing` changed meaning.
     // 9: the mixture's estimate gained `fuel_range_cm3_s` (estimates in the fuel's range).
-    version: 9,
+    // 10: the standing level statistics are the standing component's only (one, not one per
+    // component).
+    version: 10,
     what: "vehicle state",
 };
 
