@@ -69,6 +69,10 @@ pub struct RailcarParameters {
     pub coast_before_stop_m: f64,
     /// Standard deviation of the fuel-flow meter noise, cm^3/s.
     pub fuel_noise_cm3_s: f64,
+    /// Standard deviation of the speed sensor's noise while the train moves, m/s (a tachometer
+    /// reads 0 at standstill; the reading is never negative). 0 by default: the shipped routes
+    /// measure the speed exactly; a noisier sensor is a condition to test the estimator on.
+    pub speed_noise_m_s: f64,
 }
 
 impl Default for RailcarParameters {
@@ -91,6 +95,7 @@ impl Default for RailcarParameters {
             notch_interval_s: 2.0,
             coast_before_stop_m: 1200.0,
             fuel_noise_cm3_s: 0.5,
+            speed_noise_m_s: 0.0,
         }
     }
 }
@@ -139,6 +144,7 @@ impl RailcarParameters {
             ("railcar.auxiliary_kw", self.auxiliary_kw),
             ("railcar.coast_before_stop_m", self.coast_before_stop_m),
             ("railcar.fuel_noise_cm3_s", self.fuel_noise_cm3_s),
+            ("railcar.speed_noise_m_s", self.speed_noise_m_s),
         ];
         for (field, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
@@ -499,10 +505,18 @@ impl RailcarSimulator {
             }
         }
         let noise = Normal::new(0.0, p.fuel_noise_cm3_s.max(1e-12)).expect("finite sd");
+        let fuel_cm3_s = (fuel_true + noise.sample(&mut self.rng)).max(0.0);
+        // Drawn only when asked for, so that the routes without it keep their samples.
+        let speed_m_s = if p.speed_noise_m_s > 0.0 && self.v_m_s > 0.0 {
+            let noise = Normal::new(0.0, p.speed_noise_m_s).expect("finite sd");
+            (self.v_m_s + noise.sample(&mut self.rng)).max(0.0)
+        } else {
+            self.v_m_s
+        };
         let sample = VehicleSample {
             time_s: self.t as f64,
-            fuel_cm3_s: Some((fuel_true + noise.sample(&mut self.rng)).max(0.0)),
-            speed_m_s: Some(self.v_m_s),
+            fuel_cm3_s: Some(fuel_cm3_s),
+            speed_m_s: Some(speed_m_s),
             gradient_permille: Some(gradient),
             gear: Some(self.notch),
             ..Default::default()
@@ -598,6 +612,41 @@ mod tests {
         let steps = std::iter::from_fn(|| sim.step()).count();
         assert!(sim.done, "still running after {steps} s");
         assert!(steps < 600, "{steps} s for 2 km");
+    }
+
+    /// The speed sensor's noise: zero at standstill, never negative, and while moving the
+    /// reading is off the true speed by `sigma sqrt(2 / pi)` on average (on the first leg, where
+    /// the noisy and the exact run move alike: the random draws steer nothing before the first
+    /// station's dwell).
+    #[test]
+    fn speed_noise_is_added_while_moving_only() {
+        let mut noisy = flat_line();
+        noisy.railcar.speed_noise_m_s = 0.1;
+        let (mut a, mut b) = (
+            RailcarSimulator::new(&flat_line()).unwrap(),
+            RailcarSimulator::new(&noisy).unwrap(),
+        );
+        let (mut off, mut moving) = (0.0, 0);
+        while let (Some((exact, _)), Some((read, truth))) = (a.step(), b.step()) {
+            let (v, r) = (exact.speed_m_s.unwrap(), read.speed_m_s.unwrap());
+            assert!(r >= 0.0);
+            if truth.regime == 0 {
+                assert_eq!(r, 0.0);
+            }
+            if b.leg > 0 {
+                break;
+            }
+            if v > 1.0 {
+                off += (r - v).abs();
+                moving += 1;
+            }
+        }
+        let mean = off / moving as f64;
+        let expected = 0.1 * (2.0 / std::f64::consts::PI).sqrt();
+        assert!(
+            moving > 100 && (mean - expected).abs() < 0.15 * expected,
+            "{mean} {moving}"
+        );
     }
 
     #[test]
