@@ -176,20 +176,6 @@ pub struct RbpfConfig {
     pub regeneration_fraction: f64,
     /// Weight of a regenerated particle relative to the others, in (0, 1].
     pub regeneration_weight: f64,
-    /// With `kernel = "at_resampling"`: resample and move at the latest this long after the
-    /// last move (s; 0 = only when the effective sample size falls). Regenerated particles
-    /// are drawn only at moves, and where the data say little per second (low speed: the
-    /// creep forces ~1/v dominate) the effective sample size falls slowly, so the first
-    /// newcomers near a failed damper's new value came seconds late.
-    pub max_move_interval_s: f64,
-    /// Regeneration as a hazard in time rather than per move (s; 0 = off: `regeneration_fraction`
-    /// at every move). At a move that comes `dt > regeneration_interval_s` after the last, each
-    /// coefficient is redrawn with probability `1 - (1 - regeneration_fraction)^(dt /
-    /// regeneration_interval_s)`, the chance of at least one redraw had the moves come every
-    /// `regeneration_interval_s`; moves closer together keep `regeneration_fraction`. Where the
-    /// weights degenerate slowly (low speed) moves come seconds apart, and per move the
-    /// search for a failed damper would slow down with the data.
-    pub regeneration_interval_s: f64,
     /// Evidence-triggered search for a failed damper (`crate::rbpf::jump`): sentinels beside
     /// the particles whose posterior odds of a jump, once high enough, become particles.
     pub jump_search: JumpSearchConfig,
@@ -217,8 +203,6 @@ impl Default for RbpfConfig {
             ln_diffusion_per_sqrt_s: 0.002,
             regeneration_fraction: 0.01,
             regeneration_weight: 0.1,
-            max_move_interval_s: 0.0,
-            regeneration_interval_s: 0.0,
             jump_search: JumpSearchConfig::default(),
             propagation: Propagation::SteadyState,
             kernel: KernelSchedule::AtResampling,
@@ -266,8 +250,6 @@ impl RbpfConfig {
             });
         }
         non_negative("rbpf.ln_diffusion_per_sqrt_s", self.ln_diffusion_per_sqrt_s)?;
-        non_negative("rbpf.max_move_interval_s", self.max_move_interval_s)?;
-        non_negative("rbpf.regeneration_interval_s", self.regeneration_interval_s)?;
         if !(self.regeneration_weight > 0.0 && self.regeneration_weight <= 1.0) {
             return Err(DamperError::InvalidParameter {
                 field: "rbpf.regeneration_weight",
@@ -306,19 +288,6 @@ impl RbpfConfig {
         }
         self.jump_search.validate()?;
         self.noise_scale.validate()
-    }
-
-    /// Per particle and coefficient, the chance of a redraw at a kernel move `since_move_s`
-    /// after the last one (`regeneration_interval_s`; `dt_s`: the filter's step, of which
-    /// `since_move_s` is a whole number, given half a step of slack).
-    pub fn regeneration_probability(&self, since_move_s: f64, dt_s: f64) -> f64 {
-        let (r, interval_s) = (self.regeneration_fraction, self.regeneration_interval_s);
-        if interval_s > 0.0 && since_move_s > interval_s + 0.5 * dt_s {
-            // 1 - (1 - r)^(dt / T), without cancellation for a small r.
-            -(since_move_s / interval_s * (-r).ln_1p()).exp_m1()
-        } else {
-            r
-        }
     }
 
     /// Liu-West shrinkage `a` and kernel variance factor `h^2` (eq. 24).
@@ -490,29 +459,6 @@ impl DamperMonitorConfig {
 mod tests {
     use super::*;
 
-    /// Off (the default) and for moves at most `regeneration_interval_s` apart: the configured
-    /// fraction per move. Farther apart: the chance of at least one redraw in `k` moves
-    /// `interval` apart, `1 - (1 - r)^k`, also for fractional `k`.
-    #[test]
-    fn regeneration_is_a_chance_per_interval_for_rare_moves() {
-        let dt = 0.005;
-        let mut c = RbpfConfig::default();
-        assert_eq!(c.regeneration_probability(3.0, dt), c.regeneration_fraction);
-        c.regeneration_interval_s = 0.25;
-        let r = c.regeneration_fraction;
-        for since in [dt, 0.1, 0.25, 0.25 + 0.4 * dt] {
-            assert_eq!(c.regeneration_probability(since, dt), r, "{since} s");
-        }
-        for k in [2.0, 4.0, 12.0, 2.5] {
-            let want = 1.0 - (1.0 - r).powf(k);
-            let got = c.regeneration_probability(0.25 * k, dt);
-            assert!((got - want).abs() < 1e-14, "k = {k}: {got} against {want}");
-        }
-        // Grows with the time since the last move and stays a probability.
-        let long = c.regeneration_probability(1e4, dt);
-        assert!(long > c.regeneration_probability(10.0, dt) && long <= 1.0);
-    }
-
     /// The largest real part of the eigenvalues of `A` at `speed_m_s`, leaving out the two
     /// drift modes (eigenvalue 0 up to rounding).
     fn growth_rate_per_s(dampers: &crate::Dampers, speed_m_s: f64) -> f64 {
@@ -626,14 +572,6 @@ mod tests {
         rejects(
             with_rbpf(|r| r.regeneration_weight = 0.0),
             "rbpf.regeneration_weight",
-        );
-        rejects(
-            with_rbpf(|r| r.max_move_interval_s = f64::NAN),
-            "rbpf.max_move_interval_s",
-        );
-        rejects(
-            with_rbpf(|r| r.regeneration_interval_s = -1.0),
-            "rbpf.regeneration_interval_s",
         );
         rejects(with_rbpf(|r| r.taylor_order = 0), "rbpf.taylor_order");
         rejects(

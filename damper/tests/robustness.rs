@@ -18,8 +18,7 @@
 //! (`ROBUST_CELLS`: names or prefixes of cells, `ROBUST_FAULT=1` adds the fault runs,
 //! `ROBUST_NOISE_SCALE=0` runs the filter without its noise estimate, as before issue 9 item 2;
 //! `ROBUST_FIRST_SEED=2` starts at the third seed (9002) to add one to a table;
-//! `ROBUST_MAX_MOVE_S` sets `rbpf.max_move_interval_s`, `ROBUST_REGEN_S`
-//! `rbpf.regeneration_interval_s`; `ROBUST_JUMP=0|1` sets `rbpf.jump_search.enabled`,
+//! `ROBUST_JUMP=0|1` sets `rbpf.jump_search.enabled`,
 //! `ROBUST_JUMP_HAZARD` its `hazard_per_s`, `ROBUST_JUMP_ODDS` its `materialise_odds`,
 //! `ROBUST_JUMP_HOLD` its `resume_hold_time_constants`;
 //! `ROBUST_FILTER_SEED` sets `rbpf.seed` (the same data, other particles: the filter's own
@@ -339,9 +338,6 @@ fn robustness_matrix() {
     let mut config = DamperMonitorConfig::default();
     config.rbpf.particles = particles;
     config.rbpf.noise_scale.enabled = env_or("ROBUST_NOISE_SCALE", 1u8) == 1;
-    config.rbpf.max_move_interval_s = env_or("ROBUST_MAX_MOVE_S", config.rbpf.max_move_interval_s);
-    config.rbpf.regeneration_interval_s =
-        env_or("ROBUST_REGEN_S", config.rbpf.regeneration_interval_s);
     config.rbpf.seed = env_or("ROBUST_FILTER_SEED", config.rbpf.seed);
     let js = &mut config.rbpf.jump_search;
     js.enabled = env_or("ROBUST_JUMP", u8::from(js.enabled)) == 1;

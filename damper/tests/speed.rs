@@ -301,8 +301,7 @@ fn the_information_about_the_anti_yaw_damper_grows_with_speed() {
 /// after the step, the posterior mean and 95 % quantile of `C_say` (ratios to nominal), the
 /// effective sample size and the resamplings since the step. Minutes in the dev profile:
 /// `cargo test --release -p railmon-damper --test speed finding_the_step -- --ignored --nocapture`
-/// (`SPEED_STEP_SEED`: another plant seed; `SPEED_STEP_MAX_MOVE_S`: `rbpf.max_move_interval_s`;
-/// `SPEED_STEP_REGEN_S`: `rbpf.regeneration_interval_s`; `SPEED_STEP_JUMP=0|1`:
+/// (`SPEED_STEP_SEED`: another plant seed; `SPEED_STEP_JUMP=0|1`:
 /// `rbpf.jump_search.enabled`, `SPEED_STEP_JUMP_HAZARD` its `hazard_per_s`,
 /// `SPEED_STEP_JUMP_ODDS` its `materialise_odds`; `SPEED_STEP_SPEEDS=10,15`: only these speeds).
 #[test]
@@ -310,18 +309,6 @@ fn the_information_about_the_anti_yaw_damper_grows_with_speed() {
             cargo test --release -p railmon-damper --test speed finding_the_step -- --ignored --nocapture"]
 fn finding_the_step_at_each_speed() {
     let mut config = DamperMonitorConfig::default();
-    if let Some(v) = std::env::var("SPEED_STEP_MAX_MOVE_S")
-        .ok()
-        .and_then(|v| v.parse().ok())
-    {
-        config.rbpf.max_move_interval_s = v;
-    }
-    if let Some(v) = std::env::var("SPEED_STEP_REGEN_S")
-        .ok()
-        .and_then(|v| v.parse().ok())
-    {
-        config.rbpf.regeneration_interval_s = v;
-    }
     let var = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<f64>().ok());
     let js = &mut config.rbpf.jump_search;
     if let Some(v) = var("SPEED_STEP_JUMP") {

@@ -235,18 +235,9 @@ pub struct FuelMonitorConfig {
     /// sensor conditions fuel on them, so within a component it is a regression of fuel on
     /// speed, acceleration, power demand and speed powers, which a fuel map is close to
     /// (tractive power ~ m a v + c_r m g v + c_d v^3); and the pointer sees them (measured on
-    /// the railcar routes: mostly their degenerate density, not what the driver does;
-    /// [`FuelMonitorConfig::measured_proximity`]). Need the `speed` channel.
+    /// the railcar routes: mostly their degenerate density, not what the driver does, which
+    /// is why the railcar preset weighs the pointer by levels). Need the `speed` channel.
     pub derived_channels: Vec<DerivedChannel>,
-    /// The pointer weighs the components by the density of the measured data only: fuel given
-    /// every other channel (derived ones included) times the other measured channels, not the
-    /// derived channels' own density (`RegressionStats::log_proximity_measured`). A derived
-    /// channel is a function of the speed now and a sample ago, so its density given the
-    /// others is degenerate and, with the speed lagged in `psi`, decides the pointer by
-    /// rounding-sized misfits (docs/fuel.md, "Why coasting is not recognised"). Off: the
-    /// density of all of `y_t`. Worse named regimes on both railcar routes, so no preset uses
-    /// it.
-    pub measured_proximity: bool,
     /// Names of channels of `y_t` (measured, `fuel` included, or derived: `speed`,
     /// `specific_force`, ...) whose levels weigh the pointer: the evidence for a component is
     /// the density of these channels' values under a static Gauss-inverse-Wishart of the
@@ -255,26 +246,16 @@ pub struct FuelMonitorConfig {
     /// term (`Mixture`, docs/fuel.md "The pointer weighed by levels"). Changes the pointer and
     /// so the update weights; the regressions, the virtual sensor (weighted by the same
     /// evidence without fuel) and the forecasts are computed from them as before. Empty: off
-    /// (the evidence of `measured_proximity` or the paper's). The railcar preset's: `["fuel",
+    /// (the paper's evidence). The railcar preset's: `["fuel",
     /// "speed", "specific_force"]` with `pointer_level_min_variance = 3e-2` and
     /// `pointer_standing` (docs/fuel.md "Standstill, a regime given").
     pub pointer_levels: Vec<String>,
-    /// Names of channels of `y_t` the `pointer_levels` are conditioned on in each component's
-    /// static model (the `gradient`: coasting downhill speeds up, uphill slows down, so its
-    /// acceleration is a level only given the grade). Regressors, not modelled: a
-    /// piecewise-constant channel adds no density of its own. Only with `pointer_levels`.
-    pub pointer_level_regressors: Vec<String>,
     /// Floor on the eigenvalues of the level statistics' covariance (standardised units). A
     /// standing train's speed is exactly 0 and a station's grade exactly constant, so a level
     /// component's covariance collapses to its floor; at `min_noise_variance`'s 1e-6 a stop
     /// at another grade then costs hundreds of nats and another component takes it
     /// (docs/fuel.md: 3e-2 there). 1e-6 by default, which only matters with `pointer_levels`.
     pub pointer_level_min_variance: f64,
-    /// Per channel of `pointer_levels` (same order), its physical resolution (its units: m/s,
-    /// cm^3/s, m/s^2): the level statistics' covariance is floored at the squares of these,
-    /// channel by channel, instead of at `pointer_level_min_variance` in standardised units
-    /// (which it then replaces). Empty: off.
-    pub pointer_level_resolutions: Vec<f64>,
     /// Standstill (speed below `naming.standstill_speed_m_s`) is a regime given, not learned:
     /// component 0 holds every standing sample and no moving one, and its level statistics
     /// are over the levels measured at standstill (the fuel; the speed and what is derived
@@ -378,11 +359,8 @@ impl Default for FuelMonitorConfig {
                 DerivedChannel::SpeedSquared,
                 DerivedChannel::SpeedCubed,
             ],
-            measured_proximity: false,
             pointer_levels: Vec::new(),
-            pointer_level_regressors: Vec::new(),
             pointer_level_min_variance: 1e-6,
-            pointer_level_resolutions: Vec::new(),
             pointer_standing: false,
             forecast_blend: true,
             blend_forgetting: 0.999,
@@ -510,30 +488,6 @@ impl FuelMonitorConfig {
     /// the derived ones, as [`crate::FuelMonitor`] lays it out) of `pointer_levels`.
     pub fn pointer_level_indices(&self) -> Result<Vec<usize>, FuelError> {
         self.y_indices("pointer_levels", &self.pointer_levels)
-    }
-
-    /// Indices into `y_t` of `pointer_level_regressors` (see [`Self::pointer_level_indices`]).
-    pub fn pointer_level_regressor_indices(&self) -> Result<Vec<usize>, FuelError> {
-        if self.pointer_levels.is_empty() && !self.pointer_level_regressors.is_empty() {
-            return Err(FuelError::invalid(
-                "pointer_level_regressors",
-                format!("{:?}", self.pointer_level_regressors),
-                "need `pointer_levels`",
-            ));
-        }
-        let indices = self.y_indices("pointer_level_regressors", &self.pointer_level_regressors)?;
-        match self
-            .pointer_levels
-            .iter()
-            .find(|l| self.pointer_level_regressors.contains(l))
-        {
-            Some(both) => Err(FuelError::invalid(
-                "pointer_level_regressors",
-                both,
-                "is also in `pointer_levels`",
-            )),
-            None => Ok(indices),
-        }
     }
 
     /// Indices into `y_t` of the channels `names` of the setting `field`.
@@ -738,20 +692,6 @@ impl FuelMonitorConfig {
             ));
         }
         self.pointer_level_indices()?;
-        self.pointer_level_regressor_indices()?;
-        if !self.pointer_level_resolutions.is_empty()
-            && (self.pointer_level_resolutions.len() != self.pointer_levels.len()
-                || self
-                    .pointer_level_resolutions
-                    .iter()
-                    .any(|r| !(r.is_finite() && *r > 0.0)))
-        {
-            return Err(FuelError::invalid(
-                "pointer_level_resolutions",
-                format!("{:?}", self.pointer_level_resolutions),
-                "must be one finite value > 0 per channel of `pointer_levels`",
-            ));
-        }
         if self.pointer_standing
             && (self.pointer_levels.is_empty()
                 || self.components < 2
@@ -761,13 +701,6 @@ impl FuelMonitorConfig {
                 "pointer_standing",
                 true,
                 "needs `pointer_levels`, `speed` in `channels` and at least 2 `components`",
-            ));
-        }
-        if self.measured_proximity && !self.pointer_levels.is_empty() {
-            return Err(FuelError::invalid(
-                "pointer_levels",
-                format!("{:?}", self.pointer_levels),
-                "is another evidence than `measured_proximity`: set one of them",
             ));
         }
         check_positive("prior_information", self.prior_information)?;

@@ -36,35 +36,19 @@ pub struct MixtureSpec {
     pub dirichlet_prior: f64,
     pub switching_prior_stay: f64,
     pub switching_prior_move: f64,
-    /// `Some(m)`: channels `m..k_y` of `y` are derived from the others and `psi`, and the
-    /// proximities are densities of the measured data only
-    /// ([`RegressionStats::log_proximity_measured`]); `None`: of all of `y` (the paper's).
-    #[serde(default)]
-    pub measured_channels: Option<usize>,
     /// Non-empty: the pointer is weighed by levels (docs/fuel.md, "The pointer weighed by
     /// levels"): `ln N(x | c)` of the channels of `y` at these indices under a static
-    /// Gauss-inverse-Wishart per component (regressor `[level_regressors; 1]`, no lags),
+    /// Gauss-inverse-Wishart per component (regressor `[1]`, no lags: a mean and covariance),
     /// updated with the pointer's weights, plus, unless the fuel (index 0) is among them,
     /// `ln N(y_0 | y_1..k_y, psi)` (fuel given every other channel now and the lags: the
-    /// regression, the other channels as regressors only). Empty:
-    /// [`MixtureSpec::measured_channels`] or the paper's.
+    /// regression, the other channels as regressors only). Empty: the paper's proximity of all
+    /// of `y`.
     #[serde(default)]
     pub level_channels: Vec<usize>,
-    /// Indices into `y` of channels the level statistics are conditioned on (the gradient):
-    /// regressors of the levels, `psi = [y at these indices; 1]`, not modelled (so a
-    /// piecewise-constant channel adds no degenerate density). Only with `level_channels`.
-    #[serde(default)]
-    pub level_regressors: Vec<usize>,
     /// Floor on the eigenvalues of the level statistics' covariance (standardised units; 0:
     /// `min_noise_variance`).
     #[serde(default)]
     pub level_min_variance: f64,
-    /// Per level channel, the unit it enters the level statistics in (standardised units;
-    /// empty: 1 each): the channel is divided by it, so `level_min_variance` floors each
-    /// channel's variance at that many squared units (the monitor sets them from the channels'
-    /// physical resolutions, `pointer_level_resolutions`).
-    #[serde(default)]
-    pub level_scales: Vec<f64>,
     /// With level channels, `Some(channels)`: a standing vehicle (`MixtureInput::standing`) is
     /// a state of its own, not a point of the levels' continuum. Its speed is exactly 0 (and
     /// so is every level derived from it): as a Gaussian level that point mass either costs a
@@ -182,13 +166,7 @@ impl Mixture {
             spec.min_noise_variance,
         )?;
         let m = spec.components;
-        if spec
-            .level_channels
-            .iter()
-            .chain(&spec.level_regressors)
-            .any(|&c| c >= spec.k_y)
-            || (spec.level_channels.is_empty() && !spec.level_regressors.is_empty())
-        {
+        if spec.level_channels.iter().any(|&c| c >= spec.k_y) {
             return Err(FuelError::invalid(
                 "level_channels",
                 format!("{:?}", spec.level_channels),
@@ -482,24 +460,20 @@ impl Mixture {
         let mut log_joint = vec![0.0; m * m];
         let x = LevelData::of(&self.spec, input.y, input.standing);
         for i in 0..m {
-            // The kept predictions serve the default proximity (same bits); the measured-data
-            // density (off by default) is computed from the input.
-            let evidence = match (&x, self.spec.measured_channels) {
-                (Some(x), _) => {
-                    match level_stats(&self.levels, self.standing_level.as_ref(), i, x) {
-                        Some(level) => level_evidence(
-                            &self.components[i],
-                            level,
-                            input.y,
-                            &predictions[i],
-                            x,
-                            self.spec.parameter_uncertainty,
-                        ),
-                        None => f64::NEG_INFINITY,
-                    }
-                }
-                (None, Some(_)) => proximity(&self.spec, &self.components[i], input),
-                (None, None) => self.components[i].log_proximity_at(input.y, &predictions[i]),
+            // The kept predictions serve the paper's proximity (same bits).
+            let evidence = match &x {
+                Some(x) => match level_stats(&self.levels, self.standing_level.as_ref(), i, x) {
+                    Some(level) => level_evidence(
+                        &self.components[i],
+                        level,
+                        input.y,
+                        &predictions[i],
+                        x,
+                        self.spec.parameter_uncertainty,
+                    ),
+                    None => f64::NEG_INFINITY,
+                },
+                None => self.components[i].log_proximity_at(input.y, &predictions[i]),
             } + self.log_category(i, input.category);
             for j in 0..m {
                 log_joint[i * m + j] = evidence + log_alpha[j * m + i] + self.log_w[j];
@@ -687,7 +661,11 @@ impl Mixture {
                                         None => f64::NEG_INFINITY,
                                     }
                                 }
-                                None => proximity(&mix.spec, &comps[i], input),
+                                None => comps[i].log_proximity(
+                                    input.y,
+                                    input.psi,
+                                    mix.spec.parameter_uncertainty,
+                                ),
                             }
                     })
                     .collect();
@@ -747,15 +725,6 @@ pub(crate) fn with_scratch<R>(n: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
     }
 }
 
-/// Log-proximity of `input` to component `c` (Algorithm 3.4 step 2), of all of `y` or of the
-/// measured channels only ([`MixtureSpec::measured_channels`]).
-fn proximity(spec: &MixtureSpec, c: &RegressionStats, input: &MixtureInput) -> f64 {
-    match spec.measured_channels {
-        Some(m) => c.log_proximity_measured(input.y, input.psi, spec.parameter_uncertainty, m),
-        None => c.log_proximity(input.y, input.psi, spec.parameter_uncertainty),
-    }
-}
-
 /// The component that holds every standing sample when standstill is a regime given
 /// ([`MixtureSpec::standing_level_channels`]).
 pub const STANDING_COMPONENT: usize = 0;
@@ -782,7 +751,7 @@ struct LevelData {
     /// The level channels (the outputs of the static model): at standstill (with
     /// [`MixtureSpec::standing_level_channels`]) those measured there only.
     x: DVector<f64>,
-    /// Its regressor `[level regressors; 1]`.
+    /// Its regressor `[1]` (a static model: a mean and a covariance).
     psi: DVector<f64>,
     /// `[x; psi]`, the data vector of the statistics.
     d: DVector<f64>,
@@ -802,17 +771,8 @@ impl LevelData {
             (Some(kept), true) => (kept.as_slice(), true),
             _ => (spec.level_channels.as_slice(), false),
         };
-        let x = channels.iter().map(|&c| {
-            // Scales are per level channel (empty: 1 each).
-            let scale = (spec.level_channels.iter().position(|&l| l == c))
-                .and_then(|k| spec.level_scales.get(k))
-                .unwrap_or(&1.0);
-            y[c] / scale
-        });
-        let x = DVector::from_iterator(channels.len(), x);
-        let mut psi: Vec<f64> = spec.level_regressors.iter().map(|&c| y[c]).collect();
-        psi.push(1.0);
-        let psi = DVector::from_vec(psi);
+        let x = DVector::from_iterator(channels.len(), channels.iter().map(|&c| y[c]));
+        let psi = DVector::from_element(1, 1.0);
         let d = concat(&x, &psi);
         let fuel = channels.iter().position(|&c| c == 0);
         Some(LevelData {
@@ -828,13 +788,13 @@ impl LevelData {
 /// The prior information matrix of level statistics of `channels` levels, `prior_information
 /// I` over `[x; psi]`.
 fn level_v0(spec: &MixtureSpec, channels: usize) -> DMatrix<f64> {
-    let d = channels + spec.level_regressors.len() + 1;
+    let d = channels + 1;
     DMatrix::identity(d, d) * spec.prior_information
 }
 
 /// A component's statistics of `channels` levels at the prior: a Gauss-inverse-Wishart
-/// regression of the level channels on `[level regressors; 1]` and no lags (with no
-/// regressors, `psi = [1]`: `theta` is the mean and `r` the covariance).
+/// regression of the level channels on `psi = [1]` and no lags: `theta` is the mean and `r`
+/// the covariance.
 fn level_prior(spec: &MixtureSpec, channels: usize) -> Result<RegressionStats, FuelError> {
     RegressionStats::new(
         channels,

@@ -293,15 +293,8 @@ impl FuelMonitor {
             dirichlet_prior: config.dirichlet_prior,
             switching_prior_stay: config.switching_prior_stay,
             switching_prior_move: config.switching_prior_move,
-            measured_channels: (config.measured_proximity && !derived.is_empty())
-                .then_some(channels.len()),
             level_channels: config.pointer_level_indices()?,
-            level_regressors: config.pointer_level_regressor_indices()?,
-            level_min_variance: match config.pointer_level_resolutions.is_empty() {
-                true => config.pointer_level_min_variance,
-                false => 1.0,
-            },
-            level_scales: Vec::new(),
+            level_min_variance: config.pointer_level_min_variance,
             // With the levels, standstill is a state of its own: only the measured channels
             // other than the speed stay levels there (speed and everything derived from it
             // are 0).
@@ -541,12 +534,6 @@ impl FuelMonitor {
             .chain(self.derived.iter().map(|d| d.min_scale()))
             .collect();
         let st = Standardiser::from_samples(&min_scales, &self.initial);
-        // The level channels in units of their resolution (a floor of 1 is the resolution's
-        // square), now that their standardised scale is known.
-        self.spec.level_scales = (self.spec.level_channels.iter())
-            .zip(&self.config.pointer_level_resolutions)
-            .map(|(&c, r)| r / st.scale[c])
-            .collect();
         let (m_y, m_alpha) = (self.config.regression_memory, self.config.switching_memory);
         let start = m_y.max(m_alpha);
         let mut past = Past::default();
@@ -601,7 +588,6 @@ impl FuelMonitor {
             let spec = MixtureSpec {
                 components: 1,
                 level_channels: Vec::new(),
-                level_regressors: Vec::new(),
                 standing_level_channels: None,
                 ..self.spec.clone()
             };

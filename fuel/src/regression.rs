@@ -388,46 +388,6 @@ impl RegressionStats {
         -0.5 * (k * LN_2PI + self.r_log_det + k * inflate.ln() + q)
     }
 
-    /// Log-density of the measured data only, when channels `measured..k_y` of `y` are
-    /// functions of the others and of `psi` (derived channels: acceleration, power demand,
-    /// speed powers, computed from the speed now and a sample ago): `ln N(y_0 | y_1..k_y)`
-    /// (fuel given every other channel, derived ones included: the regime's fuel map) plus
-    /// `ln N(y_1..measured)` (the marginal of the other measured channels). The derived
-    /// channels are not data: their joint density with the speed is degenerate (the
-    /// acceleration is exactly the speed now minus the lagged speed in `psi`), so in
-    /// [`RegressionStats::log_proximity`] their conditional variance sits at the floor and a
-    /// rounding-sized misfit of that identity costs thousands of nats, more than any fuel or
-    /// notch evidence (docs/fuel.md, "Why coasting is not recognised"). Same inflation as
-    /// `log_proximity`.
-    pub fn log_proximity_measured(
-        &self,
-        y: &DVector<f64>,
-        psi: &DVector<f64>,
-        parameter_uncertainty: bool,
-        measured: usize,
-    ) -> f64 {
-        let k = self.k_y;
-        if k == 1 {
-            return self.log_proximity(y, psi, parameter_uncertainty);
-        }
-        let y_other = y.rows(1, k - 1).into_owned();
-        let log_fuel = self
-            .condition_first_on_rest(psi, &y_other, parameter_uncertainty)
-            .log_density_of(y[0]);
-        let others = measured.clamp(1, k) - 1;
-        if others == 0 {
-            return log_fuel;
-        }
-        let inflate = if parameter_uncertainty {
-            1.0 + self.zeta(psi)
-        } else {
-            1.0
-        };
-        let r_mm = self.r.view((1, 1), (others, others)).into_owned() * inflate;
-        let e = y.rows(1, others) - self.mean(psi).rows(1, others);
-        log_fuel + gaussian_log_density(r_mm, &e.into_owned())
-    }
-
     /// Log-density of channels `channels` of `y` (`y` of length `k_y`, the others ignored)
     /// under the marginal of the component's predictive Gaussian at `psi`: the principal
     /// block of `N(theta' psi, r (1 + zeta))` (`1 + zeta` with `parameter_uncertainty`).
@@ -736,65 +696,5 @@ mod tests {
         assert!((c.variance - 3.0 * (1.0 - 0.25 / 2.0)).abs() < 1e-12);
         let expected_ld = -0.5 * (LN_2PI + 6f64.ln() + 1.0 / 6.0);
         assert!((c.log_density - expected_ld).abs() < 1e-12);
-    }
-
-    /// A component with `y = [fuel, v, d]`, `psi = [1]`, known `theta` and `r`.
-    fn three_channels(r: [[f64; 3]; 3]) -> RegressionStats {
-        let theta = [1.0, 2.0, -1.0];
-        let mut v = DMatrix::zeros(4, 4);
-        for i in 0..3 {
-            for j in 0..3 {
-                v[(i, j)] = r[i][j] + theta[i] * theta[j];
-            }
-            v[(i, 3)] = theta[i];
-            v[(3, i)] = theta[i];
-        }
-        v[(3, 3)] = 1.0;
-        RegressionStats::new(3, v, 1.0, 1e-12).unwrap()
-    }
-
-    /// With every channel measured, the measured-data proximity is the joint density (chain
-    /// rule: `ln N(y_0 | y_1, y_2) + ln N(y_1, y_2) = ln N(y)`), with and without the parameter
-    /// uncertainty. With channel 2 derived it is `ln N(y_0 | y_1, y_2) + ln N(y_1)`, written out
-    /// with the trivariate formulas: `y_2`'s own density is left out, however narrow it is.
-    #[test]
-    fn measured_proximity_leaves_out_only_the_derived_channels_density() {
-        let r = [[1.0, 0.3, 0.2], [0.3, 2.0, 0.5], [0.2, 0.5, 0.8]];
-        let s = three_channels(r);
-        let psi = DVector::from_element(1, 1.0);
-        let y = DVector::from_row_slice(&[1.7, 1.1, -0.4]);
-        for uncertainty in [false, true] {
-            let joint = s.log_proximity(&y, &psi, uncertainty);
-            let measured = s.log_proximity_measured(&y, &psi, uncertainty, 3);
-            assert!((joint - measured).abs() < 1e-12, "{joint} {measured}");
-        }
-        // Fuel given [v, d]: mean 1 + r_fo r_oo^-1 e_o, variance r_ff - r_fo r_oo^-1 r_of.
-        let (e1, e2) = (1.1 - 2.0, -0.4 + 1.0);
-        let det = r[1][1] * r[2][2] - r[1][2] * r[2][1];
-        let inv = [
-            [r[2][2] / det, -r[1][2] / det],
-            [-r[2][1] / det, r[1][1] / det],
-        ];
-        let g = [
-            r[0][1] * inv[0][0] + r[0][2] * inv[1][0],
-            r[0][1] * inv[0][1] + r[0][2] * inv[1][1],
-        ];
-        let mean = 1.0 + g[0] * e1 + g[1] * e2;
-        let var = r[0][0] - (g[0] * r[1][0] + g[1] * r[2][0]);
-        let expected = -0.5 * (LN_2PI + var.ln() + (1.7 - mean).powi(2) / var)
-            - 0.5 * (LN_2PI + r[1][1].ln() + e1 * e1 / r[1][1]);
-        let got = s.log_proximity_measured(&y, &psi, false, 2);
-        assert!((got - expected).abs() < 1e-12, "{got} {expected}");
-        // A derived channel almost determined by v (variance 1e-8 given v): the joint density
-        // moves by ~10^6 nats when it misses by 0.1, the measured-data one not at all.
-        let tight = three_channels([[1.0, 0.3, 0.0], [0.3, 2.0, 0.0], [0.0, 0.0, 1e-8]]);
-        let off = DVector::from_row_slice(&[1.7, 1.1, -0.9]);
-        let on = DVector::from_row_slice(&[1.7, 1.1, -1.0]);
-        let joint_drop =
-            tight.log_proximity(&on, &psi, false) - tight.log_proximity(&off, &psi, false);
-        let measured_drop = tight.log_proximity_measured(&on, &psi, false, 2)
-            - tight.log_proximity_measured(&off, &psi, false, 2);
-        assert!(joint_drop > 1e5, "{joint_drop}");
-        assert!(measured_drop.abs() < 1e-9, "{measured_drop}");
     }
 }

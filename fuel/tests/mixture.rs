@@ -22,11 +22,8 @@ fn spec(components: usize, k_y: usize, k_psi: usize) -> MixtureSpec {
         dirichlet_prior: 1.0,
         switching_prior_stay: 2.0,
         switching_prior_move: 1.0,
-        measured_channels: None,
         level_channels: Vec::new(),
-        level_regressors: Vec::new(),
         level_min_variance: 0.0,
-        level_scales: Vec::new(),
         standing_level_channels: None,
     }
 }

@@ -159,14 +159,6 @@ rejects!(
     "pointer_levels",
     |c| c.pointer_levels = vec!["speed".into(), "speed".into()]
 );
-rejects!(
-    rejects_pointer_levels_with_the_measured_density,
-    "pointer_levels",
-    |c| {
-        c.pointer_levels = vec!["speed".into()];
-        c.measured_proximity = true;
-    }
-);
 
 rejects!(rejects_standing_without_levels, "pointer_standing", |c| c
     .pointer_standing =
@@ -186,22 +178,6 @@ rejects!(
     |c| {
         c.pointer_levels = vec!["speed".into()];
         c.pointer_standing = true;
-    }
-);
-rejects!(
-    rejects_a_resolution_per_level_that_does_not_match,
-    "pointer_level_resolutions",
-    |c| {
-        c.pointer_levels = vec!["speed".into()];
-        c.pointer_level_resolutions = vec![0.1, 0.2];
-    }
-);
-rejects!(
-    rejects_a_zero_resolution,
-    "pointer_level_resolutions",
-    |c| {
-        c.pointer_levels = vec!["speed".into()];
-        c.pointer_level_resolutions = vec![0.0];
     }
 );
 

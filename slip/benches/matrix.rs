@@ -9,10 +9,9 @@
 //! - per method over the whole matrix: true losses, alarm starts, false alarm episodes on
 //!   slipping and on healthy drives (an episode is false when none of its steps is a true slip).
 //!
-//! `cargo bench -p railmon-slip --bench matrix [-- [--jump] [--confirm=N] [--hold=N] NAME]`
-//! (NAME: run only scenarios whose file name contains it; `--jump`: every EKF with its
-//! load-jump test on; `--confirm`, `--hold`: the alarm's `confirm_steps`,
-//! `release_hold_steps`). Takes a minute or two in release on one core.
+//! `cargo bench -p railmon-slip --bench matrix [-- [--confirm=N] [--hold=N] NAME]`
+//! (NAME: run only scenarios whose file name contains it; `--confirm`, `--hold`: the alarm's
+//! `confirm_steps`, `release_hold_steps`). Takes a minute or two in release on one core.
 
 use std::time::Instant;
 
@@ -36,7 +35,6 @@ fn opt(v: Option<f64>, digits: usize) -> String {
 
 fn main() {
     let filter = std::env::args().skip(1).find(|a| !a.starts_with('-'));
-    let jump = std::env::args().any(|a| a == "--jump");
     let mut per_drive = Vec::new();
     let mut healthy = Vec::new();
     // Per method (in `AdhesionMethod::ALL` order): true losses, alarm starts on slipping
@@ -49,8 +47,6 @@ fn main() {
         let n = scenario.n_drives();
         let mut sim = DriveSimulator::new(&scenario).expect("simulator");
         let mut cfg = scenario.monitor_config();
-        // `--jump`: the same with the load-jump test of the EKFs on (`[ekf.jump]`).
-        cfg.ekf.jump.enabled |= jump;
         // `--confirm=N`, `--hold=N`: the alarm's holds (`[alarm]`), for the sweep in the docs.
         for arg in std::env::args() {
             let number = |s: &str| s.parse().expect("a number of steps");

@@ -3,7 +3,7 @@
 //! thread CPU time of
 //! - the EKF bank alone,
 //! - the EKF step with dense products (`ekf_step_dense`, the reference) against the one the
-//!   bank runs (`ekf_step_parts`, which skips the zeros), over the same frames: their speed
+//!   bank runs (`ekf_step`, which skips the zeros), over the same frames: their speed
 //!   ratio (same run, so the machine's load cancels),
 //! - each adhesion method alone, over the EKF torque estimates of the whole run,
 //! - the whole pipeline (EKFs, all five methods, their alarms: `MultiMethodPipeline`),
@@ -22,7 +22,7 @@ mod scenarios_dir;
 use scenarios_dir::scenario_paths;
 
 use railmon_bench_support::thread_cpu_time;
-use railmon_slip::ekf::{ekf_step_dense, ekf_step_parts};
+use railmon_slip::ekf::{ekf_step, ekf_step_dense};
 use railmon_slip::model::DriveMatrix;
 use railmon_slip::{
     AdhesionEstimator, AdhesionMethod, AdhesionScenario, DriveSample, DriveSimulator, EkfBank,
@@ -94,7 +94,7 @@ fn main() {
                         *f = if dense {
                             ekf_step_dense(&model, &q, &r, f, s).expect("step")
                         } else {
-                            ekf_step_parts(&model, &q, &r, f, s, false).expect("step").0
+                            ekf_step(&model, &q, &r, f, s).expect("step")
                         };
                     }
                 }

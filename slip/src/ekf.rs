@@ -11,7 +11,6 @@ use serde::{Deserialize, Serialize};
 use railmon_filter::kalman::{symmetrize, update_joseph, LN_2PI};
 
 use crate::error::{check_finite, check_positive, SlipError};
-use crate::jump::{is_common_mode, Jump, JumpConfig, JumpDetector};
 use crate::model::{idx, wrap_angle, DriveMatrix, DriveModel, DriveState};
 use crate::sample::{validate_frame, DriveSample};
 
@@ -37,8 +36,6 @@ pub struct EkfConfig {
     /// `initial_speed_rad_s` (forward when 0). Without it a filter started far from the true
     /// speed may lock on the mirrored solution `(-omega, theta + pi)`.
     pub start_from_back_emf: bool,
-    /// The load-jump test on the innovations ([`crate::jump`]); off in the paper's filter.
-    pub jump: JumpConfig,
 }
 
 /// The validated setting (docs/adhesion.md, "EKF process noise"): the paper's measurement
@@ -61,7 +58,6 @@ impl Default for EkfConfig {
             initial_angle_rad: 0.0,
             initial_torque_nm: 0.0,
             start_from_back_emf: true,
-            jump: JumpConfig::default(),
         }
     }
 }
@@ -102,8 +98,7 @@ impl EkfConfig {
         check_finite(
             &format!("{prefix}.initial_torque_nm"),
             self.initial_torque_nm,
-        )?;
-        self.jump.validate(&format!("{prefix}.jump"))
+        )
     }
 
     fn q(&self) -> DriveMatrix {
@@ -165,18 +160,13 @@ fn measurement_matrix() -> SMatrix<f64, 2, 5> {
     c
 }
 
-/// What the jump test needs from one EKF step.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-pub struct StepParts {
-    /// Jacobian of the prediction to this step (identity on the first frame).
-    pub a: DriveMatrix,
-    /// Kalman gain `K = P- C' S^-1` of this step's update.
-    pub gain: SMatrix<f64, 5, 2>,
-    /// Measured minus predicted currents.
-    pub innovation: Vector2<f64>,
-}
-
 /// One EKF step (eq. 3-9) of one drive; returns the new filter, leaving `f` untouched.
+///
+/// The update skips the zeros of `I - K C` (`C` selects the two currents: 2 x 5 x 5 products
+/// instead of 5 x 5 x 5, twice) but adds the remaining terms in the order of the dense
+/// products of [`ekf_step_dense`], so the result is the same to the bit (test
+/// `sparse_step_equals_the_dense_one_bit_for_bit`); speed ratio in `cargo bench -p
+/// railmon-slip --bench sections`.
 pub fn ekf_step(
     model: &DriveModel,
     q: &DriveMatrix,
@@ -184,33 +174,15 @@ pub fn ekf_step(
     f: &DriveFilter,
     sample: &DriveSample,
 ) -> Result<DriveFilter, railmon_filter::FilterError> {
-    ekf_step_parts(model, q, r, f, sample, false).map(|(f, _)| f)
-}
-
-/// [`ekf_step`], with the Jacobian, gain and innovation when `parts` is asked for.
-///
-/// The update skips the zeros of `I - K C` (`C` selects the two currents: 2 x 5 x 5 products
-/// instead of 5 x 5 x 5, twice) but adds the remaining terms in the order of the dense
-/// products of [`ekf_step_dense`], so the result is the same to the bit (test
-/// `sparse_step_equals_the_dense_one_bit_for_bit`); speed ratio in `cargo bench -p
-/// railmon-slip --bench sections`.
-pub fn ekf_step_parts(
-    model: &DriveModel,
-    q: &DriveMatrix,
-    r: &Matrix2<f64>,
-    f: &DriveFilter,
-    sample: &DriveSample,
-    parts: bool,
-) -> Result<(DriveFilter, Option<StepParts>), railmon_filter::FilterError> {
     // Prediction (3)-(4), with the Jacobian at the previous posterior (8).
-    let (x_pred, p_pred, a) = match f.u_prev {
+    let (x_pred, p_pred) = match f.u_prev {
         Some(u) => {
             let (x_pred, a) = model.transition_and_jacobian(&f.x, &u);
             let mut p = a * f.p * a.transpose() + q;
             symmetrize(&mut p);
-            (x_pred, p, a)
+            (x_pred, p)
         }
-        None => (f.x, f.p, DriveMatrix::identity()),
+        None => (f.x, f.p),
     };
     // Update (5)-(7) in Joseph form; h(x) = C x is linear (14).
     let innovation = Vector2::new(
@@ -220,28 +192,20 @@ pub fn ekf_step_parts(
     let upd = update_currents(&x_pred, &p_pred, &innovation, r)?;
     let mut x = upd.x;
     x[idx::THETA] = wrap_angle(x[idx::THETA]);
-    Ok((
-        DriveFilter {
-            x,
-            p: upd.p,
-            u_prev: Some(Vector2::new(sample.u_alpha_v, sample.u_beta_v)),
-            log_likelihood: upd.log_likelihood,
-            frames: f.frames + 1,
-        },
-        parts.then_some(StepParts {
-            a,
-            gain: upd.gain,
-            innovation,
-        }),
-    ))
+    Ok(DriveFilter {
+        x,
+        p: upd.p,
+        u_prev: Some(Vector2::new(sample.u_alpha_v, sample.u_beta_v)),
+        log_likelihood: upd.log_likelihood,
+        frames: f.frames + 1,
+    })
 }
 
-/// The posterior, likelihood and gain of the update with `C = [I_2 0]`.
+/// The posterior and likelihood of the update with `C = [I_2 0]`.
 struct CurrentUpdate {
     x: DriveState,
     p: DriveMatrix,
     log_likelihood: f64,
-    gain: SMatrix<f64, 5, 2>,
 }
 
 /// `railmon_filter::kalman::update_joseph` for `C = [I_2 0]`: `P C'` is the first two columns
@@ -292,13 +256,12 @@ fn update_currents(
         x: x_post,
         p: p_post,
         log_likelihood,
-        gain: k,
     })
 }
 
 /// The same step with dense products and the general Joseph update
 /// (`railmon_filter::kalman::update_joseph`): the textbook form, kept as the reference the
-/// fast [`ekf_step_parts`] is tested and benchmarked against.
+/// fast [`ekf_step`] is tested and benchmarked against.
 pub fn ekf_step_dense(
     model: &DriveModel,
     q: &DriveMatrix,
@@ -379,15 +342,6 @@ pub struct EkfBank {
     scratch: Vec<DriveFilter>,
     /// `Some(forward)` when the second frame restarts speed and angle from the back-EMF.
     back_emf_start: Option<bool>,
-    /// One load-jump test per drive; empty when `[ekf.jump]` is off.
-    detectors: Vec<JumpDetector>,
-    /// Per drive, the parts of the last step the jump test reads.
-    parts: Vec<StepParts>,
-    /// Per drive, the jump its test found at the last step (scratch).
-    jumps: Vec<Option<Jump>>,
-    /// Per drive, the jumps applied to its filter (found and not common to the drives).
-    corrections: Vec<u64>,
-    jump_config: JumpConfig,
 }
 
 impl Clone for EkfBank {
@@ -399,17 +353,11 @@ impl Clone for EkfBank {
             filters: self.filters.clone(),
             scratch: self.scratch.clone(),
             back_emf_start: self.back_emf_start,
-            detectors: self.detectors.clone(),
-            parts: self.parts.clone(),
-            jumps: self.jumps.clone(),
-            corrections: self.corrections.clone(),
-            jump_config: self.jump_config,
         }
     }
 
     /// Copies without allocating when the sizes match (the monitor's per-frame backup). The
-    /// scratch space (`scratch`, `parts`) is written before it is read at every step, so only
-    /// its size is copied.
+    /// scratch space is written before it is read at every step, so only its size is copied.
     fn clone_from(&mut self, source: &Self) {
         self.model = source.model;
         self.q = source.q;
@@ -418,16 +366,7 @@ impl Clone for EkfBank {
         if self.scratch.len() != source.scratch.len() {
             self.scratch.clone_from(&source.scratch);
         }
-        if self.parts.len() != source.parts.len() {
-            self.parts.clone_from(&source.parts);
-        }
-        if self.jumps.len() != source.jumps.len() {
-            self.jumps.clone_from(&source.jumps);
-        }
-        self.corrections.clone_from(&source.corrections);
-        self.jump_config = source.jump_config;
         self.back_emf_start = source.back_emf_start;
-        self.detectors.clone_from(&source.detectors);
     }
 }
 
@@ -447,15 +386,6 @@ impl EkfBank {
             back_emf_start: config
                 .start_from_back_emf
                 .then_some(config.initial_speed_rad_s >= 0.0),
-            detectors: if config.jump.enabled {
-                vec![JumpDetector::new(config.jump); n_drives]
-            } else {
-                Vec::new()
-            },
-            parts: vec![StepParts::default(); n_drives],
-            jumps: vec![None; n_drives],
-            corrections: vec![0; n_drives],
-            jump_config: config.jump,
         })
     }
 
@@ -471,28 +401,15 @@ impl EkfBank {
         &self.model
     }
 
-    /// The load-jump test of each drive (empty when off).
-    pub fn jump_detectors(&self) -> &[JumpDetector] {
-        &self.detectors
-    }
-
-    /// Per drive, the jumps applied to its filter so far (found by its test and not common
-    /// to the drives).
-    pub fn jump_corrections(&self) -> &[u64] {
-        &self.corrections
-    }
-
     /// One step of every drive. The frame is validated first and all filters are computed
     /// before any is committed: on error the bank is unchanged.
     pub fn step(&mut self, samples: &[DriveSample]) -> Result<(), SlipError> {
         validate_frame(samples, self.filters.len())?;
-        let test_jumps = !self.detectors.is_empty();
-        for (k, (((f, s), out), parts)) in self
+        for (k, ((f, s), out)) in self
             .filters
             .iter()
             .zip(samples)
             .zip(self.scratch.iter_mut())
-            .zip(self.parts.iter_mut())
             .enumerate()
         {
             let start;
@@ -503,53 +420,14 @@ impl EkfBank {
                 }
                 _ => f,
             };
-            let (next, step_parts) =
-                ekf_step_parts(&self.model, &self.q, &self.r, f, s, test_jumps).map_err(
-                    |source| SlipError::Filter {
-                        drive: k + 1,
-                        source,
-                    },
-                )?;
-            *out = next;
-            if let Some(p) = step_parts {
-                *parts = p;
-            }
+            *out = ekf_step(&self.model, &self.q, &self.r, f, s).map_err(|source| {
+                SlipError::Filter {
+                    drive: k + 1,
+                    source,
+                }
+            })?;
         }
-        // Every update succeeded: only now may the tests change state. All drives are tested
-        // first, then each jump is checked against the others' tests (a load change common
-        // to the drives is left to the filters) and applied.
-        for ((det, out), (parts, jump)) in self
-            .detectors
-            .iter_mut()
-            .zip(&self.scratch)
-            .zip(self.parts.iter().zip(self.jumps.iter_mut()))
-        {
-            *jump = det.observe(out.frames, &parts.a, &parts.gain, &parts.innovation);
-        }
-        let threshold = self.jump_config.common_mode_threshold;
-        for (k, ((out, jump), corrections)) in self
-            .scratch
-            .iter_mut()
-            .zip(&self.jumps)
-            .zip(self.corrections.iter_mut())
-            .enumerate()
-        {
-            let Some(jump) = jump else { continue };
-            let others = self
-                .detectors
-                .iter()
-                .enumerate()
-                .filter(|&(i, _)| i != k)
-                .map(|(_, d)| d.lead());
-            if threshold > 0.0 && is_common_mode(jump.torque_nm, others, threshold) {
-                continue;
-            }
-            out.x += jump.state_correction;
-            out.x[idx::THETA] = wrap_angle(out.x[idx::THETA]);
-            out.p += jump.covariance_added;
-            symmetrize(&mut out.p);
-            *corrections += 1;
-        }
+        // Every update succeeded: only now is the bank changed.
         std::mem::swap(&mut self.filters, &mut self.scratch);
         Ok(())
     }

@@ -14,7 +14,6 @@ pub mod alarm;
 pub mod bound;
 pub mod ekf;
 pub mod error;
-pub mod jump;
 pub mod model;
 pub mod monitor;
 pub mod pipeline;
@@ -28,7 +27,6 @@ pub use adhesion::{AdhesionConfig, AdhesionEstimator, AdhesionMethod, AdhesionOu
 pub use alarm::{SlipAlarm, SlipAlarmConfig, SlipAlarmEvent, SlipAlarmKind};
 pub use ekf::{EkfBank, EkfConfig};
 pub use error::SlipError;
-pub use jump::{JumpConfig, JumpDetector};
 pub use model::{DriveModel, MotorParams};
 pub use monitor::{
     deserialize_with_preset, DriveEstimate, SlipEstimate, SlipMonitor, SlipMonitorConfig,

@@ -140,144 +140,12 @@ fn bad_frame_leaves_the_monitor_unchanged() {
     assert_eq!(monitor.step(&good).unwrap(), &expected);
 }
 
-/// Two drives at a constant -12 N m braking load with the braking scenario's noise and
-/// sub-steps; drive 1 slides to 0 on [4000, 4400] (edges of 5 steps), drive 2 never does.
-const JUMPS: &str = r#"
-name = "jumps"
-n_drives = 2
-n_steps = 12000
-dt_s = 125e-6
-seed = 77
-[plant]
-substeps = 4
-[noise]
-current_std_a = 0.02
-voltage_std_v = 0.05
-load_std_nm = 0.1
-[load]
-levels_nm = [-12.0]
-switch_steps = []
-smoothing_steps = 30.0
-[[events]]
-kind = "drop"
-drive = 1
-start_step = 4000.0
-end_step = 4400.0
-smoothing_steps = 5.0
-"#;
-
-/// Runs `text` through the EKF bank with the jump test on or off: every drive's torque estimate
-/// at every step, and per drive the jumps found and the jumps applied (empty when off).
-fn torque_with_jumps(text: &str, jump: bool) -> (Vec<Vec<f64>>, Vec<u64>, Vec<u64>) {
-    let (torque, found, applied, _) = run_with_jumps(text, jump);
-    (torque, found, applied)
-}
-
-/// [`torque_with_jumps`], plus the steps at which drive 1's test found a jump.
-fn run_with_jumps(text: &str, jump: bool) -> (Vec<Vec<f64>>, Vec<u64>, Vec<u64>, Vec<usize>) {
-    let scenario = AdhesionScenario::from_toml_str(text).unwrap();
-    let mut config = scenario.monitor_config();
-    config.ekf.jump.enabled = jump;
-    let mut sim = DriveSimulator::new(&scenario).unwrap();
-    let mut bank = EkfBank::new(config.model().unwrap(), &config.ekf, scenario.n_drives()).unwrap();
-    let mut torque = Vec::new();
-    let mut drive_1_jumps = Vec::new();
-    while let Some((samples, _)) = sim.step() {
-        let before = bank.jump_detectors().first().map(|d| d.detections());
-        bank.step(samples).unwrap();
-        if bank.jump_detectors().first().map(|d| d.detections()) != before {
-            drive_1_jumps.push(torque.len());
-        }
-        torque.push(bank.filters().iter().map(|f| f.torque_nm()).collect());
-    }
-    let found = bank
-        .jump_detectors()
-        .iter()
-        .map(|d| d.detections())
-        .collect();
-    (
-        torque,
-        found,
-        bank.jump_corrections().to_vec(),
-        drive_1_jumps,
-    )
-}
-
-/// Steps from each edge until drive 1's torque estimate is within 10 % of the load it goes to
-/// and stays there for 20 steps.
-fn settle_steps(torque: &[Vec<f64>], edges: &[(usize, f64)]) -> Vec<usize> {
-    edges
-        .iter()
-        .map(|&(edge, level)| {
-            let near = |t: &Vec<f64>| (t[0] - level).abs() <= 0.1 * 12.0;
-            (edge..torque.len() - 20)
-                .find(|&s| torque[s..s + 20].iter().all(near))
-                .unwrap()
-                - edge
-        })
-        .collect()
-}
-
-/// The load-jump test (`[ekf.jump]`) on a simulation with known jumps: it fires on both edges
-/// of the slide and nowhere else (no false jump on the healthy drive over 12,000 steps), and
-/// after the slide the corrected filter is back on the load sooner than the plain one.
-#[test]
-fn the_jump_test_finds_both_edges_of_a_slide_and_nothing_on_a_healthy_drive() {
-    let edges = [(4000, 0.0), (4400, -12.0)];
-    let (plain, _, _) = torque_with_jumps(JUMPS, false);
-    let (with_test, found, applied, at) = run_with_jumps(JUMPS, true);
-    assert_eq!(found[1], 0, "false jumps on the healthy drive");
-    // One jump per edge, each within 30 steps of the edge's middle (20 and 18 when written:
-    // the information limit of docs/adhesion.md, not the filter's tuning).
-    assert_eq!(found[0], 2, "{at:?}");
-    for (step, (edge, _)) in at.iter().zip(edges) {
-        assert!((edge..edge + 30).contains(step), "jumps at {at:?}");
-    }
-    assert_eq!(
-        found, applied,
-        "a drive's own slide is no common load change"
-    );
-    let (plain, with_test) = (
-        settle_steps(&plain, &edges),
-        settle_steps(&with_test, &edges),
-    );
-    // The end of the slide (back to -12 N m): the correction closes the gap the plain filter
-    // still crawls across (30 against 58 steps when written). The onset is not faster (49
-    // against 33): the step model fits the 5-step edge with a jump 10-15 % short and the
-    // filter then takes as long to close that rest (docs/adhesion.md).
-    assert!(
-        with_test[1] < plain[1],
-        "settling steps with the test {with_test:?}, without {plain:?}"
-    );
-}
-
-/// A load change common to the drives (braking -12 -> -24 N m, edges of 5 steps, on three
-/// drives) is found by the tests but left to the filters: no correction, so every
-/// estimate is the plain filter's to the bit.
-#[test]
-fn a_common_load_change_is_found_and_left_to_the_filters() {
-    let text = JUMPS
-        .replace("n_drives = 2", "n_drives = 3")
-        .replace("levels_nm = [-12.0]", "levels_nm = [-12.0, -24.0]")
-        .replace("switch_steps = []", "switch_steps = [6000.0]")
-        .replace("smoothing_steps = 30.0", "smoothing_steps = 5.0");
-    let text = &text[..text.find("[[events]]").unwrap()];
-    let (plain, _, _) = torque_with_jumps(text, false);
-    let (with_test, found, applied) = torque_with_jumps(text, true);
-    assert!(
-        found.iter().any(|&n| n > 0),
-        "no drive found the switch: {found:?}"
-    );
-    assert_eq!(applied, vec![0; 3]);
-    assert_eq!(plain, with_test);
-}
-
 /// The EKF step that skips the zeros of its products equals the dense textbook step to the
 /// bit, on every drive of the hard scenario (noise, model mismatch, slips), and so does every
 /// figure computed from it (Table 1 and the golden file).
 #[test]
 fn sparse_step_equals_the_dense_one_bit_for_bit() {
-    use railmon_slip::ekf::{ekf_step_dense, ekf_step_parts};
+    use railmon_slip::ekf::{ekf_step, ekf_step_dense};
     let text = include_str!("../../config/scenarios/adhesion-hard.toml");
     let mut scenario = AdhesionScenario::from_toml_str(text).unwrap();
     scenario.n_steps = 6000;
@@ -295,7 +163,7 @@ fn sparse_step_equals_the_dense_one_bit_for_bit() {
     let mut dense = sparse.clone();
     while let Some((samples, _)) = sim.step() {
         for ((fs, fd), s) in sparse.iter_mut().zip(dense.iter_mut()).zip(samples) {
-            *fs = ekf_step_parts(&model, &q, &r, fs, s, false).unwrap().0;
+            *fs = ekf_step(&model, &q, &r, fs, s).unwrap();
             *fd = ekf_step_dense(&model, &q, &r, fd, s).unwrap();
             assert_eq!(fs, fd);
         }

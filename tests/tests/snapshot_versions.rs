@@ -72,7 +72,7 @@ const STREAMS: [Stream; 3] = [
         ],
         steps: 2000,
         state_magic: b"railmon-drives\0",
-        format: 2,
+        format: 3,
         events: "/api/v1/drives/events",
     },
     Stream {
@@ -100,7 +100,7 @@ const STREAMS: [Stream; 3] = [
         ],
         steps: 200,
         state_magic: b"railmon-vehicle\0",
-        format: 10,
+        format: 11,
         events: "/api/v1/vehicle/events",
     },
 ];

@@ -353,13 +353,7 @@ impl Rbpf {
             self.resamples += 1;
             self.sorted.stale = true;
         }
-        let max_move = self.config.max_move_interval_s;
-        let move_due = max_move > 0.0
-            && self.steps_since_move as f64 * self.dt_s + 0.5 * self.dt_s >= max_move;
-        if self.config.kernel == KernelSchedule::AtResampling && (resample || move_due) {
-            // Without a resampling (`max_move_interval_s`) the particles keep their weights:
-            // the Liu-West kernel of eq. (24) acts on the weighted cloud, and a newcomer is
-            // not copied before the data have had their say about it.
+        if self.config.kernel == KernelSchedule::AtResampling && resample {
             self.kernel_move();
             std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
             for (w, pen) in self.log_w.iter_mut().zip(&self.regeneration_penalty) {
@@ -514,9 +508,7 @@ impl Rbpf {
         let since_move_s = self.steps_since_move as f64 * self.dt_s;
         let dif = self.config.ln_diffusion_per_sqrt_s * since_move_s.sqrt();
         self.steps_since_move = 0;
-        let regen = self
-            .config
-            .regeneration_probability(since_move_s, self.dt_s);
+        let regen = self.config.regeneration_fraction;
         let (lo, hi) = (
             self.config.gain_grid.min_ratio.ln(),
             self.config.gain_grid.max_ratio.ln(),

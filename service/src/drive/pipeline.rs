@@ -191,7 +191,8 @@ struct SavedDrive {
 /// of failing to decode, or decoding into other numbers.
 const SAVED_DRIVES: StateFormat = StateFormat {
     magic: b"railmon-drives\0",
-    version: 2,
+    // 3: the EKF bank lost the load-jump test's state (the rejected `[ekf.jump]`, issue 27).
+    version: 3,
     what: "drive state",
 };
 

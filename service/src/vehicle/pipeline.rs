@@ -319,7 +319,10 @@ const SAVED_VEHICLE: StateFormat = StateFormat {
     // 9: the mixture's estimate gained `fuel_range_cm3_s` (estimates in the fuel's range).
     // 10: the standing level statistics are the standing component's only (one, not one per
     // component).
-    version: 10,
+    // 11: the rejected experiments left (issue 27): the config lost `measured_proximity`,
+    // `pointer_level_regressors` and `pointer_level_resolutions`, the mixture's spec
+    // `measured_channels`, `level_regressors` and `level_scales`.
+    version: 11,
     what: "vehicle state",
 };
 
