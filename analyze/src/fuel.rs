@@ -19,7 +19,6 @@ pub mod rls;
 
 use std::path::Path;
 
-use railmon_fuel::config::deserialize_with_preset;
 use railmon_fuel::{FuelError, FuelMonitorConfig, RegimeName, VehicleSample, REGIME_CHANGED};
 use railmon_records::vehicle::{read_vehicle_csv, write_vehicle_csv, VehicleRow};
 use railmon_records::vehicle_scenario::simulate_vehicle_scenario;
@@ -67,7 +66,8 @@ fn read_config(path: &Path) -> Result<FuelMonitorConfig, FuelAnalysisError> {
     };
     // A `preset = "..."` key starts from that preset, as in the service's [vehicle.estimator].
     let table: toml::Table = toml::from_str(&read_text(path)?).map_err(|e| input_error(&e))?;
-    let config = deserialize_with_preset(toml::Value::Table(table)).map_err(|e| input_error(&e))?;
+    let config: FuelMonitorConfig =
+        railmon_settings::with_preset(table, "").map_err(|e| input_error(&e))?;
     config
         .validate()
         .map_err(|source| FuelAnalysisError::Estimator { file, source })?;

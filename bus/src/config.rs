@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::BusError;
+use railmon_settings::SettingsError;
 
 /// The three sensor streams. Each has its own publish-subscribe service and event service.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -37,7 +37,7 @@ impl std::fmt::Display for StreamKind {
 }
 
 /// `[bus]`: where iceoryx2 keeps its files, and one `[bus.<stream>]` table per stream.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct BusConfig {
     /// Prefix of every iceoryx2 file (shared memory in /dev/shm, discovery files): processes
@@ -64,7 +64,7 @@ impl Default for BusConfig {
 }
 
 /// `[bus.<stream>]`: one publish-subscribe service (and the event service of the same name).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct StreamConfig {
     /// iceoryx2 service name of the stream; empty means `railmon/<stream>`.
@@ -91,11 +91,9 @@ impl Default for StreamConfig {
 }
 
 impl StreamConfig {
-    fn validate(&self, key: &str) -> Result<(), BusError> {
-        let bad = |field: &str, reason: String| BusError::Config {
-            key: format!("{key}.{field}"),
-            reason,
-        };
+    fn validate(&self, key: &str) -> Result<(), SettingsError> {
+        let bad =
+            |field: &str, reason: String| SettingsError::new(format!("{key}.{field}"), reason);
         if self.service_name.len() > 200 || self.service_name.contains(char::is_whitespace) {
             return Err(bad(
                 "service_name",
@@ -123,30 +121,30 @@ impl StreamConfig {
 
 impl BusConfig {
     /// Checks every value; the error names the key (`bus.drive.subscriber_buffer_size`).
-    pub fn validate(&self) -> Result<(), BusError> {
+    pub fn validate(&self) -> Result<(), SettingsError> {
         let file_name_ok = |c: char| c.is_ascii_alphanumeric() || "_-.".contains(c);
         if self.prefix.is_empty()
             || self.prefix.len() > 64
             || !self.prefix.chars().all(file_name_ok)
         {
-            return Err(BusError::Config {
-                key: "bus.prefix".into(),
-                reason: format!(
+            return Err(SettingsError::new(
+                "bus.prefix",
+                format!(
                     "`{}` must be 1 to 64 characters of A-Z a-z 0-9 _ - .",
                     self.prefix
                 ),
-            });
+            ));
         }
         let root_ok = self.root_path.is_empty()
             || (self.root_path.starts_with('/') && self.root_path.len() <= 200);
         if !root_ok {
-            return Err(BusError::Config {
-                key: "bus.root_path".into(),
-                reason: format!(
+            return Err(SettingsError::new(
+                "bus.root_path",
+                format!(
                     "`{}` must be empty (a private default) or an absolute path of at most 200 characters",
                     self.root_path
                 ),
-            });
+            ));
         }
         for kind in StreamKind::ALL {
             self.stream(kind)

@@ -10,7 +10,7 @@ use crate::monitor::DamperEstimate;
 use crate::DamperError;
 
 /// Thresholds of the health flag of each damper.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct DamperAlarmConfig {
     /// A damper is degraded when its whole 90% interval (the 95% quantile) lies below this

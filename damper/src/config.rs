@@ -13,7 +13,9 @@ use crate::DamperError;
 
 /// How each particle's Kalman filter propagates (section 4.3 and the speed/accuracy study in
 /// `docs/damper.md`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum Propagation {
     /// Per particle and step: `Phi, Gamma` by the matrix exponential of its own `A(theta)`,
@@ -27,7 +29,9 @@ pub enum Propagation {
 }
 
 /// When the Liu-West kernel moves the particles.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum KernelSchedule {
     /// Every step, as in the paper (section 4.3: draw `theta_k(i)` from eq. 24 each step).
@@ -39,14 +43,15 @@ pub enum KernelSchedule {
 }
 
 /// Grid of steady-state Riccati solutions over `(ln C_sy, ln C_say)`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct GainGridConfig {
     /// Nodes per axis.
     pub points_per_axis: usize,
-    /// Grid range as ratios of the nominal coefficients (both axes); particles outside use
-    /// the edge gain (their own `Phi` stays exact).
+    /// Lower end of the grid as a ratio of the nominal coefficients (both axes); particles
+    /// outside use the edge gain (their own `Phi` stays exact).
     pub min_ratio: f64,
+    /// Upper end of the grid as a ratio of the nominal coefficients (both axes).
     pub max_ratio: f64,
 }
 
@@ -61,7 +66,7 @@ impl Default for GainGridConfig {
 }
 
 /// The speeds the filter's model is valid at, and its speed schedule (`gain_table` docs).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct SpeedConfig {
     /// Below this speed (standstill, shunting) the filter holds its parameter posterior and
@@ -152,7 +157,7 @@ impl PauseReason {
 }
 
 /// The Rao-Blackwellised particle filter (section 4).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RbpfConfig {
     /// `N`.
@@ -162,9 +167,9 @@ pub struct RbpfConfig {
     pub delta: f64,
     /// Resample when the effective sample size falls below this fraction of `N`.
     pub resample_ess_fraction: f64,
-    /// Prior: `ln C ~ N(ln(prior_ratio * nominal), prior_ln_std^2)` for each damper
-    /// (`prior_ln_std = 0`: the parameters are known).
+    /// Prior mean: `ln C ~ N(ln(prior_ratio * nominal), prior_ln_std^2)` for each damper.
     pub prior_ratio: f64,
+    /// Prior standard deviation of `ln C` (0: the parameters are known).
     pub prior_ln_std: f64,
     /// Extra random walk of `ln C` (1/sqrt(s)) added to the Liu-West move, so that the filter
     /// can follow a damper that fails after the posterior has narrowed. `0` is the paper's
@@ -298,12 +303,14 @@ impl RbpfConfig {
 }
 
 /// The augmented-state EKF of section 3 (baseline).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct EkfConfig {
+    /// Run the augmented EKF beside the RBPF (its estimate is published for comparison).
     pub enabled: bool,
-    /// Initial parameter estimate as a ratio of nominal, and its standard deviation (ratio).
+    /// Initial parameter estimate as a ratio of nominal.
     pub initial_ratio: f64,
+    /// Standard deviation of the initial estimate (ratio of nominal).
     pub initial_ratio_std: f64,
     /// Random walk of the parameters (`Q_n`, eq. 17), standard deviation per sqrt(s) in
     /// ratio units.
@@ -333,7 +340,7 @@ impl EkfConfig {
 }
 
 /// Everything one bogie's monitor needs.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct DamperMonitorConfig {
     /// The vehicle's design parameters (appendix).

@@ -11,13 +11,15 @@ use crate::params::positive;
 use crate::DamperError;
 
 /// The band and the times of the check.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct ConsistencyConfig {
     /// The normalised innovation squared is averaged over windows this long (s).
     pub window_s: f64,
-    /// The band of a window mean, as ratios of its expectation (5, the number of sensors).
+    /// Lower end of the band of a window mean, as a ratio of its expectation (5, the number of
+    /// sensors).
     pub nis_low_ratio: f64,
+    /// Upper end of that band, as a ratio of the expectation.
     pub nis_high_ratio: f64,
     /// Window means outside the band for this long in a row raise `model_mismatch`; inside
     /// for this long clear it (s).

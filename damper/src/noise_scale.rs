@@ -33,7 +33,7 @@ use crate::params::positive;
 use crate::DamperError;
 
 /// How the noise scale is estimated (`[monitor.rbpf.noise_scale]`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct NoiseScaleConfig {
     /// `false`: the configured noise is taken as exact (scale 1), as before issue 9 item 2.
@@ -44,8 +44,9 @@ pub struct NoiseScaleConfig {
     pub time_constant_s: f64,
     /// Weight of the prior (scale 1) in samples; forgotten like the data.
     pub prior_samples: f64,
-    /// Range of the estimated standard deviation as a ratio of the configured one.
+    /// Smallest estimated standard deviation, as a ratio of the configured one.
     pub min_std_ratio: f64,
+    /// Largest estimated standard deviation, as a ratio of the configured one.
     pub max_std_ratio: f64,
 }
 

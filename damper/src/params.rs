@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 use crate::DamperError;
 
 /// The two damping coefficients the filters estimate (`theta = [C_sy, C_say]`, section 2).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Dampers {
     /// Secondary lateral damping per bogie `C_sy` (N s/m).
@@ -54,7 +54,7 @@ pub const DEFAULT_SPEED_M_S: f64 = 45.3;
 
 /// Everything in equations (1) except the two dampers. Defaults are the paper's appendix;
 /// the conicity, which the paper does not print, defaults to 0.15 (seed notes).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct BogieParams {
     /// `m_w`, each wheelset (kg).

@@ -82,7 +82,7 @@ impl BogieSample {
 }
 
 /// Standard deviations of the sensor noise (white, independent).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct SensorNoise {
     /// Each of the four lateral accelerometers (m/s^2).

@@ -2,8 +2,8 @@
 //! sizes, memories, priors and forgetting. Every field is validated by
 //! [`FuelMonitorConfig::validate`], which names the field and the value it rejects.
 
-use railmon_settings::{with_preset, Presets};
-use serde::{Deserialize, Deserializer, Serialize};
+use railmon_settings::Presets;
+use serde::{Deserialize, Serialize};
 
 use crate::regime::RegimeNaming;
 use crate::sample::{channel_field, Channel, DerivedChannel};
@@ -13,7 +13,7 @@ use crate::FuelError;
 /// diesel railcar) and how its raw values are grouped into categories. The paper groups gears
 /// `{-1, 0} -> 1, {1, 2, 3} -> 2, 4 -> 3, 5 -> 4, 6 -> 5` so that the categories are about equally
 /// frequent.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CategoricalConfig {
     /// What the channel is (`gear`, `notch`), as errors and reports name it. The values travel
@@ -63,14 +63,20 @@ impl CategoricalConfig {
 /// [`ChannelRanges::railcar`] a diesel railcar's or locomotive's. `acceleration_m_s2` bounds
 /// the speed's change since the last accepted sample ([`ChannelRanges::check_acceleration`]):
 /// a km/h speed that stays inside the m/s range still accelerates 3.6 times too fast.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ChannelRanges {
+    /// Plausible fuel flow `[low, high]`, cm^3/s.
     pub fuel_cm3_s: [f64; 2],
+    /// Plausible speed `[low, high]`, m/s.
     pub speed_m_s: [f64; 2],
+    /// Plausible accelerator pedal position `[low, high]`, %.
     pub pedal_pct: [f64; 2],
+    /// Plausible engine torque `[low, high]`, N m.
     pub engine_torque_nm: [f64; 2],
+    /// Plausible engine speed `[low, high]`, rpm.
     pub engine_speed_rpm: [f64; 2],
+    /// Plausible gradient `[low, high]`, per mille (positive uphill).
     pub gradient_permille: [f64; 2],
     /// `(v_t - v_p) / (t - t_p)`, m/s^2, from the last accepted sample `p`: the vehicle's
     /// hardest braking and full-power acceleration (with margin), not its usual driving.
@@ -200,7 +206,7 @@ impl ChannelRanges {
 pub const SAMPLE_PERIOD_TOLERANCE: f64 = 0.01;
 
 /// How the initial samples are split among the components before EM.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum InitialPartition {
     /// By rank of the fuel flow: component 0 the lowest `1/m_c` of the samples, and so on.
@@ -216,11 +222,11 @@ pub enum InitialPartition {
 /// the sign of the last acceleration, slow forgetting (0.998, memory ~500 s) so the components
 /// follow a warming engine, weak priors. It is the one default: the service, `railmon analyze
 /// fuel --input` and scenarios without `[monitor]` take it from here. Named
-/// presets, asked for with `preset = "<name>"` in a settings table ([`deserialize_with_preset`]):
+/// presets, asked for with `preset = "<name>"` in a settings table (`railmon_settings::deserialize_with_preset`):
 /// `paper` ([`FuelMonitorConfig::paper`]: five channels + gear, memory 1, switching on the fuel
 /// level only, no forgetting) and `driving_style` ([`FuelMonitorConfig::driving_style`], the
 /// setting of `config/scenarios/fuel-cycles.toml` and the demo).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct FuelMonitorConfig {
     /// Continuous channels `y_t`; must contain `fuel`. Internally fuel comes first.
@@ -764,17 +770,6 @@ impl Presets for FuelMonitorConfig {
             _ => None,
         }
     }
-}
-
-/// Reads a settings table (`[vehicle.estimator]`, a scenario's `[monitor]`) as a
-/// [`FuelMonitorConfig`]: from the preset its `preset` key names (`paper`, `driving_style`),
-/// else from [`FuelMonitorConfig::default`], with every other key overriding a single value.
-/// For `#[serde(deserialize_with)]` on self-describing formats (TOML, JSON).
-pub fn deserialize_with_preset<'de, D: Deserializer<'de>>(
-    deserializer: D,
-) -> Result<FuelMonitorConfig, D::Error> {
-    let table = toml::Table::deserialize(deserializer)?;
-    with_preset(table, "").map_err(serde::de::Error::custom)
 }
 
 fn check_edges(field: &'static str, edges: &[f64]) -> Result<(), FuelError> {

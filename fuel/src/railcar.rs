@@ -199,7 +199,10 @@ pub struct RailcarScenario {
     #[serde(rename = "section")]
     pub sections: Vec<RouteSection>,
     /// The estimator settings this scenario is analysed with (as a fuel scenario's).
-    #[serde(default, deserialize_with = "crate::config::deserialize_with_preset")]
+    #[serde(
+        default,
+        deserialize_with = "railmon_settings::deserialize_with_preset"
+    )]
     pub monitor: FuelMonitorConfig,
 }
 

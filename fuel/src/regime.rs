@@ -92,7 +92,7 @@ impl std::fmt::Display for RegimeName {
 /// Thresholds of the naming rule (module documentation). A property of the vehicle (what
 /// "standing" and "no traction power" look like), so two sets: `Default` is a road car's
 /// ([`RegimeNaming::road_car`]), [`RegimeNaming::railcar`] a diesel railcar's.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct RegimeNaming {
     /// Weighted samples a component needs before it is named.

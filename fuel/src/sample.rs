@@ -23,7 +23,7 @@ macro_rules! channel_field {
 pub(crate) use channel_field;
 
 /// A continuous channel of the vehicle (the paper's `y_{1..5;t}`, section 2).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Channel {
     /// Instantaneous fuel flow, cm^3/s (the paper's `y_1`, there in microlitres per sample).
@@ -119,7 +119,7 @@ impl std::fmt::Display for Channel {
 
 /// A channel computed from the speed now `v_t` and a sample ago (`a_t = (v_t - v_{t-1}) / dt`,
 /// 0 on the first sample): the terms of the tractive power a fuel map responds to.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum DerivedChannel {
     /// `a_t`, m/s^2.

@@ -227,7 +227,10 @@ pub struct VehicleScenario {
     pub segments: Vec<Segment>,
     /// The estimator settings this scenario is analysed with: `FuelMonitorConfig::default()`
     /// when the table is absent, the preset its `preset` key names, single keys on top.
-    #[serde(default, deserialize_with = "crate::config::deserialize_with_preset")]
+    #[serde(
+        default,
+        deserialize_with = "railmon_settings::deserialize_with_preset"
+    )]
     pub monitor: FuelMonitorConfig,
 }
 

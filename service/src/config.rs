@@ -6,36 +6,28 @@
 use std::net::SocketAddr;
 use std::path::Path;
 
-use railmon_bus::{BusConfig, BusError};
-use railmon_settings as settings;
+use railmon_bus::BusConfig;
+use railmon_settings::{self as settings, Presets, SettingsError};
 use serde::{Deserialize, Serialize};
 
 pub use crate::bogie::{BogieConfig, MAX_BOGIES};
 pub use crate::drive::DriveConfig;
 pub use crate::vehicle::VehicleConfig;
 
+/// A configuration that cannot be used: a file that cannot be read, or a key and why.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     #[error("cannot read config file {file}: {reason}")]
     Read { file: String, reason: String },
-    #[error("{0}")]
-    Invalid(#[from] BusError),
-}
-
-impl From<settings::SettingsError> for ConfigError {
-    fn from(e: settings::SettingsError) -> Self {
-        ConfigError::Invalid(e.into())
-    }
+    #[error(transparent)]
+    Invalid(#[from] SettingsError),
 }
 
 pub(crate) fn invalid(key: &str, reason: String) -> ConfigError {
-    ConfigError::Invalid(BusError::Config {
-        key: key.into(),
-        reason,
-    })
+    ConfigError::Invalid(SettingsError::new(key, reason))
 }
 
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ServiceConfig {
     pub identity: IdentityConfig,
@@ -49,7 +41,7 @@ pub struct ServiceConfig {
 }
 
 /// `[identity]`: which vehicle this service monitors, in every API answer, event and metric.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct IdentityConfig {
     /// The vehicle's id in the fleet (letters, digits, `.`, `_`, `-`; at most 64); empty: the
@@ -112,7 +104,7 @@ fn host_name() -> Option<String> {
     (!name.is_empty()).then_some(name)
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct HttpConfig {
     /// Address and port of the HTTP API; port 0 picks a free one (see `--addr-file`).
@@ -128,6 +120,7 @@ pub struct HttpConfig {
     pub shutdown_deadline_ms: u64,
     /// Longer request targets are answered 414, larger header sections 431 (JSON bodies).
     pub max_uri_bytes: usize,
+    /// Largest header section of a request (bytes); a larger one is answered 431.
     pub max_header_bytes: usize,
 }
 
@@ -180,7 +173,7 @@ impl HttpConfig {
     }
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct IngestConfig {
     /// Longest sleep of an ingest thread without a notification (shutdown and housekeeping latency).
@@ -207,6 +200,15 @@ impl ServiceConfig {
         file: Option<&Path>,
         env: impl IntoIterator<Item = (String, String)>,
     ) -> Result<Self, ConfigError> {
+        Self::load_reporting(file, env).map(|(config, _)| config)
+    }
+
+    /// [`ServiceConfig::load`], and the environment overrides it applied: `(dotted key,
+    /// variable)` each (`railmon config check` lists them).
+    pub fn load_reporting(
+        file: Option<&Path>,
+        env: impl IntoIterator<Item = (String, String)>,
+    ) -> Result<(Self, Vec<(String, String)>), ConfigError> {
         let mut table = match file {
             Some(path) => {
                 let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
@@ -218,8 +220,17 @@ impl ServiceConfig {
             None => toml::Table::new(),
         };
         let overrides = settings::apply_env_overrides(&mut table, env)?;
+        let config = Self::load_table(table, &overrides)?;
+        Ok((config, overrides))
+    }
+
+    /// Reads a settings table (a file's, with the environment applied), validates.
+    pub fn load_table(
+        table: toml::Table,
+        overrides: &[(String, String)],
+    ) -> Result<Self, ConfigError> {
         let config: ServiceConfig =
-            settings::deserialize(toml::Value::Table(table), "", &overrides)?;
+            settings::deserialize(toml::Value::Table(table), "", overrides)?;
         config.validate()?;
         Ok(config)
     }
@@ -264,6 +275,84 @@ impl ServiceConfig {
             )
         })
     }
+}
+
+/// The estimator tables that start from a named preset (`preset = "paper"`), and the names.
+pub const PRESET_TABLES: [(&str, &[&str]); 3] = [
+    ("drive.estimator", railmon_slip::SlipMonitorConfig::PRESETS),
+    (
+        "bogie.estimator",
+        railmon_damper::DamperMonitorConfig::PRESETS,
+    ),
+    (
+        "vehicle.estimator",
+        railmon_fuel::FuelMonitorConfig::PRESETS,
+    ),
+];
+
+/// The site settings: what one vehicle's installation sets (its identity, storage, HTTP, the
+/// bus, the streams and their plausible ranges, the vehicle's parameters, the nominal dampers,
+/// the channels and the alarm thresholds). `config/railmon.toml` shows every one of them (a
+/// test compares the key sets); the rest of the estimator tables is expert tuning, in the
+/// generated reference only. An entry covers its key or table; keys under an estimator table
+/// are site settings only through an entry inside it.
+pub const SITE_SETTINGS: &[&str] = &[
+    "identity",
+    "storage",
+    "http",
+    "bus",
+    "ingest",
+    "drive",
+    "drive.estimator.dt_s",
+    "drive.estimator.motor",
+    "drive.estimator.alarm",
+    "bogie",
+    "bogie.estimator.dt_s",
+    "bogie.estimator.vehicle",
+    "bogie.estimator.nominal",
+    "bogie.estimator.sensors",
+    "bogie.estimator.alarm",
+    "bogie.estimator.speed.min_m_s",
+    "bogie.estimator.speed.max_m_s",
+    "vehicle",
+    "vehicle.estimator.channels",
+    "vehicle.estimator.categorical",
+    "vehicle.estimator.ranges",
+    "vehicle.estimator.sample_period_s",
+    "vehicle.estimator.regime_confirm_samples",
+];
+
+/// Whether the dotted `key` is a site setting ([`SITE_SETTINGS`]).
+pub fn is_site_setting(key: &str) -> bool {
+    let in_estimator = key.contains(".estimator.");
+    SITE_SETTINGS.iter().any(|entry| {
+        (key == *entry || key.starts_with(&format!("{entry}.")))
+            && (!in_estimator || entry.contains(".estimator."))
+    })
+}
+
+/// Every setting of `railmon serve` as Markdown (`railmon config reference`, checked in as
+/// `docs/configuration.md`), generated from the settings types: their doc comments, types and
+/// defaults.
+pub fn reference_markdown() -> String {
+    use settings::reference;
+    const PREAMBLE: &str = "Every setting of `railmon serve`: its key, default, type, unit and \
+meaning, generated from the settings' own types by `railmon config reference` (do not edit: \
+`cargo test -p railmon-service` checks this file against the code; regenerate with \
+`cargo run -p railmon-service -- config reference > docs/configuration.md`).\n\n\
+Settings are layered: these defaults < a preset (`preset = \"...\"` in an estimator table) < \
+the file given with `--config` < `RAILMON_<SECTION>__<KEY>` environment variables (levels \
+separated by a double underscore, e.g. `RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES=500`). \
+The site settings (identity, storage, HTTP, bus, streams and their ranges) are shown with \
+comments in `config/railmon.toml`; the estimator tables (`[*.estimator]`) are expert tuning, \
+validated on the scenarios in `config/scenarios/`. `railmon config check FILE` validates a file \
+and the environment without starting anything.";
+    reference::markdown(
+        "Configuration reference",
+        PREAMBLE,
+        &reference::sections::<ServiceConfig>(&PRESET_TABLES),
+        is_site_setting,
+    )
 }
 
 /// The keys every stream section has: staleness, history and event ring sizes.
@@ -313,6 +402,134 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/railmon.toml");
         let from_file = ServiceConfig::load(Some(&path), []).unwrap();
         assert_eq!(from_file, ServiceConfig::default());
+    }
+
+    /// `config/railmon.toml` with its commented estimator site settings (`# key = value` and
+    /// `# [table]` lines, one space after the `#`) uncommented.
+    fn railmon_toml_uncommented() -> String {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/railmon.toml");
+        let text = std::fs::read_to_string(path).unwrap();
+        let is_setting = |line: &str| {
+            let Some(rest) = line.strip_prefix("# ") else {
+                return false;
+            };
+            let key_end = rest.find(" = ").unwrap_or(0);
+            (rest.starts_with('[') && rest.trim_end().ends_with(']'))
+                || (key_end > 0
+                    && rest[..key_end]
+                        .chars()
+                        .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_'))
+        };
+        let lines: Vec<&str> = text
+            .lines()
+            .map(|line| match is_setting(line) {
+                true => &line[2..],
+                false => line,
+            })
+            .collect();
+        lines.join("\n")
+    }
+
+    /// The dotted paths of every value in `table` (arrays are values).
+    fn leaves(table: &toml::Table, prefix: &str, out: &mut Vec<String>) {
+        for (key, value) in table {
+            let path = match prefix.is_empty() {
+                true => key.clone(),
+                false => format!("{prefix}.{key}"),
+            };
+            match value {
+                toml::Value::Table(t) => leaves(t, &path, out),
+                _ => out.push(path),
+            }
+        }
+    }
+
+    fn all_keys() -> Vec<settings::reference::KeyDoc> {
+        settings::reference::sections::<ServiceConfig>(&PRESET_TABLES)
+            .into_iter()
+            .flat_map(|s| s.keys)
+            .collect()
+    }
+
+    /// The two tiers of settings: `config/railmon.toml` shows every site setting (live, or
+    /// commented out in an estimator table) and nothing else, each at its default; the
+    /// estimators' expert tuning is only in the generated reference.
+    #[test]
+    fn shipped_config_shows_every_site_setting_at_its_default() {
+        let mut table: toml::Table = railmon_toml_uncommented().parse().unwrap();
+        let keys = all_keys();
+        let site: Vec<_> = keys.iter().filter(|k| is_site_setting(&k.key)).collect();
+        let lookup = |table: &toml::Table, key: &str| {
+            let mut value: Option<&toml::Value> = None;
+            let mut current = Some(table);
+            for level in key.split('.') {
+                value = current.and_then(|t| t.get(level));
+                current = value.and_then(toml::Value::as_table);
+            }
+            value.is_some()
+        };
+        for key in &site {
+            assert!(
+                lookup(&table, &key.key),
+                "config/railmon.toml does not show the site setting `{}`",
+                key.key
+            );
+        }
+        let mut shown = Vec::new();
+        leaves(&table, "", &mut shown);
+        for leaf in &shown {
+            assert!(
+                site.iter()
+                    .any(|k| *leaf == k.key || leaf.starts_with(&format!("{}.", k.key))),
+                "config/railmon.toml shows `{leaf}`, which is not a site setting \
+                 (SITE_SETTINGS; expert tuning is in docs/configuration.md only)"
+            );
+        }
+        // Shown as an example where the default is none (an optional setting); every other
+        // value is the default.
+        let all = ServiceConfig::load_table(table.clone(), &[]).unwrap();
+        assert_eq!(all.bogie.worker_threads, Some(1));
+        for key in site.iter().filter(|k| k.default == "none") {
+            let (parent, last) = key.key.rsplit_once('.').unwrap();
+            let mut t = &mut table;
+            for level in parent.split('.') {
+                t = t
+                    .get_mut(level)
+                    .and_then(toml::Value::as_table_mut)
+                    .unwrap();
+            }
+            t.remove(last);
+        }
+        let from_file = ServiceConfig::load_table(table, &[]).unwrap();
+        assert_eq!(from_file, ServiceConfig::default());
+    }
+
+    /// Every setting has a meaning in the reference (its doc comment), so a new key cannot
+    /// ship undocumented.
+    #[test]
+    fn every_setting_has_a_meaning() {
+        let missing: Vec<_> = all_keys()
+            .into_iter()
+            .filter(|k| k.meaning.is_empty())
+            .map(|k| k.key)
+            .collect();
+        assert!(
+            missing.is_empty(),
+            "settings without a doc comment: {missing:?}"
+        );
+    }
+
+    /// docs/configuration.md is the generated reference (the settings types' doc comments,
+    /// types and defaults), so it cannot drift from the code.
+    #[test]
+    fn docs_configuration_md_is_the_generated_reference() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/configuration.md");
+        let checked_in = std::fs::read_to_string(path).unwrap_or_default();
+        assert!(
+            checked_in == reference_markdown(),
+            "docs/configuration.md is not the settings reference of this code; regenerate it: \
+             cargo run -p railmon-service -- config reference > docs/configuration.md"
+        );
     }
 
     /// The demo runs the estimators the way the scenarios it replays were validated: its

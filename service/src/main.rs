@@ -1,5 +1,6 @@
 //! `railmon`: the onboard condition-monitoring service (`serve`) and offline analysis (`analyze`).
 
+mod config_cmd;
 mod serve;
 #[cfg(feature = "analyze")]
 mod summary;
@@ -27,6 +28,9 @@ struct Cli {
 enum Command {
     /// Ingest the sensor streams from the bus and serve estimates over HTTP.
     Serve(serve::ServeArgs),
+    /// The settings: their reference, and a check of a configuration.
+    #[command(subcommand)]
+    Config(config_cmd::ConfigCommand),
     /// Run an estimator offline over a scenario or a recorded CSV: CSV reports and PNG plots.
     #[cfg(feature = "analyze")]
     #[command(subcommand)]
@@ -68,6 +72,7 @@ fn one_line(error: &anyhow::Error) -> String {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Serve(args) => serve::run(args),
+        Command::Config(command) => config_cmd::run(command),
         #[cfg(feature = "analyze")]
         Command::Analyze(analyze) => {
             // Whole seconds: a file system may store coarser times than the clock reads.

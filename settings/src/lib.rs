@@ -12,6 +12,8 @@
 //! - Deserialisation errors name the key path and, for an overridden key, the variable.
 #![forbid(unsafe_code)]
 
+pub mod reference;
+
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 
@@ -170,6 +172,20 @@ pub fn with_preset<T: Presets>(mut table: toml::Table, root: &str) -> Result<T, 
         }
     };
     layer(&base, table, root, &[])
+}
+
+/// For `#[serde(deserialize_with = "railmon_settings::deserialize_with_preset")]` on a field
+/// holding an estimator's settings (the service's `[drive.estimator]`, `[bogie.estimator]`,
+/// `[vehicle.estimator]`, a scenario's `[monitor]`): the table is read with its presets, as
+/// [`with_preset`] (not validated: the owner validates). The one preset loader of every
+/// estimator, so that a preset is asked for the same way everywhere.
+pub fn deserialize_with_preset<'de, D, T>(deserializer: D) -> Result<T, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Presets,
+{
+    let table = <toml::Table as serde::Deserialize>::deserialize(deserializer)?;
+    with_preset(table, "").map_err(|e| serde::de::Error::custom(format!("{}: {}", e.key, e.reason)))
 }
 
 /// `overlay`'s keys on top of `base` (through nested tables), read back as a `T`.

@@ -22,12 +22,17 @@ use crate::error::{check_in, SlipError};
 /// about 5 `s_i` out on a flat load) at 7.5 steps more median onset delay; the alarm F1 it
 /// costs (0.04-0.05) falls on the four short losses the information bound already caps. A
 /// monitor that cries wolf is not read, so the false episodes weigh more.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct SlipAlarmConfig {
+    /// A drive is flagged once its slip probability reaches this (for `confirm_steps`).
     pub on_probability: f64,
+    /// A flagged drive is cleared when its slip probability falls to this.
     pub off_probability: f64,
+    /// Consecutive steps at or above `on_probability` before the flag rises (1: at once).
     pub confirm_steps: usize,
+    /// Steps a cleared drive stays flagged, a return to `on_probability` continuing the
+    /// episode (0: cleared at once).
     pub release_hold_steps: usize,
 }
 

@@ -15,7 +15,7 @@ use crate::model::{idx, wrap_angle, DriveMatrix, DriveModel, DriveState};
 use crate::sample::{validate_frame, DriveSample};
 
 /// Noise and initialisation of the per-drive EKF.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct EkfConfig {
     /// Diagonal of the process-noise covariance `Q` for

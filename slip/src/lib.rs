@@ -28,9 +28,7 @@ pub use alarm::{SlipAlarm, SlipAlarmConfig, SlipAlarmEvent, SlipAlarmKind};
 pub use ekf::{EkfBank, EkfConfig};
 pub use error::SlipError;
 pub use model::{DriveModel, MotorParams};
-pub use monitor::{
-    deserialize_with_preset, DriveEstimate, SlipEstimate, SlipMonitor, SlipMonitorConfig,
-};
+pub use monitor::{DriveEstimate, SlipEstimate, SlipMonitor, SlipMonitorConfig};
 pub use pipeline::MultiMethodPipeline;
 pub use sample::{is_slipping, DriveSample, DriveTruth, SLIP_RULE_FLOOR_NM, SLIP_RULE_FRACTION};
 pub use scenario::{AdhesionScenario, SlipEvent};

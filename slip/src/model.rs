@@ -25,7 +25,7 @@ pub mod idx {
 
 /// PMSM parameters. The paper prints none; the defaults are those of Smidl and Peroutka's
 /// sensorless PMSM work (seed-notes), kept in config because they are not verified.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct MotorParams {
     /// Stator resistance `R_s`.

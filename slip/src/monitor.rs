@@ -19,7 +19,7 @@ use crate::sample::{validate_frame, DriveSample};
 /// (the service, `railmon analyze adhesion --input`, scenarios without `[monitor]`).
 /// [`SlipMonitorConfig::paper`] is the paper's EKF noise; a TOML table asks for it with
 /// `preset = "paper"` and may override single keys on top ([`railmon_settings::with_preset`]).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct SlipMonitorConfig {
     /// Sampling period of the drive data (the paper: 125 us).
@@ -91,18 +91,6 @@ impl SlipMonitorConfig {
     pub fn model(&self) -> Result<DriveModel, SlipError> {
         DriveModel::new(self.motor, self.dt_s)
     }
-}
-
-/// For `#[serde(deserialize_with = ...)]` on a field holding the monitor's settings (a
-/// scenario's `[monitor]`, the service's `[drive.estimator]`): the table is read with
-/// presets, as [`SlipMonitorConfig::from_toml_table`] (not validated: the owner validates).
-pub fn deserialize_with_preset<'de, D>(deserializer: D) -> Result<SlipMonitorConfig, D::Error>
-where
-    D: serde::Deserializer<'de>,
-{
-    let table = toml::Table::deserialize(deserializer)?;
-    railmon_settings::with_preset(table, "")
-        .map_err(|e| serde::de::Error::custom(format!("{}: {}", e.key, e.reason)))
 }
 
 /// One drive's estimate at one step.

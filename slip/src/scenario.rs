@@ -347,7 +347,10 @@ pub struct AdhesionScenario {
     pub events: Vec<SlipEvent>,
     /// The monitor's settings: absent, [`SlipMonitorConfig::default`]; a table may start
     /// from a preset (`preset = "paper"`) and override single keys.
-    #[serde(default, deserialize_with = "crate::monitor::deserialize_with_preset")]
+    #[serde(
+        default,
+        deserialize_with = "railmon_settings::deserialize_with_preset"
+    )]
     pub monitor: SlipMonitorConfig,
 }
 

@@ -69,7 +69,7 @@ pub const SENTINEL_LN_OFFSETS: [f64; 4] = [-1.5, -1.1, -0.8, -0.5];
 pub const N_SENTINELS: usize = 2 * SENTINEL_LN_OFFSETS.len();
 
 /// The jump search (`[monitor.rbpf.jump_search]`), module docs of `railmon_damper::rbpf::jump`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct JumpSearchConfig {
     /// `false`: no sentinels (the filter before this search: newcomers only by regeneration

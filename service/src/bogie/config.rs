@@ -11,7 +11,7 @@ pub const MAX_BOGIES: usize = 16;
 
 /// `[bogie]`: the bogie stream (five inertial sensors per bogie at 1 kHz) -> one
 /// `railmon_damper::DamperMonitor` per configured bogie id.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct BogieConfig {
     /// Off by default: only vehicles with bogie sensors publish this stream, and `/readyz`
@@ -27,6 +27,7 @@ pub struct BogieConfig {
     /// a frame beyond them is refused (`out_of_range`), not estimated. Data scaled by 1000
     /// (mm/s^2, mrad/s) once read as a damper at 10 % of its health: a false `degraded`.
     pub max_abs_accel_m_s2: f64,
+    /// Plausible magnitude of the yaw rate (rad/s), as `max_abs_accel_m_s2` for accelerations.
     pub max_abs_yaw_rate_rad_s: f64,
     /// One history point per bogie per this much stream time.
     pub history_interval_ms: u64,
@@ -36,10 +37,11 @@ pub struct BogieConfig {
     /// sample time are stepped side by side). Unset: one fewer than the cores, at most one
     /// fewer than the bogies ([`BogieConfig::worker_threads`]); 0: all on the ingest thread.
     pub worker_threads: Option<usize>,
-    /// The estimator (`railmon_damper::DamperMonitorConfig`); keys given override single
-    /// defaults (e.g. `RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES=100`). Each bogie's RBPF is
-    /// seeded with `rbpf.seed + bogie id - 1`; `alarm` is the degraded / recovered rule.
-    #[serde(skip_serializing)]
+    /// The estimator (`railmon_damper::DamperMonitorConfig`): its default, or the preset the
+    /// table names (`preset = "paper"`), with the given keys on top (e.g.
+    /// `RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES=100`). Each bogie's RBPF is seeded with
+    /// `rbpf.seed + bogie id - 1`; `alarm` is the degraded / recovered rule.
+    #[serde(deserialize_with = "railmon_settings::deserialize_with_preset")]
     pub estimator: DamperMonitorConfig,
 }
 

@@ -7,9 +7,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{invalid, validate_stream_keys, ConfigError};
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct DriveConfig {
+    /// Ingest the drive stream (traction drives' currents and voltages at 8 kHz: wheel slip).
     pub enabled: bool,
     /// The stream is stale (and `/readyz` fails) when no frame came for this long.
     pub stale_after_ms: u64,
@@ -19,6 +20,7 @@ pub struct DriveConfig {
     /// refused (`out_of_range`), not estimated. Currents in mA instead of A once gave a load
     /// torque of 13,320 N m with no complaint.
     pub max_abs_current_a: f64,
+    /// Plausible magnitude of the stator voltages (V), as `max_abs_current_a` for currents.
     pub max_abs_voltage_v: f64,
     /// One history point per this much stream time.
     pub history_interval_ms: u64,
@@ -27,7 +29,7 @@ pub struct DriveConfig {
     /// The estimator and its slip alarm (`railmon_slip::SlipMonitorConfig`; the alarm's
     /// hysteresis is `[drive.estimator.alarm]`): its default, or the preset the table
     /// names (`preset = "paper"`), with the given keys on top.
-    #[serde(deserialize_with = "railmon_slip::deserialize_with_preset")]
+    #[serde(deserialize_with = "railmon_settings::deserialize_with_preset")]
     pub estimator: SlipMonitorConfig,
 }
 

@@ -42,7 +42,7 @@ pub enum StoreError {
 }
 
 /// `[storage]`: where events and active alarms are kept, and for how long.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct StorageConfig {
     /// Directory of the event database (`events.sqlite3`), created if missing (mode 0700).

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::{invalid, validate_stream_keys, ConfigError};
 
 /// `[vehicle]`: the road-vehicle stream (fuel flow, speed, ... at 1 Hz) -> `railmon_fuel::FuelMonitor`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct VehicleConfig {
     /// Off by default: only vehicles with a fuel meter publish this stream, and `/readyz`
@@ -19,10 +19,9 @@ pub struct VehicleConfig {
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
     pub history_capacity: usize,
-    /// The estimator (`railmon_fuel::FuelMonitorConfig`): `preset = "driving_style"` (or
-    /// `"paper"`) starts from that preset instead of the default; keys given override single
-    /// values.
-    #[serde(deserialize_with = "railmon_fuel::config::deserialize_with_preset")]
+    /// The estimator (`railmon_fuel::FuelMonitorConfig`): its default, or the preset the table
+    /// names (`preset = "railcar"`), with the given keys on top.
+    #[serde(deserialize_with = "railmon_settings::deserialize_with_preset")]
     pub estimator: FuelMonitorConfig,
 }
 

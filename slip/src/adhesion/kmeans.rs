@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use super::AdhesionOutput;
 use crate::error::SlipError;
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct KMeansConfig {
     /// Assignment/update iterations per step (the paper: 2).

@@ -9,7 +9,7 @@ use super::AdhesionOutput;
 use crate::error::{check_in, SlipError};
 use crate::sample::SLIP_RULE_FRACTION;
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct MedianConfig {
     /// Flag a drive when `|T_i - median| > relative_threshold * |median|`.

@@ -25,7 +25,7 @@ pub use vb::{VbConfig, VbEstimator};
 pub use vmp::{VmpConfig, VmpEstimator};
 
 /// Which estimator turns the N torque estimates into a global torque and slip probabilities.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum AdhesionMethod {
     /// Variational Bayes, eq. (21)-(47).
@@ -82,7 +82,7 @@ impl std::str::FromStr for AdhesionMethod {
 }
 
 /// Settings of every estimator (each section defaults to the paper's values).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct AdhesionConfig {
     pub vb: VbConfig,

@@ -57,7 +57,7 @@ use super::AdhesionOutput;
 use crate::error::{check_in, SlipError};
 use crate::sample::{SLIP_RULE_FLOOR_NM, SLIP_RULE_FRACTION};
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct TemporalConfig {
     /// Relative departure from the global torque that counts as slipping (the slip rule).

@@ -15,7 +15,7 @@ use crate::error::{check_finite, check_in, check_positive, SlipError};
 use crate::special::{digamma, ln_gamma, BetaFactor, GammaFactor};
 
 /// VB settings; defaults are the paper's (section 5).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct VbConfig {
     /// Iterations per step (the paper: 5); the maximum when `stop_tolerance` is set.

@@ -18,21 +18,24 @@ use crate::error::{check_finite, check_in, check_positive, SlipError};
 use crate::special::{digamma, normal_kl, BetaFactor, GammaFactor};
 
 /// VMP settings; defaults are the paper's (section 5).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct VmpConfig {
     /// Iterations per step (the paper: 5); the maximum when `stop_tolerance` is set.
     pub iterations: usize,
     /// Stop when the bound rises by less than this fraction of its magnitude.
     pub stop_tolerance: Option<f64>,
+    /// Beta prior pseudo-count of "adhesion" (the paper: 1).
     pub alpha_adhesion: f64,
+    /// Beta prior pseudo-count of "adhesion lost" (the paper: 1).
     pub alpha_loss: f64,
     /// `pi` in the first indicator update.
     pub initial_loss_probability: f64,
     /// Prior precision of each component mean (the paper: 0.01).
     pub mean_precision: f64,
-    /// Gamma prior of each precision (the paper: (0.1, 0.1), after Gelman et al.).
+    /// Shape of the Gamma prior of each precision (the paper: (0.1, 0.1), after Gelman et al.).
     pub gamma_shape: f64,
+    /// Rate of the Gamma prior of each precision (the paper: 0.1).
     pub gamma_rate: f64,
     /// Prior mean of "adhesion lost" (0); "adhesion" starts at the largest torque.
     pub loss_mean_nm: f64,
