@@ -10,7 +10,8 @@ use std::time::{Duration, Instant};
 
 use railmon_bus::StreamKind;
 use railmon_service::config::Identity;
-use railmon_service::store::{EventQuery, EventStore, NewEvent, StorageConfig};
+use railmon_service::config::StorageConfig;
+use railmon_service::store::{EventQuery, EventStore, NewEvent};
 
 fn event(k: u64) -> NewEvent {
     let mut detail = serde_json::Map::new();

@@ -4,15 +4,17 @@
 //! section is defined next to its pipeline (`drive::DriveConfig`, ...).
 
 use std::net::SocketAddr;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use railmon_bus::BusConfig;
 use railmon_settings::{self as settings, Presets, SettingsError};
 use serde::{Deserialize, Serialize};
 
-pub use crate::bogie::{BogieConfig, MAX_BOGIES};
-pub use crate::drive::DriveConfig;
-pub use crate::vehicle::VehicleConfig;
+// Each stream's section is defined beside its pipeline; the paths name those leaf files, not
+// the stream modules (which use the event store, which uses this module).
+pub use crate::bogie::config::{BogieConfig, MAX_BOGIES};
+pub use crate::drive::config::DriveConfig;
+pub use crate::vehicle::config::VehicleConfig;
 
 /// A configuration that cannot be used: a file that cannot be read, or a key and why.
 #[derive(Debug, thiserror::Error)]
@@ -31,13 +33,92 @@ pub(crate) fn invalid(key: &str, reason: String) -> ConfigError {
 #[serde(deny_unknown_fields, default)]
 pub struct ServiceConfig {
     pub identity: IdentityConfig,
-    pub storage: crate::store::StorageConfig,
+    pub storage: StorageConfig,
     pub http: HttpConfig,
     pub bus: BusConfig,
     pub ingest: IngestConfig,
     pub drive: DriveConfig,
     pub bogie: BogieConfig,
     pub vehicle: VehicleConfig,
+}
+
+/// `[storage]`: where events and active alarms are kept, and for how long.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct StorageConfig {
+    /// Directory of the event database (`events.sqlite3`), created if missing (mode 0700).
+    /// Empty: `$XDG_STATE_HOME/railmon`, else `~/.local/state/railmon`. `:memory:` keeps
+    /// events in memory only (tests): they are then lost at a restart.
+    pub data_dir: String,
+    /// Events stored longer ago than this are pruned (0: kept however old). By the time they
+    /// were stored, not acquired: a replay of an old recording keeps its events.
+    pub max_age_days: u32,
+    /// At most this many events are kept; the oldest are pruned beyond it.
+    pub max_events: u64,
+    /// Each stream's estimator state is saved this often (and at shutdown) under
+    /// `data_dir/snapshots` (0: never).
+    pub snapshot_interval_s: f64,
+    /// A snapshot older than this is not resumed at start (the estimator starts from its prior).
+    pub snapshot_max_age_s: f64,
+}
+
+impl Default for StorageConfig {
+    fn default() -> Self {
+        Self {
+            data_dir: String::new(),
+            max_age_days: 365,
+            max_events: 1_000_000,
+            snapshot_interval_s: 5.0,
+            snapshot_max_age_s: 600.0,
+        }
+    }
+}
+
+impl StorageConfig {
+    pub(crate) fn validate(&self) -> Result<(), ConfigError> {
+        if self.max_events == 0 || self.max_events > 1_000_000_000 {
+            return Err(invalid(
+                "storage.max_events",
+                format!("{} is not in 1..=1000000000", self.max_events),
+            ));
+        }
+        if !(self.snapshot_interval_s == 0.0 || (0.1..=3600.0).contains(&self.snapshot_interval_s))
+        {
+            return Err(invalid(
+                "storage.snapshot_interval_s",
+                format!("{} is not 0 or in [0.1, 3600]", self.snapshot_interval_s),
+            ));
+        }
+        if !(0.0..=86_400.0 * 365.0).contains(&self.snapshot_max_age_s) {
+            return Err(invalid(
+                "storage.snapshot_max_age_s",
+                format!("{} is not in [0, 31536000]", self.snapshot_max_age_s),
+            ));
+        }
+        if self.max_age_days > 36_500 {
+            return Err(invalid(
+                "storage.max_age_days",
+                format!("{} is not in 0..=36500", self.max_age_days),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The database file, or `None` for the in-memory store.
+    pub fn database_path(&self) -> Option<PathBuf> {
+        if self.data_dir == ":memory:" {
+            return None;
+        }
+        let dir = match self.data_dir.is_empty() {
+            false => PathBuf::from(&self.data_dir),
+            true => match (std::env::var_os("XDG_STATE_HOME"), std::env::var_os("HOME")) {
+                (Some(state), _) if !state.is_empty() => Path::new(&state).join("railmon"),
+                (_, Some(home)) => Path::new(&home).join(".local/state/railmon"),
+                _ => PathBuf::from("/var/lib/railmon"),
+            },
+        };
+        Some(dir.join("events.sqlite3"))
+    }
 }
 
 /// `[identity]`: which vehicle this service monitors, in every API answer, event and metric.
@@ -353,33 +434,6 @@ and the environment without starting anything.";
         &reference::sections::<ServiceConfig>(&PRESET_TABLES),
         is_site_setting,
     )
-}
-
-/// The keys every stream section has: staleness, history and event ring sizes.
-pub(crate) fn validate_stream_keys(
-    section: &str,
-    stale_after_ms: u64,
-    history_interval_ms: u64,
-    history_capacity: usize,
-) -> Result<(), ConfigError> {
-    for (key, value) in [
-        ("stale_after_ms", stale_after_ms),
-        ("history_interval_ms", history_interval_ms),
-    ] {
-        if !(1..=3_600_000).contains(&value) {
-            return Err(invalid(
-                &format!("{section}.{key}"),
-                format!("{value} is not in 1..=3600000"),
-            ));
-        }
-    }
-    if !(1..=1_000_000).contains(&history_capacity) {
-        return Err(invalid(
-            &format!("{section}.history_capacity"),
-            format!("{history_capacity} is not in 1..=1000000"),
-        ));
-    }
-    Ok(())
 }
 
 #[cfg(test)]

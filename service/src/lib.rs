@@ -6,10 +6,11 @@
 //! [`vehicle::VehiclePipeline`] over `railmon_fuel::FuelMonitor`; bogies:
 //! [`bogie::BogiePipeline`], one `railmon_damper::DamperMonitor` per bogie) and publishes results through
 //! atomics, `arc-swap` snapshots and non-blocking rings ([`outbox`]); the axum handlers
-//! ([`http::app`]) only read those. A stream is a folder (`drive/`, `bogie/`, `vehicle/`):
+//! ([`app::app`]) only read those. A stream is a folder (`drive/`, `bogie/`, `vehicle/`):
 //! its config section, its view (JSON), its `Pipeline`, its routes and its metric families;
 //! here it takes an outbox and one [`spawn_ingest`] call in [`start_ingest`].
 
+pub mod app;
 pub mod bogie;
 pub mod config;
 pub mod drive;
@@ -20,6 +21,7 @@ pub mod outbox;
 pub mod ring;
 pub mod snapshot;
 pub mod store;
+mod stream_keys;
 pub mod vehicle;
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -27,8 +29,8 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+pub use app::app;
 pub use config::ServiceConfig;
-pub use http::app;
 
 use bogie::{BogiePipeline, BogieShared};
 use drive::{DrivePipeline, DriveShared};
@@ -208,7 +210,7 @@ pub fn spawn_ingest<P: Pipeline + Send + 'static>(
         .spawn(move || {
             // A bus failure (e.g. /dev/shm full) is recorded in the status and retried: the
             // HTTP side stays up and /readyz says the stream is not fresh.
-            let snapshots = config.storage.snapshot_policy();
+            let snapshots = snapshot::SnapshotPolicy::of(&config.storage);
             while let Err(e) = ingest::run_ingest(
                 &config.bus,
                 &config.ingest,

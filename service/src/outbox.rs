@@ -211,7 +211,8 @@ impl<P: Clone> Track<P> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::store::{EventQuery, StorageConfig};
+    use crate::config::StorageConfig;
+    use crate::store::EventQuery;
 
     fn header(run: u32, sample_time_ns: u64) -> FrameHeader {
         FrameHeader {

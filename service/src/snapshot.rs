@@ -16,6 +16,29 @@ use std::path::{Path, PathBuf};
 use railmon_records::AtomicFile;
 use serde::{Deserialize, Serialize};
 
+use crate::config::StorageConfig;
+
+/// Where and how often the ingest loop saves its pipeline's state, and how old a snapshot may
+/// be to be resumed.
+#[derive(Clone, Debug)]
+pub struct SnapshotPolicy {
+    pub data_dir: PathBuf,
+    pub interval: std::time::Duration,
+    pub max_age_s: f64,
+}
+
+impl SnapshotPolicy {
+    /// The policy of `[storage]` (`None`: never; also with the in-memory store).
+    pub fn of(storage: &StorageConfig) -> Option<Self> {
+        let dir = storage.database_path()?.parent()?.to_path_buf();
+        (storage.snapshot_interval_s > 0.0).then(|| SnapshotPolicy {
+            data_dir: dir,
+            interval: std::time::Duration::from_secs_f64(storage.snapshot_interval_s),
+            max_age_s: storage.snapshot_max_age_s,
+        })
+    }
+}
+
 const MAGIC: &str = "railmon-snapshot v1";
 
 /// What the ingest loop saves: where the source stood and the pipeline's own state.

@@ -4,7 +4,9 @@
 use railmon_damper::DamperMonitorConfig;
 use serde::{Deserialize, Serialize};
 
-use crate::config::{invalid, validate_stream_keys, ConfigError};
+use railmon_settings::SettingsError;
+
+use crate::stream_keys::{invalid, validate_stream_keys};
 
 /// Most bogies one service monitors (a vehicle has two per car; a unit of eight cars 16).
 pub const MAX_BOGIES: usize = 16;
@@ -70,7 +72,7 @@ impl BogieConfig {
         })
     }
 
-    pub(crate) fn validate(&self) -> Result<(), ConfigError> {
+    pub(crate) fn validate(&self) -> Result<(), SettingsError> {
         validate_stream_keys(
             "bogie",
             self.stale_after_ms,

@@ -5,7 +5,9 @@ use railmon_bus::MAX_DRIVES;
 use railmon_slip::SlipMonitorConfig;
 use serde::{Deserialize, Serialize};
 
-use crate::config::{invalid, validate_stream_keys, ConfigError};
+use railmon_settings::SettingsError;
+
+use crate::stream_keys::{invalid, validate_stream_keys};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
@@ -49,7 +51,7 @@ impl Default for DriveConfig {
 }
 
 impl DriveConfig {
-    pub(crate) fn validate(&self) -> Result<(), ConfigError> {
+    pub(crate) fn validate(&self) -> Result<(), SettingsError> {
         validate_stream_keys(
             "drive",
             self.stale_after_ms,

@@ -128,10 +128,6 @@ pub async fn root() -> axum::response::Redirect {
     axum::response::Redirect::temporary("/docs")
 }
 
-pub async fn openapi() -> Json<utoipa::openapi::OpenApi> {
-    Json(super::api_doc())
-}
-
 /// Swagger UI from the vendored `swagger-ui-dist` files (`service/assets/swagger-ui/`).
 const SWAGGER_ASSETS: [(&str, &str, &[u8]); 4] = [
     (

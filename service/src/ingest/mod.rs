@@ -22,7 +22,7 @@ pub use status::{
 };
 
 use crate::config::IngestConfig;
-use crate::snapshot::{IngestState, SnapshotFile};
+use crate::snapshot::{IngestState, SnapshotFile, SnapshotPolicy};
 
 /// Why a frame was not used.
 #[derive(Clone, Debug, PartialEq)]
@@ -116,14 +116,6 @@ fn record_deferred<P: Pipeline>(pipeline: &mut P, status: &StreamStatus) {
             c.done_at_ns.saturating_sub(c.published_at_ns),
         );
     }
-}
-
-/// Where and how often the ingest loop saves its pipeline's state (`None`: never).
-#[derive(Clone, Debug)]
-pub struct SnapshotPolicy {
-    pub data_dir: std::path::PathBuf,
-    pub interval: Duration,
-    pub max_age_s: f64,
 }
 
 /// What the ingest loop keeps about the current source of a stream.

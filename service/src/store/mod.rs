@@ -23,10 +23,10 @@ use std::time::Duration;
 
 use railmon_bus::StreamKind;
 use rusqlite::{params, Connection, OptionalExtension};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use utoipa::ToSchema;
 
-use crate::config::Identity;
+use crate::config::{Identity, StorageConfig};
 pub use schema::SCHEMA_VERSION;
 
 #[derive(Debug, thiserror::Error)]
@@ -39,96 +39,6 @@ pub enum StoreError {
     NewerSchema { found: i64, known: i64 },
     #[error("event detail is not a JSON object: {0}")]
     Detail(String),
-}
-
-/// `[storage]`: where events and active alarms are kept, and for how long.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields, default)]
-pub struct StorageConfig {
-    /// Directory of the event database (`events.sqlite3`), created if missing (mode 0700).
-    /// Empty: `$XDG_STATE_HOME/railmon`, else `~/.local/state/railmon`. `:memory:` keeps
-    /// events in memory only (tests): they are then lost at a restart.
-    pub data_dir: String,
-    /// Events stored longer ago than this are pruned (0: kept however old). By the time they
-    /// were stored, not acquired: a replay of an old recording keeps its events.
-    pub max_age_days: u32,
-    /// At most this many events are kept; the oldest are pruned beyond it.
-    pub max_events: u64,
-    /// Each stream's estimator state is saved this often (and at shutdown) under
-    /// `data_dir/snapshots` (0: never).
-    pub snapshot_interval_s: f64,
-    /// A snapshot older than this is not resumed at start (the estimator starts from its prior).
-    pub snapshot_max_age_s: f64,
-}
-
-impl Default for StorageConfig {
-    fn default() -> Self {
-        Self {
-            data_dir: String::new(),
-            max_age_days: 365,
-            max_events: 1_000_000,
-            snapshot_interval_s: 5.0,
-            snapshot_max_age_s: 600.0,
-        }
-    }
-}
-
-impl StorageConfig {
-    pub(crate) fn validate(&self) -> Result<(), crate::config::ConfigError> {
-        if self.max_events == 0 || self.max_events > 1_000_000_000 {
-            return Err(crate::config::invalid(
-                "storage.max_events",
-                format!("{} is not in 1..=1000000000", self.max_events),
-            ));
-        }
-        if !(self.snapshot_interval_s == 0.0 || (0.1..=3600.0).contains(&self.snapshot_interval_s))
-        {
-            return Err(crate::config::invalid(
-                "storage.snapshot_interval_s",
-                format!("{} is not 0 or in [0.1, 3600]", self.snapshot_interval_s),
-            ));
-        }
-        if !(0.0..=86_400.0 * 365.0).contains(&self.snapshot_max_age_s) {
-            return Err(crate::config::invalid(
-                "storage.snapshot_max_age_s",
-                format!("{} is not in [0, 31536000]", self.snapshot_max_age_s),
-            ));
-        }
-        if self.max_age_days > 36_500 {
-            return Err(crate::config::invalid(
-                "storage.max_age_days",
-                format!("{} is not in 0..=36500", self.max_age_days),
-            ));
-        }
-        Ok(())
-    }
-
-    /// Where and how often estimator snapshots are saved (`None`: never; also with the
-    /// in-memory store).
-    pub fn snapshot_policy(&self) -> Option<crate::ingest::SnapshotPolicy> {
-        let dir = self.database_path()?.parent()?.to_path_buf();
-        (self.snapshot_interval_s > 0.0).then(|| crate::ingest::SnapshotPolicy {
-            data_dir: dir,
-            interval: std::time::Duration::from_secs_f64(self.snapshot_interval_s),
-            max_age_s: self.snapshot_max_age_s,
-        })
-    }
-
-    /// The database file, or `None` for the in-memory store.
-    pub fn database_path(&self) -> Option<PathBuf> {
-        if self.data_dir == ":memory:" {
-            return None;
-        }
-        let dir = match self.data_dir.is_empty() {
-            false => PathBuf::from(&self.data_dir),
-            true => match (std::env::var_os("XDG_STATE_HOME"), std::env::var_os("HOME")) {
-                (Some(state), _) if !state.is_empty() => Path::new(&state).join("railmon"),
-                (_, Some(home)) => Path::new(&home).join(".local/state/railmon"),
-                _ => PathBuf::from("/var/lib/railmon"),
-            },
-        };
-        Some(dir.join("events.sqlite3"))
-    }
 }
 
 /// An event as a pipeline raises it; the store gives it its id.

@@ -4,7 +4,9 @@
 use railmon_fuel::FuelMonitorConfig;
 use serde::{Deserialize, Serialize};
 
-use crate::config::{invalid, validate_stream_keys, ConfigError};
+use railmon_settings::SettingsError;
+
+use crate::stream_keys::{invalid, validate_stream_keys};
 
 /// `[vehicle]`: the road-vehicle stream (fuel flow, speed, ... at 1 Hz) -> `railmon_fuel::FuelMonitor`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -38,7 +40,7 @@ impl Default for VehicleConfig {
 }
 
 impl VehicleConfig {
-    pub(crate) fn validate(&self) -> Result<(), ConfigError> {
+    pub(crate) fn validate(&self) -> Result<(), SettingsError> {
         validate_stream_keys(
             "vehicle",
             self.stale_after_ms,
