@@ -77,13 +77,6 @@ fn rows(report: &AdhesionReport) -> Vec<[String; 5]> {
     rows
 }
 
-fn same(golden: &str, now: &str) -> bool {
-    match (golden.parse::<f64>(), now.parse::<f64>()) {
-        (Ok(g), Ok(n)) => (g - n).abs() <= RELATIVE_TOLERANCE * g.abs().max(1e-9),
-        _ => golden == now,
-    }
-}
-
 #[test]
 fn seed_scenario_headline_numbers_match_the_golden_file() {
     let out = std::env::temp_dir().join(format!("railmon-adhesion-golden-{}", std::process::id()));
@@ -100,41 +93,11 @@ fn seed_scenario_headline_numbers_match_the_golden_file() {
     })
     .unwrap();
     let _ = std::fs::remove_dir_all(&out);
-    let now = rows(&report);
-    let path = root().join("tests/data/golden/adhesion-seed.csv");
-    if std::env::var_os("RAILMON_UPDATE_GOLDEN").is_some() {
-        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-        let mut text = String::from("table,method,drive,field,value\n");
-        for r in &now {
-            text.push_str(&r.join(","));
-            text.push('\n');
-        }
-        std::fs::write(&path, text).unwrap();
-        return;
-    }
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
-        panic!(
-            "{}: {e} (generate it with RAILMON_UPDATE_GOLDEN=1)",
-            path.display()
-        )
-    });
-    let golden: Vec<Vec<&str>> = text
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').collect())
-        .collect();
-    assert_eq!(golden.len(), now.len(), "row count of {}", path.display());
-    for (g, n) in golden.iter().zip(&now) {
-        assert_eq!(&g[..4], &n[..4], "row keys");
-        assert!(
-            same(g[4], &n[4]),
-            "{} {} drive {} {}: golden {}, now {}",
-            n[0],
-            n[1],
-            n[2],
-            n[3],
-            g[4],
-            n[4]
-        );
-    }
+    let now: Vec<Vec<String>> = rows(&report).into_iter().map(Vec::from).collect();
+    railmon_golden::check(
+        "adhesion-seed.csv",
+        &["table", "method", "drive", "field", "value"],
+        &now,
+        RELATIVE_TOLERANCE,
+    );
 }

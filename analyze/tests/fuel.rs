@@ -295,42 +295,10 @@ fn headline(ev: &Evaluation) -> Vec<(String, f64)> {
     out
 }
 
-/// Compares `values` with `tests/data/golden/<name>` at relative tolerance 1e-9; with
-/// `RAILMON_UPDATE_GOLDEN=1` rewrites the file instead.
+/// Compares `values` with `tests/data/golden/<name>` at relative tolerance 1e-9
+/// (`railmon_golden`; `RAILMON_UPDATE_GOLDEN=1` rewrites the file instead).
 fn check_golden(name: &str, values: &[(String, f64)]) {
-    let path = shared_data().join("../tests/data/golden").join(name);
-    if std::env::var("RAILMON_UPDATE_GOLDEN").is_ok_and(|v| v == "1") {
-        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-        let mut text = String::from("quantity,value\n");
-        for (k, v) in values {
-            text.push_str(&format!("{k},{v:e}\n"));
-        }
-        std::fs::write(&path, text).unwrap();
-        return;
-    }
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
-        panic!(
-            "{}: {e} (RAILMON_UPDATE_GOLDEN=1 writes it)",
-            path.display()
-        )
-    });
-    let pinned: Vec<(String, f64)> = text
-        .lines()
-        .skip(1)
-        .map(|l| {
-            let (k, v) = l.split_once(',').unwrap();
-            (k.to_string(), v.parse().unwrap())
-        })
-        .collect();
-    let keys = |v: &[(String, f64)]| v.iter().map(|(k, _)| k.clone()).collect::<Vec<_>>();
-    assert_eq!(keys(&pinned), keys(values), "{name}: quantities differ");
-    for ((k, want), (_, got)) in pinned.iter().zip(values) {
-        let tolerance = 1e-9 * want.abs().max(1e-12);
-        assert!(
-            (got - want).abs() <= tolerance,
-            "{name}: {k} = {got:e}, pinned {want:e}"
-        );
-    }
+    railmon_golden::check_quantities(name, values, 1e-9);
 }
 
 /// Issue 8: the headline numbers of a short seeded scenario (500 s, labelled) and of the

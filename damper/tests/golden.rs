@@ -5,15 +5,9 @@
 //! deterministic; the tolerance only absorbs the last bits of a different CPU's vector path).
 //! Regenerate with `RAILMON_UPDATE_GOLDEN=1 cargo test -p railmon-damper --test golden`.
 
-use std::path::PathBuf;
-
 use railmon_damper::{BogieSimulator, DamperAlarm, DamperMonitor, DamperScenario};
 
 const TOLERANCE: f64 = 1e-9;
-
-fn golden_path() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tests/data/golden/damper-fault-short.csv")
-}
 
 /// `(quantity, value)` rows of the run.
 fn headline() -> Vec<(String, f64)> {
@@ -52,36 +46,5 @@ fn headline() -> Vec<(String, f64)> {
 
 #[test]
 fn short_fault_run_matches_its_golden_numbers() {
-    let got = headline();
-    let path = golden_path();
-    if std::env::var_os("RAILMON_UPDATE_GOLDEN").is_some() {
-        let mut w = csv::Writer::from_path(&path).unwrap();
-        w.write_record(["quantity", "value"]).unwrap();
-        for (q, v) in &got {
-            w.write_record([q.as_str(), &format!("{v:e}")]).unwrap();
-        }
-        w.flush().unwrap();
-        return;
-    }
-    let mut reader = csv::Reader::from_path(&path).unwrap_or_else(|e| {
-        panic!(
-            "{}: {e} (RAILMON_UPDATE_GOLDEN=1 writes it)",
-            path.display()
-        )
-    });
-    let want: Vec<(String, f64)> = reader
-        .records()
-        .map(|r| {
-            let r = r.unwrap();
-            (r[0].to_string(), r[1].parse().unwrap())
-        })
-        .collect();
-    let names = |rows: &[(String, f64)]| rows.iter().map(|r| r.0.clone()).collect::<Vec<_>>();
-    assert_eq!(names(&got), names(&want), "quantities differ");
-    for ((q, g), (_, w)) in got.iter().zip(&want) {
-        assert!(
-            (g - w).abs() <= TOLERANCE * w.abs(),
-            "{q}: {g} against golden {w}"
-        );
-    }
+    railmon_golden::check_quantities("damper-fault-short.csv", &headline(), TOLERANCE);
 }
