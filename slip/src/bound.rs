@@ -257,7 +257,6 @@ pub fn losses_at_bound(
     out
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -161,8 +161,7 @@ pub fn draw(seed: u64) -> Draw {
     let edge_smoothing = uniform(&mut rng, (0.0, 60.0)).round();
     let first_onset = SETTLE_STEPS as f64 + uniform(&mut rng, (0.0, 2000.0)).round();
     let spread = onsets.spread_steps();
-    let n_steps =
-        (first_onset + spread + duration + 4.0 * edge_smoothing) as usize + TAIL_STEPS;
+    let n_steps = (first_onset + spread + duration + 4.0 * edge_smoothing) as usize + TAIL_STEPS;
     // Fewer drives rather than more than the budget of drive-steps.
     n = n.min((MAX_DRIVE_STEPS / n_steps).max(DRIVES.0));
     let k = rng.random_range(1..n);
@@ -336,7 +335,10 @@ mod tests {
             seen.3 += usize::from(d.onsets == Onsets::Staggered);
         }
         // Every corner the issue names is drawn, often.
-        assert!(seen.0 >= 20 && seen.1 >= 60 && seen.2 >= 20 && seen.3 >= 60, "{seen:?}");
+        assert!(
+            seen.0 >= 20 && seen.1 >= 60 && seen.2 >= 20 && seen.3 >= 60,
+            "{seen:?}"
+        );
     }
 
     #[test]
