@@ -239,7 +239,7 @@ pub fn draw(seed: u64) -> Draw {
     let scenario = AdhesionScenario {
         name: format!("adhesion-draw-{seed}"),
         description: format!(
-            "condition sampler draw {seed}: {n} drives, {k} losing adhesion ({onset_word}), {}, {duration} steps, noise x{noise_factor:.2}",
+            "condition sampler draw {seed}: {n} drives, {k} losing adhesion ({onset_word}) for {duration} steps, {}, noise x{noise_factor:.2}",
             regime.name()
         ),
         n_drives: n,
