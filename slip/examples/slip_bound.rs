@@ -7,19 +7,9 @@
 //!
 //! `cargo run --release -p railmon-slip --example slip_bound -- SCENARIO.toml [DRIVE ...]`
 
-use railmon_slip::bound::{delay_bound_steps, f1_bound, LoadChangeInformation, LossAtBound};
+use railmon_slip::bound::{f1_bound, losses_at_bound, LoadChangeInformation, LossAtBound};
 use railmon_slip::model::DriveState;
 use railmon_slip::{AdhesionScenario, DriveModel, DriveSimulator};
-
-/// Steps of data before a loss's first flagged step that the bound's detector may use.
-const LEAD_STEPS: usize = 300;
-
-/// One loss of one drive: the truth's flagged steps `[on, off)` and the true departure from
-/// the healthy load over the scenario.
-struct Loss {
-    on: usize,
-    off: usize,
-}
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -70,53 +60,29 @@ fn main() {
         if !drives.is_empty() && !drives.contains(&k) {
             continue;
         }
-        let losses = losses(&slipping[k]);
+        let losses = losses_at_bound(&info[k], &slipping[k], |t| departure(k, t));
         if losses.is_empty() {
             continue;
         }
-        let mut rows = Vec::new();
-        let mut at_bound = [Vec::new(), Vec::new()];
-        let mut shorter = [Vec::new(), Vec::new()];
-        let mut after = 0;
-        for loss in &losses {
-            // The onset: the departure as it happens up to its deepest point, held there
-            // (the loss as if it never ended); the release: the change from that held level.
-            let peak = (loss.on..loss.off)
-                .max_by(|&a, &b| departure(k, a).abs().total_cmp(&departure(k, b).abs()))
-                .expect("a loss has steps");
-            let depth = departure(k, peak);
-            let from = loss.on.saturating_sub(LEAD_STEPS).max(after);
-            let end = (loss.off + LEAD_STEPS).min(info[k].len());
-            let onset: Vec<f64> = (from..end)
-                .map(|t| if t <= peak { departure(k, t) } else { depth })
-                .collect();
-            let release: Vec<f64> = (peak..end).map(|t| departure(k, t) - depth).collect();
-            let k_on = info[k].cumulative_kl(from, &onset);
-            let k_off = info[k].cumulative_kl(peak, &release);
-            let mut cells = Vec::new();
-            for (g, gamma) in [1000f64, 20_000.0].into_iter().enumerate() {
-                // Detection at step `from + i` at the earliest (the load of step `from + i - 1`
-                // is first seen in that step's currents).
-                let seen =
-                    |start: usize, kl: &[f64]| delay_bound_steps(kl, gamma.ln()).map(|i| start + i);
-                let on = seen(from, &k_on).map_or(usize::MAX, |t| t.saturating_sub(loss.on));
-                let off = seen(peak, &k_off).map_or(usize::MAX, |t| t.saturating_sub(loss.off));
-                cells.push((on, off));
-                let l = loss.off - loss.on;
-                at_bound[g].push(LossAtBound {
-                    slipping_steps: l,
-                    onset_delay_steps: on,
-                    release_delay_steps: off,
-                });
-                shorter[g].push(LossAtBound {
-                    slipping_steps: l,
-                    onset_delay_steps: on * 9 / 10,
-                    release_delay_steps: off * 9 / 10,
-                });
-            }
-            rows.push((loss, depth, cells));
-            after = loss.off;
-        }
+        let at_bound = [0, 1].map(|g| losses.iter().map(|l| l.at_bound[g]).collect::<Vec<_>>());
+        let shorter = at_bound.clone().map(|v| {
+            v.into_iter()
+                .map(|l| LossAtBound {
+                    onset_delay_steps: shorten(l.onset_delay_steps),
+                    release_delay_steps: shorten(l.release_delay_steps),
+                    ..l
+                })
+                .collect::<Vec<_>>()
+        });
+        let rows: Vec<_> = losses
+            .iter()
+            .map(|l| {
+                let cells = l
+                    .at_bound
+                    .map(|b| (b.onset_delay_steps, b.release_delay_steps));
+                ((l.on, l.off), l.depth_nm, cells)
+            })
+            .collect();
         let steps = |v: usize| {
             if v == usize::MAX {
                 "never".to_owned()
@@ -126,7 +92,7 @@ fn main() {
         };
         let losses_cell: Vec<String> = rows
             .iter()
-            .map(|(l, _, _)| format!("{} ({}-{})", l.off - l.on, l.on, l.off - 1))
+            .map(|((on, off), _, _)| format!("{} ({on}-{})", off - on, off - 1))
             .collect();
         let depth_cell: Vec<String> = rows.iter().map(|(_, d, _)| format!("{d:.1}")).collect();
         let onset_cell: Vec<String> = rows
@@ -153,19 +119,11 @@ fn main() {
     }
 }
 
-/// The truth's runs of flagged steps.
-fn losses(slipping: &[bool]) -> Vec<Loss> {
-    let mut out = Vec::new();
-    let mut start = None;
-    for (t, &s) in slipping.iter().chain(std::iter::once(&false)).enumerate() {
-        match (s, start) {
-            (true, None) => start = Some(t),
-            (false, Some(on)) => {
-                out.push(Loss { on, off: t });
-                start = None;
-            }
-            _ => {}
-        }
+/// A delay 10 % shorter ("never" stays never).
+fn shorten(steps: usize) -> usize {
+    if steps == usize::MAX {
+        steps
+    } else {
+        steps * 9 / 10
     }
-    out
 }

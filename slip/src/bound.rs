@@ -174,6 +174,89 @@ impl LoadChangeInformation {
     }
 }
 
+/// Steps of data before a loss's first flagged step that the bound's detector may use.
+pub const LEAD_STEPS: usize = 300;
+
+/// The truth's runs of flagged steps of one drive, `[on, off)`.
+pub fn truth_runs(slipping: &[bool]) -> Vec<(usize, usize)> {
+    let mut out = Vec::new();
+    let mut start = None;
+    for (t, &s) in slipping.iter().chain(std::iter::once(&false)).enumerate() {
+        match (s, start) {
+            (true, None) => start = Some(t),
+            (false, Some(on)) => {
+                out.push((on, t));
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
+/// One loss at the bound, with the departure at its deepest point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BoundedLoss {
+    /// The truth's flagged steps `[on, off)`.
+    pub on: usize,
+    pub off: usize,
+    /// True departure from the healthy load at the deepest step, N m.
+    pub depth_nm: f64,
+    /// Delays at the bound for `gamma` 1000 and 20,000 (`usize::MAX`: never).
+    pub at_bound: [LossAtBound; 2],
+}
+
+/// The false-alarm rates the bound is given for: one per 1000 steps (the 0.1 % bar read as
+/// loosely as it goes) and one per 20,000.
+pub const GAMMAS: [f64; 2] = [1000.0, 20_000.0];
+
+/// Every loss of one drive at the bound: `info` pushed along the drive's whole run,
+/// `slipping` the truth per step, `departure(t)` the true load minus the healthy load at step
+/// `t`. The onset is bounded with the departure as it happens up to its deepest point, held
+/// there (the loss as if it never ended); the release with the change from that held level.
+pub fn losses_at_bound(
+    info: &LoadChangeInformation,
+    slipping: &[bool],
+    departure: impl Fn(usize) -> f64,
+) -> Vec<BoundedLoss> {
+    let mut out = Vec::new();
+    let mut after = 0;
+    for (on, off) in truth_runs(slipping) {
+        let peak = (on..off)
+            .max_by(|&a, &b| departure(a).abs().total_cmp(&departure(b).abs()))
+            .expect("a loss has steps");
+        let depth = departure(peak);
+        let from = on.saturating_sub(LEAD_STEPS).max(after);
+        let end = (off + LEAD_STEPS).min(info.len());
+        let onset: Vec<f64> = (from..end)
+            .map(|t| if t <= peak { departure(t) } else { depth })
+            .collect();
+        let release: Vec<f64> = (peak..end).map(|t| departure(t) - depth).collect();
+        let k_on = info.cumulative_kl(from, &onset);
+        let k_off = info.cumulative_kl(peak, &release);
+        let at_bound = GAMMAS.map(|gamma| {
+            // Detection at step `start + i` at the earliest (the load of step `start + i - 1`
+            // is first seen in that step's currents).
+            let seen =
+                |start: usize, kl: &[f64]| delay_bound_steps(kl, gamma.ln()).map(|i| start + i);
+            LossAtBound {
+                slipping_steps: off - on,
+                onset_delay_steps: seen(from, &k_on).map_or(usize::MAX, |t| t.saturating_sub(on)),
+                release_delay_steps: seen(peak, &k_off)
+                    .map_or(usize::MAX, |t| t.saturating_sub(off)),
+            }
+        });
+        out.push(BoundedLoss {
+            on,
+            off,
+            depth_nm: depth,
+            at_bound,
+        });
+        after = off;
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -18,6 +18,7 @@ pub mod model;
 pub mod monitor;
 pub mod pipeline;
 pub mod sample;
+pub mod sampler;
 pub mod scenario;
 pub mod score;
 pub mod simulator;

@@ -1,0 +1,487 @@
+//! The condition sampler's matrix (issue 23 item 3): draws scenarios from the operating
+//! envelope (`railmon_slip::sampler`), runs the EKFs and one adhesion method over each, and
+//! prints the distribution over the draws and the worst draws, each reproducible from its seed:
+//! - per slipping drive: F1 of "probability > 0.5" and the F1 a detector at the information
+//!   bound reaches (`railmon_slip::bound`, `gamma` 1000 steps); a drive is *above the bound*
+//!   when that F1 is at least 0.95 (its loss is long and deep enough for the target);
+//! - per draw: the largest share of false-alarm steps (p > 0.5) on one healthy drive, the
+//!   longest run of them, and whether the slipping drives are the flagged ones (every slipping
+//!   drive above the bound flagged on at least half its loss, no healthy drive on more than
+//!   0.1 % of its steps).
+//!
+//! ```text
+//! cargo run --release -p railmon-slip --example sample_matrix -- [--draws 200] [--first-seed 1000]
+//!     [--split held-out|tuning|all] [--method temporal] [--worst 10] [--list]
+//! cargo run --release -p railmon-slip --example sample_matrix -- --seed N [--write FILE.toml]
+//! ```
+//! `--split` keeps the seeds of one side of the split (held-out: odd seeds, tuning: even) from
+//! `--first-seed` on until `--draws` are run; `--list` prints one row per draw; `--seed` runs
+//! one draw and prints its drives; `--write` also writes it as a scenario file for
+//! `railmon analyze adhesion --scenario`.
+
+use railmon_slip::bound::{f1_bound, losses_at_bound, LoadChangeInformation};
+use railmon_slip::model::DriveState;
+use railmon_slip::sampler::{draw, is_held_out, Draw};
+use railmon_slip::{
+    AdhesionMethod, DetectionCounter, DriveModel, DriveSimulator, MultiMethodPipeline,
+};
+
+/// The bars of issue 23.
+const F1_TARGET: f64 = 0.95;
+const FALSE_SHARE_MAX_PCT: f64 = 0.1;
+const RUN_MAX_STEPS: usize = 50;
+
+struct Args {
+    draws: usize,
+    first_seed: u64,
+    split: Split,
+    method: Option<AdhesionMethod>,
+    worst: usize,
+    list: bool,
+    seed: Option<u64>,
+    write: Option<String>,
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Split {
+    HeldOut,
+    Tuning,
+    All,
+}
+
+fn usage() -> ! {
+    eprintln!(
+        "usage: sample_matrix [--draws N] [--first-seed S] [--split held-out|tuning|all] \
+         [--method NAME] [--worst N] [--list] | --seed N [--write FILE.toml] [--method NAME]"
+    );
+    std::process::exit(2);
+}
+
+fn parse_args() -> Args {
+    let mut a = Args {
+        draws: 200,
+        first_seed: 1000,
+        split: Split::HeldOut,
+        method: None,
+        worst: 10,
+        list: false,
+        seed: None,
+        write: None,
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(flag) = it.next() {
+        let mut value = || it.next().unwrap_or_else(|| usage());
+        match flag.as_str() {
+            "--draws" => a.draws = value().parse().unwrap_or_else(|_| usage()),
+            "--first-seed" => a.first_seed = value().parse().unwrap_or_else(|_| usage()),
+            "--split" => {
+                a.split = match value().as_str() {
+                    "held-out" => Split::HeldOut,
+                    "tuning" => Split::Tuning,
+                    "all" => Split::All,
+                    _ => usage(),
+                }
+            }
+            "--method" => a.method = Some(value().parse().unwrap_or_else(|_| usage())),
+            "--worst" => a.worst = value().parse().unwrap_or_else(|_| usage()),
+            "--list" => a.list = true,
+            "--seed" => a.seed = Some(value().parse().unwrap_or_else(|_| usage())),
+            "--write" => a.write = Some(value()),
+            _ => usage(),
+        }
+    }
+    a
+}
+
+/// One slipping drive's figures.
+struct Slipping {
+    drive: usize,
+    f1: f64,
+    recall: f64,
+    alarm_f1: f64,
+    bound_f1: f64,
+    /// Whether the loss is deeper than the EKF resolves: `|depth| >= max(0.1 |T|, 0.5 N m,
+    /// 3 s) + 2 s`, `s` the rms error of the drive's torque estimate while it adhered.
+    resolvable: bool,
+    median_delay: Option<f64>,
+}
+
+/// One draw's figures.
+struct Outcome {
+    draw: Draw,
+    slipping: Vec<Slipping>,
+    /// Per healthy drive: (drive, false steps p > 0.5, longest run, false alarm steps, first
+    /// step of the longest run).
+    healthy: Vec<(usize, usize, usize, usize, usize)>,
+    /// Drives whose drawn loss the slip rule never flags (scored neither way).
+    sub_rule: usize,
+    steps: usize,
+}
+
+impl Outcome {
+    fn worst_false_pct(&self) -> f64 {
+        self.healthy
+            .iter()
+            .map(|h| 100.0 * h.1 as f64 / self.steps as f64)
+            .fold(0.0, f64::max)
+    }
+    fn longest_run(&self) -> usize {
+        self.healthy.iter().map(|h| h.2).max().unwrap_or(0)
+    }
+    fn above_bound(&self) -> impl Iterator<Item = &Slipping> {
+        self.slipping.iter().filter(|s| s.bound_f1 >= F1_TARGET)
+    }
+    fn above_bound_resolvable(&self) -> impl Iterator<Item = &Slipping> {
+        self.above_bound().filter(|s| s.resolvable)
+    }
+    fn right_drives_flagged(&self) -> bool {
+        self.above_bound().all(|s| s.recall >= 0.5) && self.worst_false_pct() <= FALSE_SHARE_MAX_PCT
+    }
+    /// How far the draw is from the bars, 1 at a bar: the largest of the healthy drives'
+    /// false share over 0.1 %, their longest run over 50 steps and the F1 shortfall of a
+    /// slipping drive above the bound over 0.05.
+    fn badness(&self) -> f64 {
+        let shortfall = self
+            .above_bound()
+            .map(|s| (1.0 - s.f1) / (1.0 - F1_TARGET))
+            .fold(0.0, f64::max);
+        (self.worst_false_pct() / FALSE_SHARE_MAX_PCT)
+            .max(self.longest_run() as f64 / RUN_MAX_STEPS as f64)
+            .max(shortfall)
+    }
+    fn many_at_once(&self) -> bool {
+        let d = &self.draw;
+        2 * d.slipping.len() >= d.scenario.n_drives()
+            && d.onsets != railmon_slip::sampler::Onsets::Staggered
+    }
+    fn summary(&self) -> String {
+        let d = &self.draw;
+        let f1s: Vec<String> = self
+            .slipping
+            .iter()
+            .map(|s| {
+                let mark = match (s.bound_f1 >= F1_TARGET, s.resolvable) {
+                    (true, true) => "",
+                    (true, false) => "~",
+                    (false, _) => "*",
+                };
+                format!("{}:{:.3}{mark}", s.drive + 1, s.f1)
+            })
+            .collect();
+        format!(
+            "| {} | {} | {} of {} | {} | {} | {:.2} | {:.3} | {} | {} | {} |",
+            d.seed,
+            d.regime.name(),
+            d.slipping.len(),
+            d.scenario.n_drives(),
+            d.onsets.name(),
+            d.scenario.n_steps(),
+            d.noise_factor,
+            self.worst_false_pct(),
+            self.longest_run(),
+            if self.right_drives_flagged() {
+                "yes"
+            } else {
+                "no"
+            },
+            f1s.join(" "),
+        )
+    }
+}
+
+fn run(draw: Draw, method: Option<AdhesionMethod>) -> Outcome {
+    let scenario = &draw.scenario;
+    let n = scenario.n_drives();
+    let mut cfg = scenario.monitor_config();
+    if let Some(m) = method {
+        cfg.method = m;
+    }
+    let mut pipe = MultiMethodPipeline::with_methods(&cfg, n, &[cfg.method]).expect("pipeline");
+    let mut sim = DriveSimulator::new(scenario).expect("simulator");
+    let model = DriveModel::new(scenario.plant.motor, scenario.dt_s()).expect("model");
+    let noise = scenario.noise;
+    let mut info: Vec<Option<LoadChangeInformation>> = (0..n)
+        .map(|k| {
+            draw.slipping.contains(&k).then(|| {
+                LoadChangeInformation::new(
+                    model,
+                    noise.current_std_a,
+                    noise.voltage_std_v,
+                    noise.load_std_nm,
+                )
+            })
+        })
+        .collect();
+    let mut probability = vec![DetectionCounter::default(); n];
+    let mut alarm = vec![DetectionCounter::default(); n];
+    let mut truth_flags = vec![Vec::new(); n];
+    // Per drive, the sum of squares and count of its torque estimate's error while it adheres
+    // before its first loss (from step 1000, the EKFs locked): its resolution.
+    let mut adhering_error = vec![(0.0, 0usize); n];
+    let (mut run_now, mut run_max) = (vec![0usize; n], vec![0usize; n]);
+    let mut run_start = vec![0usize; n];
+    let mut step = 0;
+    while let Some((samples, truth)) = sim.step() {
+        pipe.step(samples).expect("pipeline step");
+        let (_, out) = pipe.outputs().next().expect("one method");
+        let (_, flags) = pipe.slipping().next().expect("one method");
+        for k in 0..n {
+            let flagged = out.slip_probability[k] > 0.5;
+            probability[k].push(step, flagged, truth[k].slipping);
+            alarm[k].push(step, flags[k], truth[k].slipping);
+            run_now[k] = if flagged { run_now[k] + 1 } else { 0 };
+            if run_now[k] > run_max[k] {
+                run_max[k] = run_now[k];
+                run_start[k] = step + 1 - run_now[k];
+            }
+            if let Some(i) = &mut info[k] {
+                let (s, t) = (&samples[k], &truth[k]);
+                if step >= 1000 && !truth_flags[k].contains(&true) && !t.slipping {
+                    let e = pipe.torque_nm()[k] - t.torque_nm;
+                    adhering_error[k].0 += e * e;
+                    adhering_error[k].1 += 1;
+                }
+                i.push(&DriveState::new(
+                    s.i_alpha_a,
+                    s.i_beta_a,
+                    t.speed_rad_s,
+                    t.angle_rad,
+                    t.torque_nm,
+                ));
+                truth_flags[k].push(t.slipping);
+            }
+        }
+        step += 1;
+    }
+    let mut slipping = Vec::new();
+    let mut healthy = Vec::new();
+    let mut sub_rule = 0;
+    for k in 0..n {
+        let (p, a) = (probability[k].score(), alarm[k].score());
+        match &info[k] {
+            Some(i) if p.events > 0 => {
+                let departure = |t: usize| {
+                    scenario.true_load_nm(k, t as f64).0 - scenario.healthy_load_nm(k, t as f64)
+                };
+                let losses = losses_at_bound(i, &truth_flags[k], departure);
+                let at_bound: Vec<_> = losses.iter().map(|l| l.at_bound[0]).collect();
+                let (sum, count) = adhering_error[k];
+                let rms = (sum / count.max(1) as f64).sqrt();
+                let resolvable = losses.iter().all(|l| {
+                    let healthy = scenario.healthy_load_nm(k, l.on as f64).abs();
+                    let limit = (0.1 * healthy).max(0.5).max(3.0 * rms);
+                    l.depth_nm.abs() >= limit + 2.0 * rms
+                });
+                slipping.push(Slipping {
+                    drive: k,
+                    f1: p.f1.unwrap_or(0.0),
+                    recall: p.recall.unwrap_or(0.0),
+                    alarm_f1: a.f1.unwrap_or(0.0),
+                    bound_f1: f1_bound(&at_bound),
+                    resolvable,
+                    median_delay: p.median_delay_steps,
+                });
+            }
+            // A drive whose drawn loss stays within the slip rule (coasting, shallow losses
+            // of small loads) is neither: its load did change, so a flag is no false alarm.
+            Some(_) => sub_rule += 1,
+            None => healthy.push((k, p.false_pos, run_max[k], a.false_pos, run_start[k])),
+        }
+    }
+    Outcome {
+        draw,
+        slipping,
+        healthy,
+        sub_rule,
+        steps: step,
+    }
+}
+
+fn quantiles(mut v: Vec<f64>) -> String {
+    if v.is_empty() {
+        return "–".to_owned();
+    }
+    v.sort_by(f64::total_cmp);
+    let q = |f: f64| v[((v.len() - 1) as f64 * f).round() as usize];
+    format!(
+        "min {:.3}, 5 % {:.3}, 25 % {:.3}, median {:.3}, max {:.3}",
+        q(0.0),
+        q(0.05),
+        q(0.25),
+        q(0.5),
+        q(1.0)
+    )
+}
+
+const HEADER: &str = "| seed | regime | slipping | onsets | steps | noise x | worst healthy false % | longest healthy run | slipping drives flagged | F1 per slipping drive (* below the bound, ~ not resolved) |\n|---|---|---|---|---|---|---|---|---|---|";
+
+fn main() {
+    let args = parse_args();
+    if let Some(seed) = args.seed {
+        let d = draw(seed);
+        if let Some(path) = &args.write {
+            let text = toml::to_string(&d.scenario).expect("scenario as TOML");
+            let header = format!("# {}\n", d.scenario.description);
+            std::fs::write(path, header + &text).expect("write the scenario");
+            eprintln!("wrote {path}");
+        }
+        let o = run(d, args.method);
+        println!("{}", o.draw.scenario.description);
+        println!("{HEADER}");
+        println!("{}", o.summary());
+        println!();
+        println!("| drive | F1 | recall | alarm F1 | F1 at the bound | median delay |");
+        println!("|---|---|---|---|---|---|");
+        for s in &o.slipping {
+            let delay = s.median_delay.map_or("–".to_owned(), |d| format!("{d:.0}"));
+            println!(
+                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {delay} |",
+                s.drive + 1,
+                s.f1,
+                s.recall,
+                s.alarm_f1,
+                s.bound_f1
+            );
+        }
+        println!();
+        println!("| healthy drive | false steps | longest run (from step) | false alarm steps |");
+        println!("|---|---|---|---|");
+        for (k, f, r, a, from) in &o.healthy {
+            println!("| {} | {f} | {r} ({from}) | {a} |", k + 1);
+        }
+        return;
+    }
+    let seeds = (args.first_seed..)
+        .filter(|&s| match args.split {
+            Split::HeldOut => is_held_out(s),
+            Split::Tuning => !is_held_out(s),
+            Split::All => true,
+        })
+        .take(args.draws);
+    let mut outcomes = Vec::new();
+    for seed in seeds {
+        let o = run(draw(seed), args.method);
+        if args.list {
+            if outcomes.is_empty() {
+                println!("{HEADER}");
+            }
+            println!("{}", o.summary());
+        }
+        outcomes.push(o);
+    }
+    let method = args
+        .method
+        .unwrap_or(railmon_slip::SlipMonitorConfig::default().method);
+    let above: Vec<&Slipping> = outcomes.iter().flat_map(|o| o.above_bound()).collect();
+    let met = above.iter().filter(|s| s.f1 >= F1_TARGET).count();
+    let all_slipping = outcomes.iter().map(|o| o.slipping.len()).sum::<usize>();
+    let sub_rule = outcomes.iter().map(|o| o.sub_rule).sum::<usize>();
+    let healthy = outcomes.iter().map(|o| o.healthy.len()).sum::<usize>();
+    println!(
+        "method {method}, {} draws (seeds {}..={}, split {}), {healthy} healthy drives, {sub_rule} drives with a loss the slip rule never flags (not scored), {} slipping drives, {} above the bound",
+        outcomes.len(),
+        outcomes.first().map_or(0, |o| o.draw.seed),
+        outcomes.last().map_or(0, |o| o.draw.seed),
+        match args.split {
+            Split::HeldOut => "held-out",
+            Split::Tuning => "tuning",
+            Split::All => "all",
+        },
+        all_slipping,
+        above.len()
+    );
+    println!();
+    println!("| figure | value |");
+    println!("|---|---|");
+    println!(
+        "| slipping drives above the bound with F1 >= 0.95 | {met} of {} ({:.1} %) |",
+        above.len(),
+        100.0 * met as f64 / above.len().max(1) as f64
+    );
+    // The same share by kind of draw, and for losses well above the bound.
+    let share = |name: &str, keep: &dyn Fn(&Outcome, &Slipping) -> bool| {
+        let (mut n, mut hit) = (0, 0);
+        for o in &outcomes {
+            for s in o.above_bound().filter(|s| keep(o, s)) {
+                n += 1;
+                hit += usize::from(s.f1 >= F1_TARGET);
+            }
+        }
+        println!(
+            "| {name}: F1 >= 0.95 | {hit} of {n} ({:.1} %) |",
+            100.0 * hit as f64 / n.max(1) as f64
+        );
+    };
+    share("half or more at once (within 5 ms)", &|o, _| {
+        o.many_at_once()
+    });
+    share("fewer than half, or staggered", &|o, _| !o.many_at_once());
+    for regime in ["traction", "braking", "coasting"] {
+        share(regime, &|o, _| o.draw.regime.name() == regime);
+    }
+    share("F1 at the bound >= 0.99", &|_, s| s.bound_f1 >= 0.99);
+    share("deeper than the EKF resolves", &|_, s| s.resolvable);
+    share(
+        "deeper than the EKF resolves, half or more at once",
+        &|o, s| s.resolvable && o.many_at_once(),
+    );
+    println!(
+        "| F1 of slipping drives above the bound and resolved | {} |",
+        quantiles(
+            outcomes
+                .iter()
+                .flat_map(|o| o.above_bound_resolvable())
+                .map(|s| s.f1)
+                .collect()
+        )
+    );
+    println!(
+        "| F1 of slipping drives above the bound | {} |",
+        quantiles(above.iter().map(|s| s.f1).collect())
+    );
+    println!(
+        "| alarm F1 of slipping drives above the bound | {} |",
+        quantiles(above.iter().map(|s| s.alarm_f1).collect())
+    );
+    let over = |f: &dyn Fn(&Outcome) -> bool| outcomes.iter().filter(|o| f(o)).count();
+    println!(
+        "| worst healthy false-alarm share per draw [%] | {} |",
+        quantiles(outcomes.iter().map(Outcome::worst_false_pct).collect())
+    );
+    println!(
+        "| draws with a healthy drive over 0.1 % | {} |",
+        over(&|o| o.worst_false_pct() > FALSE_SHARE_MAX_PCT)
+    );
+    println!(
+        "| longest healthy run per draw [steps] | {} |",
+        quantiles(outcomes.iter().map(|o| o.longest_run() as f64).collect())
+    );
+    println!(
+        "| draws with a healthy run over 50 steps | {} |",
+        over(&|o| o.longest_run() > RUN_MAX_STEPS)
+    );
+    println!(
+        "| draws with healthy alarm steps | {} |",
+        over(&|o| o.healthy.iter().any(|h| h.3 > 0))
+    );
+    let many: Vec<&Outcome> = outcomes.iter().filter(|o| o.many_at_once()).collect();
+    println!(
+        "| half or more at once (within 5 ms): slipping drives are the flagged ones | {} of {} draws |",
+        many.iter().filter(|o| o.right_drives_flagged()).count(),
+        many.len()
+    );
+    println!(
+        "| every draw: slipping drives are the flagged ones | {} of {} draws |",
+        over(&|o| o.right_drives_flagged()),
+        outcomes.len()
+    );
+    println!();
+    let mut ranked: Vec<&Outcome> = outcomes.iter().collect();
+    ranked.sort_by(|a, b| b.badness().total_cmp(&a.badness()));
+    println!("Worst {} draws (badness: 1 at a bar)", args.worst);
+    println!();
+    println!("{HEADER}");
+    for o in ranked.iter().take(args.worst) {
+        println!("{} badness {:.2}", o.summary(), o.badness());
+    }
+}
