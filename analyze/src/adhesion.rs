@@ -151,6 +151,9 @@ pub struct AdhesionReport {
     pub table1: Vec<Table1Row>,
     pub detection: Vec<DetectionRow>,
     pub n_steps: usize,
+    /// Table 1 and the detection scores as the terminal shows them (`railmon analyze` prints
+    /// them; the library writes nothing to stdout).
+    pub tables_text: String,
 }
 
 fn input_error(path: &Path, reason: impl ToString) -> AdhesionAnalysisError {
@@ -225,12 +228,12 @@ pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
         record,
         &args.run.out,
     )?;
-    let report = write_tables(&run, args.table1_skip_steps, &args.run.out)?;
+    let mut report = write_tables(&run, args.table1_skip_steps, &args.run.out)?;
     write_events(&run, &args.run.out)?;
     if !args.run.no_plots {
         plots::write_all(&run, &report, &args.run.out)?;
     }
-    print_summary(&run, &report);
+    report.tables_text = tables_text(&run, &report);
     Ok(report)
 }
 
@@ -422,6 +425,7 @@ pub fn tables(run: &AdhesionRun, skip: usize) -> AdhesionReport {
         table1,
         detection,
         n_steps: run.ekf_torque_nm.first().map_or(0, Vec::len),
+        tables_text: String::new(),
     }
 }
 
@@ -553,18 +557,25 @@ fn write_events(run: &AdhesionRun, out: &Path) -> Result<(), AdhesionAnalysisErr
     Ok(())
 }
 
-fn print_summary(run: &AdhesionRun, report: &AdhesionReport) {
-    println!(
+/// The Table 1 and detection tables as the terminal shows them (the binary prints them).
+fn tables_text(run: &AdhesionRun, report: &AdhesionReport) -> String {
+    use std::fmt::Write;
+    // Writing to a String cannot fail.
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
         "{}: {} drives, {} steps",
         run.name, run.n_drives, report.n_steps
     );
-    println!(
+    let _ = writeln!(
+        out,
         "{:<9} {:>5} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
         "method", "drive", "min", "median", "max", "mean", "std", "iqr"
     );
     for r in &report.table1 {
         let s = r.summary;
-        println!(
+        let _ = writeln!(
+            out,
             "{:<9} {:>5} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2}",
             r.method.to_string(),
             r.drive,
@@ -577,14 +588,16 @@ fn print_summary(run: &AdhesionRun, report: &AdhesionReport) {
         );
     }
     if !report.detection.is_empty() {
-        println!(
+        let _ = writeln!(
+            out,
             "{:<9} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
             "method", "drive", "precision", "recall", "f1", "delay", "false_pos", "alarm_f1"
         );
         let opt = |v: Option<f64>| v.map_or("-".to_owned(), |x| format!("{x:.4}"));
         for r in &report.detection {
             let s = &r.score;
-            println!(
+            let _ = writeln!(
+                out,
                 "{:<9} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
                 r.method.to_string(),
                 r.drive,
@@ -597,6 +610,7 @@ fn print_summary(run: &AdhesionRun, report: &AdhesionReport) {
             );
         }
     }
+    out
 }
 
 #[cfg(test)]

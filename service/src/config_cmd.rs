@@ -23,10 +23,7 @@ pub enum ConfigCommand {
 
 pub fn run(command: ConfigCommand) -> anyhow::Result<()> {
     match command {
-        ConfigCommand::Reference => {
-            print!("{}", config::reference_markdown());
-            Ok(())
-        }
+        ConfigCommand::Reference => crate::print_out(&config::reference_markdown()),
         ConfigCommand::Check { file } => {
             let name = file
                 .as_deref()
@@ -34,8 +31,7 @@ pub fn run(command: ConfigCommand) -> anyhow::Result<()> {
             let (config, overrides) =
                 ServiceConfig::load_reporting(file.as_deref(), std::env::vars())
                     .with_context(|| format!("{name}: invalid configuration"))?;
-            println!("{}", summary(&name, &config, &overrides));
-            Ok(())
+            crate::print_out(&format!("{}\n", summary(&name, &config, &overrides)))
         }
     }
 }

@@ -69,6 +69,20 @@ fn one_line(error: &anyhow::Error) -> String {
     line.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
+/// Writes `text` to stdout; a reader that went away (`railmon analyze ... | head`) ends the
+/// output quietly instead of a panic (Rust ignores SIGPIPE, so the write fails with EPIPE).
+pub(crate) fn print_out(text: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut stdout = std::io::stdout().lock();
+    match stdout
+        .write_all(text.as_bytes())
+        .and_then(|()| stdout.flush())
+    {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => Ok(other?),
+    }
+}
+
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Serve(args) => serve::run(args),
@@ -78,10 +92,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             // Whole seconds: a file system may store coarser times than the clock reads.
             let started = std::time::SystemTime::now() - std::time::Duration::from_secs(1);
             let (out, headline) = match analyze {
-                Analyze::Adhesion(args) => (
-                    args.run.out.clone(),
-                    summary::adhesion(&railmon_analyze::adhesion::run(&args)?),
-                ),
+                Analyze::Adhesion(args) => {
+                    let report = railmon_analyze::adhesion::run(&args)?;
+                    print_out(&report.tables_text)?;
+                    (args.run.out.clone(), summary::adhesion(&report))
+                }
                 Analyze::Damper(args) => (
                     args.run.out.clone(),
                     summary::damper(&railmon_analyze::damper::run(&args)?),
@@ -91,8 +106,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     summary::fuel(&railmon_analyze::fuel::run(&args)?),
                 ),
             };
-            println!("{}\n{headline}", summary::written(&out, started));
-            Ok(())
+            print_out(&format!(
+                "{}\n{headline}\n",
+                summary::written(&out, started)
+            ))
         }
     }
 }

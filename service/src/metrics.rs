@@ -316,6 +316,9 @@ pub struct Metrics {
     pub drive: DriveMetrics,
     pub bogie: BogieMetrics,
     pub vehicle: VehicleMetrics,
+    /// Connections the HTTP server refused at `http.max_connections` (synchronised from
+    /// `http::server::HttpCounters` at each scrape: [`Metrics::count_refused_connections`]).
+    http_connections_refused: IntCounter,
 }
 
 impl Metrics {
@@ -361,8 +364,13 @@ impl Metrics {
         )?
         .with_label_values(&[env!("CARGO_PKG_VERSION"), BUILD_PROFILE])
         .set(1);
+        let http_connections_refused = f.int_counter(
+            "http_connections_refused_total",
+            "Connections the HTTP server closed at once because http.max_connections were open.",
+        )?;
         let family_names = f.names.into_inner();
         Ok(Metrics {
+            http_connections_refused,
             registry,
             family_names,
             stream,
@@ -384,6 +392,14 @@ impl Metrics {
             name.strip_prefix(f.as_str())
                 .is_some_and(|rest| ["", "_bucket", "_sum", "_count"].contains(&rest))
         })
+    }
+
+    /// Brings the refused-connections counter to `total` (the server's own count; a counter
+    /// only rises).
+    pub fn count_refused_connections(&self, total: u64) {
+        let counted = self.http_connections_refused.get();
+        self.http_connections_refused
+            .inc_by(total.saturating_sub(counted));
     }
 
     /// The text exposition format.
@@ -450,6 +466,16 @@ mod tests {
             env!("CARGO_PKG_VERSION")
         );
         assert!(text.lines().any(|l| l == build), "{build} in {text}");
+        // Refused connections are counted from the server's own count, never backwards.
+        metrics.count_refused_connections(3);
+        metrics.count_refused_connections(2);
+        let refused = metrics.render().unwrap();
+        assert!(
+            refused
+                .lines()
+                .any(|l| l == "railmon_http_connections_refused_total 3"),
+            "{refused}"
+        );
         // Declared families are known before they have a series.
         assert!(metrics
             .family_names()

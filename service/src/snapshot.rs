@@ -146,9 +146,19 @@ impl SnapshotFile {
         if header.settings != self.settings {
             return Err("made with other estimator settings".into());
         }
-        let age_s = (railmon_bus::utc_now_ns() - header.saved_utc_ns) as f64 * 1e-9;
-        if age_s.is_nan() || age_s > max_age_s {
-            return Err(format!("{age_s:.0} s old, at most {max_age_s} s resumed"));
+        // Checked: a forged `saved_utc_ns` (i64::MAX) must not wrap into a young age.
+        let age_s = railmon_bus::utc_now_ns()
+            .checked_sub(header.saved_utc_ns)
+            .map(|ns| ns as f64 * 1e-9);
+        match age_s {
+            // A clock stepped back by more than a minute since the save is no age to trust.
+            Some(age_s) if (-60.0..=max_age_s).contains(&age_s) => {}
+            Some(age_s) => {
+                return Err(format!(
+                    "{age_s:.0} s old, at most {max_age_s} s resumed (and not from the future)"
+                ))
+            }
+            None => return Err(format!("saved at {} ns: not a time", header.saved_utc_ns)),
         }
         if payload.len() != header.payload_bytes
             || format!("{:016x}", fnv1a(payload)) != header.checksum
@@ -272,6 +282,31 @@ mod tests {
         assert!(file.load(60.0).unwrap_err().contains("checksum"));
         std::fs::write(file.path(), b"railmon-snapshot v1\n").unwrap();
         assert!(file.load(60.0).unwrap_err().contains("truncated"));
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    /// A save time far in the future (a forged `saved_utc_ns` of i64::MAX, or a clock stepped
+    /// back) is refused, not taken for a young snapshot by a wrapping subtraction.
+    #[test]
+    fn a_snapshot_from_the_future_is_refused() {
+        let d = dir("future");
+        let file = SnapshotFile::new(&d, "drive", "settings A");
+        file.save(&state()).unwrap();
+        let text = std::fs::read(file.path()).unwrap();
+        let now = railmon_bus::utc_now_ns();
+        for saved in [i64::MAX, now + 3_600_000_000_000, i64::MIN] {
+            let forged = String::from_utf8_lossy(&text).replacen(
+                &format!("\"saved_utc_ns\":"),
+                &format!("\"saved_utc_ns\":{saved},\"was\":"),
+                1,
+            );
+            std::fs::write(file.path(), forged.as_bytes()).unwrap();
+            let e = file.load(600.0).unwrap_err();
+            assert!(
+                e.contains("future") || e.contains("not a time"),
+                "{saved}: {e}"
+            );
+        }
         let _ = std::fs::remove_dir_all(&d);
     }
 

@@ -109,6 +109,11 @@ pub async fn metrics(State(state): State<AppState>) -> Result<Response, AppError
     for stream in &state.streams {
         stream.refresh_gauges(now);
     }
+    let refused = state
+        .http
+        .connections_refused
+        .load(std::sync::atomic::Ordering::Relaxed);
+    state.metrics.count_refused_connections(refused);
     let text = state.metrics.render().map_err(|e| {
         tracing::error!("rendering metrics: {e}");
         AppError::Internal
