@@ -296,7 +296,7 @@ mod tests {
         let now = railmon_bus::utc_now_ns();
         for saved in [i64::MAX, now + 3_600_000_000_000, i64::MIN] {
             let forged = String::from_utf8_lossy(&text).replacen(
-                &format!("\"saved_utc_ns\":"),
+                "\"saved_utc_ns\":",
                 &format!("\"saved_utc_ns\":{saved},\"was\":"),
                 1,
             );
