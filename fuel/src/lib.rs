@@ -29,6 +29,7 @@ pub mod predictive;
 pub mod railcar;
 pub mod regime;
 pub mod regression;
+pub mod routes;
 pub mod sample;
 pub mod simulator;
 
@@ -41,6 +42,7 @@ pub use predictive::{central_interval, Interval, StudentT};
 pub use railcar::{RailcarParameters, RailcarScenario, RailcarSimulator, RailcarTruth};
 pub use regime::{ComponentName, OperatingPoint, PowerTier, RegimeName, RegimeNaming};
 pub use regression::RegressionStats;
+pub use routes::{generated_line, LineEnvelope, Split};
 pub use sample::{bin_index, Channel, DerivedChannel, VehicleSample};
 pub use simulator::{
     DriveCycle, DriverStyle, Segment, VehicleParameters, VehicleScenario, VehicleSimulator,
