@@ -42,7 +42,7 @@ pub use predictive::{central_interval, Interval, StudentT};
 pub use railcar::{RailcarParameters, RailcarScenario, RailcarSimulator, RailcarTruth};
 pub use regime::{ComponentName, OperatingPoint, PowerTier, RegimeName, RegimeNaming};
 pub use regression::RegressionStats;
-pub use routes::{generated_line, LineEnvelope, Split};
+pub use routes::{generated_line, scenario_toml, LineEnvelope, Split};
 pub use sample::{bin_index, Channel, DerivedChannel, VehicleSample};
 pub use simulator::{
     DriveCycle, DriverStyle, Segment, VehicleParameters, VehicleScenario, VehicleSimulator,

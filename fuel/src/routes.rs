@@ -25,7 +25,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::railcar::{RailcarParameters, RailcarScenario, RouteSection};
-use crate::FuelMonitorConfig;
+use crate::{FuelError, FuelMonitorConfig};
 
 /// Which use a seed's line is for: tuning settings or reporting on lines not tuned on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -200,6 +200,19 @@ impl LineEnvelope {
     }
 }
 
+/// `scenario` as a scenario file (`railmon analyze fuel --scenario FILE` replays it): the
+/// estimator as `preset = "railcar"` when it is that preset, else every setting.
+pub fn scenario_toml(scenario: &RailcarScenario) -> Result<String, FuelError> {
+    let invalid = |e: toml::ser::Error| FuelError::Scenario(e.to_string());
+    let mut table = toml::Table::try_from(scenario).map_err(invalid)?;
+    if scenario.monitor == FuelMonitorConfig::railcar() {
+        let mut monitor = toml::Table::new();
+        monitor.insert("preset".into(), "railcar".into());
+        table.insert("monitor".into(), monitor.into());
+    }
+    toml::to_string(&table).map_err(invalid)
+}
+
 /// The line of `seed` from the default envelope.
 pub fn generated_line(seed: u64) -> RailcarScenario {
     LineEnvelope::default().line(seed)
@@ -266,6 +279,16 @@ mod tests {
             .collect();
         assert!(spacings.iter().any(|&d| d <= 1000.0));
         assert!(spacings.iter().any(|&d| d >= 12_000.0));
+    }
+
+    #[test]
+    fn a_written_line_reads_back_as_the_same_scenario() {
+        for seed in [3, 8] {
+            let line = generated_line(seed);
+            let text = scenario_toml(&line).unwrap();
+            assert!(text.contains("preset = \"railcar\""), "{text}");
+            assert_eq!(RailcarScenario::from_toml_str(&text).unwrap(), line);
+        }
     }
 
     #[test]
