@@ -75,7 +75,9 @@ fn read_monitor(path: &str) -> Result<FuelMonitorConfig, String> {
     }
     let text = std::fs::read_to_string(path).map_err(|e| format!("{path}: {e}"))?;
     let file: File = toml::from_str(&text).map_err(|e| format!("{path}: {e}"))?;
-    file.monitor.validate().map_err(|e| format!("{path}: {e}"))?;
+    file.monitor
+        .validate()
+        .map_err(|e| format!("{path}: {e}"))?;
     Ok(file.monitor)
 }
 
@@ -176,7 +178,9 @@ fn score_line(seed: u64, config: &FuelMonitorConfig) -> Result<LineScore, String
         };
         let b = single
             .update(&sample)
-            .map_err(|e| format!("seed {seed}: the single regression refused what the mixture took: {e}"))?
+            .map_err(|e| {
+                format!("seed {seed}: the single regression refused what the mixture took: {e}")
+            })?
             .mixture
             .clone();
         let (Some(a), Some(b)) = (a, b) else { continue };
@@ -336,8 +340,14 @@ fn main() -> ExitCode {
          worse on {worse} of {} lines (DM beyond -/+1.645)",
         scores.len()
     );
-    let cov_lo = scores.iter().map(|s| s.coverage_range.0).fold(f64::INFINITY, f64::min);
-    let cov_hi = scores.iter().map(|s| s.coverage_range.1).fold(f64::NEG_INFINITY, f64::max);
+    let cov_lo = scores
+        .iter()
+        .map(|s| s.coverage_range.0)
+        .fold(f64::INFINITY, f64::min);
+    let cov_hi = scores
+        .iter()
+        .map(|s| s.coverage_range.1)
+        .fold(f64::NEG_INFINITY, f64::max);
     let outside = scores
         .iter()
         .filter(|s| s.coverage_range.0 < 0.85 || s.coverage_range.1 > 0.95)

@@ -407,27 +407,20 @@ impl RailcarSimulator {
         aux + f64::from(notch) / f64::from(MAX_NOTCH) * (p.engines as f64 * p.rated_power_kw - aux)
     }
 
-    /// Gravity's pull along the lowest grade between the train and `until_m` (a position in
-    /// the current leg) within twice the service brake's stopping distance, m/s^2: positive on
-    /// a descent, negative where everything climbs (gravity helps the brake), 0 standing.
-    fn grade_pull_m_s2(&self, until_m: f64) -> f64 {
+    /// How far the track falls from the train to `until_m` (a position in the current leg),
+    /// m: negative where it climbs.
+    fn fall_m(&self, until_m: f64) -> f64 {
         let leg = &self.legs[self.leg];
-        let until_m = until_m.min(self.x_m + self.v_m_s * self.v_m_s / self.p.service_brake_m_s2);
-        if until_m <= self.x_m {
-            return 0.0;
-        }
-        let mut start = 0.0;
-        let mut steepest = f64::INFINITY;
+        let mut start: f64 = 0.0;
+        let mut fall = 0.0;
         for &(end, gradient, _) in &leg.sections {
-            if end > self.x_m && start < until_m {
-                steepest = steepest.min(gradient);
+            let overlap = end.min(until_m) - start.max(self.x_m);
+            if overlap > 0.0 {
+                fall -= gradient / 1000.0 * overlap;
             }
             start = end;
         }
-        match steepest.is_finite() {
-            true => -G_M_S2 * steepest / 1000.0,
-            false => 0.0,
-        }
+        fall
     }
 
     /// The driver's decision for the next second: (target notch, brake deceleration, regime).
@@ -438,20 +431,20 @@ impl RailcarSimulator {
         let (gradient, limit, to_boundary, next_limit) = self.track();
         let b = self.p.service_brake_m_s2;
         // Brake for the station: the deceleration that stops exactly at the platform, once it
-        // reaches 90 % of the service brake. The brake gives the kinematic deceleration plus
-        // gravity's pull `-g i / 1000` along the lowest grade before the platform (before the
-        // section end, for a limit): more on a descent, less on a climb. Without it a train at
-        // the foot of a 4 km descent at 20 per mille (issue 25) braked too late and reached the
-        // platform at 6 m/s, and one braking up a 25 per mille climb stood 35 m short.
+        // reaches 90 % of the service brake. Grade-corrected by energy: a constant brake `B`
+        // over the distance `d` to the stop takes the kinetic energy and what the track falls
+        // by (`h`) on the way, `B d = v^2 / 2 + g h` (resistance neglected: it helps). Without
+        // the `g h` a train at the foot of a 4 km descent at 20 per mille (issue 25) braked too
+        // late and reached the platform at 6 m/s.
         // The driver aims at a stop mark `STOP_MARGIN_M` short of the platform's end: aiming at
         // the end itself, the last second's brake (decided once a second) often arrived with
         // 1-2 m/s left, which `step` then zeroed in one sample.
-        let for_stop =
-            v * v / (2.0 * (to_stop - STOP_MARGIN_M).max(0.5)) + self.grade_pull_m_s2(leg.length_m);
+        let stop_at = (to_stop - STOP_MARGIN_M).max(0.5);
+        let for_stop = (v * v / 2.0 + G_M_S2 * self.fall_m(self.x_m + stop_at)) / stop_at;
         // Brake for a lower limit ahead.
         let for_limit = if next_limit > 0.0 && v > next_limit {
-            (v * v - next_limit * next_limit) / (2.0 * to_boundary.max(0.5))
-                + self.grade_pull_m_s2(self.x_m + to_boundary)
+            let d = to_boundary.max(0.5);
+            ((v * v - next_limit * next_limit) / 2.0 + G_M_S2 * self.fall_m(self.x_m + d)) / d
         } else {
             0.0
         };
@@ -462,8 +455,11 @@ impl RailcarSimulator {
         }
         self.stopping |= for_stop >= 0.9 * b;
         if self.stopping {
-            // A light brake at least (up a climb the grade may do most of the work).
-            return (0, needed.clamp(0.05, 1.3 * b), 4);
+            // A kinematic 0.1 m/s^2 at least (well below the 0.9 b that started it, so that a
+            // brake that took a little too much does not stop the train short), never less
+            // than a light 0.05 m/s^2 up a climb.
+            let floor = (0.1 - G_M_S2 * gradient / 1000.0).max(0.05);
+            return (0, needed.max(floor).min(1.3 * b), 4);
         }
         if needed >= 0.9 * b || v > limit + 1.0 {
             return (0, needed.max(0.3).min(1.3 * b), 4);
