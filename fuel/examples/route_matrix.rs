@@ -9,7 +9,8 @@
 //! `--split tuning|held-out|all` takes the first `--lines` seeds from `--first-seed` on that fall
 //! in the split (`railmon_fuel::Split::of`: even seeds tune, odd are held out). `--monitor FILE`
 //! runs the estimator settings of FILE (a `[monitor]` table, `preset = ...` allowed) instead of
-//! the `railcar` preset. `--write` dumps the line as a scenario file for `railmon analyze fuel
+//! the `railcar` preset; the estimator is told each line's speed-sensor noise
+//! (`speed_noise_m_s`, the kinematic filter) unless `--ignore-sensor-noise`. `--write` dumps the line as a scenario file for `railmon analyze fuel
 //! --scenario`. Scores are computed as `railmon analyze fuel` computes them (`analyze/src/fuel/
 //! evaluate.rs`), on the seconds after both estimators initialised; a refused sample is counted
 //! and skipped by both (as the service does).
@@ -19,8 +20,8 @@ use std::process::ExitCode;
 
 use railmon_fuel::railcar::RAILCAR_REGIMES;
 use railmon_fuel::{
-    generated_line, scenario_toml, FuelMonitor, FuelMonitorConfig, Interval, RailcarSimulator,
-    RegimeName, Split,
+    generated_line, scenario_toml, FuelMonitor, FuelMonitorConfig, Interval, RailcarScenario,
+    RailcarSimulator, RegimeName, Split,
 };
 
 struct Args {
@@ -30,6 +31,7 @@ struct Args {
     seed: Option<u64>,
     write: Option<String>,
     monitor: Option<String>,
+    ignore_sensor_noise: bool,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -40,6 +42,7 @@ fn parse_args() -> Result<Args, String> {
         seed: None,
         write: None,
         monitor: None,
+        ignore_sensor_noise: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -58,6 +61,7 @@ fn parse_args() -> Result<Args, String> {
             "--seed" => args.seed = Some(value()?.parse().map_err(|e| format!("--seed: {e}"))?),
             "--write" => args.write = Some(value()?),
             "--monitor" => args.monitor = Some(value()?),
+            "--ignore-sensor-noise" => args.ignore_sensor_noise = true,
             other => return Err(format!("unknown flag {other}")),
         }
     }
@@ -151,10 +155,23 @@ impl Cover {
     }
 }
 
-fn score_line(seed: u64, config: &FuelMonitorConfig) -> Result<LineScore, String> {
+/// The line of `seed` analysed with `config`, told the line's speed-sensor noise unless
+/// `ignore_sensor_noise` (then `config`'s own `speed_noise_m_s`, 0 in the preset: no filter).
+fn line(seed: u64, config: &FuelMonitorConfig, ignore_sensor_noise: bool) -> RailcarScenario {
     let mut scenario = generated_line(seed);
-    scenario.monitor = config.clone();
-    let mut sim = RailcarSimulator::new(&scenario).map_err(|e| e.to_string())?;
+    scenario.monitor = FuelMonitorConfig {
+        speed_noise_m_s: match ignore_sensor_noise {
+            true => config.speed_noise_m_s,
+            false => scenario.railcar.speed_noise_m_s,
+        },
+        ..config.clone()
+    };
+    scenario
+}
+
+fn score_line(scenario: &RailcarScenario) -> Result<LineScore, String> {
+    let (seed, config) = (scenario.seed, &scenario.monitor);
+    let mut sim = RailcarSimulator::new(scenario).map_err(|e| e.to_string())?;
     let mut mixture = FuelMonitor::new(config).map_err(|e| e.to_string())?;
     let mut single = FuelMonitor::new(&config.single_regression()).map_err(|e| e.to_string())?;
     let labels: Vec<RegimeName> = RAILCAR_REGIMES
@@ -257,8 +274,7 @@ fn main() -> ExitCode {
         }
     };
     if let (Some(seed), Some(path)) = (args.seed, &args.write) {
-        let mut line = generated_line(seed);
-        line.monitor = config;
+        let line = line(seed, &config, args.ignore_sensor_noise);
         let text = match scenario_toml(&line) {
             Ok(t) => t,
             Err(e) => {
@@ -291,7 +307,7 @@ fn main() -> ExitCode {
     );
     let mut scores = Vec::new();
     for seed in seeds {
-        let s = match score_line(seed, &config) {
+        let s = match score_line(&line(seed, &config, args.ignore_sensor_noise)) {
             Ok(s) => s,
             Err(e) => {
                 eprintln!("route_matrix: seed {seed}: {e}");

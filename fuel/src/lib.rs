@@ -23,6 +23,7 @@ pub mod config;
 pub mod counts;
 pub mod error;
 mod kernel;
+pub mod kinematic;
 pub mod mixture;
 pub mod monitor;
 pub mod predictive;

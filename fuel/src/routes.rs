@@ -189,25 +189,39 @@ impl LineEnvelope {
             speed_noise_m_s: round_to(uniform(&mut rng, self.speed_noise_m_s), 0.05),
             ..RailcarParameters::default()
         };
+        // The estimator is told the sensor's noise (its data sheet's, an input like the grade).
+        let monitor = FuelMonitorConfig {
+            speed_noise_m_s: railcar.speed_noise_m_s,
+            ..FuelMonitorConfig::railcar()
+        };
         RailcarScenario {
             seed,
             round_trips: 2,
             initial_dwell_s: 60.0,
             railcar,
             sections,
-            monitor: FuelMonitorConfig::railcar(),
+            monitor,
         }
     }
 }
 
 /// `scenario` as a scenario file (`railmon analyze fuel --scenario FILE` replays it): the
-/// estimator as `preset = "railcar"` when it is that preset, else every setting.
+/// estimator as `preset = "railcar"` (with its `speed_noise_m_s`) when it is that preset but
+/// for the sensor's noise, else every setting.
 pub fn scenario_toml(scenario: &RailcarScenario) -> Result<String, FuelError> {
     let invalid = |e: toml::ser::Error| FuelError::Scenario(e.to_string());
     let mut table = toml::Table::try_from(scenario).map_err(invalid)?;
-    if scenario.monitor == FuelMonitorConfig::railcar() {
+    let noise = scenario.monitor.speed_noise_m_s;
+    let preset = FuelMonitorConfig {
+        speed_noise_m_s: noise,
+        ..FuelMonitorConfig::railcar()
+    };
+    if scenario.monitor == preset {
         let mut monitor = toml::Table::new();
         monitor.insert("preset".into(), "railcar".into());
+        if noise > 0.0 {
+            monitor.insert("speed_noise_m_s".into(), noise.into());
+        }
         table.insert("monitor".into(), monitor.into());
     }
     toml::to_string(&table).map_err(invalid)
