@@ -6,7 +6,8 @@
 //! `update_default` runs `FuelMonitorConfig::default()`, the service's setting (fuel, speed and
 //! derived channels, forecasts and virtual sensor blended with the single regression);
 //! `update_railcar` runs `FuelMonitorConfig::railcar()` (5 components, the pointer weighed by
-//! levels with standstill a regime given) on the shipped railcar route. Prints a table. Run with `cargo bench -p railmon-fuel --bench cpu_time` (one row: `-- update/3`).
+//! levels with standstill a regime given) on the shipped railcar route, `update_railcar_filtered`
+//! the same with the kinematic speed filter (`speed_noise_m_s` = 0.2). Prints a table. Run with `cargo bench -p railmon-fuel --bench cpu_time` (one row: `-- update/3`).
 
 mod common;
 use common::{every_interval, initialised_monitor, railcar_route, sample};
@@ -63,11 +64,21 @@ fn main() {
     });
     let default_row = ("update_default", FuelMonitorConfig::default(), 3, false);
     let railcar_row = ("update_railcar", FuelMonitorConfig::railcar(), 5, false);
-    let rows = paper_rows.chain([default_row, railcar_row]);
+    // The same with the kinematic filter of a 0.2 m/s speed sensor (issue 25 item 4).
+    let filtered_row = (
+        "update_railcar_filtered",
+        FuelMonitorConfig {
+            speed_noise_m_s: 0.2,
+            ..FuelMonitorConfig::railcar()
+        },
+        5,
+        false,
+    );
+    let rows = paper_rows.chain([default_row, railcar_row, filtered_row]);
     for (row, setting, m_c, with_intervals) in rows {
         let steps = match (row, m_c, with_intervals) {
             // The route is 7228 samples long: 150 initial, 500 to warm up, 6000 measured.
-            ("update_railcar", _, _) => 6_000,
+            ("update_railcar" | "update_railcar_filtered", _, _) => 6_000,
             (_, 3, false) => 20_000,
             (_, 3, true) | (_, 10, false) => 4_000,
             _ => 1_000,
@@ -75,7 +86,7 @@ fn main() {
         if !only.is_empty() && !only.contains(&format!("{row}/{m_c}")) {
             continue;
         }
-        let (cpu_us, wall_us) = if row == "update_railcar" {
+        let (cpu_us, wall_us) = if row.starts_with("update_railcar") {
             let route = railcar_route();
             measure(setting, m_c, with_intervals, 500, steps, |t| route[t])
         } else {

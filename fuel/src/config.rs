@@ -199,6 +199,33 @@ impl ChannelRanges {
             })
         }
     }
+
+    /// The acceleration `implied` by a reading against the filtered speed `previous = (t_p,
+    /// v_hat_p)` (`crate::kinematic`), checked against `acceleration_m_s2` widened by
+    /// `allowance` on both sides (the noise's share), with the same error as
+    /// [`ChannelRanges::check_acceleration`].
+    pub fn check_implied_acceleration(
+        &self,
+        previous: (f64, f64),
+        time_s: f64,
+        speed_m_s: f64,
+        implied: f64,
+        allowance: f64,
+    ) -> Result<(), FuelError> {
+        let [min, max] = self.acceleration_m_s2;
+        match (min - allowance..=max + allowance).contains(&implied) {
+            true => Ok(()),
+            false => Err(FuelError::AccelerationOutOfRange {
+                speed_m_s,
+                previous_speed_m_s: previous.1,
+                step_s: time_s - previous.0,
+                acceleration_m_s2: implied,
+                min,
+                max,
+                time_s,
+            }),
+        }
+    }
 }
 
 /// How far a time step may be from a whole number of sample periods, as a share of a period
@@ -273,6 +300,15 @@ pub struct FuelMonitorConfig {
     /// Component 0 is named `idle` (`crate::regime`). Needs `pointer_levels` with a channel
     /// measured at standstill, `speed` and at least 2 components. On in the railcar preset.
     pub pointer_standing: bool,
+    /// Standard deviation of the speed sensor's noise while moving, m/s (a tachometer reads 0
+    /// standing). Above 0 the speed feeds a kinematic Kalman filter of speed and acceleration
+    /// (`crate::kinematic`, white jerk): the derived channels take its speed and acceleration
+    /// instead of the difference of two readings, whose noise is `sqrt(2)` times the sensor's
+    /// per second, and the acceleration check widens its bounds by 4.5 standard deviations of
+    /// the reading against the filtered speed, so that noise alone is not refused. 0 (the
+    /// default): no filter, the difference as before (a measured speed with no noise worth
+    /// filtering, as on the Camry files).
+    pub speed_noise_m_s: f64,
     /// Blend each h-step fuel forecast of the mixture with that of a single regression run
     /// alongside (same settings, one component), weighted per horizon by the convex
     /// combination with the smallest squared error so far (errors of forecasts whose target has
@@ -367,6 +403,7 @@ impl Default for FuelMonitorConfig {
             ],
             pointer_levels: Vec::new(),
             pointer_level_min_variance: 1e-6,
+            speed_noise_m_s: 0.0,
             pointer_standing: false,
             forecast_blend: true,
             blend_forgetting: 0.999,
@@ -586,6 +623,13 @@ impl FuelMonitorConfig {
 
     /// Checks every field; the error names the first bad one.
     pub fn validate(&self) -> Result<(), FuelError> {
+        if !(self.speed_noise_m_s.is_finite() && (0.0..=5.0).contains(&self.speed_noise_m_s)) {
+            return Err(FuelError::invalid(
+                "speed_noise_m_s",
+                self.speed_noise_m_s,
+                "must be in [0, 5] m/s",
+            ));
+        }
         if !self.channels.contains(&Channel::Fuel) {
             return Err(FuelError::invalid(
                 "channels",

@@ -23,12 +23,14 @@ pub mod config;
 pub mod counts;
 pub mod error;
 mod kernel;
+pub mod kinematic;
 pub mod mixture;
 pub mod monitor;
 pub mod predictive;
 pub mod railcar;
 pub mod regime;
 pub mod regression;
+pub mod routes;
 pub mod sample;
 pub mod simulator;
 
@@ -41,6 +43,7 @@ pub use predictive::{central_interval, Interval, StudentT};
 pub use railcar::{RailcarParameters, RailcarScenario, RailcarSimulator, RailcarTruth};
 pub use regime::{ComponentName, OperatingPoint, PowerTier, RegimeName, RegimeNaming};
 pub use regression::RegressionStats;
+pub use routes::{generated_line, scenario_toml, LineEnvelope, Split};
 pub use sample::{bin_index, Channel, DerivedChannel, VehicleSample};
 pub use simulator::{
     DriveCycle, DriverStyle, Segment, VehicleParameters, VehicleScenario, VehicleSimulator,

@@ -15,11 +15,17 @@ use railmon_filter::logspace::normalize_log_weights;
 use serde::Serialize;
 
 use crate::config::{FuelMonitorConfig, InitialPartition};
+use crate::kinematic::{KinematicFilter, KinematicState};
 use crate::mixture::{argmax, Mixture, MixtureInput, MixtureSpec};
 use crate::predictive::{central_interval, Interval, StudentT};
 use crate::regime::{ComponentName, OperatingPoint};
 use crate::sample::{bin_index, Channel, DerivedChannel, VehicleSample};
 use crate::FuelError;
+
+/// With a noisy speed (`speed_noise_m_s` > 0) the acceleration check's bounds widen by this
+/// many standard deviations of the reading's acceleration against the filtered speed: a
+/// legitimate sample is refused by noise alone about once in 300 000 (two-sided normal tail).
+const NOISE_ALLOWANCE_SD: f64 = 4.5;
 
 /// Probability mass of the predictive intervals the monitor reports.
 pub const INTERVAL_MASS: f64 = 0.9;
@@ -167,6 +173,8 @@ struct Prepared {
     /// Discretised `v_t - v_{t-1}` (0 when acceleration bins are off or on the first sample).
     acceleration_level: usize,
     speed_m_s: Option<f64>,
+    /// The kinematic filter's state after this sample (`speed_noise_m_s` > 0 only).
+    kinematic: Option<KinematicState>,
 }
 
 /// Mean and spread of each channel from the initial samples.
@@ -237,6 +245,8 @@ pub struct FuelMonitor {
     spec: MixtureSpec,
     previous_time_s: Option<f64>,
     previous_speed_m_s: Option<f64>,
+    /// Speed and acceleration filtered up to the last accepted sample (`speed_noise_m_s` > 0).
+    kinematic: Option<KinematicState>,
     initial: Vec<Prepared>,
     standardiser: Option<Standardiser>,
     past: Past,
@@ -324,6 +334,7 @@ impl FuelMonitor {
             spec,
             previous_time_s: None,
             previous_speed_m_s: None,
+            kinematic: None,
             initial: Vec::new(),
             standardiser: None,
             past: Past::default(),
@@ -405,17 +416,45 @@ impl FuelMonitor {
             true => Some(sample.checked(Channel::Speed, ranges)?),
             false => None,
         };
-        let acceleration_m_s2 = match speed_m_s {
-            Some(v) => ranges.check_acceleration(
-                self.previous_time_s.zip(self.previous_speed_m_s),
-                sample.time_s,
-                v,
-            )?,
-            None => 0.0,
-        };
+        // Speed and acceleration for the derived channels: the reading and its difference, or
+        // with a noisy sensor the kinematic filter's.
+        let (kinematic, acceleration_m_s2, derived_speed_m_s) =
+            match (speed_m_s, self.config.speed_noise_m_s > 0.0) {
+                (Some(v), true) => {
+                    let filter = KinematicFilter {
+                        speed_noise_m_s: self.config.speed_noise_m_s,
+                    };
+                    let next = match &self.kinematic {
+                        None => filter.start(sample.time_s, v),
+                        Some(state) => {
+                            let (a, sd) = filter.implied_acceleration(state, sample.time_s, v);
+                            ranges.check_implied_acceleration(
+                                (state.time_s, state.speed_m_s()),
+                                sample.time_s,
+                                v,
+                                a,
+                                NOISE_ALLOWANCE_SD * sd,
+                            )?;
+                            filter.step(state, sample.time_s, v)?
+                        }
+                    };
+                    let (a, v) = (next.acceleration_m_s2(), next.speed_m_s());
+                    (Some(next), a, v)
+                }
+                (Some(v), false) => {
+                    let a = ranges.check_acceleration(
+                        self.previous_time_s.zip(self.previous_speed_m_s),
+                        sample.time_s,
+                        v,
+                    )?;
+                    (None, a, v)
+                }
+                (None, _) => (None, 0.0, 0.0),
+            };
         let acceleration_level = match (needs_speed, speed_m_s) {
             (true, Some(v)) => {
                 let a = acceleration_m_s2;
+                let v_derived = derived_speed_m_s;
                 let gradient = if self.derived.contains(&DerivedChannel::SpecificForce) {
                     crate::sample::effective_gradient_permille(
                         v,
@@ -425,7 +464,7 @@ impl FuelMonitor {
                 } else {
                     0.0
                 };
-                y.extend(self.derived.iter().map(|d| d.value(v, a, gradient)));
+                y.extend(self.derived.iter().map(|d| d.value(v_derived, a, gradient)));
                 bin_index(&self.config.acceleration_bins_m_s2, a)
             }
             _ => 0,
@@ -433,6 +472,7 @@ impl FuelMonitor {
         Ok(Prepared {
             acceleration_level,
             speed_m_s,
+            kinematic,
             time_s: sample.time_s,
             fuel_level: bin_index(&self.config.fuel_bins_cm3_s, y[0]),
             y,
@@ -461,6 +501,7 @@ impl FuelMonitor {
         };
         self.previous_time_s = Some(p.time_s);
         self.previous_speed_m_s = p.speed_m_s;
+        self.kinematic = p.kinematic.clone();
         let e = &mut self.estimate;
         e.time_s = p.time_s;
         e.fuel_cm3_s = p.y[0];

@@ -33,6 +33,9 @@ use crate::{FuelError, FuelMonitorConfig, VehicleSample};
 const G_M_S2: f64 = 9.81;
 const DIESEL_DENSITY_G_CM3: f64 = 0.835;
 const SUBSTEPS: usize = 10;
+/// The driver stops this far short of the platform's end, m (a train stopping within 25 m of
+/// it is at the platform).
+const STOP_MARGIN_M: f64 = 5.0;
 /// The simulator stops after this many seconds whatever happens (a week).
 const MAX_STEPS: u64 = 604_800;
 /// The highest throttle notch (0 idle .. 8 full power).
@@ -280,6 +283,8 @@ pub struct RailcarTruth {
     pub fuel_true_cm3_s: f64,
     pub position_m: f64,
     pub engine_power_kw: f64,
+    /// The true speed (the sample's is the sensor's), m/s.
+    pub speed_m_s: f64,
 }
 
 /// One leg: from a station to the next, as sections with absolute end positions.
@@ -308,6 +313,10 @@ pub struct RailcarSimulator {
     t: u64,
     rng: ChaCha8Rng,
     done: bool,
+    /// The driver has started braking for the station and keeps braking until the train
+    /// stands (releasing when the brake had taken a little too much made the train coast,
+    /// then brake again harder, and reach the platform at several m/s).
+    stopping: bool,
 }
 
 impl RailcarSimulator {
@@ -359,6 +368,7 @@ impl RailcarSimulator {
             t: 0,
             rng: ChaCha8Rng::seed_from_u64(scenario.seed),
             done: false,
+            stopping: false,
         })
     }
 
@@ -400,23 +410,60 @@ impl RailcarSimulator {
         aux + f64::from(notch) / f64::from(MAX_NOTCH) * (p.engines as f64 * p.rated_power_kw - aux)
     }
 
+    /// How far the track falls from the train to `until_m` (a position in the current leg),
+    /// m: negative where it climbs.
+    fn fall_m(&self, until_m: f64) -> f64 {
+        let leg = &self.legs[self.leg];
+        let mut start: f64 = 0.0;
+        let mut fall = 0.0;
+        for &(end, gradient, _) in &leg.sections {
+            let overlap = end.min(until_m) - start.max(self.x_m);
+            if overlap > 0.0 {
+                fall -= gradient / 1000.0 * overlap;
+            }
+            start = end;
+        }
+        fall
+    }
+
     /// The driver's decision for the next second: (target notch, brake deceleration, regime).
-    fn drive(&self) -> (i32, f64, usize) {
+    fn drive(&mut self) -> (i32, f64, usize) {
         let v = self.v_m_s;
         let leg = &self.legs[self.leg];
         let to_stop = leg.length_m - self.x_m;
         let (gradient, limit, to_boundary, next_limit) = self.track();
         let b = self.p.service_brake_m_s2;
         // Brake for the station: the deceleration that stops exactly at the platform, once it
-        // reaches 90 % of the service brake.
-        let for_stop = v * v / (2.0 * to_stop.max(0.5));
+        // reaches 90 % of the service brake. Grade-corrected by energy: a constant brake `B`
+        // over the distance `d` to the stop takes the kinetic energy and what the track falls
+        // by (`h`) on the way, `B d = v^2 / 2 + g h` (resistance neglected: it helps). Without
+        // the `g h` a train at the foot of a 4 km descent at 20 per mille (issue 25) braked too
+        // late and reached the platform at 6 m/s.
+        // The driver aims at a stop mark `STOP_MARGIN_M` short of the platform's end: aiming at
+        // the end itself, the last second's brake (decided once a second) often arrived with
+        // 1-2 m/s left, which `step` then zeroed in one sample.
+        let stop_at = (to_stop - STOP_MARGIN_M).max(0.5);
+        let for_stop = (v * v / 2.0 + G_M_S2 * self.fall_m(self.x_m + stop_at)) / stop_at;
         // Brake for a lower limit ahead.
         let for_limit = if next_limit > 0.0 && v > next_limit {
-            (v * v - next_limit * next_limit) / (2.0 * to_boundary.max(0.5))
+            let d = to_boundary.max(0.5);
+            ((v * v - next_limit * next_limit) / 2.0 + G_M_S2 * self.fall_m(self.x_m + d)) / d
         } else {
             0.0
         };
         let needed = for_stop.max(for_limit);
+        // Braked to a stand short of the platform (beyond where `step` accepts it): release.
+        if self.stopping && v < 0.05 {
+            self.stopping = false;
+        }
+        self.stopping |= for_stop >= 0.9 * b;
+        if self.stopping {
+            // A kinematic 0.1 m/s^2 at least (well below the 0.9 b that started it, so that a
+            // brake that took a little too much does not stop the train short), never less
+            // than a light 0.05 m/s^2 up a climb.
+            let floor = (0.1 - G_M_S2 * gradient / 1000.0).max(0.05);
+            return (0, needed.max(floor).min(1.3 * b), 4);
+        }
         if needed >= 0.9 * b || v > limit + 1.0 {
             return (0, needed.max(0.3).min(1.3 * b), 4);
         }
@@ -500,6 +547,7 @@ impl RailcarSimulator {
             // Dwell times vary +-20 %, and the load with the passengers (+-5 % of the mass).
             self.dwell_left_s = (leg.dwell_s * self.rng.random_range(0.8..1.2)).round();
             self.mass_factor = self.rng.random_range(0.95..1.05);
+            self.stopping = false;
             self.leg += 1;
             self.x_m = 0.0;
             if self.leg == self.legs.len() {
@@ -530,6 +578,7 @@ impl RailcarSimulator {
             fuel_true_cm3_s: fuel_true,
             position_m: self.x_m,
             engine_power_kw: self.engine_kw,
+            speed_m_s: self.v_m_s,
         };
         Some((sample, truth))
     }

@@ -100,7 +100,7 @@ const STREAMS: [Stream; 3] = [
         ],
         steps: 200,
         state_magic: b"railmon-vehicle\0",
-        format: 11,
+        format: 12,
         events: "/api/v1/vehicle/events",
     },
 ];

@@ -322,7 +322,9 @@ const SAVED_VEHICLE: StateFormat = StateFormat {
     // 11: the rejected experiments left (issue 27): the config lost `measured_proximity`,
     // `pointer_level_regressors` and `pointer_level_resolutions`, the mixture's spec
     // `measured_channels`, `level_regressors` and `level_scales`.
-    version: 11,
+    // 12: the config gained `speed_noise_m_s`, the monitor and its kept samples the kinematic
+    // filter's state (issue 25 item 4).
+    version: 12,
     what: "vehicle state",
 };
 
