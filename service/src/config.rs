@@ -400,6 +400,7 @@ pub const SITE_SETTINGS: &[&str] = &[
     "vehicle.estimator.categorical",
     "vehicle.estimator.ranges",
     "vehicle.estimator.sample_period_s",
+    "vehicle.estimator.speed_noise_m_s",
     "vehicle.estimator.regime_confirm_samples",
 ];
 
