@@ -74,7 +74,7 @@ fn parse_args() -> Result<Args, String> {
 fn read_monitor(path: &str) -> Result<FuelMonitorConfig, String> {
     #[derive(serde::Deserialize)]
     struct File {
-        #[serde(deserialize_with = "railmon_fuel::config::deserialize_with_preset")]
+        #[serde(deserialize_with = "railmon_settings::deserialize_with_preset")]
         monitor: FuelMonitorConfig,
     }
     let text = std::fs::read_to_string(path).map_err(|e| format!("{path}: {e}"))?;
