@@ -159,7 +159,7 @@ fn scenario_events_are_the_same_on_every_path() {
 /// 3) on its route: the same regime changes live, from the scenario and from the recording.
 #[test]
 fn railcar_events_are_the_same_on_every_path() {
-    same_events_on_every_path("config/scenarios/fuel-railcar.toml", "railcar", 7228);
+    same_events_on_every_path("config/scenarios/fuel-railcar.toml", "railcar", 7311);
 }
 
 /// The service fed `scenario` by `sensors-replay` (told `preset`, the scenario's own), `railmon
