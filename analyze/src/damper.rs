@@ -377,7 +377,7 @@ fn run_monitor(
 ) -> Result<MonitorRun, DamperAnalysisError> {
     let mut monitor =
         DamperMonitor::for_bogie(config, bogie, None).map_err(estimator_error(name))?;
-    let mut alarms = DamperAlarm::pair(config, [false; 2]);
+    let mut alarms = DamperAlarm::pair(&config.alarm, &config.filter_model(), [false; 2]);
     let mut status = BogieStatusWatch::new();
     let mut events = vec![];
     let bar = progress_bar(max_steps.unwrap_or(0), "damper");

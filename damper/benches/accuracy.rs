@@ -50,7 +50,7 @@ fn log_likelihood(config: &DamperMonitorConfig, v: &Variant, d: &Dampers, ys: &[
         min_ratio: 0.1 * 1.037,
         max_ratio: 3.0 * 1.037,
     };
-    let mut rbpf = Rbpf::new(&c).expect("rbpf");
+    let mut rbpf = Rbpf::new(&c.filter_model(), &c.rbpf, &c.speed).expect("rbpf");
     for y in ys {
         rbpf.step(y).expect("step");
     }
@@ -171,7 +171,7 @@ fn main() {
         let mut c = config;
         c.rbpf.particles = 100;
         c.rbpf.propagation = p;
-        let mut rbpf = Rbpf::new(&c).expect("rbpf");
+        let mut rbpf = Rbpf::new(&c.filter_model(), &c.rbpf, &c.speed).expect("rbpf");
         let start = Instant::now();
         for y in &ys {
             rbpf.step(y).expect("step");

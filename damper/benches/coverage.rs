@@ -286,13 +286,14 @@ fn run_job(job: &Job, shared: &Shared) -> SeedResult {
             c.rbpf.seed = filter_seed;
             (
                 *name,
-                Rbpf::with_gain_table(&c, Some(table.clone())).expect("rbpf"),
+                Rbpf::with_gain_table(&c.filter_model(), &c.rbpf, &c.speed, Some(table.clone()))
+                    .expect("rbpf"),
             )
         })
         .collect();
-    let mut ekf = shared
-        .ekf
-        .then(|| AugmentedEkf::new(&shared.config).expect("ekf"));
+    let mut ekf = shared.ekf.then(|| {
+        AugmentedEkf::new(&shared.config.filter_model(), &shared.config.ekf).expect("ekf")
+    });
     let mut stencil_runs: Vec<StencilRun> =
         shared.stencils.iter().map(|(_, s)| s.start()).collect();
     let checkpoints: Vec<(usize, usize)> = CHECKPOINTS_S
@@ -518,7 +519,7 @@ fn main() {
             .unwrap_or_else(|| panic!("unknown variant {name:?}"));
         let mut c = config;
         apply(&mut c.rbpf);
-        let table = Rbpf::gain_table(&c).expect("gain table");
+        let table = Rbpf::gain_table(&c.filter_model(), &c.rbpf, &c.speed).expect("gain table");
         println!("variant {vname}: {what}");
         variants.push((*vname, c, table));
     }

@@ -41,7 +41,7 @@ fn warmed_up(config: &DamperMonitorConfig, ys: &[Vector5], n: usize, p: Propagat
     let mut c = *config;
     c.rbpf.particles = n;
     c.rbpf.propagation = p;
-    let mut rbpf = Rbpf::new(&c).expect("rbpf");
+    let mut rbpf = Rbpf::new(&c.filter_model(), &c.rbpf, &c.speed).expect("rbpf");
     let warm = if p == Propagation::Exact {
         200
     } else {
@@ -89,7 +89,7 @@ fn bench_rbpf(c: &mut Criterion) {
         });
     }
     group.finish();
-    let mut ekf = AugmentedEkf::new(&config).expect("ekf");
+    let mut ekf = AugmentedEkf::new(&config.filter_model(), &config.ekf).expect("ekf");
     let mut k = 0;
     c.bench_function("ekf_step", |b| {
         b.iter(|| {

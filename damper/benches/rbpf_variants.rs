@@ -110,7 +110,8 @@ fn main() {
     let mut fixed = with_noise;
     fixed.rbpf.noise_scale.enabled = false;
     let start = Instant::now();
-    let table = Rbpf::gain_table(&config).expect("table");
+    let table =
+        Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed).expect("table");
     let first_s = start.elapsed().as_secs_f64();
     // Solve the nodes the ramp visits now: their first use is not what is timed.
     let (lo, hi) = (table.node_of(28.0), table.node_of(34.0));
@@ -129,7 +130,10 @@ fn main() {
         per_node_s * table.n_nodes() as f64
     );
     let rbpf = |c: &DamperMonitorConfig, scheduled| Runner::Rbpf {
-        filter: Box::new(Rbpf::with_gain_table(c, Some(table.clone())).expect("rbpf")),
+        filter: Box::new(
+            Rbpf::with_gain_table(&c.filter_model(), &c.rbpf, &c.speed, Some(table.clone()))
+                .expect("rbpf"),
+        ),
         scheduled,
     };
     let mut variants: Vec<(&str, Runner, &[BogieSample])> = vec![

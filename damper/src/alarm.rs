@@ -4,9 +4,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::DamperMonitorConfig;
+use crate::estimate::DamperEstimate;
 use crate::faults::DamperId;
-use crate::monitor::DamperEstimate;
+use crate::filter_model::FilterModel;
 use crate::DamperError;
 
 /// Thresholds of the health flag of each damper.
@@ -112,14 +112,20 @@ pub struct DamperAlarm {
 
 impl DamperAlarm {
     /// A healthy flag for `damper` (`degraded` = the flag carried over from before, e.g. an
-    /// alarm active when the service stopped: it stays until an estimate clears it).
-    pub fn new(damper: DamperId, config: &DamperMonitorConfig, degraded: bool) -> Self {
-        let nominal = config.nominal;
+    /// alarm active when the service stopped: it stays until an estimate clears it), judging
+    /// the estimates of a monitor on `filter_model` (its nominal dampers and sample period).
+    pub fn new(
+        damper: DamperId,
+        config: &DamperAlarmConfig,
+        filter_model: &FilterModel,
+        degraded: bool,
+    ) -> Self {
+        let nominal = filter_model.nominal;
         DamperAlarm {
             damper,
-            config: config.alarm,
+            config: *config,
             nominal_ns_per_m: [nominal.csy_ns_per_m, nominal.csay_ns_per_m][damper.index()],
-            dt_s: config.dt_s,
+            dt_s: filter_model.dt_s,
             degraded,
             beyond_s: 0.0,
             judged_s: 0.0,
@@ -127,8 +133,12 @@ impl DamperAlarm {
     }
 
     /// The flags of both dampers of a bogie, in [`DamperId::ALL`] order.
-    pub fn pair(config: &DamperMonitorConfig, degraded: [bool; 2]) -> [Self; 2] {
-        DamperId::ALL.map(|d| DamperAlarm::new(d, config, degraded[d.index()]))
+    pub fn pair(
+        config: &DamperAlarmConfig,
+        filter_model: &FilterModel,
+        degraded: [bool; 2],
+    ) -> [Self; 2] {
+        DamperId::ALL.map(|d| DamperAlarm::new(d, config, filter_model, degraded[d.index()]))
     }
 
     /// A new source (a restart of the replay, a new run): its monitor starts from the prior,
@@ -203,6 +213,8 @@ mod tests {
     use super::*;
     use crate::params::Dampers;
     use crate::rbpf::DamperPosterior;
+    use crate::speed::PauseReason;
+    use crate::DamperMonitorConfig;
 
     fn estimate(time_s: f64, csay: [f64; 3]) -> DamperEstimate {
         let nominal = Dampers::NOMINAL;
@@ -244,9 +256,9 @@ mod tests {
     fn no_flag_changes_during_the_warm_up() {
         let mut c = config();
         c.alarm.warmup_s = 2.0;
-        let mut csay = DamperAlarm::new(DamperId::Csay, &c, false);
+        let mut csay = DamperAlarm::new(DamperId::Csay, &c.alarm, &c.filter_model(), false);
         let paused = DamperEstimate {
-            paused: Some(crate::config::PauseReason::LowSpeed),
+            paused: Some(PauseReason::LowSpeed),
             ..estimate(0.0, [0.4, 0.35, 0.45])
         };
         for _ in 0..100 {
@@ -271,7 +283,8 @@ mod tests {
 
     #[test]
     fn degraded_after_the_whole_interval_stayed_below_for_the_hold_time() {
-        let [mut csy, mut csay] = DamperAlarm::pair(&config(), [false; 2]);
+        let c = config();
+        let [mut csy, mut csay] = DamperAlarm::pair(&c.alarm, &c.filter_model(), [false; 2]);
         // Mean below 0.7 but the interval reaching above it: never.
         assert!(feed(&mut csay, 0.0, 50, [0.6, 0.4, 0.75]).is_empty());
         // Below for 9 steps, then a step above: the hold starts again.
@@ -297,7 +310,8 @@ mod tests {
 
     #[test]
     fn model_mismatch_holds_the_judgement_and_a_restart_keeps_the_flag() {
-        let mut csay = DamperAlarm::new(DamperId::Csay, &config(), false);
+        let c = config();
+        let mut csay = DamperAlarm::new(DamperId::Csay, &c.alarm, &c.filter_model(), false);
         assert!(feed(&mut csay, 0.0, 5, [0.4, 0.35, 0.45]).is_empty());
         let mismatch = DamperEstimate {
             model_mismatch: true,
@@ -319,10 +333,11 @@ mod tests {
     /// Paused (low speed): the judgement holds, as with a mismatch.
     #[test]
     fn a_paused_filter_holds_the_judgement() {
-        let mut csay = DamperAlarm::new(DamperId::Csay, &config(), false);
+        let c = config();
+        let mut csay = DamperAlarm::new(DamperId::Csay, &c.alarm, &c.filter_model(), false);
         assert!(feed(&mut csay, 0.0, 9, [0.4, 0.35, 0.45]).is_empty());
         let paused = DamperEstimate {
-            paused: Some(crate::config::PauseReason::LowSpeed),
+            paused: Some(PauseReason::LowSpeed),
             speed_m_s: 2.0,
             ..estimate(0.9, [0.4, 0.35, 0.45])
         };

@@ -7,17 +7,55 @@
 //! only keeps the covariance from spanning 1e-9 (states) to 1e10 ((N s/m)^2) in one matrix.
 
 use nalgebra::SMatrix;
+use serde::{Deserialize, Serialize};
 
-use crate::config::DamperMonitorConfig;
+use crate::filter_model::FilterModel;
 use crate::kalman::initial_covariance;
 use crate::model::{BogieModel, Matrix17, Matrix5, Matrix5x17, Vector5, N_OUTPUTS, N_STATES};
-use crate::params::Dampers;
+use crate::params::{non_negative, positive, Dampers};
 use crate::DamperError;
 use railmon_filter::kalman::update_joseph;
 
 const N_AUG: usize = N_STATES + 2;
 type Matrix19 = SMatrix<f64, N_AUG, N_AUG>;
 type Vector19 = SMatrix<f64, N_AUG, 1>;
+
+/// The augmented-state EKF of section 3 (baseline).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct EkfConfig {
+    /// Run the augmented EKF beside the RBPF (its estimate is published for comparison).
+    pub enabled: bool,
+    /// Initial parameter estimate as a ratio of nominal.
+    pub initial_ratio: f64,
+    /// Standard deviation of the initial estimate (ratio of nominal).
+    pub initial_ratio_std: f64,
+    /// Random walk of the parameters (`Q_n`, eq. 17), standard deviation per sqrt(s) in
+    /// ratio units.
+    pub ratio_random_walk_per_sqrt_s: f64,
+}
+
+impl Default for EkfConfig {
+    fn default() -> Self {
+        EkfConfig {
+            enabled: true,
+            initial_ratio: 1.0,
+            initial_ratio_std: 0.5,
+            ratio_random_walk_per_sqrt_s: 0.01,
+        }
+    }
+}
+
+impl EkfConfig {
+    pub fn validate(&self) -> Result<(), DamperError> {
+        positive("ekf.initial_ratio", self.initial_ratio)?;
+        positive("ekf.initial_ratio_std", self.initial_ratio_std)?;
+        non_negative(
+            "ekf.ratio_random_walk_per_sqrt_s",
+            self.ratio_random_walk_per_sqrt_s,
+        )
+    }
+}
 
 /// What the EKF says after a step.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -47,35 +85,37 @@ pub struct AugmentedEkf {
 }
 
 impl AugmentedEkf {
-    pub fn new(config: &DamperMonitorConfig) -> Result<Self, DamperError> {
+    /// The baseline on the filters' model `filter_model` with its settings `config`.
+    pub fn new(filter_model: &FilterModel, config: &EkfConfig) -> Result<Self, DamperError> {
+        filter_model.validate()?;
         config.validate()?;
-        let model = BogieModel::new(&config.vehicle, config.drift_leak_per_s)?;
+        let model = filter_model.bogie_model()?;
         let h17: Matrix5x17 = model.h_matrix();
         let mut h = SMatrix::<f64, N_OUTPUTS, N_AUG>::zeros();
         h.fixed_view_mut::<N_OUTPUTS, N_STATES>(0, 0)
             .copy_from(&h17);
-        let dt = config.dt_s;
+        let dt = filter_model.dt_s;
         // Gamma ~ G T (section 3), Q_n: random walk of the ratios.
         let gamma = model.g_matrix() * dt;
-        let noise = config.noise();
+        let noise = filter_model.noise();
         let mut q = Matrix19::zeros();
         q.fixed_view_mut::<N_STATES, N_STATES>(0, 0)
             .copy_from(&noise.process(&gamma));
-        let rw = config.ekf.ratio_random_walk_per_sqrt_s.powi(2) * dt;
+        let rw = config.ratio_random_walk_per_sqrt_s.powi(2) * dt;
         q[(N_STATES, N_STATES)] = rw;
         q[(N_STATES + 1, N_STATES + 1)] = rw;
         let mut xi = Vector19::zeros();
-        xi[N_STATES] = config.ekf.initial_ratio;
-        xi[N_STATES + 1] = config.ekf.initial_ratio;
+        xi[N_STATES] = config.initial_ratio;
+        xi[N_STATES + 1] = config.initial_ratio;
         let mut p = Matrix19::zeros();
         p.fixed_view_mut::<N_STATES, N_STATES>(0, 0)
             .copy_from(&initial_covariance());
-        let v0 = config.ekf.initial_ratio_std.powi(2);
+        let v0 = config.initial_ratio_std.powi(2);
         p[(N_STATES, N_STATES)] = v0;
         p[(N_STATES + 1, N_STATES + 1)] = v0;
         Ok(AugmentedEkf {
             model,
-            nominal: config.nominal,
+            nominal: filter_model.nominal,
             dt_s: dt,
             h,
             q,
@@ -140,9 +180,13 @@ impl AugmentedEkf {
         }
     }
 
-    /// The EKF of `config` where `state` left it.
-    pub fn resume(config: &DamperMonitorConfig, state: EkfState) -> Result<Self, DamperError> {
-        let mut ekf = Self::new(config)?;
+    /// The EKF of `filter_model` and `config` where `state` left it.
+    pub fn resume(
+        filter_model: &FilterModel,
+        config: &EkfConfig,
+        state: EkfState,
+    ) -> Result<Self, DamperError> {
+        let mut ekf = Self::new(filter_model, config)?;
         ekf.xi = state.xi;
         ekf.p = state.p;
         Ok(ekf)

@@ -9,12 +9,62 @@
 
 use std::sync::{Arc, Mutex, TryLockError};
 
-use crate::config::{GainGridConfig, SpeedConfig};
+use serde::{Deserialize, Serialize};
+
 use crate::expm::discretize;
+use crate::filter_model::FilterModel;
 use crate::kalman::{steady_state, NoiseCovariances};
 use crate::model::{BogieModel, N_OUTPUTS, N_STATES};
-use crate::params::Dampers;
+use crate::params::{positive, Dampers};
+use crate::speed::SpeedConfig;
 use crate::DamperError;
+
+/// Grid of steady-state Riccati solutions over `(ln C_sy, ln C_say)`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct GainGridConfig {
+    /// Nodes per axis.
+    pub points_per_axis: usize,
+    /// Lower end of the grid as a ratio of the nominal coefficients (both axes); particles
+    /// outside use the edge gain (their own `Phi` stays exact).
+    pub min_ratio: f64,
+    /// Upper end of the grid as a ratio of the nominal coefficients (both axes).
+    pub max_ratio: f64,
+}
+
+impl Default for GainGridConfig {
+    fn default() -> Self {
+        GainGridConfig {
+            points_per_axis: 33,
+            min_ratio: 0.1,
+            max_ratio: 3.0,
+        }
+    }
+}
+
+impl GainGridConfig {
+    /// Errors name the field by its place in the settings (`rbpf.gain_grid`), where the
+    /// grid is configured.
+    pub fn validate(&self) -> Result<(), DamperError> {
+        if self.points_per_axis < 2 {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.gain_grid.points_per_axis",
+                value: self.points_per_axis as f64,
+                reason: "must be at least 2",
+            });
+        }
+        positive("rbpf.gain_grid.min_ratio", self.min_ratio)?;
+        positive("rbpf.gain_grid.max_ratio", self.max_ratio)?;
+        if self.max_ratio <= self.min_ratio {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.gain_grid.max_ratio",
+                value: self.max_ratio,
+                reason: "must exceed min_ratio",
+            });
+        }
+        Ok(())
+    }
+}
 
 /// Values stored per node: gain (17 x 5, row-major), `S^-1` (5 x 5, row-major), `ln det S`,
 /// `1 / S_ii` (5: the normalisers of the noise-scale estimate, `crate::noise_scale`).
@@ -160,6 +210,23 @@ pub struct GainTable {
 }
 
 impl GainTable {
+    /// The table of the filters' model `model` (unvalidated: the caller checks `model`,
+    /// `grid` and `speed`).
+    pub fn for_model(
+        model: &FilterModel,
+        grid: &GainGridConfig,
+        speed: &SpeedConfig,
+    ) -> Result<Arc<Self>, DamperError> {
+        GainTable::build(
+            &model.bogie_model()?,
+            &model.noise(),
+            &model.nominal,
+            grid,
+            speed,
+            model.dt_s,
+        )
+    }
+
     /// The table of `model`'s vehicle; builds the grid of the model's (configured) speed now,
     /// the others when first asked for.
     pub fn build(

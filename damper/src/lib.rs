@@ -15,8 +15,10 @@ pub mod config;
 pub mod consistency;
 pub mod ekf;
 pub mod error;
+pub mod estimate;
 pub mod expm;
 pub mod faults;
+pub mod filter_model;
 pub mod gain_table;
 pub mod kalman;
 pub mod model;
@@ -27,29 +29,31 @@ pub mod rbpf;
 pub mod sample;
 pub mod scenario;
 pub mod simulator;
+pub mod speed;
 pub mod speed_profile;
 pub mod status;
 pub mod track;
 
 pub use alarm::{DamperAlarm, DamperAlarmConfig, DamperEvent, DamperEventKind};
-pub use config::{
-    DamperMonitorConfig, EkfConfig, GainGridConfig, KernelSchedule, PauseReason, Propagation,
-    RbpfConfig, SpeedConfig,
-};
+pub use config::DamperMonitorConfig;
 pub use consistency::{ConsistencyCheck, ConsistencyConfig};
-pub use ekf::{AugmentedEkf, EkfEstimate};
+pub use ekf::{AugmentedEkf, EkfConfig, EkfEstimate};
 pub use error::DamperError;
+pub use estimate::DamperEstimate;
 pub use faults::{DamperFault, DamperId, FaultKind};
-pub use monitor::{DamperEstimate, DamperMonitor, DamperMonitorState};
+pub use filter_model::FilterModel;
+pub use gain_table::GainGridConfig;
+pub use monitor::{DamperMonitor, DamperMonitorState};
 pub use noise_scale::{NoiseScale, NoiseScaleConfig};
 pub use params::{BogieParams, Dampers, DEFAULT_SPEED_M_S};
 pub use rbpf::{
-    slowest_time_constant_s, DamperPosterior, JumpSearchConfig, Rbpf, RbpfEstimate, RbpfState,
-    N_SENTINELS,
+    slowest_time_constant_s, DamperPosterior, JumpSearchConfig, KernelSchedule, Propagation, Rbpf,
+    RbpfConfig, RbpfEstimate, RbpfState, N_SENTINELS,
 };
 pub use sample::{BogieSample, SensorNoise};
 pub use scenario::DamperScenario;
 pub use simulator::{BogieSimulator, BogieTruth};
+pub use speed::{PauseReason, SpeedConfig};
 pub use speed_profile::SpeedProfile;
 pub use status::{
     BogieStatusEvent, BogieStatusEventDetail, BogieStatusEventKind, BogieStatusWatch,

@@ -3,42 +3,15 @@
 
 use std::sync::Arc;
 
-use crate::config::{DamperMonitorConfig, PauseReason, Propagation, SpeedConfig};
+use crate::config::DamperMonitorConfig;
 use crate::consistency::ConsistencyCheck;
-use crate::ekf::{AugmentedEkf, EkfEstimate, EkfState};
+use crate::ekf::{AugmentedEkf, EkfState};
+use crate::estimate::DamperEstimate;
 use crate::gain_table::GainTable;
-use crate::rbpf::{DamperPosterior, Rbpf, RbpfState};
+use crate::rbpf::{Propagation, Rbpf, RbpfConfig, RbpfState};
 use crate::sample::BogieSample;
+use crate::speed::{PauseReason, SpeedConfig};
 use crate::DamperError;
-
-/// The monitor's output after a step.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct DamperEstimate {
-    /// Time since the monitor started (steps x dt).
-    pub time_s: f64,
-    /// RBPF posterior of `C_sy` and `C_say`.
-    pub csy: DamperPosterior,
-    pub csay: DamperPosterior,
-    pub effective_sample_size: f64,
-    /// The EKF baseline; `None` when disabled or after it diverged.
-    pub ekf: Option<EkfEstimate>,
-    /// Mean of the RBPF's normalised innovation squared over the last complete window
-    /// (`consistency.window_s`; 5 when the filter's model is the plant's; `None` before).
-    pub nis_window_mean: Option<f64>,
-    /// The filter's model does not explain the data (`consistency`): a wrong configuration
-    /// (vehicle, speed, noise), not a damper fault. The health alarm does not judge meanwhile.
-    pub model_mismatch: bool,
-    /// The sensors' noise standard deviation per channel as a ratio of the configured one, as
-    /// the RBPF estimates it (`crate::noise_scale`; eq. (4) order: wheelset 1, wheelset 2,
-    /// bogie, yaw gyro, body).
-    pub noise_std_ratio: [f64; crate::model::N_OUTPUTS],
-    /// The last sample's speed was outside `speed`'s range (or the filter is settling after
-    /// such a stretch): the posterior is held as it was, not learnt from a model that is not
-    /// valid there; the alarm does not judge meanwhile.
-    pub paused: Option<PauseReason>,
-    /// The last sample's speed (m/s).
-    pub speed_m_s: f64,
-}
 
 /// A monitor's state for a snapshot ([`DamperMonitor::state`], [`DamperMonitor::resume`]):
 /// the RBPF's particles, weights and Kalman states, the EKF's state and covariance, the
@@ -81,7 +54,11 @@ impl DamperMonitor {
     pub fn new(config: &DamperMonitorConfig, seed: u64) -> Result<Self, DamperError> {
         config.validate()?;
         let table = match config.rbpf.propagation {
-            Propagation::SteadyState => Some(Rbpf::gain_table(config)?),
+            Propagation::SteadyState => Some(Rbpf::gain_table(
+                &config.filter_model(),
+                &config.rbpf,
+                &config.speed,
+            )?),
             Propagation::Exact => None,
         };
         Self::with_gain_table(config, seed, table)
@@ -109,17 +86,22 @@ impl DamperMonitor {
     }
 
     /// As [`DamperMonitor::new`] with a gain table shared by the bogies of one vehicle type
-    /// (`Rbpf::gain_table(config)`).
+    /// (`Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed)`).
     pub fn with_gain_table(
         config: &DamperMonitorConfig,
         seed: u64,
         table: Option<Arc<GainTable>>,
     ) -> Result<Self, DamperError> {
-        let mut config = *config;
-        config.rbpf.seed = seed;
-        let mut rbpf = Rbpf::with_gain_table(&config, table)?;
+        // The whole configuration, as the filters each check only their own part.
+        config.validate()?;
+        let model = config.filter_model();
+        let rbpf_config = RbpfConfig {
+            seed,
+            ..config.rbpf
+        };
+        let mut rbpf = Rbpf::with_gain_table(&model, &rbpf_config, &config.speed, table)?;
         let ekf = if config.ekf.enabled {
-            Some(AugmentedEkf::new(&config)?)
+            Some(AugmentedEkf::new(&model, &config.ekf)?)
         } else {
             None
         };
@@ -243,13 +225,14 @@ impl DamperMonitor {
         state: DamperMonitorState,
     ) -> Result<Self, DamperError> {
         config.validate()?;
-        let mut rbpf = Rbpf::resume(config, table, state.rbpf)?;
+        let model = config.filter_model();
+        let mut rbpf = Rbpf::resume(&model, &config.rbpf, &config.speed, table, state.rbpf)?;
         let pause = state.pause;
         if config.speed.pause_reason(pause.speed_m_s).is_none() {
             rbpf.set_speed(pause.speed_m_s)?;
         }
         let ekf = match (config.ekf.enabled, state.ekf) {
-            (true, Some(s)) => Some(AugmentedEkf::resume(config, s)?),
+            (true, Some(s)) => Some(AugmentedEkf::resume(&model, &config.ekf, s)?),
             _ => None,
         };
         let r = rbpf.estimate();

@@ -1,5 +1,5 @@
 //! The bogie status as events: `damper_paused` / `damper_resumed` when the monitor stops or
-//! starts learning (speed outside its valid range, `crate::config::SpeedConfig`), and
+//! starts learning (speed outside its valid range, `crate::speed::SpeedConfig`), and
 //! `damper_model_mismatch` / `damper_model_ok` when its consistency check
 //! (`crate::consistency`) starts or stops saying that its model does not explain the data.
 //! Like the health alarm (`crate::alarm`) it lives next to the estimate it reads, so the
@@ -7,8 +7,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::PauseReason;
-use crate::monitor::DamperEstimate;
+use crate::estimate::DamperEstimate;
+use crate::speed::PauseReason;
 
 /// What a status event says.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

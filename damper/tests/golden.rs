@@ -17,7 +17,7 @@ fn headline() -> Vec<(String, f64)> {
     let mut config = scenario.monitor_config();
     config.rbpf.particles = 200;
     let mut monitor = DamperMonitor::for_bogie(&config, 1, None).unwrap();
-    let mut alarms = DamperAlarm::pair(&config, [false; 2]);
+    let mut alarms = DamperAlarm::pair(&config.alarm, &config.filter_model(), [false; 2]);
     let mut sim = BogieSimulator::new(&scenario).unwrap();
     let mut rows = vec![];
     while let Some((sample, truth)) = sim.step() {

@@ -23,8 +23,8 @@ fn one_hour_stays_finite_bounded_and_flat() {
     let mut scenario = DamperScenario::from_toml_str(text).unwrap();
     scenario.duration_s = 3600.0;
     let config = scenario.monitor_config();
-    let mut rbpf = Rbpf::new(&config).unwrap();
-    let mut ekf = Some(AugmentedEkf::new(&config).unwrap());
+    let mut rbpf = Rbpf::new(&config.filter_model(), &config.rbpf, &config.speed).unwrap();
+    let mut ekf = Some(AugmentedEkf::new(&config.filter_model(), &config.ekf).unwrap());
     // The exact filter of the true parameters alongside: its covariance is the one that
     // would grow along the drift without the leak.
     let model = BogieModel::new(&config.vehicle, config.drift_leak_per_s).unwrap();

@@ -106,7 +106,7 @@ impl TextbookKf {
 fn rbpf_equals_a_plain_kalman_filter_when_the_parameters_are_known() {
     let s = scenario("damper-seed", 2.0);
     let c = known_parameter_config(&s, Propagation::Exact);
-    let mut rbpf = Rbpf::new(&c).unwrap();
+    let mut rbpf = Rbpf::new(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
     let model = BogieModel::new(&c.vehicle, c.drift_leak_per_s).unwrap();
     let mut kf = TextbookKf::new(&model, &c.nominal, &c, initial_covariance());
     let mut total = 0.0;
@@ -153,7 +153,7 @@ fn steady_state_rbpf_equals_a_kalman_filter_at_steady_state() {
         min_ratio: 0.5,
         max_ratio: 2.0,
     };
-    let mut rbpf = Rbpf::new(&c).unwrap();
+    let mut rbpf = Rbpf::new(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
     let model = BogieModel::new(&c.vehicle, c.drift_leak_per_s).unwrap();
     let disc = expm::discretize(&model.a_matrix(&c.nominal), &model.g_matrix(), c.dt_s).unwrap();
     let ss = kalman::steady_state(&disc, &model.h_matrix(), &c.noise()).unwrap();
@@ -306,7 +306,7 @@ fn same_seed_same_estimates_other_seed_other_particles() {
     let s = scenario("damper-seed", 0.5);
     let mut c = s.monitor_config();
     c.rbpf.particles = 50;
-    let table = Rbpf::gain_table(&c).unwrap();
+    let table = Rbpf::gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
     let run = |seed: u64| {
         let mut m = DamperMonitor::with_gain_table(&c, seed, Some(table.clone())).unwrap();
         samples(&s)
@@ -396,7 +396,7 @@ fn noise_scale_estimate_matches_the_analytic_innovation_variance() {
         c.rbpf.particles = 200;
         c.ekf.enabled = false;
         let expected = innovation_variance_ratio(&c, &s.sensors);
-        let mut rbpf = Rbpf::new(&c).unwrap();
+        let mut rbpf = Rbpf::new(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
         for (y, _) in samples(&s) {
             rbpf.step(&y.to_vector()).unwrap();
         }
@@ -424,8 +424,9 @@ fn jump_odds_are_the_shiryaev_roberts_statistic_of_independent_filters() {
     c.rbpf.kernel = KernelSchedule::AtResampling;
     c.rbpf.jump_search.enabled = true;
     c.rbpf.jump_search.materialise_odds = 1e300;
-    let table = Rbpf::gain_table(&c).unwrap();
-    let mut mixture = Rbpf::with_gain_table(&c, Some(table.clone())).unwrap();
+    let table = Rbpf::gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
+    let mut mixture =
+        Rbpf::with_gain_table(&c.filter_model(), &c.rbpf, &c.speed, Some(table.clone())).unwrap();
     let sentinels = mixture.jump_sentinels().unwrap().to_vec();
     assert_eq!(sentinels.len(), N_SENTINELS);
     let mut singles: Vec<Rbpf> = sentinels
@@ -434,7 +435,8 @@ fn jump_odds_are_the_shiryaev_roberts_statistic_of_independent_filters() {
             let mut cj = c;
             cj.rbpf.jump_search.enabled = false;
             cj.nominal = Dampers::from_ln(*th);
-            Rbpf::with_gain_table(&cj, Some(table.clone())).unwrap()
+            Rbpf::with_gain_table(&cj.filter_model(), &cj.rbpf, &cj.speed, Some(table.clone()))
+                .unwrap()
         })
         .collect();
     let ln_hazard_step = (c.rbpf.jump_search.hazard_per_s * c.dt_s).ln();

@@ -12,7 +12,7 @@ fn a_resumed_monitor_goes_on_exactly_and_inside_the_pre_restart_interval() {
     scenario.duration_s = 21.0;
     let mut config = scenario.monitor_config();
     config.rbpf.particles = 200;
-    let table = Rbpf::gain_table(&config).unwrap();
+    let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed).unwrap();
     let mut sim = BogieSimulator::new(&scenario).unwrap();
     let mut samples: Vec<BogieSample> = vec![];
     while let Some((s, _)) = sim.step() {

@@ -237,7 +237,7 @@ fn run(
 ) -> (Option<f64>, Option<f64>) {
     let config = *config;
     let mut monitor = DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
-    let mut alarms = DamperAlarm::pair(&config, [false; 2]);
+    let mut alarms = DamperAlarm::pair(&config.alarm, &config.filter_model(), [false; 2]);
     let mut scenario = scenario.clone();
     let spec = fault;
     if let Some(f) = spec {
@@ -345,7 +345,7 @@ fn robustness_matrix() {
     js.materialise_odds = env_or("ROBUST_JUMP_ODDS", js.materialise_odds);
     js.resume_hold_time_constants = env_or("ROBUST_JUMP_HOLD", js.resume_hold_time_constants);
     let matched: bool = env_or("ROBUST_MATCHED_NOISE", 0u8) == 1;
-    let table = Rbpf::gain_table(&config).unwrap();
+    let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed).unwrap();
     println!(
         "robustness: {duration_s} s per run, {seeds} seeds, N = {particles}{}, noise estimate {}{}",
         if fault {
@@ -382,7 +382,10 @@ fn robustness_matrix() {
             let (config, table) = if matched {
                 let mut c = config;
                 c.sensors = s.sensors;
-                (c, Rbpf::gain_table(&c).unwrap())
+                (
+                    c,
+                    Rbpf::gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap(),
+                )
             } else {
                 (config, table.clone())
             };
@@ -441,7 +444,7 @@ fn off_nominal_starts() {
     let seeds: u64 = env_or("ROBUST_SEEDS", 3);
     let mut config = DamperMonitorConfig::default();
     config.rbpf.particles = env_or("ROBUST_PARTICLES", 1000);
-    let table = Rbpf::gain_table(&config).unwrap();
+    let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed).unwrap();
     println!("| C_sy / nominal | C_say / nominal | seed | C_sy error at 30 s | C_say error at 30 s | both within 5 % |");
     println!("|---|---|---|---|---|---|");
     let mut within = 0;

@@ -64,7 +64,7 @@ fn parabola(h: f64, l: [f64; 3]) -> (f64, f64) {
 #[test]
 fn scheduled_gains_equal_the_direct_ones_at_a_node_and_stay_close_between() {
     let base = DamperMonitorConfig::default();
-    let scheduled = Rbpf::gain_table(&base).unwrap();
+    let scheduled = Rbpf::gain_table(&base.filter_model(), &base.rbpf, &base.speed).unwrap();
     let node = scheduled.node_of(30.0);
     let v_node = scheduled.node_speed_m_s(node);
     let edge = v_node * base.speed.grid_ratio.sqrt() * 0.999;
@@ -75,7 +75,12 @@ fn scheduled_gains_equal_the_direct_ones_at_a_node_and_stay_close_between() {
         let data = samples(&s);
         let mut direct_config = base;
         direct_config.vehicle.speed_m_s = v;
-        let direct = Rbpf::gain_table(&direct_config).unwrap();
+        let direct = Rbpf::gain_table(
+            &direct_config.filter_model(),
+            &direct_config.rbpf,
+            &direct_config.speed,
+        )
+        .unwrap();
         let ratios = [1.0 - h, 1.0, 1.0 + h];
         let ll_scheduled = ratios.map(|r| log_likelihood(&base, &scheduled, r, &data));
         let ll_direct = ratios.map(|r| log_likelihood(&direct_config, &direct, r, &data));
@@ -186,7 +191,7 @@ fn with_the_jump_search_a_stop_settles_for_the_slowest_mode() {
     let mut c = s.monitor_config();
     c.rbpf.particles = 64;
     c.rbpf.jump_search.enabled = true;
-    let tau = slowest_time_constant_s(&c).unwrap();
+    let tau = slowest_time_constant_s(&c.filter_model(), &c.speed).unwrap();
     let settle_s = c.rbpf.jump_search.resume_hold_time_constants * tau;
     assert!(settle_s > c.speed.resume_settle_s);
     let (paused_steps, learnt_after, odds) = stop_and_go(&c, 9.0);
@@ -205,7 +210,7 @@ fn with_the_jump_search_a_stop_settles_for_the_slowest_mode() {
 #[test]
 fn nodes_solved_ahead_are_named_nearest_first_and_shared() {
     let c = DamperMonitorConfig::default();
-    let table = Rbpf::gain_table(&c).unwrap();
+    let table = Rbpf::gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
     let v0 = c.vehicle.speed_m_s;
     let k = table.node_of(v0);
     // Built with the table: the configured speed's node, and no other.
@@ -250,7 +255,7 @@ const INFORMATION_SPEEDS_M_S: [f64; 5] = [10.0, 15.0, 20.0, 30.0, DEFAULT_SPEED_
 fn the_information_about_the_anti_yaw_damper_grows_with_speed() {
     let mut base = DamperMonitorConfig::default();
     base.rbpf.noise_scale.enabled = false;
-    let table = Rbpf::gain_table(&base).unwrap();
+    let table = Rbpf::gain_table(&base.filter_model(), &base.rbpf, &base.speed).unwrap();
     let h = 0.05;
     let seeds = [9000u64, 9001, 9002];
     let threshold = (base.alarm.degraded_below_ratio / 0.4_f64).ln();
@@ -324,7 +329,7 @@ fn finding_the_step_at_each_speed() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(9000);
-    let table = Rbpf::gain_table(&config).unwrap();
+    let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed).unwrap();
     for v in speeds {
         let mut s = scenario("damper-seed", 45.0, &[[0.0, v]]);
         s.seed = seed;
@@ -336,7 +341,7 @@ fn finding_the_step_at_each_speed() {
             ratio: 0.4,
         }];
         let mut m = DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
-        let mut alarms = DamperAlarm::pair(&config, [false; 2]);
+        let mut alarms = DamperAlarm::pair(&config.alarm, &config.filter_model(), [false; 2]);
         let mut sim = BogieSimulator::new(&s).unwrap();
         let mut resamples_at_step = 0;
         let mut jumps_at_step = 0;

@@ -186,7 +186,7 @@ fn service_and_both_analyze_paths_raise_the_same_pause_events() {
         .unwrap()
         .monitor_config();
     let settle_s = (config.rbpf.jump_search.resume_hold_time_constants
-        * railmon_damper::slowest_time_constant_s(&config).unwrap())
+        * railmon_damper::slowest_time_constant_s(&config.filter_model(), &config.speed).unwrap())
     .max(config.speed.resume_settle_s);
     assert!(settle_s > 5.0, "{settle_s}");
     assert!(

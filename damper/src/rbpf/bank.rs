@@ -5,8 +5,8 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{DamperMonitorConfig, Propagation};
 use crate::expm::discretize;
+use crate::filter_model::FilterModel;
 use crate::gain_table::{
     GainGrid, GainTable, INV_S_DIAG_OFFSET, LN_DET_OFFSET, NODE_LEN, S_INV_OFFSET,
 };
@@ -17,7 +17,23 @@ use crate::DamperError;
 use railmon_filter::kalman::LN_2PI;
 
 use super::propagator::{Block, Row, SparsePropagator, BLOCK};
-use super::Rbpf;
+
+/// How each particle's Kalman filter propagates (section 4.3 and the speed/accuracy study in
+/// `docs/damper.md`).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum Propagation {
+    /// Per particle and step: `Phi, Gamma` by the matrix exponential of its own `A(theta)`,
+    /// full covariance predict and Joseph update. The reference; ~100x too slow for 1 kHz.
+    Exact,
+    /// Per particle: `Phi(theta) x` by a Taylor series of the sparse `A(theta)` (exact to
+    /// `taylor_order`), and the steady-state gain and innovation covariance of its `theta`,
+    /// interpolated bilinearly on a log-parameter grid of Riccati solutions.
+    #[default]
+    SteadyState,
+}
 
 /// The per-particle filters' states, for a snapshot ([`Bank::save`], [`Bank::restore`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -75,16 +91,18 @@ impl Bank {
         }
     }
 
-    /// The per-particle filters of `config`, every state at rest (`x0 = 0`); `table` for
-    /// steady-state propagation (built when `None`).
+    /// `n` per-particle filters of `filter_model`, every state at rest (`x0 = 0`),
+    /// propagated as `propagation` says: steady-state needs the gain table `table` (the
+    /// caller builds it when it was not given one) and the Taylor order `taylor_order`.
     pub(super) fn new(
-        config: &DamperMonitorConfig,
+        filter_model: &FilterModel,
+        n: usize,
+        propagation: Propagation,
+        taylor_order: usize,
         table: Option<Arc<GainTable>>,
     ) -> Result<Self, DamperError> {
-        let cfg = config.rbpf;
-        let n = cfg.particles;
-        let model = BogieModel::new(&config.vehicle, config.drift_leak_per_s)?;
-        Ok(match (cfg.propagation, table) {
+        let model = filter_model.bogie_model()?;
+        Ok(match (propagation, table) {
             (Propagation::Exact, _) => {
                 // x0 = 0 (vehicle at rest on the track centre line), P0 = the prior's
                 // stationary spread is unknown: a diffuse-enough start, refined in a second.
@@ -94,18 +112,19 @@ impl Bank {
                 };
                 Bank::Exact(Box::new(ExactBank {
                     h: model.h_matrix(),
-                    noise: config.noise(),
-                    dt_s: config.dt_s,
+                    noise: filter_model.noise(),
+                    dt_s: filter_model.dt_s,
                     est: vec![est0.clone(); n],
                     next: vec![est0; n],
                     model,
                 }))
             }
-            (Propagation::SteadyState, table) => {
-                let table = match table {
-                    Some(t) => t,
-                    None => Rbpf::gain_table(config)?,
-                };
+            (Propagation::SteadyState, None) => {
+                return Err(DamperError::Config(
+                    "steady-state propagation without a gain table".into(),
+                ))
+            }
+            (Propagation::SteadyState, Some(table)) => {
                 let entries = model.damper_entries(&Dampers {
                     csy_ns_per_m: 1.0,
                     csay_ns_per_m: 1.0,
@@ -115,7 +134,7 @@ impl Bank {
                 let blocks = n.div_ceil(BLOCK);
                 Bank::Steady(Box::new(SteadyBank {
                     n,
-                    prop: SparsePropagator::new(&model, config.dt_s, cfg.taylor_order)?,
+                    prop: SparsePropagator::new(&model, filter_model.dt_s, taylor_order)?,
                     grid: table.grid_at(grid_node)?,
                     grid_node,
                     table,

@@ -41,14 +41,13 @@
 //! (the data then sort them); sentinels follow the posterior mean at each kernel move and
 //! keep their odds (a shift of a few percent of a hypothesis 0.4-1.4 in `ln C` away).
 
-use std::sync::Arc;
-
 use serde::{Deserialize, Serialize};
 
-use crate::config::DamperMonitorConfig;
-use crate::gain_table::GainTable;
+use crate::filter_model::FilterModel;
+use crate::gain_table::GainGridConfig;
 use crate::model::{BogieModel, Vector5, N_OUTPUTS};
 use crate::params::positive;
+use crate::speed::SpeedConfig;
 use crate::DamperError;
 use railmon_filter::logspace::log_sum_exp;
 
@@ -178,24 +177,24 @@ pub(super) struct Sentinels {
 }
 
 impl Sentinels {
-    /// Sentinels about `centre` (`ln C`), their Kalman states at rest like the particles'.
+    /// Sentinels of the search `js` about `centre` (`ln C`), within the gain grid `g` of
+    /// `filter_model`; `bank` holds their [`N_SENTINELS`] Kalman filters, of the particles'
+    /// kind and at rest like theirs.
     pub(super) fn new(
-        config: &DamperMonitorConfig,
-        table: Option<Arc<GainTable>>,
+        filter_model: &FilterModel,
+        js: &JumpSearchConfig,
+        g: &GainGridConfig,
+        bank: Bank,
         centre: [f64; 2],
-    ) -> Result<Self, DamperError> {
-        let mut c = *config;
-        c.rbpf.particles = N_SENTINELS;
-        let js = config.rbpf.jump_search;
-        let nominal = config.nominal.ln();
-        let g = &config.rbpf.gain_grid;
+    ) -> Self {
+        let nominal = filter_model.nominal.ln();
         let ln_range =
             [0, 1].map(|k| [nominal[k] + g.min_ratio.ln(), nominal[k] + g.max_ratio.ln()]);
         let mut s = Sentinels {
-            bank: Bank::new(&c, table)?,
+            bank,
             ln_theta: vec![centre; N_SENTINELS],
             ln_odds: vec![f64::NEG_INFINITY; N_SENTINELS],
-            ln_hazard_step: (js.hazard_per_s * config.dt_s).ln(),
+            ln_hazard_step: (js.hazard_per_s * filter_model.dt_s).ln(),
             ln_materialise: js.materialise_odds.ln(),
             ln_range,
             ll: vec![0.0; N_SENTINELS],
@@ -204,7 +203,7 @@ impl Sentinels {
             fires: 0,
         };
         s.recentre(centre);
-        Ok(s)
+        s
     }
 
     /// Puts the sentinels at their offsets from `centre` (the posterior mean of `ln C`).
@@ -345,14 +344,18 @@ impl Sentinels {
 /// (open loop: the filter's gain corrects it on top). For the paper's vehicle it is the body's lateral mode on the secondary
 /// suspension (0.67 Hz, decay 0.58 /s) at most speeds, and another mode at 5 m/s
 /// (0.52 Hz, decay 0.52 /s: 1.93 s); `tests::the_slowest_mode_is_the_body_at_speed`.
-pub fn slowest_time_constant_s(config: &DamperMonitorConfig) -> Result<f64, DamperError> {
-    let mut model = BogieModel::new(&config.vehicle, 0.0)?;
-    let sp = &config.speed;
+pub fn slowest_time_constant_s(
+    filter_model: &FilterModel,
+    speed: &SpeedConfig,
+) -> Result<f64, DamperError> {
+    // The plant's own modes: without the filter model's drift leak.
+    let mut model = BogieModel::new(&filter_model.vehicle, 0.0)?;
+    let sp = speed;
     let mut slowest_rate = f64::INFINITY;
     let mut v = sp.min_m_s;
     loop {
         model.set_speed(v.min(sp.max_m_s))?;
-        let a = model.a_matrix(&config.nominal);
+        let a = model.a_matrix(&filter_model.nominal);
         for z in a.complex_eigenvalues().iter() {
             if z.norm() > 1e-9 {
                 slowest_rate = slowest_rate.min(-z.re);
@@ -421,8 +424,8 @@ mod tests {
     /// simulation of the free response: a stale state's error shrinks by `e` in about it).
     #[test]
     fn the_slowest_mode_is_the_body_at_speed() {
-        let c = DamperMonitorConfig::default();
-        let tau = slowest_time_constant_s(&c).unwrap();
+        let c = crate::DamperMonitorConfig::default();
+        let tau = slowest_time_constant_s(&c.filter_model(), &c.speed).unwrap();
         // The body's lateral mode alone, `2 m_bd / C_sy` = 1.625 s: coupled to the bogie it
         // decays a little slower (0.58 /s), and at 5 m/s another mode slower still.
         let body = 2.0 * c.vehicle.half_body_mass_kg / c.nominal.csy_ns_per_m;

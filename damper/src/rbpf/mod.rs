@@ -13,6 +13,7 @@
 //!   vectorisable loops over particles.
 
 mod bank;
+mod config;
 mod jump;
 mod posterior;
 mod propagator;
@@ -25,17 +26,19 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
-use crate::config::{DamperMonitorConfig, KernelSchedule, Propagation, RbpfConfig};
+use crate::filter_model::FilterModel;
 use crate::gain_table::GainTable;
-use crate::model::{BogieModel, Matrix17, Vector17, Vector5, N_OUTPUTS};
+use crate::model::{Matrix17, Vector17, Vector5, N_OUTPUTS};
 use crate::noise_scale::NoiseScale;
 use crate::params::Dampers;
+use crate::speed::SpeedConfig;
 use crate::DamperError;
 use railmon_filter::logspace::{effective_sample_size, normalize_log_weights};
 use railmon_filter::resample::systematic_resample;
 
-pub use bank::BankState;
 use bank::{Bank, StepOutput, Whitening};
+pub use bank::{BankState, Propagation};
+pub use config::{KernelSchedule, RbpfConfig};
 use jump::Sentinels;
 pub use jump::{
     slowest_time_constant_s, JumpSearchConfig, SentinelState, N_SENTINELS, SENTINEL_LN_OFFSETS,
@@ -100,60 +103,92 @@ pub struct Rbpf {
 }
 
 impl Rbpf {
-    /// Builds the filter; with `SteadyState` propagation this solves the Riccati equation on
-    /// the whole gain grid (about a second for 33 x 33): share the table with
+    /// Builds the filter of `config` on the filters' model `filter_model` (its speed range
+    /// `speed`); with `SteadyState` propagation this solves the Riccati equation on the whole
+    /// gain grid (about a second for 33 x 33): share the table with
     /// [`Rbpf::with_gain_table`] when running several filters on the same vehicle.
-    pub fn new(config: &DamperMonitorConfig) -> Result<Self, DamperError> {
-        config.validate()?;
-        let table = match config.rbpf.propagation {
-            Propagation::SteadyState => Some(Self::gain_table(config)?),
+    pub fn new(
+        filter_model: &FilterModel,
+        config: &RbpfConfig,
+        speed: &SpeedConfig,
+    ) -> Result<Self, DamperError> {
+        Self::validate(filter_model, config, speed)?;
+        let table = match config.propagation {
+            Propagation::SteadyState => Some(Self::gain_table(filter_model, config, speed)?),
             Propagation::Exact => None,
         };
-        Self::with_gain_table(config, table)
+        Self::with_gain_table(filter_model, config, speed, table)
     }
 
-    /// The gain table `config` needs (steady-state propagation).
-    pub fn gain_table(config: &DamperMonitorConfig) -> Result<Arc<GainTable>, DamperError> {
+    /// What the filter reads, checked in the order `DamperMonitorConfig::validate` checks it.
+    fn validate(
+        filter_model: &FilterModel,
+        config: &RbpfConfig,
+        speed: &SpeedConfig,
+    ) -> Result<(), DamperError> {
+        filter_model.validate()?;
         config.validate()?;
-        let model = BogieModel::new(&config.vehicle, config.drift_leak_per_s)?;
-        GainTable::build(
-            &model,
-            &config.noise(),
-            &config.nominal,
-            &config.rbpf.gain_grid,
-            &config.speed,
-            config.dt_s,
-        )
+        speed.validate()
     }
 
-    /// As [`Rbpf::new`] with a prebuilt table (ignored for `Exact`).
+    /// The gain table the filter of `config` needs (steady-state propagation).
+    pub fn gain_table(
+        filter_model: &FilterModel,
+        config: &RbpfConfig,
+        speed: &SpeedConfig,
+    ) -> Result<Arc<GainTable>, DamperError> {
+        Self::validate(filter_model, config, speed)?;
+        GainTable::for_model(filter_model, &config.gain_grid, speed)
+    }
+
+    /// As [`Rbpf::new`] with a prebuilt table (ignored for `Exact`; built when `None`).
     pub fn with_gain_table(
-        config: &DamperMonitorConfig,
+        filter_model: &FilterModel,
+        config: &RbpfConfig,
+        speed: &SpeedConfig,
         table: Option<Arc<GainTable>>,
     ) -> Result<Self, DamperError> {
-        config.validate()?;
-        let cfg = config.rbpf;
+        Self::validate(filter_model, config, speed)?;
+        let cfg = *config;
         let n = cfg.particles;
         let min_resume_settle_s = if cfg.jump_search.enabled {
-            cfg.jump_search.resume_hold_time_constants * jump::slowest_time_constant_s(config)?
+            cfg.jump_search.resume_hold_time_constants
+                * jump::slowest_time_constant_s(filter_model, speed)?
         } else {
             0.0
         };
+        // Built here when not given: once, for the particles and the sentinels alike (the
+        // same model, grid and speeds).
+        let table = match (cfg.propagation, table) {
+            (Propagation::SteadyState, None) => {
+                Some(GainTable::for_model(filter_model, &cfg.gain_grid, speed)?)
+            }
+            (_, table) => table,
+        };
+        let bank_of = |n: usize, table: Option<Arc<GainTable>>| {
+            Bank::new(filter_model, n, cfg.propagation, cfg.taylor_order, table)
+        };
         let sentinels = if cfg.jump_search.enabled {
             let centre = Dampers {
-                csy_ns_per_m: config.nominal.csy_ns_per_m * cfg.prior_ratio,
-                csay_ns_per_m: config.nominal.csay_ns_per_m * cfg.prior_ratio,
+                csy_ns_per_m: filter_model.nominal.csy_ns_per_m * cfg.prior_ratio,
+                csay_ns_per_m: filter_model.nominal.csay_ns_per_m * cfg.prior_ratio,
             }
             .ln();
-            Some(Sentinels::new(config, table.clone(), centre)?)
+            Some(Sentinels::new(
+                filter_model,
+                &cfg.jump_search,
+                &cfg.gain_grid,
+                bank_of(N_SENTINELS, table.clone())?,
+                centre,
+            ))
         } else {
             None
         };
-        let bank = Bank::new(config, table)?;
+        let bank = bank_of(n, table)?;
         let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
         let centre = Dampers {
-            csy_ns_per_m: config.nominal.csy_ns_per_m * cfg.prior_ratio,
-            csay_ns_per_m: config.nominal.csay_ns_per_m * cfg.prior_ratio,
+            csy_ns_per_m: filter_model.nominal.csy_ns_per_m * cfg.prior_ratio,
+            csay_ns_per_m: filter_model.nominal.csay_ns_per_m * cfg.prior_ratio,
         }
         .ln();
         let ln_theta: Vec<[f64; 2]> = (0..n)
@@ -167,10 +202,10 @@ impl Rbpf {
         let (a, h2) = cfg.liu_west();
         Ok(Rbpf {
             config: cfg,
-            nominal: config.nominal,
+            nominal: filter_model.nominal,
             kernel_a: a,
             kernel_h: h2.sqrt(),
-            dt_s: config.dt_s,
+            dt_s: filter_model.dt_s,
             steps_since_move: 0,
             ln_theta_next: ln_theta.clone(),
             ln_theta,
@@ -180,7 +215,7 @@ impl Rbpf {
             nis: vec![0.0; n],
             nis_mean: f64::NAN,
             z: vec![0.0; N_OUTPUTS * n],
-            noise_scale: NoiseScale::new(&cfg.noise_scale, config.dt_s),
+            noise_scale: NoiseScale::new(&cfg.noise_scale, filter_model.dt_s),
             regeneration_penalty: vec![0.0; n],
             indices: vec![0; n],
             bank,
@@ -214,15 +249,17 @@ impl Rbpf {
         }
     }
 
-    /// The filter of `config` where `state` left it: the same data then give exactly the
-    /// estimates the filter that saved it would have given. A state of another particle count
-    /// or propagation is refused.
+    /// The filter of `config` (as [`Rbpf::with_gain_table`]) where `state` left it: the same
+    /// data then give exactly the estimates the filter that saved it would have given. A state
+    /// of another particle count or propagation is refused.
     pub fn resume(
-        config: &DamperMonitorConfig,
+        filter_model: &FilterModel,
+        config: &RbpfConfig,
+        speed: &SpeedConfig,
         table: Option<Arc<GainTable>>,
         state: RbpfState,
     ) -> Result<Self, DamperError> {
-        let mut f = Self::with_gain_table(config, table)?;
+        let mut f = Self::with_gain_table(filter_model, config, speed, table)?;
         let n = f.n_particles();
         if state.ln_theta.len() != n || state.log_w.len() != n {
             return Err(DamperError::Config(format!(
@@ -664,7 +701,7 @@ mod tests {
         c.rbpf.particles = 64;
         c.rbpf.jump_search.enabled = true;
         c.rbpf.jump_search.materialise_odds = 1e300;
-        let mut f = Rbpf::new(&c).unwrap();
+        let mut f = Rbpf::new(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
         let mut sim = BogieSimulator::new(&s).unwrap();
         while let Some((y, _)) = sim.step() {
             f.step(&y.to_vector()).unwrap();

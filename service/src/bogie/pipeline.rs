@@ -160,7 +160,8 @@ impl BogiePipeline {
                     })
                 });
                 let estimator = &config.estimator;
-                let alarms = DamperAlarm::pair(estimator, degraded);
+                let alarms =
+                    DamperAlarm::pair(&estimator.alarm, &estimator.filter_model(), degraded);
                 BogieSlot::new(id, &metrics, alarms)
             })
             .collect();
@@ -171,7 +172,11 @@ impl BogiePipeline {
         );
         let estimator = &config.estimator;
         let table = match estimator.rbpf.propagation {
-            Propagation::SteadyState => Rbpf::gain_table(estimator).map(Some).map_err(rejection_of),
+            Propagation::SteadyState => {
+                Rbpf::gain_table(&estimator.filter_model(), &estimator.rbpf, &estimator.speed)
+                    .map(Some)
+                    .map_err(rejection_of)
+            }
             Propagation::Exact => Ok(None),
         };
         if let Err(e) = &table {

@@ -96,7 +96,7 @@ mod tests {
     #[test]
     fn solves_the_nodes_near_the_speed_before_a_filter_asks() {
         let c = DamperMonitorConfig::default();
-        let table = Rbpf::gain_table(&c).unwrap();
+        let table = Rbpf::gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
         let v0 = c.vehicle.speed_m_s;
         let k = table.node_of(v0);
         let far = k - 6;

@@ -1,0 +1,36 @@
+//! What a damper monitor says after each sample: the RBPF's posterior, the EKF baseline and
+//! the monitor's own state (paused, model mismatch). A type of its own so that the rules that
+//! judge it (`crate::alarm`, `crate::status`) need not know the monitor that makes it.
+
+use crate::ekf::EkfEstimate;
+use crate::rbpf::DamperPosterior;
+use crate::speed::PauseReason;
+
+/// The monitor's output after a step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DamperEstimate {
+    /// Time since the monitor started (steps x dt).
+    pub time_s: f64,
+    /// RBPF posterior of `C_sy` and `C_say`.
+    pub csy: DamperPosterior,
+    pub csay: DamperPosterior,
+    pub effective_sample_size: f64,
+    /// The EKF baseline; `None` when disabled or after it diverged.
+    pub ekf: Option<EkfEstimate>,
+    /// Mean of the RBPF's normalised innovation squared over the last complete window
+    /// (`consistency.window_s`; 5 when the filter's model is the plant's; `None` before).
+    pub nis_window_mean: Option<f64>,
+    /// The filter's model does not explain the data (`consistency`): a wrong configuration
+    /// (vehicle, speed, noise), not a damper fault. The health alarm does not judge meanwhile.
+    pub model_mismatch: bool,
+    /// The sensors' noise standard deviation per channel as a ratio of the configured one, as
+    /// the RBPF estimates it (`crate::noise_scale`; eq. (4) order: wheelset 1, wheelset 2,
+    /// bogie, yaw gyro, body).
+    pub noise_std_ratio: [f64; crate::model::N_OUTPUTS],
+    /// The last sample's speed was outside `speed`'s range (or the filter is settling after
+    /// such a stretch): the posterior is held as it was, not learnt from a model that is not
+    /// valid there; the alarm does not judge meanwhile.
+    pub paused: Option<PauseReason>,
+    /// The last sample's speed (m/s).
+    pub speed_m_s: f64,
+}

@@ -1,0 +1,155 @@
+//! The RBPF's settings (`[monitor.rbpf]`), validated, beside the filter that reads them.
+
+use serde::{Deserialize, Serialize};
+
+use crate::gain_table::GainGridConfig;
+use crate::noise_scale::NoiseScaleConfig;
+use crate::params::{non_negative, positive};
+use crate::DamperError;
+
+use super::bank::Propagation;
+use super::jump::JumpSearchConfig;
+
+/// When the Liu-West kernel moves the particles.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum KernelSchedule {
+    /// Every step, as in the paper (section 4.3: draw `theta_k(i)` from eq. 24 each step).
+    EveryStep,
+    /// Only right after a resampling (resample-move): between resamplings the parameters are
+    /// fixed and each particle's Kalman filter is that of one static `theta`.
+    #[default]
+    AtResampling,
+}
+
+/// The Rao-Blackwellised particle filter (section 4).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct RbpfConfig {
+    /// `N`.
+    pub particles: usize,
+    /// Liu-West discount factor `delta` (eq. 24): `a = (3 delta - 1) / (2 delta)`,
+    /// `h^2 = 1 - a^2`.
+    pub delta: f64,
+    /// Resample when the effective sample size falls below this fraction of `N`.
+    pub resample_ess_fraction: f64,
+    /// Prior mean: `ln C ~ N(ln(prior_ratio * nominal), prior_ln_std^2)` for each damper.
+    pub prior_ratio: f64,
+    /// Prior standard deviation of `ln C` (0: the parameters are known).
+    pub prior_ln_std: f64,
+    /// Extra random walk of `ln C` (1/sqrt(s)) added to the Liu-West move, so that the filter
+    /// can follow a damper that fails after the posterior has narrowed. `0` is the paper's
+    /// static-parameter filter.
+    pub ln_diffusion_per_sqrt_s: f64,
+    /// Probability, per particle and coefficient, of being redrawn (log-uniform over the gain
+    /// grid's range) at each kernel move, so that a damper that fails suddenly (a step far
+    /// outside the narrowed posterior) is found again. `0` is the paper's filter.
+    pub regeneration_fraction: f64,
+    /// Weight of a regenerated particle relative to the others, in (0, 1].
+    pub regeneration_weight: f64,
+    /// Evidence-triggered search for a failed damper (`crate::rbpf::jump`): sentinels beside
+    /// the particles whose posterior odds of a jump, once high enough, become particles.
+    pub jump_search: JumpSearchConfig,
+    pub propagation: Propagation,
+    pub kernel: KernelSchedule,
+    /// Order of the Taylor series for `Phi(theta) x` (steady-state propagation). 6, 8 and 10
+    /// give the exact filter's likelihood mode to 0.01% (`benches/accuracy.rs`); 1 (the
+    /// paper's `I + A T`) moves it by 20%.
+    pub taylor_order: usize,
+    pub gain_grid: GainGridConfig,
+    /// The online estimate of the sensors' noise (issue 9 item 2).
+    pub noise_scale: NoiseScaleConfig,
+    /// Seed of the filter's own random numbers (kernel moves, resampling).
+    pub seed: u64,
+}
+
+impl Default for RbpfConfig {
+    fn default() -> Self {
+        RbpfConfig {
+            particles: 1000,
+            delta: 0.99,
+            resample_ess_fraction: 0.5,
+            prior_ratio: 1.0,
+            prior_ln_std: 0.5,
+            ln_diffusion_per_sqrt_s: 0.002,
+            regeneration_fraction: 0.01,
+            regeneration_weight: 0.1,
+            jump_search: JumpSearchConfig::default(),
+            propagation: Propagation::SteadyState,
+            kernel: KernelSchedule::AtResampling,
+            taylor_order: 8,
+            gain_grid: GainGridConfig::default(),
+            noise_scale: NoiseScaleConfig::default(),
+            seed: 0,
+        }
+    }
+}
+
+impl RbpfConfig {
+    pub fn validate(&self) -> Result<(), DamperError> {
+        // At most a million: each particle holds a 17-state covariance (~2.5 kB), and 1e9
+        // particles aborted the service on a 136 GB allocation at its first frame.
+        if !(2..=1_000_000).contains(&self.particles) {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.particles",
+                value: self.particles as f64,
+                reason: "must be in 2..=1000000",
+            });
+        }
+        if !(self.delta > 1.0 / 3.0 && self.delta < 1.0) {
+            // a = (3 delta - 1) / (2 delta) must lie in (0, 1).
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.delta",
+                value: self.delta,
+                reason: "must be in (1/3, 1)",
+            });
+        }
+        if !(self.resample_ess_fraction > 0.0 && self.resample_ess_fraction <= 1.0) {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.resample_ess_fraction",
+                value: self.resample_ess_fraction,
+                reason: "must be in (0, 1]",
+            });
+        }
+        positive("rbpf.prior_ratio", self.prior_ratio)?;
+        non_negative("rbpf.prior_ln_std", self.prior_ln_std)?;
+        if !(0.0..0.5).contains(&self.regeneration_fraction) {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.regeneration_fraction",
+                value: self.regeneration_fraction,
+                reason: "must be in [0, 0.5)",
+            });
+        }
+        non_negative("rbpf.ln_diffusion_per_sqrt_s", self.ln_diffusion_per_sqrt_s)?;
+        if !(self.regeneration_weight > 0.0 && self.regeneration_weight <= 1.0) {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.regeneration_weight",
+                value: self.regeneration_weight,
+                reason: "must be in (0, 1]",
+            });
+        }
+        if !(1..=30).contains(&self.taylor_order) {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.taylor_order",
+                value: self.taylor_order as f64,
+                reason: "must be in 1..=30",
+            });
+        }
+        self.gain_grid.validate()?;
+        if self.jump_search.enabled && self.kernel != KernelSchedule::AtResampling {
+            return Err(DamperError::Config(
+                "rbpf.jump_search needs kernel = \"at_resampling\"".into(),
+            ));
+        }
+        self.jump_search.validate()?;
+        self.noise_scale.validate()
+    }
+
+    /// Liu-West shrinkage `a` and kernel variance factor `h^2` (eq. 24).
+    pub fn liu_west(&self) -> (f64, f64) {
+        let a = (3.0 * self.delta - 1.0) / (2.0 * self.delta);
+        (a, 1.0 - a * a)
+    }
+}
