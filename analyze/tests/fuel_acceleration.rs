@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use railmon_analyze::fuel::{load_recording, simulate_scenario, FuelInput};
-use railmon_fuel::config::ChannelRanges;
+use railmon_fuel::ChannelRanges;
 use railmon_fuel::{Channel, FuelError, VehicleSample};
 
 fn root() -> PathBuf {

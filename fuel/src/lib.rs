@@ -44,7 +44,7 @@ pub use railcar::{RailcarParameters, RailcarScenario, RailcarSimulator, RailcarT
 pub use regime::{ComponentName, OperatingPoint, PowerTier, RegimeName, RegimeNaming};
 pub use regression::RegressionStats;
 pub use routes::{generated_line, scenario_toml, LineEnvelope, Split};
-pub use sample::{bin_index, Channel, DerivedChannel, VehicleSample};
+pub use sample::{bin_index, Channel, ChannelRanges, DerivedChannel, VehicleSample};
 pub use simulator::{
     DriveCycle, DriverStyle, Segment, VehicleParameters, VehicleScenario, VehicleSimulator,
     VehicleTruth,

@@ -2,7 +2,6 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::ChannelRanges;
 use crate::FuelError;
 
 /// The field of `$record` that holds `$channel`: a sample's value and a channel's range are
@@ -20,7 +19,6 @@ macro_rules! channel_field {
         }
     };
 }
-pub(crate) use channel_field;
 
 /// A continuous channel of the vehicle (the paper's `y_{1..5;t}`, section 2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, schemars::JsonSchema)]
@@ -254,6 +252,179 @@ impl VehicleSample {
 /// the fuel `f` of section 4.2 are discretised.
 pub fn bin_index(edges: &[f64], value: f64) -> usize {
     edges.partition_point(|e| *e <= value)
+}
+
+/// Plausible range `[min, max]` of every channel, in the channel's unit ([`Channel::unit`]): a
+/// value outside it is a sensor, unit or file fault and the sample is refused before it reaches
+/// the statistics (a single 1e200 would overflow `V` for good; speed in km/h read as m/s would
+/// be estimated as if it were right). A property of the vehicle, not of the estimator, so a
+/// table of its own: `Default` is a road car's ([`ChannelRanges::road_car`]),
+/// [`ChannelRanges::railcar`] a diesel railcar's or locomotive's. `acceleration_m_s2` bounds
+/// the speed's change since the last accepted sample ([`ChannelRanges::check_acceleration`]):
+/// a km/h speed that stays inside the m/s range still accelerates 3.6 times too fast.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct ChannelRanges {
+    /// Plausible fuel flow `[low, high]`, cm^3/s.
+    pub fuel_cm3_s: [f64; 2],
+    /// Plausible speed `[low, high]`, m/s.
+    pub speed_m_s: [f64; 2],
+    /// Plausible accelerator pedal position `[low, high]`, %.
+    pub pedal_pct: [f64; 2],
+    /// Plausible engine torque `[low, high]`, N m.
+    pub engine_torque_nm: [f64; 2],
+    /// Plausible engine speed `[low, high]`, rpm.
+    pub engine_speed_rpm: [f64; 2],
+    /// Plausible gradient `[low, high]`, per mille (positive uphill).
+    pub gradient_permille: [f64; 2],
+    /// `(v_t - v_p) / (t - t_p)`, m/s^2, from the last accepted sample `p`: the vehicle's
+    /// hardest braking and full-power acceleration (with margin), not its usual driving.
+    pub acceleration_m_s2: [f64; 2],
+}
+
+impl Default for ChannelRanges {
+    fn default() -> Self {
+        Self::road_car()
+    }
+}
+
+impl ChannelRanges {
+    /// A road car (the Camry files): a 2.5 l petrol engine at full load burns ~10 cm^3/s, so
+    /// 100 leaves a truck's worth of margin; small negative values are flow-meter noise around
+    /// zero. Speed up to 70 m/s (252 km/h): a file in km/h at motorway speed (100+) is refused
+    /// rather than read as 100 m/s. Gradients up to 35 % (350 per mille), the steepest roads.
+    /// Acceleration within +-12 m/s^2: tyre grip bounds both braking and traction at
+    /// `mu g`, and the peak road adhesion of dry asphalt is 0.8-0.9 (Wong, Theory of Ground
+    /// Vehicles, table 1.1), 1.2 leaves margin for performance tyres; an ABS stop of a
+    /// current car (100-0 km/h in ~36 m) averages ~10.7 m/s^2. The shipped data stay within
+    /// 3.5 (docs/fuel.md). A launch-control EV exceeds it (Tesla Model S Plaid, 0-60 mph in
+    /// 1.99 s by Tesla's figure: 13.5 m/s^2 on average): give such a car its own range.
+    pub fn road_car() -> Self {
+        ChannelRanges {
+            fuel_cm3_s: [-1.0, 100.0],
+            speed_m_s: [-5.0, 70.0],
+            pedal_pct: [-1.0, 101.0],
+            engine_torque_nm: [-1000.0, 5000.0],
+            engine_speed_rpm: [-100.0, 20000.0],
+            gradient_permille: [-350.0, 350.0],
+            acceleration_m_s2: [-12.0, 12.0],
+        }
+    }
+
+    /// A diesel railcar (DMU) or diesel locomotive. Fuel up to 300 cm^3/s: a Cummins QSK95
+    /// locomotive engine is rated 3281 kW (Cummins, Railway Age, 2 Oct 2015), which at an
+    /// assumed 205 g/kWh and diesel at 0.835 g/cm^3 burns 224 cm^3/s; a QSK19-R railcar engine
+    /// (567 kW, Cummins, 25 Apr 2014) 39 cm^3/s. Speed up to 60 m/s (216 km/h; DMUs run at
+    /// 120-200 km/h): km/h at line speed is refused. Gradients up to 80 per mille (adhesion
+    /// lines stay below ~70). Engine speed of a high-speed diesel (idle ~600, rated 1800-2100
+    /// rpm), torque of a 95 l engine (~17 kN m at rated power). Acceleration within
+    /// [-4, 2] m/s^2: wheel-rail adhesion is at most ~0.4 (dry, sanded rail; **assumed**, the
+    /// upper end of the usual figures), and a DMU drives at most half its axles (one powered
+    /// bogie per car, as the simulated 3 x QSK19-R set), so traction stays below
+    /// 0.5 x 0.4 g = 2.0 m/s^2 (the simulator's 150 kN starting effort on 190 t: 0.77 at most);
+    /// braking on every axle below 0.4 g = 3.9 m/s^2, beyond a tram's emergency braking with
+    /// magnetic track brakes (at least 2.73 m/s^2, BOStrab section 36) and the simulator's
+    /// service brake (0.7 m/s^2, up to 0.91 into a platform, and -3.3 in the last second where
+    /// `railcar.rs` stops the train at the platform). A locomotive running light (all axles
+    /// driven, no train) can exceed +2: give it its own range.
+    pub fn railcar() -> Self {
+        ChannelRanges {
+            fuel_cm3_s: [-1.0, 300.0],
+            speed_m_s: [-1.0, 60.0],
+            pedal_pct: [-1.0, 101.0],
+            engine_torque_nm: [-5000.0, 30000.0],
+            engine_speed_rpm: [-100.0, 3000.0],
+            gradient_permille: [-80.0, 80.0],
+            acceleration_m_s2: [-4.0, 2.0],
+        }
+    }
+
+    /// The range of one channel.
+    pub fn of(&self, channel: Channel) -> [f64; 2] {
+        channel_field!(self, channel)
+    }
+
+    pub(crate) fn validate(&self) -> Result<(), FuelError> {
+        for c in Channel::ALL {
+            let [min, max] = self.of(c);
+            if !(min.is_finite() && max.is_finite() && min < max) {
+                return Err(FuelError::invalid(
+                    "ranges",
+                    format!("{} = [{min}, {max}]", c.column()),
+                    "each range must be finite with min < max",
+                ));
+            }
+        }
+        let [min, max] = self.acceleration_m_s2;
+        if !(min.is_finite() && max.is_finite() && min < 0.0 && 0.0 < max) {
+            return Err(FuelError::invalid(
+                "ranges",
+                format!("acceleration_m_s2 = [{min}, {max}]"),
+                "must be finite with min < 0 < max (a vehicle keeping its speed is plausible)",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The acceleration `(speed_m_s - v_p) / (time_s - t_p)` from the last accepted sample
+    /// `previous = (t_p, v_p)` (0 without one), checked against `acceleration_m_s2`. Refused
+    /// samples are never `previous`, so a bad sample does not make the next good one look
+    /// bad; after a gap or refused samples the step is longer and the quotient is the mean
+    /// acceleration over it, which lies within the vehicle's bounds whenever every
+    /// instantaneous one did (mean value theorem): a gap cannot cause a refusal either.
+    pub fn check_acceleration(
+        &self,
+        previous: Option<(f64, f64)>,
+        time_s: f64,
+        speed_m_s: f64,
+    ) -> Result<f64, FuelError> {
+        let Some((previous_s, previous_speed_m_s)) = previous else {
+            return Ok(0.0);
+        };
+        let step_s = time_s - previous_s;
+        let acceleration_m_s2 = (speed_m_s - previous_speed_m_s) / step_s;
+        let [min, max] = self.acceleration_m_s2;
+        if (min..=max).contains(&acceleration_m_s2) {
+            Ok(acceleration_m_s2)
+        } else {
+            Err(FuelError::AccelerationOutOfRange {
+                speed_m_s,
+                previous_speed_m_s,
+                step_s,
+                acceleration_m_s2,
+                min,
+                max,
+                time_s,
+            })
+        }
+    }
+
+    /// The acceleration `implied` by a reading against the filtered speed `previous = (t_p,
+    /// v_hat_p)` (`crate::kinematic`), checked against `acceleration_m_s2` widened by
+    /// `allowance` on both sides (the noise's share), with the same error as
+    /// [`ChannelRanges::check_acceleration`].
+    pub fn check_implied_acceleration(
+        &self,
+        previous: (f64, f64),
+        time_s: f64,
+        speed_m_s: f64,
+        implied: f64,
+        allowance: f64,
+    ) -> Result<(), FuelError> {
+        let [min, max] = self.acceleration_m_s2;
+        match (min - allowance..=max + allowance).contains(&implied) {
+            true => Ok(()),
+            false => Err(FuelError::AccelerationOutOfRange {
+                speed_m_s,
+                previous_speed_m_s: previous.1,
+                step_s: time_s - previous.0,
+                acceleration_m_s2: implied,
+                min,
+                max,
+                time_s,
+            }),
+        }
+    }
 }
 
 #[cfg(test)]

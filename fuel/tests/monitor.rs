@@ -1,6 +1,6 @@
 //! The monitor on vehicle samples: validation, bad input, long runs, output consistency.
 
-use railmon_fuel::config::ChannelRanges;
+use railmon_fuel::ChannelRanges;
 use railmon_fuel::{
     CategoricalConfig, Channel, FuelError, FuelMonitor, FuelMonitorConfig, RailcarScenario,
     RailcarSimulator, VehicleSample,
