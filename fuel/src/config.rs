@@ -103,8 +103,8 @@ pub struct FuelMonitorConfig {
     /// the density of these channels' values under a static Gauss-inverse-Wishart of the
     /// component (no lags), updated with the pointer's weights, plus, when `fuel` is not among
     /// them, fuel given every other channel now and the lags (its regression); and the notch's
-    /// term (`Mixture`, docs/fuel.md "The pointer weighed by levels"). Changes the pointer and
-    /// so the update weights; the regressions, the virtual sensor (weighted by the same
+    /// term (`Mixture`, docs/notes/fuel-log.md "The pointer weighed by levels"). Changes the
+    /// pointer and so the update weights; the regressions, the virtual sensor (weighted by the same
     /// evidence without fuel) and the forecasts are computed from them as before. Empty: off
     /// (the paper's evidence). The railcar preset's: `["fuel",
     /// "speed", "specific_force"]` with `pointer_level_min_variance = 3e-2` and

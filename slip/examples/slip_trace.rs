@@ -2,7 +2,8 @@
 //! scenario: true and healthy load, the slip truth, the EKF torque estimate, the temporal
 //! reference `M` and the terms of its threshold (`0.1 |M|`, the 0.5 N m floor, `3 s_i`), both
 //! methods' slip probabilities, and the drive's learnt healthy offset `b_i` (`dev_nm` is
-//! `x_i - M`; temporal tests `dev_nm - offset_nm` against `limit_nm`). Used for docs/adhesion.md, "Low load".
+//! `x_i - M`; temporal tests `dev_nm - offset_nm` against `limit_nm`). Used for the low-load
+//! traces of docs/notes/adhesion-log.md.
 //!
 //! `cargo run --release -p railmon-slip --example slip_trace -- SCENARIO.toml DRIVE FROM TO`
 
