@@ -26,6 +26,15 @@ pub struct DamperMonitorState {
     pause: PauseState,
 }
 
+impl DamperMonitorState {
+    /// The version of this type's serialised layout (everything in it), which the service
+    /// writes into each bogie snapshot. Raise it with every change of the layout;
+    /// `tests/state_layout.rs` pins the layout under it
+    /// (`tests/data/golden/state-layout-damper.txt`), so a change cannot ship without it.
+    /// 3: the RBPF's jump-search sentinels (`RbpfState`).
+    pub const STATE_FORMAT_VERSION: u32 = 3;
+}
+
 /// Where a monitor is with respect to its valid speed range.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 struct PauseState {

@@ -268,6 +268,28 @@ pub struct FuelMonitor {
 }
 
 impl FuelMonitor {
+    /// The version of this type's serialised layout (everything in it: the mixture, its
+    /// forecasts and calibration, the regime names, the kept samples), which the service writes
+    /// into each vehicle snapshot. Raise it with every change of the layout;
+    /// `tests/state_layout.rs` pins the layout under it
+    /// (`tests/data/golden/state-layout-fuel.txt`), so a change cannot ship without it.
+    /// 3: the mixture's spec gained `measured_channels` (issue 14's measured-data density).
+    /// 4: the mixture gained `level_channels` and the level statistics (issue 14 item 3).
+    /// 5: the config gained `pointer_standing` and `pointer_level_resolutions`, the mixture's
+    /// spec `level_scales`, the kept samples `standing` (bincode has no field defaults).
+    /// 6: the channel ranges in its settings gained `acceleration_m_s2`.
+    /// 7: the forecast blend gained horizon 0 (the virtual sensor's weight sums).
+    /// 8: the mixture's spec gained `standing_level_channels` and the mixture the standing
+    /// level statistics; `pointer_standing` changed meaning.
+    /// 9: the mixture's estimate gained `fuel_range_cm3_s`.
+    /// 10: the standing level statistics are the standing component's only.
+    /// 11: the rejected experiments left (issue 27): the config lost `measured_proximity`,
+    /// `pointer_level_regressors` and `pointer_level_resolutions`, the mixture's spec
+    /// `measured_channels`, `level_regressors` and `level_scales`.
+    /// 12: the config gained `speed_noise_m_s`, the monitor and its kept samples the kinematic
+    /// filter's state (issue 25 item 4).
+    pub const STATE_FORMAT_VERSION: u32 = 12;
+
     /// A monitor with validated `config`; it collects `init_samples` before estimating.
     pub fn new(config: &FuelMonitorConfig) -> Result<Self, FuelError> {
         config.validate()?;

@@ -172,15 +172,19 @@ impl SnapshotFile {
 }
 
 /// The layout of one pipeline's saved state (its `Pipeline::save_state` bytes): a magic
-/// string, the format version (`u32`, little endian), then the bincode. Bincode has no schema:
-/// a state of another layout would fail to decode with a message about bytes, or worse decode
-/// into other numbers; the version says which layout it is before anything is read. Raise a
-/// pipeline's `version` with every change of anything its state holds. States written before
-/// versions existed are bare bincode (format 1).
+/// string, the format version of the pipeline's own part (`u32`, little endian), the format
+/// version of the estimator's state inside it (`u32`, the estimator crate's
+/// `STATE_FORMAT_VERSION`, beside its state type), then the bincode. Bincode has no schema: a
+/// state of another layout would fail to decode with a message about bytes, or worse decode
+/// into other numbers; the versions say which layout it is before anything is read. Raise a
+/// pipeline's `version` with every change of what it holds around the estimator's state (each
+/// pipeline's test `state_layout_golden_...` pins that part, the estimator crate's test the
+/// rest). States written before versions existed are bare bincode (format 1).
 #[derive(Clone, Copy, Debug)]
 pub struct StateFormat {
     pub magic: &'static [u8],
     pub version: u32,
+    pub estimator_version: u32,
     /// What it is, for messages: `bogie state`.
     pub what: &'static str,
 }
@@ -189,32 +193,54 @@ impl StateFormat {
     pub fn encode<T: Serialize>(&self, state: &T) -> Option<Vec<u8>> {
         let mut bytes = self.magic.to_vec();
         bytes.extend_from_slice(&self.version.to_le_bytes());
+        bytes.extend_from_slice(&self.estimator_version.to_le_bytes());
         bincode::serialize_into(&mut bytes, state).ok()?;
         Some(bytes)
     }
 
-    /// The state in `bytes` if it is of this build's format; else why not, with the version.
+    /// The state in `bytes` if it is of this build's formats; else why not, with the versions.
     pub fn decode<T: serde::de::DeserializeOwned>(&self, bytes: &[u8]) -> Result<T, String> {
-        let (what, ours) = (self.what, self.version);
+        let what = self.what;
         let Some(rest) = bytes.strip_prefix(self.magic) else {
             return Err(format!(
                 "{what} without a format version (format 1, written before versions); \
-                 this build reads format {ours}"
+                 this build reads format {}",
+                self.version
             ));
         };
-        let Some((version, payload)) = rest.split_first_chunk::<4>() else {
+        let Some((version, rest)) = rest.split_first_chunk::<4>() else {
             return Err(format!("{what} truncated in its format version"));
         };
-        let version = u32::from_le_bytes(*version);
-        if version != ours {
-            let which = if version > ours { "newer" } else { "older" };
+        refuse_other(what, "format", u32::from_le_bytes(*version), self.version)?;
+        let Some((version, payload)) = rest.split_first_chunk::<4>() else {
             return Err(format!(
-                "{what} format {version} ({which} than this build's); this build reads \
-                 format {ours}"
+                "{what} truncated in its estimator's format version"
             ));
-        }
-        bincode::deserialize(payload).map_err(|e| format!("{what} format {ours}: {e}"))
+        };
+        let estimator_version = u32::from_le_bytes(*version);
+        refuse_other(
+            what,
+            "estimator format",
+            estimator_version,
+            self.estimator_version,
+        )?;
+        bincode::deserialize(payload).map_err(|e| {
+            let ours = (self.version, self.estimator_version);
+            format!("{what} format {}, estimator format {}: {e}", ours.0, ours.1)
+        })
     }
+}
+
+/// `Err` naming both versions unless `version` is `ours`.
+fn refuse_other(what: &str, which_format: &str, version: u32, ours: u32) -> Result<(), String> {
+    if version == ours {
+        return Ok(());
+    }
+    let which = if version > ours { "newer" } else { "older" };
+    Err(format!(
+        "{what} {which_format} {version} ({which} than this build's); this build reads \
+         {which_format} {ours}"
+    ))
 }
 
 /// The `snapshot_refused` event of `stream`: the snapshot found at start in `file` did not fit
@@ -310,13 +336,15 @@ mod tests {
         let _ = std::fs::remove_dir_all(&d);
     }
 
-    /// This build's format comes back; a newer or older version, or a state written before
-    /// versions (bare bincode), is refused with its version named, before its bytes are read.
+    /// This build's format comes back; a newer or older version of the pipeline's part or of
+    /// the estimator's, or a state written before versions (bare bincode), is refused with its
+    /// version named, before its bytes are read.
     #[test]
     fn a_state_of_another_format_version_is_refused_by_its_version() {
         const FORMAT: StateFormat = StateFormat {
             magic: b"railmon-test\0",
             version: 3,
+            estimator_version: 7,
             what: "test state",
         };
         let bytes = FORMAT.encode(&state()).unwrap();
@@ -332,14 +360,29 @@ mod tests {
                 "{e}"
             );
         }
+        for (version, which) in [(8, "newer"), (6, "older")] {
+            let mut other = bytes.clone();
+            other[at + 4..at + 8].copy_from_slice(&u32::to_le_bytes(version));
+            let e = FORMAT.decode::<IngestState>(&other).unwrap_err();
+            assert!(
+                e.contains(&format!("test state estimator format {version} ({which}"))
+                    && e.contains("reads estimator format 7"),
+                "{e}"
+            );
+        }
         let unversioned = bincode::serialize(&state()).unwrap();
         let e = FORMAT.decode::<IngestState>(&unversioned).unwrap_err();
         assert!(e.contains("test state without a format version"), "{e}");
-        let e = FORMAT.decode::<IngestState>(&bytes[..at + 2]).unwrap_err();
-        assert!(e.contains("truncated"), "{e}");
+        for cut in [at + 2, at + 6] {
+            let e = FORMAT.decode::<IngestState>(&bytes[..cut]).unwrap_err();
+            assert!(e.contains("truncated"), "{e}");
+        }
         let e = FORMAT
             .decode::<IngestState>(&bytes[..bytes.len() - 2])
             .unwrap_err();
-        assert!(e.starts_with("test state format 3: "), "{e}");
+        assert!(
+            e.starts_with("test state format 3, estimator format 7: "),
+            "{e}"
+        );
     }
 }

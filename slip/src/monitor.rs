@@ -126,6 +126,14 @@ pub struct SlipMonitor {
 }
 
 impl SlipMonitor {
+    /// The version of this type's serialised layout (everything in it: the EKF banks, the
+    /// adhesion method's state, the estimate), which the service writes into each drive
+    /// snapshot. Raise it with every change of the layout; `tests/state_layout.rs` pins the
+    /// layout under it (`tests/data/golden/state-layout-slip.txt`), so a change cannot ship
+    /// without it. 3: the EKF bank lost the load-jump test's state (the rejected
+    /// `[ekf.jump]`, issue 27).
+    pub const STATE_FORMAT_VERSION: u32 = 3;
+
     pub fn new(config: &SlipMonitorConfig, n_drives: usize) -> Result<Self, SlipError> {
         config.validate()?;
         let bank = EkfBank::new(config.model()?, &config.ekf, n_drives)?;

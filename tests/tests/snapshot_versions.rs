@@ -56,7 +56,9 @@ struct Stream {
     replay: &'static [&'static str],
     steps: u64,
     state_magic: &'static [u8],
-    /// The format version this build writes.
+    /// The format version this build writes of the pipeline's part (`SAVED_<STREAM>` in
+    /// `service/src/<stream>/pipeline.rs`; the estimator's own version follows it and is
+    /// checked by `snapshot::tests`).
     format: u32,
     events: &'static str,
 }
@@ -72,7 +74,7 @@ const STREAMS: [Stream; 3] = [
         ],
         steps: 2000,
         state_magic: b"railmon-drives\0",
-        format: 3,
+        format: 4,
         events: "/api/v1/drives/events",
     },
     Stream {
@@ -87,7 +89,7 @@ const STREAMS: [Stream; 3] = [
         ],
         steps: 2000,
         state_magic: b"railmon-bogies\0",
-        format: 3,
+        format: 4,
         events: "/api/v1/bogies/events",
     },
     Stream {
@@ -100,7 +102,7 @@ const STREAMS: [Stream; 3] = [
         ],
         steps: 200,
         state_magic: b"railmon-vehicle\0",
-        format: 12,
+        format: 13,
         events: "/api/v1/vehicle/events",
     },
 ];

@@ -469,13 +469,16 @@ struct SavedBogies {
     clock: crate::outbox::TrackClock,
 }
 
-/// The layout of [`SavedBogies`] and everything in it (`DamperMonitorState`: the RBPF's
-/// particles and states, the noise estimate, the EKF, the consistency check, the pause).
-/// Raise the version with every change of any of them: 3 added the RBPF's jump-search
-/// sentinels (`RbpfState`).
+/// The layout of [`SavedBogies`] around the monitors' states, and theirs (their crate's
+/// `DamperMonitorState::STATE_FORMAT_VERSION`). Raise `version` with every change of what
+/// `SavedBogies` holds beside them: a snapshot of another layout is refused by its version
+/// instead of failing to decode, or decoding into other numbers.
 const SAVED_BOGIES: StateFormat = StateFormat {
     magic: b"railmon-bogies\0",
-    version: 3,
+    // 3: the RBPF's jump-search sentinels (`RbpfState`).
+    // 4: the monitor state's layout has its own version (`estimator_version`), its crate's.
+    version: 4,
+    estimator_version: DamperMonitorState::STATE_FORMAT_VERSION,
     what: "bogie state",
 };
 
@@ -664,6 +667,25 @@ impl Pipeline for BogiePipeline {
 mod tests {
     use super::*;
     use railmon_damper::DamperMonitorConfig;
+
+    /// What the snapshot holds around the monitors' states is pinned under `SAVED_BOGIES`'s
+    /// version (the states themselves under their crate's, `damper/tests/state_layout.rs`).
+    #[test]
+    fn state_layout_golden_is_pinned_under_the_format_version() {
+        let mut c = DamperMonitorConfig::default();
+        c.rbpf.particles = 4;
+        let m = DamperMonitor::for_bogie(&c, 2, None).unwrap();
+        let saved = SavedBogies {
+            bogies: vec![(1, None), (2, Some(m.state()))],
+            ..saved()
+        };
+        railmon_golden::check_state_layout(
+            "state-layout-service-bogie.txt",
+            SAVED_BOGIES.version,
+            &[saved],
+            &["state-layout-damper.txt"],
+        );
+    }
 
     fn saved() -> SavedBogies {
         let mut c = DamperMonitorConfig::default();

@@ -186,13 +186,16 @@ struct SavedDrive {
     clock: crate::outbox::TrackClock,
 }
 
-/// The layout of [`SavedDrive`] and everything in it (`SlipMonitor` (the EKFs, the adhesion method's state, the temporal model, the alarm inputs)). Raise the version with
-/// every change of any of them: a snapshot of another layout is refused by its version instead
-/// of failing to decode, or decoding into other numbers.
+/// The layout of [`SavedDrive`] around the monitor, and the monitor's own (its crate's
+/// `SlipMonitor::STATE_FORMAT_VERSION`). Raise `version` with every change of what
+/// `SavedDrive` holds beside the monitor: a snapshot of another layout is refused by its
+/// version instead of failing to decode, or decoding into other numbers.
 const SAVED_DRIVES: StateFormat = StateFormat {
     magic: b"railmon-drives\0",
     // 3: the EKF bank lost the load-jump test's state (the rejected `[ekf.jump]`, issue 27).
-    version: 3,
+    // 4: the monitor's layout has its own version (`estimator_version`), its crate's.
+    version: 4,
+    estimator_version: SlipMonitor::STATE_FORMAT_VERSION,
     what: "drive state",
 };
 
@@ -352,5 +355,30 @@ impl Pipeline for DrivePipeline {
             .global_torque
             .set(estimate.global_torque_nm);
         self.shared.snapshot.store(Arc::new(view));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What the snapshot holds around the monitor is pinned under `SAVED_DRIVES`'s version
+    /// (the monitor itself under its crate's, `slip/tests/state_layout.rs`).
+    #[test]
+    fn state_layout_golden_is_pinned_under_the_format_version() {
+        let saved = SavedDrive {
+            monitor: SlipMonitor::new(&Default::default(), 2).unwrap(),
+            clock: crate::outbox::TrackClock {
+                run_offset_s: 3.0,
+                last_time_s: Some(2.5),
+                next_history_s: 2.6,
+            },
+        };
+        railmon_golden::check_state_layout(
+            "state-layout-service-drive.txt",
+            SAVED_DRIVES.version,
+            &[saved],
+            &["state-layout-slip.txt"],
+        );
     }
 }

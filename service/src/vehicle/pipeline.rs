@@ -301,30 +301,16 @@ struct SavedVehicle {
     clock: crate::outbox::TrackClock,
 }
 
-/// The layout of [`SavedVehicle`] and everything in it (`FuelMonitor` (the mixture, its forecasts and calibration, the regime names), the forecast errors). Raise the version with
-/// every change of any of them: a snapshot of another layout is refused by its version instead
-/// of failing to decode, or decoding into other numbers.
+/// The layout of [`SavedVehicle`] around the monitor, and the monitor's own (its crate's
+/// `FuelMonitor::STATE_FORMAT_VERSION`). Raise `version` with every change of what
+/// `SavedVehicle` holds beside the monitor: a snapshot of another layout is refused by its
+/// version instead of failing to decode, or decoding into other numbers.
 const SAVED_VEHICLE: StateFormat = StateFormat {
     magic: b"railmon-vehicle\0",
-    // 3: the mixture's spec gained `measured_channels` (issue 14's measured-data density).
-    // 4: the mixture gained `level_channels` and the level statistics (the pointer weighed by
-    // levels, issue 14 item 3).
-    // 5: the config gained `pointer_standing` and `pointer_level_resolutions`, the mixture's
-    // spec `level_scales`, the kept samples `standing` (issue 14 item 3; bincode has no field
-    // defaults).
-    // 6: the channel ranges in its settings gained `acceleration_m_s2`.
-    // 7: the forecast blend gained horizon 0 (the virtual sensor's weight sums).
-    // 8: the mixture's spec gained `standing_level_channels` and the mixture the standing
-    // level statistics (standstill a regime given); `pointer_standing` changed meaning.
-    // 9: the mixture's estimate gained `fuel_range_cm3_s` (estimates in the fuel's range).
-    // 10: the standing level statistics are the standing component's only (one, not one per
-    // component).
-    // 11: the rejected experiments left (issue 27): the config lost `measured_proximity`,
-    // `pointer_level_regressors` and `pointer_level_resolutions`, the mixture's spec
-    // `measured_channels`, `level_regressors` and `level_scales`.
-    // 12: the config gained `speed_noise_m_s`, the monitor and its kept samples the kinematic
-    // filter's state (issue 25 item 4).
-    version: 12,
+    // 3-12: changes of the monitor's layout, now its crate's version (`FuelMonitor`).
+    // 13: the monitor's layout has its own version (`estimator_version`), its crate's.
+    version: 13,
+    estimator_version: FuelMonitor::STATE_FORMAT_VERSION,
     what: "vehicle state",
 };
 
@@ -414,5 +400,37 @@ impl Pipeline for VehiclePipeline {
         let view = self.view(&stamp, monitor);
         self.set_gauges(&view);
         self.shared.snapshot.store(Arc::new(view));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What the snapshot holds around the monitor is pinned under `SAVED_VEHICLE`'s version
+    /// (the monitor itself under its crate's, `fuel/tests/state_layout.rs`).
+    #[test]
+    fn state_layout_golden_is_pinned_under_the_format_version() {
+        let saved = SavedVehicle {
+            monitor: FuelMonitor::new(&Default::default()).unwrap(),
+            errors: ForecastErrors {
+                last_cm3_s: Some(1.0),
+                sum_squares: 2.0,
+                n: 3,
+            },
+            regime_changes: 4,
+            speed_m_s: Some(5.0),
+            clock: crate::outbox::TrackClock {
+                run_offset_s: 3.0,
+                last_time_s: Some(2.5),
+                next_history_s: 2.6,
+            },
+        };
+        railmon_golden::check_state_layout(
+            "state-layout-service-vehicle.txt",
+            SAVED_VEHICLE.version,
+            &[saved],
+            &["state-layout-fuel.txt"],
+        );
     }
 }
