@@ -1,45 +1,145 @@
 //! Robustness matrix of issue 9: healthy bogies (and a C_say step to 40 %) on plants unlike the
 //! filter, one factor at a time from the validated cell (white track of 0.1 m/s, sensor noise
-//! as configured, conicity 0.15, 45.3 m/s). The filter is always `DamperMonitorConfig::default()`
-//! (it assumes the nominal vehicle at 45.3 m/s and the configured noise); each cell changes the
-//! plant only. Per cell, over the seeds: false `damper_degraded` events per hour (healthy runs;
+//! as configured, conicity 0.15, 45.3 m/s). The filter is `DamperMonitorConfig::default()` but
+//! for what the flags change (it assumes the nominal vehicle at 45.3 m/s and the configured
+//! noise); each cell changes the plant only. Per cell, over the seeds: false `damper_degraded` events per hour (healthy runs;
 //! `railmon_damper::DamperAlarm`), share of time after 30 s with both RBPF means within 5 % of
 //! the truth, 90 % interval coverage of each damper after 30 s, the share of time the filter
 //! reports `model_mismatch`, and for the fault runs (a C_say step to 40 % at 30 s; a C_sy ramp
 //! to 60 % over 30-50 s) the detection delay (from the step; for the ramp, from when the truth
 //! crosses the alarm's `degraded_below_ratio`) and the error 10 s after the step / the ramp's end.
 //! False `damper_degraded` events of the fault runs (the damper without a fault, or before the
-//! fault) count with the healthy runs' hours. `off_nominal_starts` runs dampers far from
-//! nominal from t = 0 (every pair of 0.5x, 1x, 1.5x): both means within 5 % at 30 s?
+//! fault) count with the healthy runs' hours. The accuracy and coverage columns count the
+//! healthy runs' time after 30 s only: runs of 30 s or less leave them at 0.
 //!
-//! `cargo test --release -p railmon-damper --test robustness -- --ignored --nocapture` runs the
-//! issue's matrix (600 s per run, 3 seeds, N = 1000: hours on two cores; not in CI). Smaller runs by environment:
-//! `ROBUST_DURATION_S=60 ROBUST_SEEDS=2 ROBUST_PARTICLES=200 ROBUST_CELLS=speed,noise`
-//! (`ROBUST_CELLS`: names or prefixes of cells, `ROBUST_FAULT=1` adds the fault runs,
-//! `ROBUST_NOISE_SCALE=0` runs the filter without its noise estimate, as before issue 9 item 2;
-//! `ROBUST_FIRST_SEED=2` starts at the third seed (9002) to add one to a table;
-//! `ROBUST_JUMP=0|1` sets `rbpf.jump_search.enabled`,
-//! `ROBUST_JUMP_HAZARD` its `hazard_per_s`, `ROBUST_JUMP_ODDS` its `materialise_odds`,
-//! `ROBUST_JUMP_HOLD` its `resume_hold_time_constants`;
-//! `ROBUST_FILTER_SEED` sets `rbpf.seed` (the same data, other particles: the filter's own
-//! Monte Carlo spread);
-//! `ROBUST_VERBOSE=1` prints each false alarm; `ROBUST_MATCHED_NOISE=1` gives the filter each cell's true sensor noise: the reference
-//! the noise estimate is judged against).
+//! ```text
+//! cargo run --release -p railmon-damper --example robustness_matrix   # the issue's matrix: hours
+//! cargo run --release -p railmon-damper --example robustness_matrix -- \
+//!     --duration-s 60 --seeds 2 --particles 200 --cells speed,noise --fault --verbose
+//! ```
+//! With no flags it runs the issue's matrix (every cell, 600 s per run, 3 seeds, N = 1000: hours
+//! on two cores). `--help` lists the flags; `--cells` takes names or prefixes of cells
+//! (`--cells "speed profile"`), `--first-seed 2` starts at the third plant seed (9002) to add one
+//! to a table, `--noise-scale off` runs the filter without its noise estimate (as before issue 9
+//! item 2), `--filter-seed` sets `rbpf.seed` (the same data, other particles: the filter's own
+//! Monte Carlo spread), `--matched-noise` gives the filter each cell's true sensor noise (the
+//! reference the noise estimate is judged against). Dampers far from nominal from t = 0: the
+//! `off_nominal_starts` example.
 
+use std::fmt::Display;
+use std::process::ExitCode;
+use std::str::FromStr;
 use std::sync::Arc;
 use std::time::Instant;
 
 use railmon_damper::{
     BogieSimulator, DamperAlarm, DamperEventKind, DamperFault, DamperId, DamperMonitor,
-    DamperMonitorConfig, DamperScenario, Dampers, ErriLevel, FaultKind, Rbpf, SpeedProfile,
-    TrackSpec,
+    DamperMonitorConfig, DamperScenario, ErriLevel, FaultKind, Rbpf, SpeedProfile, TrackSpec,
 };
 
-fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
+/// What the flags set: the filter's configuration and the matrix's extent.
+struct Args {
+    duration_s: f64,
+    seeds: u64,
+    first_seed: u64,
+    /// Names or prefixes of the cells to run (empty: all).
+    cells: Vec<String>,
+    fault: bool,
+    matched_noise: bool,
+    verbose: bool,
+    /// `DamperMonitorConfig::default()` with the flags' changes.
+    config: DamperMonitorConfig,
+}
+
+fn usage() -> String {
+    let d = DamperMonitorConfig::default();
+    let js = d.rbpf.jump_search;
+    let on_off = |b: bool| if b { "on" } else { "off" };
+    let names: Vec<String> = cells().into_iter().map(|c| c.name).collect();
+    format!(
+        "usage: robustness_matrix [FLAGS]   (no flags: the issue's matrix, hours)\n\
+         \n\
+         --duration-s S        seconds per healthy run (default 600)\n\
+         --seeds N             plant seeds per cell, N >= 1 (default 3)\n\
+         --first-seed K        start at plant seed 9000 + K (default 0)\n\
+         --particles N         rbpf.particles (default {particles})\n\
+         --cells A,B           only the cells whose names start with A or B (default: all)\n\
+         --fault               add a C_say step run and a C_sy ramp run per seed\n\
+         --noise-scale on|off  rbpf.noise_scale.enabled, the noise estimate (default {noise})\n\
+         --filter-seed N       rbpf.seed, the filter's own random numbers (default {seed})\n\
+         --jump on|off         rbpf.jump_search.enabled (default {jump})\n\
+         --jump-hazard X       rbpf.jump_search.hazard_per_s (default {hazard})\n\
+         --jump-odds X         rbpf.jump_search.materialise_odds (default {odds})\n\
+         --jump-hold X         rbpf.jump_search.resume_hold_time_constants (default {hold})\n\
+         --matched-noise       give the filter each cell's true sensor noise\n\
+         --verbose             print each false damper_degraded event\n\
+         --help                this text\n\
+         \n\
+         cells: {cells}",
+        particles = d.rbpf.particles,
+        noise = on_off(d.rbpf.noise_scale.enabled),
+        seed = d.rbpf.seed,
+        jump = on_off(js.enabled),
+        hazard = js.hazard_per_s,
+        odds = js.materialise_odds,
+        hold = js.resume_hold_time_constants,
+        cells = names.join(", "),
+    )
+}
+
+fn parsed<T: FromStr>(flag: &str, value: &str) -> Result<T, String>
+where
+    T::Err: Display,
+{
+    value.parse().map_err(|e| format!("{flag} {value}: {e}"))
+}
+
+fn on_off(flag: &str, value: &str) -> Result<bool, String> {
+    match value {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        _ => Err(format!("{flag} {value}: on or off")),
+    }
+}
+
+fn parse_args() -> Result<Args, String> {
+    let mut args = Args {
+        duration_s: 600.0,
+        seeds: 3,
+        first_seed: 0,
+        cells: vec![],
+        fault: false,
+        matched_noise: false,
+        verbose: false,
+        config: DamperMonitorConfig::default(),
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(flag) = it.next() {
+        let mut value = || it.next().ok_or(format!("{flag} needs a value"));
+        let c = &mut args.config.rbpf;
+        match flag.as_str() {
+            "--help" | "-h" => {
+                println!("{}", usage());
+                std::process::exit(0);
+            }
+            "--duration-s" => args.duration_s = parsed(&flag, &value()?)?,
+            "--seeds" => args.seeds = parsed(&flag, &value()?)?,
+            "--first-seed" => args.first_seed = parsed(&flag, &value()?)?,
+            "--particles" => c.particles = parsed(&flag, &value()?)?,
+            "--cells" => args.cells = value()?.split(',').map(str::to_owned).collect(),
+            "--noise-scale" => c.noise_scale.enabled = on_off(&flag, &value()?)?,
+            "--filter-seed" => c.seed = parsed(&flag, &value()?)?,
+            "--jump" => c.jump_search.enabled = on_off(&flag, &value()?)?,
+            "--jump-hazard" => c.jump_search.hazard_per_s = parsed(&flag, &value()?)?,
+            "--jump-odds" => c.jump_search.materialise_odds = parsed(&flag, &value()?)?,
+            "--jump-hold" => c.jump_search.resume_hold_time_constants = parsed(&flag, &value()?)?,
+            "--fault" => args.fault = true,
+            "--matched-noise" => args.matched_noise = true,
+            "--verbose" => args.verbose = true,
+            other => return Err(format!("unknown flag {other}")),
+        }
+    }
+    Ok(args)
 }
 
 const BASE: &str = "name = \"robust\"\nseed = 1\nduration_s = 60.0\n[track]\nkind = \"white\"\nvelocity_std_m_s = 0.1\n";
@@ -227,13 +327,14 @@ fn sample_is_finite(s: &railmon_damper::BogieSample) -> bool {
 
 /// Runs `scenario` (healthy when `fault` is `None`; else with its fault): alarms and, after
 /// 30 s of a healthy run, the accuracy and coverage counts. A fault run gives its detection
-/// delay and its error (for [`FaultTally::add`]).
+/// delay and its error (for [`FaultTally::add`]). `verbose`: prints each false alarm.
 fn run(
     scenario: &DamperScenario,
     config: &DamperMonitorConfig,
     table: &Arc<railmon_damper::gain_table::GainTable>,
     fault: Option<&FaultRun>,
     t: &mut Tally,
+    verbose: bool,
 ) -> (Option<f64>, Option<f64>) {
     let config = *config;
     let mut monitor = DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
@@ -271,7 +372,7 @@ fn run(
                 }
                 _ => {
                     t.false_degraded += 1;
-                    if std::env::var_os("ROBUST_VERBOSE").is_some() {
+                    if verbose {
                         println!(
                             "  false {} at {time:.3} s (seed {}, {}): health {:.3}, speed {:.1} m/s, paused {:?}",
                             event.damper.name(),
@@ -324,27 +425,53 @@ fn run(
     (detected, error)
 }
 
-#[test]
-#[ignore = "the robustness matrix: minutes to hours, see the header"]
-fn robustness_matrix() {
-    let duration_s: f64 = env_or("ROBUST_DURATION_S", 600.0);
-    let seeds: u64 = env_or("ROBUST_SEEDS", 3);
-    let first_seed: u64 = env_or("ROBUST_FIRST_SEED", 0);
-    let particles: usize = env_or("ROBUST_PARTICLES", 1000);
-    let fault: bool = env_or("ROBUST_FAULT", 0u8) == 1;
-    let only: Vec<String> = std::env::var("ROBUST_CELLS")
-        .map(|v| v.split(',').map(str::to_owned).collect())
-        .unwrap_or_default();
-    let mut config = DamperMonitorConfig::default();
-    config.rbpf.particles = particles;
-    config.rbpf.noise_scale.enabled = env_or("ROBUST_NOISE_SCALE", 1u8) == 1;
-    config.rbpf.seed = env_or("ROBUST_FILTER_SEED", config.rbpf.seed);
-    let js = &mut config.rbpf.jump_search;
-    js.enabled = env_or("ROBUST_JUMP", u8::from(js.enabled)) == 1;
-    js.hazard_per_s = env_or("ROBUST_JUMP_HAZARD", js.hazard_per_s);
-    js.materialise_odds = env_or("ROBUST_JUMP_ODDS", js.materialise_odds);
-    js.resume_hold_time_constants = env_or("ROBUST_JUMP_HOLD", js.resume_hold_time_constants);
-    let matched: bool = env_or("ROBUST_MATCHED_NOISE", 0u8) == 1;
+fn main() -> ExitCode {
+    let args = match parse_args() {
+        Ok(a) => a,
+        Err(e) => {
+            eprintln!("robustness_matrix: {e} (--help lists the flags)");
+            return ExitCode::from(2);
+        }
+    };
+    let all = cells();
+    let unknown: Vec<&String> = args
+        .cells
+        .iter()
+        .filter(|o| !all.iter().any(|c| c.name.starts_with(o.as_str())))
+        .collect();
+    let problem = if !(args.duration_s > 0.0 && args.duration_s.is_finite()) {
+        Some(format!(
+            "--duration-s {}: a positive number",
+            args.duration_s
+        ))
+    } else if args.seeds == 0 {
+        Some("--seeds 0: at least one".into())
+    } else if let Some(o) = unknown.first() {
+        Some(format!("--cells: no cell starts with {o:?}"))
+    } else {
+        args.config.validate().err().map(|e| e.to_string())
+    };
+    if let Some(p) = problem {
+        eprintln!("robustness_matrix: {p} (--help lists the flags)");
+        return ExitCode::from(2);
+    }
+    matrix(&args, all);
+    ExitCode::SUCCESS
+}
+
+fn matrix(args: &Args, cells: Vec<Cell>) {
+    let Args {
+        duration_s,
+        seeds,
+        first_seed,
+        fault,
+        matched_noise: matched,
+        verbose,
+        config,
+        ..
+    } = *args;
+    let particles = config.rbpf.particles;
+    let only = &args.cells;
     let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed).unwrap();
     println!(
         "robustness: {duration_s} s per run, {seeds} seeds, N = {particles}{}, noise estimate {}{}",
@@ -368,7 +495,7 @@ fn robustness_matrix() {
         "| cell | false degraded / h | both means within 5 % | csy covered | csay covered | model_mismatch | mean NIS / 5 | C_say step: delay s | error 10 s after | C_sy ramp: delay s after crossing | error 10 s after its end | noise std ratio at end (accel 1, gyro) | jumps materialised / healthy h |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
-    for cell in cells() {
+    for cell in cells {
         if !only.is_empty() && !only.iter().any(|o| cell.name.starts_with(o.as_str())) {
             continue;
         }
@@ -389,12 +516,13 @@ fn robustness_matrix() {
             } else {
                 (config, table.clone())
             };
-            run(&s, &config, &table, None, &mut t);
+            run(&s, &config, &table, None, &mut t, verbose);
             if fault {
-                let step = run(&s, &config, &table, Some(&FaultRun::csay_step()), &mut t);
+                let step = FaultRun::csay_step();
+                let step = run(&s, &config, &table, Some(&step), &mut t, verbose);
                 t.step.add(step);
                 let ramp = FaultRun::csy_ramp(config.alarm.degraded_below_ratio);
-                let ramp = run(&s, &config, &table, Some(&ramp), &mut t);
+                let ramp = run(&s, &config, &table, Some(&ramp), &mut t, verbose);
                 t.ramp.add(ramp);
             }
         }
@@ -432,60 +560,4 @@ fn robustness_matrix() {
             started.elapsed().as_secs_f64(),
         );
     }
-}
-
-/// Issue 9: dampers far from nominal from t = 0 (each of C_sy, C_say at 0.5x, 1x, 1.5x of
-/// nominal, every pair but nominal-nominal), on the validated cell: both RBPF means within 5 %
-/// of the truth at 30 s? Prints a row per pair and seed (`ROBUST_SEEDS`, 3; `ROBUST_PARTICLES`).
-/// `cargo test --release -p railmon-damper --test robustness off_nominal -- --ignored --nocapture`
-#[test]
-#[ignore = "minutes: see the header"]
-fn off_nominal_starts() {
-    let seeds: u64 = env_or("ROBUST_SEEDS", 3);
-    let mut config = DamperMonitorConfig::default();
-    config.rbpf.particles = env_or("ROBUST_PARTICLES", 1000);
-    let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed).unwrap();
-    println!("| C_sy / nominal | C_say / nominal | seed | C_sy error at 30 s | C_say error at 30 s | both within 5 % |");
-    println!("|---|---|---|---|---|---|");
-    let mut within = 0;
-    let mut runs = 0;
-    for csy in [0.5, 1.0, 1.5] {
-        for csay in [0.5, 1.0, 1.5] {
-            if (csy, csay) == (1.0, 1.0) {
-                continue;
-            }
-            for seed in 0..seeds {
-                let mut s = DamperScenario::from_toml_str(BASE).unwrap();
-                s.duration_s = 30.0;
-                s.seed = 9100 + seed;
-                let nominal = Dampers::NOMINAL;
-                s.dampers = Dampers {
-                    csy_ns_per_m: csy * nominal.csy_ns_per_m,
-                    csay_ns_per_m: csay * nominal.csay_ns_per_m,
-                };
-                let mut monitor =
-                    DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
-                let mut sim = BogieSimulator::new(&s).unwrap();
-                let mut last = None;
-                while let Some((sample, truth)) = sim.step() {
-                    let e = *monitor.step(sample).unwrap();
-                    last = Some([
-                        e.csy.mean_ns_per_m / truth.dampers.csy_ns_per_m - 1.0,
-                        e.csay.mean_ns_per_m / truth.dampers.csay_ns_per_m - 1.0,
-                    ]);
-                }
-                let [ey, eay] = last.unwrap();
-                let ok = ey.abs() <= 0.05 && eay.abs() <= 0.05;
-                within += usize::from(ok);
-                runs += 1;
-                println!(
-                    "| {csy} | {csay} | {seed} | {:+.1} % | {:+.1} % | {} |",
-                    100.0 * ey,
-                    100.0 * eay,
-                    if ok { "yes" } else { "**no**" }
-                );
-            }
-        }
-    }
-    println!("both within 5 % at 30 s: {within} of {runs} runs");
 }
