@@ -91,7 +91,7 @@ pub struct JumpSearchConfig {
     pub newcomer_ln_std: f64,
     /// After a pause (low or high speed) the filter settles (its states run, its weights and
     /// the sentinels' odds do not move) for at least this many time constants of the
-    /// slowest mode of the vehicle model ([`slowest_time_constant_s`]: 1.93 s for the
+    /// slowest mode of the vehicle model ([`slowest_time_constant_s`]: 2.07 s for the
     /// paper's vehicle over 5-55 m/s), or `speed.resume_settle_s` if longer; the odds then
     /// start again from nothing. The states kept through a pause are those of its start:
     /// their error decays with that mode, and until it has, the innovations favour whichever
@@ -342,8 +342,9 @@ impl Sentinels {
 /// geometric grid of ratio `speed.grid_ratio` over `[speed.min_m_s, speed.max_m_s]`. The
 /// slowest part of a stale state's error decays at this rate in the plant's own dynamics
 /// (open loop: the filter's gain corrects it on top). For the paper's vehicle it is the body's lateral mode on the secondary
-/// suspension (0.67 Hz, decay 0.58 /s) at most speeds, and another mode at 5 m/s
-/// (0.52 Hz, decay 0.52 /s: 1.93 s); `tests::the_slowest_mode_is_the_body_at_speed`.
+/// suspension (0.67 Hz, decay 0.58 /s) at most speeds, and another mode at the lowest
+/// speeds of the grid (decay 0.48 /s: 2.07 s over 5-55 m/s);
+/// `tests::the_slowest_mode_is_the_body_at_speed`.
 pub fn slowest_time_constant_s(
     filter_model: &FilterModel,
     speed: &SpeedConfig,
