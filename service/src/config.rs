@@ -300,6 +300,13 @@ impl ServiceConfig {
             }
             None => toml::Table::new(),
         };
+        let env: Vec<(String, String)> = env.into_iter().collect();
+        let keys = settings::reference::sections::<ServiceConfig>(&PRESET_TABLES);
+        settings::refuse_misspelt_overrides(
+            &env,
+            keys.iter()
+                .flat_map(|s| s.keys.iter().map(|k| k.key.as_str())),
+        )?;
         let overrides = settings::apply_env_overrides(&mut table, env)?;
         let config = Self::load_table(table, &overrides)?;
         Ok((config, overrides))
@@ -424,8 +431,9 @@ meaning, generated from the settings' own types by `railmon config reference` (d
 `cargo run -p railmon-service -- config reference > docs/configuration.md`).\n\n\
 Settings are layered: these defaults < a preset (`preset = \"...\"` in an estimator table) < \
 the file given with `--config` < `RAILMON_<SECTION>__<KEY>` environment variables (levels \
-separated by a double underscore, e.g. `RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES=500`). \
-The site settings (identity, storage, HTTP, bus, streams and their ranges) are shown with \
+separated by a double underscore, e.g. `RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES=500`; \
+a key spelt with single underscores, `RAILMON_HTTP_LISTEN`, is refused with the right spelling, \
+and so are two variables for one key). The site settings (identity, storage, HTTP, bus, streams and their ranges) are shown with \
 comments in `config/railmon.toml`; the estimator tables (`[*.estimator]`) are expert tuning, \
 validated on the scenarios in `config/scenarios/`. `railmon config check FILE` validates a file \
 and the environment without starting anything.";
@@ -658,6 +666,13 @@ mod tests {
 
     #[test]
     fn unknown_key_is_named() {
+        // One underscore between levels: refused, naming the spelling that works (it was
+        // ignored, and the service bound the default address).
+        let err = error_of(&[("RAILMON_HTTP_LISTEN", "0.0.0.0:9999")]);
+        assert!(
+            err.contains("http.listen") && err.contains("write RAILMON_HTTP__LISTEN"),
+            "{err}"
+        );
         let err = error_of(&[("RAILMON_DRIVE__SLIP_THRESHOLD", "0.5")]);
         assert!(err.contains("slip_threshold"), "{err}");
     }

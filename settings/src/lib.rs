@@ -50,7 +50,7 @@ pub fn apply_env_overrides(
     table: &mut toml::Table,
     vars: impl IntoIterator<Item = (String, String)>,
 ) -> Result<Vec<(String, String)>, SettingsError> {
-    let mut applied = Vec::new();
+    let mut applied: Vec<(String, String)> = Vec::new();
     for (name, value) in vars {
         let Some(rest) = name.strip_prefix(ENV_PREFIX) else {
             continue;
@@ -65,12 +65,62 @@ pub fn apply_env_overrides(
                 "empty key level (use RAILMON_SECTION__KEY)",
             ));
         }
+        // Two variables for one key (`RAILMON_HTTP__LISTEN` and `RAILMON_http__listen`), or
+        // for a table and a key inside it: which one wins would depend on the environment's
+        // order, so neither does.
+        let dotted = path.join(".");
+        if let Some((other_key, other)) = applied.iter().find(|(key, _)| {
+            *key == dotted
+                || dotted.starts_with(&format!("{key}."))
+                || key.starts_with(&format!("{dotted}."))
+        }) {
+            return Err(SettingsError::new(
+                dotted.clone(),
+                format!("set by both {other} (`{other_key}`) and {name}: keep one"),
+            ));
+        }
         set_path(table, &path, parse_env_value(&value)).map_err(|reason| {
             SettingsError::new(path.join("."), format!("{reason} (from {name})"))
         })?;
         applied.push((path.join("."), name));
     }
     Ok(applied)
+}
+
+/// Refuses a `RAILMON_` variable without `__` that spells one of `keys` (dotted paths) with
+/// single underscores (`RAILMON_HTTP_LISTEN` for `http.listen`): it is not read as an override,
+/// and a service that silently ignored it would run with the default the user meant to
+/// change. Other such variables (`RAILMON_CONFIG`, `RAILMON_LOG`, the scripts' own) pass.
+pub fn refuse_misspelt_overrides<'k>(
+    vars: &[(String, String)],
+    keys: impl IntoIterator<Item = &'k str>,
+) -> Result<(), SettingsError> {
+    let spelt: Vec<(String, &str)> = vars
+        .iter()
+        .filter_map(|(name, _)| name.strip_prefix(ENV_PREFIX).map(|rest| (rest, name)))
+        .filter(|(rest, _)| !rest.contains("__"))
+        .map(|(rest, name)| (rest.to_ascii_lowercase(), name.as_str()))
+        .collect();
+    if spelt.is_empty() {
+        return Ok(());
+    }
+    for key in keys {
+        let single = key.replace('.', "_");
+        if let Some((_, name)) = spelt.iter().find(|(rest, _)| *rest == single) {
+            let meant = format!(
+                "{ENV_PREFIX}{}",
+                key.replace('.', "__").to_ascii_uppercase()
+            );
+            return Err(SettingsError::new(
+                key,
+                format!(
+                    "{name} is not read (levels are separated by a double underscore): \
+                     write {meant}"
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn parse_env_value(value: &str) -> toml::Value {
@@ -289,6 +339,55 @@ mod tests {
             err.contains("outer.inner") && err.contains("buffer"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn a_key_spelt_with_single_underscores_is_refused_with_the_right_spelling() {
+        let keys = ["http.listen", "bogie.estimator.rbpf.particles"];
+        let vars = env(&[("RAILMON_HTTP_LISTEN", "0.0.0.0:1")]);
+        let e = refuse_misspelt_overrides(&vars, keys).unwrap_err();
+        assert_eq!(e.key, "http.listen");
+        assert!(e.reason.contains("write RAILMON_HTTP__LISTEN"), "{e}");
+        let vars = env(&[("RAILMON_bogie_estimator_rbpf_particles", "5")]);
+        let e = refuse_misspelt_overrides(&vars, keys).unwrap_err();
+        assert!(
+            e.reason
+                .contains("RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES"),
+            "{e}"
+        );
+        // Not settings: the binaries' and scripts' own variables, and real overrides.
+        let vars = env(&[
+            ("RAILMON_LOG", "warn"),
+            ("RAILMON_BOGIE_PARTICLES", "200"),
+            ("RAILMON_HTTP__LISTEN", "0.0.0.0:1"),
+            ("OTHER_HTTP_LISTEN", "x"),
+        ]);
+        assert_eq!(refuse_misspelt_overrides(&vars, keys), Ok(()));
+    }
+
+    /// Two variables for one key, or for a table and a key in it, are refused naming both,
+    /// whatever their order in the environment.
+    #[test]
+    fn two_variables_for_one_key_are_refused() {
+        for pair in [
+            [
+                ("RAILMON_HTTP__LISTEN", "a:1"),
+                ("RAILMON_http__listen", "b:2"),
+            ],
+            [
+                ("RAILMON_OUTER__INNER", "{ gain = 1.0 }"),
+                ("RAILMON_OUTER__INNER__GAIN", "2.0"),
+            ],
+        ] {
+            for order in [[0, 1], [1, 0]] {
+                let vars = env(&[pair[order[0]], pair[order[1]]]);
+                let e = apply_env_overrides(&mut toml::Table::new(), vars).unwrap_err();
+                assert!(
+                    e.reason.contains(pair[0].0) && e.reason.contains(pair[1].0),
+                    "{e}"
+                );
+            }
+        }
     }
 
     #[test]
