@@ -13,6 +13,16 @@ fn days_from_civil(y: i64, m: u32, d: u32) -> i64 {
     era * 146_097 + doe - 719_468
 }
 
+/// Days of month `m` (1-12) of year `y` (Gregorian leap years).
+fn days_in_month(y: u32, m: u32) -> u32 {
+    match m {
+        2 if y % 4 == 0 && (y % 100 != 0 || y % 400 == 0) => 29,
+        2 => 28,
+        4 | 6 | 9 | 11 => 30,
+        _ => 31,
+    }
+}
+
 /// The civil date of `days` since 1970-01-01 (`civil_from_days`).
 fn civil_from_days(days: i64) -> (i64, u32, u32) {
     let z = days + 719_468;
@@ -77,7 +87,7 @@ pub fn parse_rfc3339(text: &str) -> Result<i64, String> {
         num(14..16)?,
         num(17..19)?,
     );
-    if !(1..=12).contains(&mo) || !(1..=31).contains(&d) || h > 23 || mi > 59 || s > 60 {
+    if !(1..=12).contains(&mo) || d < 1 || d > days_in_month(y, mo) || h > 23 || mi > 59 || s > 60 {
         return Err(bad());
     }
     let mut rest = &text[19..];
@@ -99,6 +109,9 @@ pub fn parse_rfc3339(text: &str) -> Result<i64, String> {
         {
             let oh = rest[1..3].parse::<i64>().map_err(|_| bad())?;
             let om = rest[4..6].parse::<i64>().map_err(|_| bad())?;
+            if oh > 23 || om > 59 {
+                return Err(bad());
+            }
             let sign = if rest.starts_with('-') { -1 } else { 1 };
             sign * (oh * 3600 + om * 60)
         }
@@ -129,6 +142,20 @@ mod tests {
         }
     }
 
+    /// Leap days exist only in leap years (2000 is one, 1900 is not); every month's last day.
+    #[test]
+    fn last_days_of_months_are_valid() {
+        for ok in [
+            "2024-02-29T00:00:00Z",
+            "2000-02-29T00:00:00Z",
+            "2026-01-31T00:00:00Z",
+            "2026-04-30T00:00:00Z",
+            "2026-12-31T23:59:60Z",
+        ] {
+            assert!(parse_rfc3339(ok).is_ok(), "{ok}");
+        }
+    }
+
     #[test]
     fn offsets_and_bad_text() {
         assert_eq!(
@@ -139,6 +166,12 @@ mod tests {
             "",
             "2026-11-22",
             "2026-13-01T00:00:00Z",
+            "2026-02-30T00:00:00Z",
+            "2026-02-29T00:00:00Z",
+            "1900-02-29T00:00:00Z",
+            "2026-04-31T00:00:00Z",
+            "2026-11-22T16:58:05+24:00",
+            "2026-11-22T16:58:05+01:60",
             "2026-11-22T16:58:05",
             "yesterday",
         ] {
