@@ -60,6 +60,45 @@ fn private_dir(dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
+/// An explicit `bus.root_path` held to the default's rules, and refused rather than repaired
+/// where files may already have been planted in it: a directory (not a symlink to one) of this
+/// user, writable by no one else, in a parent that no one else can rename it in (not writable
+/// by others, or sticky like /tmp); created 0700 if missing, made private if others may read it.
+fn explicit_root(dir: &Path) -> Result<(), String> {
+    let dir = Path::new(dir.to_str().map_or(dir.as_os_str(), |s| {
+        std::ffi::OsStr::new(s.trim_end_matches('/'))
+    }));
+    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+        if let Ok(meta) = std::fs::metadata(parent) {
+            if meta.mode() & 0o022 != 0 && meta.mode() & 0o1000 == 0 {
+                return Err(format!(
+                    "its parent {} is writable by others (mode {:o}) and not sticky: anyone \
+                     could replace the directory; use a private parent",
+                    parent.display(),
+                    meta.mode() & 0o7777
+                ));
+            }
+        }
+    }
+    if let Ok(meta) = std::fs::symlink_metadata(dir) {
+        if meta.file_type().is_symlink() {
+            return Err("a symbolic link: give the directory itself".into());
+        }
+        if meta.is_dir() && meta.mode() & 0o022 != 0 {
+            let who = if meta.mode() & 0o002 != 0 {
+                "world-writable"
+            } else {
+                "group-writable"
+            };
+            return Err(format!(
+                "{who} (mode {:o}): others could plant bus files there; use a private directory",
+                meta.mode() & 0o7777
+            ));
+        }
+    }
+    private_dir(dir)
+}
+
 fn with_slash(path: &Path) -> String {
     let mut text = path.display().to_string();
     if !text.ends_with('/') {
@@ -75,32 +114,12 @@ pub fn resolve_root_path(
     xdg_runtime_dir: Option<&str>,
 ) -> Result<RootPath, BusError> {
     if !configured.is_empty() {
-        let dir = Path::new(configured);
-        if !dir.exists() {
-            std::fs::DirBuilder::new()
-                .recursive(true)
-                .mode(0o700)
-                .create(dir)
-                .map_err(|e| BusError::Config {
-                    key: "bus.root_path".into(),
-                    reason: format!("cannot create `{configured}`: {e}"),
-                })?;
-        }
-        let meta = std::fs::metadata(dir).map_err(|e| BusError::Config {
+        explicit_root(Path::new(configured)).map_err(|why| BusError::Config {
             key: "bus.root_path".into(),
-            reason: format!("`{configured}`: {e}"),
+            reason: format!("`{configured}`: {why}"),
         })?;
-        if meta.mode() & 0o002 != 0 {
-            return Err(BusError::Config {
-                key: "bus.root_path".into(),
-                reason: format!(
-                    "`{configured}` is world-writable (mode {:o}): anyone could plant bus files there; use a private directory",
-                    meta.mode() & 0o7777
-                ),
-            });
-        }
         return Ok(RootPath {
-            path: with_slash(dir),
+            path: with_slash(Path::new(configured)),
             notes: Vec::new(),
         });
     }
@@ -164,17 +183,40 @@ mod tests {
         assert_eq!(mode & 0o077, 0, "{none:?}");
     }
 
+    /// An explicit root is held to the default's rules: world- or group-writable, a symlink,
+    /// or in a world-writable parent without the sticky bit: refused; a missing one is
+    /// created 0700 (in a sticky parent, as under /tmp), one others may read made 0700.
     #[test]
-    fn an_explicit_world_writable_root_is_refused_and_a_missing_one_created_private() {
+    fn an_explicit_root_is_private_or_refused() {
+        let set_mode = |p: &Path, mode| {
+            std::fs::set_permissions(p, std::fs::Permissions::from_mode(mode)).unwrap()
+        };
+        let refused = |p: &Path| resolve_root_path(p.to_str().unwrap(), None).unwrap_err();
         let dir = scratch("explicit");
         std::fs::create_dir_all(&dir).unwrap();
-        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o777)).unwrap();
-        let err = resolve_root_path(dir.to_str().unwrap(), None).unwrap_err();
-        assert!(err.to_string().contains("world-writable"), "{err}");
+        for (mode, why) in [(0o777, "world-writable"), (0o770, "group-writable")] {
+            set_mode(&dir, mode);
+            let err = refused(&dir);
+            assert!(err.to_string().contains(why), "{err}");
+        }
+        set_mode(&dir, 0o777);
         let inner = dir.join("bus");
-        let root = resolve_root_path(inner.to_str().unwrap(), None).unwrap();
+        let err = refused(&inner);
+        assert!(err.to_string().contains("not sticky"), "{err}");
+        assert!(!inner.exists());
+        set_mode(&dir, 0o1777);
+        let root = resolve_root_path(&format!("{}/", inner.display()), None).unwrap();
         assert_eq!(root.path, format!("{}/", inner.display()));
         assert_eq!(std::fs::metadata(&inner).unwrap().mode() & 0o777, 0o700);
+        set_mode(&inner, 0o755);
+        resolve_root_path(inner.to_str().unwrap(), None).unwrap();
+        assert_eq!(std::fs::metadata(&inner).unwrap().mode() & 0o777, 0o700);
+        let link = dir.join("link");
+        std::os::unix::fs::symlink(&inner, &link).unwrap();
+        for path in [link.display().to_string(), format!("{}/", link.display())] {
+            let err = resolve_root_path(&path, None).unwrap_err();
+            assert!(err.to_string().contains("symbolic link"), "{err}");
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -68,6 +68,11 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let config = ServiceConfig::load(args.config.as_deref(), std::env::vars())
         .context("invalid configuration")?;
     let addr = config.listen_addr()?;
+    // The bus root path is checked once here: an unusable one (another user's, open to others,
+    // a symlink) is a setting to fix, not a bus failure the ingest threads would retry for ever.
+    let xdg_runtime_dir = std::env::var("XDG_RUNTIME_DIR").ok();
+    railmon_bus::root_path::resolve_root_path(&config.bus.root_path, xdg_runtime_dir.as_deref())
+        .context("invalid configuration")?;
     let state = AppState::new(config).context("starting the service")?;
     let state_for_close = state.clone();
     let shutdown = Arc::new(AtomicBool::new(false));

@@ -206,3 +206,32 @@ fn sigterm_cuts_an_unfinished_request_at_the_shutdown_deadline() {
         start.elapsed()
     );
 }
+
+/// A bus root path open to others, or a symlink, is refused at start with exit 1 and the key
+/// named (issue 26: it was retried for ever by the ingest threads, the service up but blind).
+#[test]
+fn an_unsafe_bus_root_path_is_refused_at_start() {
+    let scratch = std::env::temp_dir().join(format!("railmon-root-refused-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&scratch);
+    std::fs::create_dir_all(scratch.join("private")).unwrap();
+    std::os::unix::fs::symlink(scratch.join("private"), scratch.join("link")).unwrap();
+    for (root, why) in [
+        ("/tmp".to_string(), "world-writable"),
+        (scratch.join("link").display().to_string(), "symbolic link"),
+    ] {
+        let out = std::process::Command::new(&railmon_system_tests::binaries().railmon)
+            .arg("serve")
+            .env("RAILMON_BUS__ROOT_PATH", &root)
+            .env("RAILMON_HTTP__LISTEN", "127.0.0.1:0")
+            .env("RAILMON_STORAGE__DATA_DIR", scratch.join("data"))
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{root}: {stderr}");
+        assert!(
+            stderr.contains("bus.root_path") && stderr.contains(why),
+            "{root}: {stderr}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&scratch);
+}
