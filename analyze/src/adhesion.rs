@@ -164,7 +164,8 @@ fn input_error(path: &Path, reason: impl ToString) -> AdhesionAnalysisError {
 }
 
 fn read_text(path: &Path) -> Result<String, AdhesionAnalysisError> {
-    std::fs::read_to_string(path).map_err(|e| input_error(path, format!("cannot read: {e}")))
+    railmon_records::read_text_file(path, railmon_records::MAX_SETTINGS_FILE_BYTES)
+        .map_err(|e| input_error(path, format!("cannot read: {e}")))
 }
 
 fn estimator_error(path: &Path) -> impl Fn(SlipError) -> AdhesionAnalysisError + '_ {

@@ -93,7 +93,8 @@ fn estimator_error(file: &str) -> impl Fn(DamperError) -> DamperAnalysisError + 
 }
 
 fn read_text(path: &Path) -> Result<String, DamperAnalysisError> {
-    std::fs::read_to_string(path).map_err(|e| input_error(path, format!("cannot read: {e}")))
+    railmon_records::read_text_file(path, railmon_records::MAX_SETTINGS_FILE_BYTES)
+        .map_err(|e| input_error(path, format!("cannot read: {e}")))
 }
 
 /// One row of `summary.csv`.

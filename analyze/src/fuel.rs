@@ -52,9 +52,11 @@ pub struct FuelInput {
 }
 
 fn read_text(path: &Path) -> Result<String, FuelAnalysisError> {
-    std::fs::read_to_string(path).map_err(|e| FuelAnalysisError::Input {
-        file: path.display().to_string(),
-        reason: format!("cannot read: {e}"),
+    railmon_records::read_text_file(path, railmon_records::MAX_SETTINGS_FILE_BYTES).map_err(|e| {
+        FuelAnalysisError::Input {
+            file: path.display().to_string(),
+            reason: format!("cannot read: {e}"),
+        }
     })
 }
 

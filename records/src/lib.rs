@@ -14,9 +14,11 @@ use std::fs::File;
 use std::io::Read;
 use std::path::Path;
 
+pub use bounded::{read_regular_file, read_text_file, MAX_SETTINGS_FILE_BYTES};
 pub use output::{refuse_output_that_is_an_input, AtomicFile};
 
 pub mod bogie;
+pub mod bounded;
 pub mod drive;
 pub mod output;
 pub mod vehicle;
@@ -47,12 +49,25 @@ impl fmt::Display for RecordError {
         if let Some(field) = &self.field {
             write!(f, " field \"{field}\"")?;
             if let Some(value) = &self.value {
-                write!(f, " = \"{value}\"")?;
+                write!(f, " = \"{}\"", shortened(value))?;
             }
             write!(f, ":")?;
         }
         write!(f, " {}", self.reason)
     }
+}
+
+/// `value` as an error shows it: whole up to 80 bytes, else its first 60 and its length (a
+/// 200 MB field was once echoed whole into the error).
+fn shortened(value: &str) -> std::borrow::Cow<'_, str> {
+    if value.len() <= 80 {
+        return value.into();
+    }
+    let mut end = 60;
+    while !value.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{}... ({} bytes)", &value[..end], value.len()).into()
 }
 
 impl RecordError {
@@ -334,6 +349,21 @@ pub fn write_csv_table<S: AsRef<str>>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_long_value_is_cut_in_the_error() {
+        let e = RecordError {
+            file: "a.csv".into(),
+            line: Some(2),
+            field: Some("x".into()),
+            value: Some("é".repeat(1_000)),
+            reason: "not a number".into(),
+        };
+        let text = e.to_string();
+        assert!(text.len() < 120 && text.contains("... (2000 bytes)"), "{text}");
+        let short = RecordError { value: Some("abc".into()), ..e };
+        assert_eq!(short.to_string(), "a.csv:2: field \"x\" = \"abc\": not a number");
+    }
 
     fn table(text: &str) -> CsvTable<&[u8]> {
         CsvTable::from_reader("t.csv", text.as_bytes()).unwrap()

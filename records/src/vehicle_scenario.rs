@@ -52,7 +52,7 @@ impl SimulatedVehicle {
 /// file at fault.
 pub fn simulate_vehicle_scenario(path: &Path) -> Result<SimulatedVehicle, RecordError> {
     let label = path.display().to_string();
-    let text = std::fs::read_to_string(path)
+    let text = crate::read_text_file(path, crate::MAX_SETTINGS_FILE_BYTES)
         .map_err(|e| RecordError::file(&label, format!("cannot read: {e}")))?;
     if RailcarScenario::is_one(&text) {
         let scenario = RailcarScenario::from_toml_str(&text)

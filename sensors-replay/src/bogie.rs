@@ -104,8 +104,9 @@ impl BogieSource {
             .refuse_recording_over_an_input(&[args.scenario.as_deref(), args.csv.as_deref()])?;
         let (samples, n_bogies, dt_s, with_truth) = match (&args.scenario, &args.csv) {
             (Some(path), _) => {
-                let text = std::fs::read_to_string(path)
-                    .with_context(|| format!("cannot read scenario {}", path.display()))?;
+                let text =
+                    railmon_records::read_text_file(path, railmon_records::MAX_SETTINGS_FILE_BYTES)
+                        .with_context(|| format!("cannot read scenario {}", path.display()))?;
                 let mut scenario = DamperScenario::from_toml_str(&text)
                     .with_context(|| format!("scenario {}", path.display()))?;
                 if let Some(d) = args.duration_s {

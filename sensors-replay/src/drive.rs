@@ -51,8 +51,9 @@ enum DriveData {
 impl DriveData {
     fn open(args: &DriveArgs) -> anyhow::Result<Self> {
         if let Some(path) = &args.scenario {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("cannot read scenario {}", path.display()))?;
+            let text =
+                railmon_records::read_text_file(path, railmon_records::MAX_SETTINGS_FILE_BYTES)
+                    .with_context(|| format!("cannot read scenario {}", path.display()))?;
             let scenario = AdhesionScenario::from_toml_str(&text)
                 .with_context(|| format!("invalid scenario {}", path.display()))?;
             if scenario.n_drives() > MAX_DRIVES {

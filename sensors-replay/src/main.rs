@@ -108,8 +108,9 @@ impl ReplayArgs {
 pub fn load_bus_config(file: Option<&Path>) -> anyhow::Result<BusConfig> {
     let mut table = match file {
         Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("cannot read config file {}", path.display()))?;
+            let text =
+                railmon_records::read_text_file(path, railmon_records::MAX_SETTINGS_FILE_BYTES)
+                    .with_context(|| format!("cannot read config file {}", path.display()))?;
             settings::parse_table(&text, &path.display().to_string())?
         }
         None => toml::Table::new(),

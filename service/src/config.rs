@@ -292,10 +292,12 @@ impl ServiceConfig {
     ) -> Result<(Self, Vec<(String, String)>), ConfigError> {
         let mut table = match file {
             Some(path) => {
-                let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
-                    file: path.display().to_string(),
-                    reason: e.to_string(),
-                })?;
+                let text =
+                    railmon_records::read_text_file(path, railmon_records::MAX_SETTINGS_FILE_BYTES)
+                        .map_err(|e| ConfigError::Read {
+                            file: path.display().to_string(),
+                            reason: e.to_string(),
+                        })?;
                 settings::parse_table(&text, &path.display().to_string())?
             }
             None => toml::Table::new(),

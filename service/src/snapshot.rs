@@ -41,6 +41,11 @@ impl SnapshotPolicy {
 
 const MAGIC: &str = "railmon-snapshot v1";
 
+/// Largest snapshot file read (bytes): a bogie's state is ~200 B per particle (N = 1000:
+/// ~0.2 MB), so this holds dozens of bogies at the largest particle counts, and stops a file
+/// that is not a snapshot from growing the process without end.
+const MAX_SNAPSHOT_BYTES: u64 = 1 << 30;
+
 /// What the ingest loop saves: where the source stood and the pipeline's own state.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct IngestState {
@@ -123,7 +128,9 @@ impl SnapshotFile {
     /// `max_age_s` ago, intact. `Ok(None)`: there is none; `Err`: there is one that does not
     /// fit, and why.
     pub fn load(&self, max_age_s: f64) -> Result<Option<IngestState>, String> {
-        let bytes = match std::fs::read(&self.path) {
+        // A regular file of bounded size only: a FIFO there would block the stream, a link to
+        // a device such as /dev/zero grow the process without end (issue 26 item 5).
+        let bytes = match railmon_records::read_regular_file(&self.path, MAX_SNAPSHOT_BYTES) {
             Ok(bytes) => bytes,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
             Err(e) => return Err(format!("{}: {e}", self.path.display())),
