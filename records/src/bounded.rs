@@ -14,6 +14,15 @@ pub const MAX_SETTINGS_FILE_BYTES: u64 = 16 << 20;
 /// The bytes of the regular file `path`, at most `max_bytes` of them; else why not, in words
 /// (the caller adds the file's name).
 pub fn read_regular_file(path: &Path, max_bytes: u64) -> Result<Vec<u8>, std::io::Error> {
+    let (file, meta) = open_regular_file(path)?;
+    if meta.len() > max_bytes {
+        return Err(too_large(meta.len(), max_bytes));
+    }
+    read_at_most(file, max_bytes)
+}
+
+/// `path` opened for reading if it is a regular file, with its metadata; else why not.
+pub fn open_regular_file(path: &Path) -> Result<(File, std::fs::Metadata), std::io::Error> {
     // Non-blocking, so that opening a FIFO with no writer returns at once; the kind is then
     // checked on the opened file, not on a name that could change in between.
     let file = OpenOptions::new()
@@ -36,10 +45,7 @@ pub fn read_regular_file(path: &Path, max_bytes: u64) -> Result<Vec<u8>, std::io
         };
         return Err(invalid(format!("{what}, not a regular file")));
     }
-    if meta.len() > max_bytes {
-        return Err(too_large(meta.len(), max_bytes));
-    }
-    read_at_most(file, max_bytes)
+    Ok((file, meta))
 }
 
 /// [`read_regular_file`] as UTF-8 text.

@@ -111,11 +111,12 @@ pub struct CsvTable<R: Read> {
 }
 
 impl CsvTable<File> {
-    /// Opens `path` and reads its header.
+    /// Opens `path` (a regular file: `/dev/zero` would be read without end) and reads its
+    /// header.
     pub fn open(path: &Path) -> Result<Self, RecordError> {
         let label = path.display().to_string();
-        let file =
-            File::open(path).map_err(|e| RecordError::file(&label, format!("cannot open: {e}")))?;
+        let (file, _) = bounded::open_regular_file(path)
+            .map_err(|e| RecordError::file(&label, format!("cannot open: {e}")))?;
         Self::from_reader(&label, file)
     }
 }
@@ -360,9 +361,18 @@ mod tests {
             reason: "not a number".into(),
         };
         let text = e.to_string();
-        assert!(text.len() < 120 && text.contains("... (2000 bytes)"), "{text}");
-        let short = RecordError { value: Some("abc".into()), ..e };
-        assert_eq!(short.to_string(), "a.csv:2: field \"x\" = \"abc\": not a number");
+        assert!(
+            text.len() < 120 && text.contains("... (2000 bytes)"),
+            "{text}"
+        );
+        let short = RecordError {
+            value: Some("abc".into()),
+            ..e
+        };
+        assert_eq!(
+            short.to_string(),
+            "a.csv:2: field \"x\" = \"abc\": not a number"
+        );
     }
 
     fn table(text: &str) -> CsvTable<&[u8]> {
