@@ -19,6 +19,7 @@
 //!
 //! Results, commands and CSV layouts: `docs/fuel.md`.
 
+pub mod alarm;
 pub mod config;
 pub mod counts;
 pub mod error;
@@ -34,11 +35,12 @@ pub mod routes;
 pub mod sample;
 pub mod simulator;
 
+pub use alarm::{RegimeChange, REGIME_CHANGED};
 pub use config::{CategoricalConfig, FuelMonitorConfig, InitialPartition};
 pub use counts::CountTable;
 pub use error::FuelError;
 pub use mixture::{Mixture, MixtureInput, MixtureSpec};
-pub use monitor::{FuelEstimate, FuelMonitor, MixtureEstimate, RegimeChange, REGIME_CHANGED};
+pub use monitor::{FuelEstimate, FuelMonitor, MixtureEstimate};
 pub use predictive::{central_interval, Interval, StudentT};
 pub use railcar::{RailcarParameters, RailcarScenario, RailcarSimulator, RailcarTruth};
 pub use regime::{ComponentName, OperatingPoint, PowerTier, RegimeName, RegimeNaming};

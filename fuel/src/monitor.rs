@@ -14,6 +14,7 @@ use nalgebra::{DMatrix, DVector};
 use railmon_filter::logspace::normalize_log_weights;
 use serde::Serialize;
 
+use crate::alarm::{RegimeChange, RegimeConfirmation};
 use crate::config::{FuelMonitorConfig, InitialPartition};
 use crate::kinematic::{KinematicFilter, KinematicState};
 use crate::mixture::{argmax, Mixture, MixtureInput, MixtureSpec};
@@ -124,24 +125,6 @@ impl MixtureEstimate {
         }
     }
 }
-
-/// The alarm rule of the fuel stream: the reported regime changed. The event `regime_changed`
-/// of the service and of `railmon analyze fuel` (`events.csv`) carries these fields.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
-pub struct RegimeChange {
-    pub from_regime: usize,
-    pub to_regime: usize,
-    /// What the regimes mean, named on this sample (the component left may have been renamed
-    /// since it was entered: the name is of its statistics now). Names are unique per
-    /// component, so they differ.
-    pub from_name: ComponentName,
-    pub to_name: ComponentName,
-    /// Probability of the new regime on this sample.
-    pub probability: f64,
-}
-
-/// The `kind` of a [`RegimeChange`] event.
-pub const REGIME_CHANGED: &str = "regime_changed";
 
 /// Everything the monitor reports after a sample.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
@@ -262,8 +245,10 @@ pub struct FuelMonitor {
     forecast_work: ForecastWork,
     /// Scales of the predictives that keep the 90 % intervals' coverage at 90 %.
     calibration: IntervalCalibration,
-    /// The active regime and for how many samples in a row it has been active.
-    active_streak: (usize, usize),
+    /// The confirmation of the reported regime (`regime_confirm_samples`); `active_streak`
+    /// is the name its state has in snapshots.
+    #[serde(rename = "active_streak")]
+    regime_confirmation: RegimeConfirmation,
     estimate: FuelEstimate,
 }
 
@@ -344,7 +329,7 @@ impl FuelMonitor {
             pending_forecast: ForecastPath::default(),
             forecast_work: ForecastWork::default(),
             calibration: IntervalCalibration::new(config.forecast_horizon_steps),
-            active_streak: (0, 0),
+            regime_confirmation: RegimeConfirmation::default(),
             estimate: FuelEstimate::default(),
         })
     }
@@ -762,24 +747,14 @@ impl FuelMonitor {
         );
         spare.truncate(self.config.forecast_horizon_steps);
         let previous = self.estimate.mixture.as_ref();
-        self.active_streak = match self.active_streak {
-            (regime, n) if regime == active => (regime, n + 1),
-            _ => (active, 1),
-        };
-        let regime = match previous {
-            Some(e) if self.active_streak.1 < self.config.regime_confirm_samples => e.regime,
-            _ => active,
-        };
         let regime_names = self.regime_names();
-        let regime_change = previous
-            .filter(|e| e.regime != regime)
-            .map(|e| RegimeChange {
-                from_regime: e.regime,
-                to_regime: regime,
-                from_name: regime_names[e.regime],
-                to_name: regime_names[regime],
-                probability: regime_probabilities[regime],
-            });
+        let (regime, regime_change) = self.regime_confirmation.update(
+            &self.config,
+            active,
+            previous.map(|e| e.regime),
+            &regime_names,
+            &regime_probabilities,
+        );
         let cumulative_virtual =
             previous.map_or(0.0, |e| e.cumulative_virtual_fuel_cm3) + virtual_sensor * dt;
         // The forecast's copies in the buffers of the estimate this one replaces.
