@@ -22,6 +22,7 @@
 pub mod alarm;
 pub mod config;
 pub mod counts;
+mod data_vector;
 pub mod error;
 pub mod estimate;
 mod kernel;

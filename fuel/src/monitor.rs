@@ -2,11 +2,9 @@
 //! service or an offline report needs at every step.
 //!
 //! The monitor validates each sample before anything changes, standardises the continuous
-//! channels with the mean and spread of the initial samples (so that one prior and one variance
-//! floor fit fuel in cm^3/s and engine speed in rpm alike; the proximities only shift by a
-//! constant common to all components, so the pointer is unaffected), builds the regressors
+//! channels with the mean and spread of the initial samples, builds the regressors
 //! `psi_t = [y_{t-1}, .., y_{t-m_y}, z_{t-1}, 1]`, the categorical condition `[z_{t-1}, s_{t-1}]`
-//! and the switching condition `[f_{t-1}, ..]`, and runs [`Mixture`].
+//! and the switching condition `[f_{t-1}, ..]` (`crate::data_vector`), and runs [`Mixture`].
 
 use std::collections::VecDeque;
 
@@ -15,6 +13,7 @@ use railmon_filter::logspace::normalize_log_weights;
 
 use crate::alarm::RegimeConfirmation;
 use crate::config::{FuelMonitorConfig, InitialPartition};
+use crate::data_vector::{Layout, Past, Prepared, Standardiser};
 use crate::estimate::{
     fuel_range_cm3_s, in_fuel_range, FuelEstimate, MixtureEstimate, INTERVAL_MASS,
 };
@@ -29,81 +28,6 @@ use crate::FuelError;
 /// many standard deviations of the reading's acceleration against the filtered speed: a
 /// legitimate sample is refused by noise alone about once in 300 000 (two-sided normal tail).
 const NOISE_ALLOWANCE_SD: f64 = 4.5;
-
-/// A sample reduced to what the mixture uses, checked.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-struct Prepared {
-    time_s: f64,
-    /// Continuous channels in the monitor's order (fuel first), raw units.
-    y: Vec<f64>,
-    category: Option<usize>,
-    /// Speed below the standstill threshold (only with `pointer_standing`; false otherwise).
-    #[serde(default)]
-    standing: bool,
-    speed_level: usize,
-    fuel_level: usize,
-    /// Discretised `v_t - v_{t-1}` (0 when acceleration bins are off or on the first sample).
-    acceleration_level: usize,
-    speed_m_s: Option<f64>,
-    /// The kinematic filter's state after this sample (`speed_noise_m_s` > 0 only).
-    kinematic: Option<KinematicState>,
-}
-
-/// Mean and spread of each channel from the initial samples.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-struct Standardiser {
-    mean: Vec<f64>,
-    scale: Vec<f64>,
-}
-
-impl Standardiser {
-    /// `min_scales[c]`: the floor of channel `c`'s spread.
-    fn from_samples(min_scales: &[f64], samples: &[Prepared]) -> Self {
-        let n = samples.len() as f64;
-        let mut mean = vec![0.0; min_scales.len()];
-        let mut scale = vec![0.0; min_scales.len()];
-        for (c, floor) in min_scales.iter().enumerate() {
-            let m = samples.iter().map(|s| s.y[c]).sum::<f64>() / n;
-            let var = samples.iter().map(|s| (s.y[c] - m).powi(2)).sum::<f64>() / n;
-            mean[c] = m;
-            scale[c] = var.sqrt().max(*floor);
-        }
-        Standardiser { mean, scale }
-    }
-
-    fn apply(&self, y: &[f64]) -> DVector<f64> {
-        DVector::from_iterator(
-            y.len(),
-            y.iter()
-                .enumerate()
-                .map(|(c, v)| (v - self.mean[c]) / self.scale[c]),
-        )
-    }
-
-    fn fuel(&self, standardised: f64) -> f64 {
-        self.mean[0] + self.scale[0] * standardised
-    }
-
-    /// A Student-t term of fuel from its standardised location and variance.
-    fn fuel_term(&self, weight: f64, location: f64, variance: f64, dof: f64) -> StudentT {
-        StudentT {
-            weight,
-            location: self.fuel(location),
-            scale: self.scale[0] * variance.max(0.0).sqrt(),
-            dof,
-        }
-    }
-}
-
-/// What the regressors need from the past: newest first.
-#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
-struct Past {
-    y: VecDeque<DVector<f64>>,
-    category: Option<usize>,
-    speed_level: usize,
-    fuel_levels: VecDeque<usize>,
-    acceleration_level: usize,
-}
 
 /// The recursive fuel estimator on vehicle samples. See the crate documentation.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -240,6 +164,15 @@ impl FuelMonitor {
     /// The last estimate.
     pub fn estimate(&self) -> &FuelEstimate {
         &self.estimate
+    }
+
+    /// How the data vectors are laid out ([`Layout`]).
+    fn layout(&self) -> Layout<'_> {
+        Layout {
+            config: &self.config,
+            spec: &self.spec,
+            lagged: &self.lagged,
+        }
     }
 
     /// Checks a sample against the configuration without changing anything.
@@ -385,60 +318,6 @@ impl FuelMonitor {
         Ok(&self.estimate)
     }
 
-    fn regressor(&self, past: &Past) -> DVector<f64> {
-        let mut psi = Vec::with_capacity(self.spec.k_psi);
-        for y in past.y.iter().take(self.config.regression_memory) {
-            psi.extend(self.lagged.iter().map(|&i| y[i]));
-        }
-        let notches = self.config.notch_categories();
-        if notches > 0 {
-            // The paper puts the gear itself in psi (section 4.2); centred, so that it does
-            // not compete with the constant.
-            let l = past.category.unwrap_or(0) as f64;
-            psi.push(l - 0.5 * (notches - 1) as f64);
-        }
-        psi.push(1.0);
-        DVector::from_vec(psi)
-    }
-
-    /// The categorical cell `(q, l)` of the sample `now`: `q` the previous notch and speed
-    /// level, `l` the notch now.
-    fn category_cell(&self, past: &Past, now: &Prepared) -> Option<(usize, usize)> {
-        now.category.map(|l| {
-            (
-                past.category.unwrap_or(0) * self.config.speed_levels() + past.speed_level,
-                l,
-            )
-        })
-    }
-
-    fn switching_row(&self, past: &Past) -> usize {
-        self.switching_row_of(past.fuel_levels.iter().copied(), past.acceleration_level)
-    }
-
-    /// Row of the switching table for fuel levels (newest first) and an acceleration level:
-    /// the newest level is the least significant digit (base: the number of levels).
-    fn switching_row_of(
-        &self,
-        levels_newest_first: impl Iterator<Item = usize>,
-        acceleration_level: usize,
-    ) -> usize {
-        let n_f = self.config.fuel_levels();
-        let (k_f, _) =
-            levels_newest_first.fold((0, 1), |(k, digit), f| (k + f * digit, digit * n_f));
-        k_f * self.config.acceleration_levels() + acceleration_level
-    }
-
-    fn push_past(past: &mut Past, y: DVector<f64>, p: &Prepared, m_y: usize, m_alpha: usize) {
-        past.y.push_front(y);
-        past.y.truncate(m_y);
-        past.category = p.category;
-        past.speed_level = p.speed_level;
-        past.fuel_levels.push_front(p.fuel_level);
-        past.fuel_levels.truncate(m_alpha);
-        past.acceleration_level = p.acceleration_level;
-    }
-
     /// Initial part of Algorithm 3.4 from the collected samples: the components start from a
     /// partition of the samples by fuel level (quantiles), refined by EM.
     fn initialise(&mut self) -> Result<(), FuelError> {
@@ -461,12 +340,12 @@ impl FuelMonitor {
             let y = st.apply(&p.y);
             if t >= start {
                 standing.push(p.standing);
-                psis.push(self.regressor(&past));
-                cells.push(self.category_cell(&past, p));
-                rows.push(self.switching_row(&past));
+                psis.push(self.layout().regressor(&past));
+                cells.push(self.layout().category_cell(&past, p));
+                rows.push(self.layout().switching_row(&past));
                 ys.push(y.clone());
             }
-            Self::push_past(&mut past, y, p, m_y, m_alpha);
+            past.push(y, p, m_y, m_alpha);
         }
         let inputs: Vec<MixtureInput> = (0..ys.len())
             .map(|t| MixtureInput {
@@ -531,9 +410,9 @@ impl FuelMonitor {
             return Err(FuelError::Numerical("monitor not initialised"));
         };
         let y = st.apply(&p.y);
-        let psi = self.regressor(&self.past);
-        let category = self.category_cell(&self.past, p);
-        let k = self.switching_row(&self.past);
+        let psi = self.layout().regressor(&self.past);
+        let category = self.layout().category_cell(&self.past, p);
+        let k = self.layout().switching_row(&self.past);
         let m = self.config.components;
 
         // Virtual sensor (before the update: it must not see fuel now).
@@ -616,7 +495,7 @@ impl FuelMonitor {
 
         // Commit the rest.
         let (m_y, m_alpha) = (self.config.regression_memory, self.config.switching_memory);
-        Self::push_past(&mut self.past, y, p, m_y, m_alpha);
+        self.past.push(y, p, m_y, m_alpha);
         let one_step = self.pending_forecast.mean_cm3_s.first().copied();
         let one_step_terms = self.pending_forecast.terms.first().cloned();
         self.blend.observe(p.y[0], self.config.blend_forgetting);
@@ -779,7 +658,7 @@ impl FuelMonitor {
             }
         }
         // Given c_{t+h+1} = i: the regressor's mean and covariance, and log p(c_{t+h+1}).
-        psi_now.copy_from(&self.regressor(&self.past));
+        psi_now.copy_from(&self.layout().regressor(&self.past));
         for psi_i in psi.chunks_exact_mut(k_psi).take(m) {
             psi_i.copy_from_slice(psi_now.as_slice());
         }
@@ -799,7 +678,9 @@ impl FuelMonitor {
         levels.clear();
         levels.extend(self.past.fuel_levels.iter().copied());
         let acceleration_level = self.past.acceleration_level;
-        let row = self.switching_row_of(levels.iter().copied(), acceleration_level);
+        let row = self
+            .layout()
+            .switching_row_of(levels.iter().copied(), acceleration_level);
         mixture.predict_pointer_from(mixture.log_weights(), row, &mut log_p[..m]);
         for (p_i, l) in p.iter_mut().zip(log_p.iter()).take(m) {
             *p_i = l.exp();
@@ -884,7 +765,7 @@ impl FuelMonitor {
                         c_yy,
                         &mut shifted_sigma[i * n2..(i + 1) * n2],
                     );
-                    rows[i] = self.switching_row_of(
+                    rows[i] = self.layout().switching_row_of(
                         std::iter::once(level)
                             .chain(levels.iter().copied())
                             .take(self.config.switching_memory),
