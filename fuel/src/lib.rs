@@ -25,6 +25,7 @@ pub mod counts;
 mod data_vector;
 pub mod error;
 pub mod estimate;
+mod forecast;
 mod kernel;
 pub mod kinematic;
 pub mod mixture;
