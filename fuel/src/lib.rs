@@ -20,6 +20,7 @@
 //! Results, commands and CSV layouts: `docs/fuel.md`.
 
 pub mod alarm;
+mod blend;
 pub mod config;
 pub mod counts;
 mod data_vector;
