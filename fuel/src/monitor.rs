@@ -331,6 +331,7 @@ impl FuelMonitor {
         let st = Standardiser::from_samples(&min_scales, &self.initial);
         let (m_y, m_alpha) = (self.config.regression_memory, self.config.switching_memory);
         let start = m_y.max(m_alpha);
+        let layout = self.layout();
         let mut past = Past::default();
         let mut ys = Vec::new();
         let mut psis = Vec::new();
@@ -341,9 +342,9 @@ impl FuelMonitor {
             let y = st.apply(&p.y);
             if t >= start {
                 standing.push(p.standing);
-                psis.push(self.layout().regressor(&past));
-                cells.push(self.layout().category_cell(&past, p));
-                rows.push(self.layout().switching_row(&past));
+                psis.push(layout.regressor(&past));
+                cells.push(layout.category_cell(&past, p));
+                rows.push(layout.switching_row(&past));
                 ys.push(y.clone());
             }
             past.push(y, p, m_y, m_alpha);
@@ -411,9 +412,10 @@ impl FuelMonitor {
             return Err(FuelError::Numerical("monitor not initialised"));
         };
         let y = st.apply(&p.y);
-        let psi = self.layout().regressor(&self.past);
-        let category = self.layout().category_cell(&self.past, p);
-        let k = self.layout().switching_row(&self.past);
+        let layout = self.layout();
+        let psi = layout.regressor(&self.past);
+        let category = layout.category_cell(&self.past, p);
+        let k = layout.switching_row(&self.past);
         let m = self.config.components;
 
         // Virtual sensor (before the update: it must not see fuel now).
