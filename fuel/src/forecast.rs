@@ -14,6 +14,15 @@ use crate::mixture::Mixture;
 use crate::predictive::StudentT;
 use crate::sample::bin_index;
 
+/// What a forecast starts from, borrowed from the monitor: how its data vectors are laid out,
+/// its standardiser and its past (the regressor now and the last fuel and acceleration levels).
+#[derive(Clone, Copy)]
+pub(crate) struct ForecastStart<'a> {
+    pub(crate) layout: Layout<'a>,
+    pub(crate) st: &'a Standardiser,
+    pub(crate) past: &'a Past,
+}
+
 /// Multi-step forecast of fuel from the current state of `mixture` (the paper's future
 /// work 2). Each component keeps its own forecast regressor, the mean and covariance of
 /// `psi_{t+h}` given `c_{t+h} = i`, and the steps are joined as in the interacting multiple
@@ -36,12 +45,11 @@ use crate::sample::bin_index;
 /// sixth of the step's time in `malloc` and `free`); each number is computed by the same
 /// operations in the same order as with the temporaries, so the bits are the same.
 pub(crate) fn forecast_path(
-    layout: Layout,
-    st: &Standardiser,
-    past: &Past,
+    from: ForecastStart,
     mixture: &Mixture,
     work: &mut ForecastWork,
 ) -> ForecastPath {
+    let layout = from.layout;
     // Gear and constant (the regressor's tail) are known: the covariance lives on the
     // lagged channels alone.
     let uncertain = layout.lagged.len() * layout.config.regression_memory;
@@ -49,9 +57,7 @@ pub(crate) fn forecast_path(
         *work = ForecastWork::new(layout, uncertain);
     }
     work.fit(mixture.spec().components);
-    crate::kernel::with_size!(uncertain, |n| forecast_path_sized(
-        n, layout, st, past, mixture, work
-    ))
+    crate::kernel::with_size!(uncertain, |n| forecast_path_sized(n, from, mixture, work))
 }
 
 /// [`forecast_path`] with the size of the regressor's uncertain part, `n`, a
@@ -59,13 +65,12 @@ pub(crate) fn forecast_path(
 /// with a compile-time bound the compiler unrolls them and drops their bounds checks.
 fn forecast_path_sized<N: crate::kernel::Size>(
     n: N,
-    layout: Layout,
-    st: &Standardiser,
-    past: &Past,
+    from: ForecastStart,
     mixture: &Mixture,
     work: &mut ForecastWork,
 ) -> ForecastPath {
     use crate::kernel::{lower_times_norm_squared, nalgebra_dot, propagate_covariance};
+    let ForecastStart { layout, st, past } = from;
     let horizon = layout.config.forecast_horizon_steps;
     let m = mixture.spec().components;
     let (k_psi, n2) = (layout.spec.k_psi, n.get() * n.get());

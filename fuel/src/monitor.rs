@@ -17,7 +17,7 @@ use crate::blend::{Blend, IntervalCalibration};
 use crate::config::{FuelMonitorConfig, InitialPartition};
 use crate::data_vector::{Layout, Past, Prepared, Standardiser};
 use crate::estimate::{fuel_range_cm3_s, in_fuel_range, FuelEstimate, MixtureEstimate};
-use crate::forecast::{forecast_path, ForecastPath, ForecastWork};
+use crate::forecast::{forecast_path, ForecastPath, ForecastStart, ForecastWork};
 use crate::kinematic::{KinematicFilter, KinematicState};
 use crate::mixture::{argmax, Mixture, MixtureInput, MixtureSpec};
 use crate::predictive::StudentT;
@@ -560,11 +560,15 @@ impl FuelMonitor {
             return ForecastPath::default();
         };
         let mut work = std::mem::take(&mut self.forecast_work);
-        let (layout, past) = (self.layout(), &self.past);
-        let mut own = forecast_path(layout, st, past, mixture, &mut work);
+        let from = ForecastStart {
+            layout: self.layout(),
+            st,
+            past: &self.past,
+        };
+        let mut own = forecast_path(from, mixture, &mut work);
         let path = match self.baseline.as_ref() {
             Some(baseline) => {
-                let single = forecast_path(layout, st, past, baseline, &mut work);
+                let single = forecast_path(from, baseline, &mut work);
                 let mut blended = self.blend.combine(&own, &single);
                 blended.first_predictions = std::mem::take(&mut own.first_predictions);
                 self.blend.remember(own.mean_cm3_s, single.mean_cm3_s);
