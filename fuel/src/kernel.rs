@@ -1,4 +1,4 @@
-//! The forecast's small dense kernels (`crate::monitor`'s IMM recursion), written once for a
+//! The forecast's small dense kernels (`crate::forecast`'s IMM recursion), written once for a
 //! size known at compile time or at run time ([`Size`]): the sizes are configuration (the
 //! regressor's uncertain part is 5 in the paper's setting, 10 with regression memory 2), and a
 //! loop of 5 whose bound the compiler knows is unrolled, without bounds checks, where the

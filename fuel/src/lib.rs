@@ -19,9 +19,14 @@
 //!
 //! Results, commands and CSV layouts: `docs/fuel.md`.
 
+pub mod alarm;
+mod blend;
 pub mod config;
 pub mod counts;
+mod data_vector;
 pub mod error;
+pub mod estimate;
+mod forecast;
 mod kernel;
 pub mod kinematic;
 pub mod mixture;
@@ -34,11 +39,13 @@ pub mod routes;
 pub mod sample;
 pub mod simulator;
 
+pub use alarm::{RegimeChange, REGIME_CHANGED};
 pub use config::{CategoricalConfig, FuelMonitorConfig, InitialPartition};
 pub use counts::CountTable;
 pub use error::FuelError;
+pub use estimate::{FuelEstimate, MixtureEstimate};
 pub use mixture::{Mixture, MixtureInput, MixtureSpec};
-pub use monitor::{FuelEstimate, FuelMonitor, MixtureEstimate, RegimeChange, REGIME_CHANGED};
+pub use monitor::FuelMonitor;
 pub use predictive::{central_interval, Interval, StudentT};
 pub use railcar::{RailcarParameters, RailcarScenario, RailcarSimulator, RailcarTruth};
 pub use regime::{ComponentName, OperatingPoint, PowerTier, RegimeName, RegimeNaming};
