@@ -42,7 +42,6 @@
 
 use std::collections::BTreeMap;
 use std::io::Write;
-use std::str::FromStr;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -56,6 +55,10 @@ use railmon_damper::{
     AugmentedEkf, BogieSimulator, DamperMonitorConfig, DamperScenario, Dampers, KernelSchedule,
     Rbpf, RbpfConfig,
 };
+
+#[path = "../examples/flags/mod.rs"]
+mod flags;
+use flags::{on_off, parsed};
 
 const SEED_SCENARIO: &str = include_str!("../../config/scenarios/damper-seed.toml");
 const SPECTRAL_LOW: &str = include_str!("../../config/scenarios/damper-spectral.toml");
@@ -132,13 +135,6 @@ const USAGE: &str = "usage: cargo bench -p railmon-damper --bench coverage -- [F
 --csv FILE                 write every estimate to FILE
 --help                     this text";
 
-fn parsed<T: FromStr>(flag: &str, value: &str) -> Result<T, String>
-where
-    T::Err: std::fmt::Display,
-{
-    value.parse().map_err(|e| format!("{flag} {value}: {e}"))
-}
-
 fn parse_args() -> Result<Args, String> {
     let mut a = Args {
         study: "all".into(),
@@ -175,13 +171,7 @@ fn parse_args() -> Result<Args, String> {
             "--threads" => a.threads = parsed(&flag, &value()?)?,
             "--variants" => a.variants = value()?,
             "--ideal-floors" => a.floors = value()?,
-            "--ekf" => {
-                a.ekf = match value()?.as_str() {
-                    "on" => true,
-                    "off" => false,
-                    other => return Err(format!("--ekf {other}: on or off")),
-                }
-            }
+            "--ekf" => a.ekf = on_off(&flag, &value()?)?,
             "--csv" => a.csv = Some(value()?),
             other => return Err(format!("unknown flag {other}")),
         }

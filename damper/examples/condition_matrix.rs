@@ -24,9 +24,7 @@
 //! draw lasts 0.5-1 times it, its events placed within), so a row is reproduced by
 //! `--first-seed S --draws 1 --split all` with the same `--duration-s` and `--particles`.
 
-use std::fmt::Display;
 use std::process::ExitCode;
-use std::str::FromStr;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -37,6 +35,9 @@ use railmon_damper::{
     BogieSimulator, DamperAlarm, DamperEventKind, DamperId, DamperMonitor, DamperMonitorConfig,
     Rbpf,
 };
+
+mod flags;
+use flags::parsed;
 
 /// Accuracy, coverage and mismatch are counted from here (s), as in `robustness_matrix`.
 const JUDGE_FROM_S: f64 = 30.0;
@@ -88,13 +89,6 @@ fn usage() -> String {
         min = sampler::MIN_MAX_DURATION_S,
         max = sampler::MAX_DURATION_S,
     )
-}
-
-fn parsed<T: FromStr>(flag: &str, value: &str) -> Result<T, String>
-where
-    T::Err: Display,
-{
-    value.parse().map_err(|e| format!("{flag} {value}: {e}"))
 }
 
 fn parse_args() -> Result<Args, String> {
