@@ -22,28 +22,26 @@
 //! likelihood mode (the "ideal" under the wrong model, i.e. the bias that more particles
 //! cannot remove).
 //!
-//! Environment (all optional):
-//! - `COVERAGE_STUDY` = `seed` | `spectral` | `all` (default `all`);
-//! - `COVERAGE_SEEDS` (default 40) and `COVERAGE_SPECTRAL_SEEDS` (default 10, per level);
-//! - `COVERAGE_FIRST_SEED` (default 1000): seed `i` runs the simulator with
-//!   `COVERAGE_FIRST_SEED + i` and the filter with `COVERAGE_FIRST_SEED + 500_000 + i`;
-//! - `COVERAGE_DURATION_S` (default 60);
-//! - `COVERAGE_VARIANTS`, comma-separated (default `default`): filter variants run on the same
-//!   data, see [`VARIANTS`];
-//!   empty: the ideal only;
-//! - `COVERAGE_IDEAL_FLOORS`, comma-separated process-noise floors (std per step): the ideal
-//!   also under filter models with these floors (default: none);
-//! - `COVERAGE_EKF` (default true): run the EKF baseline too;
-//! - `COVERAGE_THREADS` (default 2, at most 2): seeds run in parallel;
-//! - `COVERAGE_CSV`: a file to write every estimate to (`group,sim_seed,method,time_s,damper,
+//! Flags after `--` (all optional; `--help` lists them, a bad one exits 2):
+//! - `--study seed|spectral|all` (default `all`);
+//! - `--seeds N` (default 40) and `--spectral-seeds N` (default 10, per level);
+//! - `--first-seed S` (default 1000): seed `i` runs the simulator with `S + i` and the filter
+//!   with `S + 500_000 + i`;
+//! - `--duration-s S` (default 60);
+//! - `--variants A,B` (default `default`): filter variants run on the same data, see
+//!   [`VARIANTS`]; empty (`--variants ""`): the ideal only;
+//! - `--ideal-floors A,B`: process-noise floors (std per step): the ideal also under filter
+//!   models with these floors (default: none);
+//! - `--ekf on|off` (default on): run the EKF baseline too;
+//! - `--threads N` (default 2, at most 2): seeds run in parallel;
+//! - `--csv FILE`: a file to write every estimate to (`group,sim_seed,method,time_s,damper,
 //!   mean_ratio,q05_ratio,q95_ratio`, ratios to the truth).
 //!
 //! Run: `CARGO_TARGET_DIR=... cargo bench -p railmon-damper --bench coverage`
-//! (a short run: `COVERAGE_SEEDS=4 COVERAGE_DURATION_S=10 COVERAGE_STUDY=seed ...`).
+//! (a short run: `... --bench coverage -- --study seed --seeds 4 --duration-s 10`).
 
 use std::collections::BTreeMap;
 use std::io::Write;
-use std::str::FromStr;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -57,6 +55,10 @@ use railmon_damper::{
     AugmentedEkf, BogieSimulator, DamperMonitorConfig, DamperScenario, Dampers, KernelSchedule,
     Rbpf, RbpfConfig,
 };
+
+#[path = "../examples/flags/mod.rs"]
+mod flags;
+use flags::{on_off, parsed};
 
 const SEED_SCENARIO: &str = include_str!("../../config/scenarios/damper-seed.toml");
 const SPECTRAL_LOW: &str = include_str!("../../config/scenarios/damper-spectral.toml");
@@ -105,13 +107,99 @@ const VARIANTS: &[Variant] = &[
     }),
 ];
 
-fn env_or<T: FromStr>(name: &str, default: T) -> T {
-    match std::env::var(name) {
-        Ok(v) => v
-            .parse()
-            .unwrap_or_else(|_| panic!("{name} = {v:?} does not parse")),
-        Err(_) => default,
+/// What the flags set (see the module's documentation).
+struct Args {
+    study: String,
+    seeds: u64,
+    spectral_seeds: u64,
+    first_seed: u64,
+    duration_s: f64,
+    threads: usize,
+    variants: String,
+    floors: String,
+    ekf: bool,
+    csv: Option<String>,
+}
+
+const USAGE: &str = "usage: cargo bench -p railmon-damper --bench coverage -- [FLAGS]
+
+--study seed|spectral|all  which study (default all)
+--seeds N                  seed-study runs (default 40)
+--spectral-seeds N         spectral-study runs per level (default 10)
+--first-seed S             simulator seeds from S, filter seeds from S + 500000 (default 1000)
+--duration-s S             seconds per run (default 60)
+--variants A,B             filter variants (default default; empty: the ideal only)
+--ideal-floors A,B         the ideal also with these process-noise floors (default none)
+--ekf on|off               run the EKF baseline too (default on)
+--threads N                seeds in parallel, 1-2 (default 2)
+--csv FILE                 write every estimate to FILE
+--help                     this text";
+
+fn parse_args() -> Result<Args, String> {
+    let mut a = Args {
+        study: "all".into(),
+        seeds: 40,
+        spectral_seeds: 10,
+        first_seed: 1000,
+        duration_s: 60.0,
+        threads: 2,
+        variants: "default".into(),
+        floors: String::new(),
+        ekf: true,
+        csv: None,
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(flag) = it.next() {
+        let mut value = || it.next().ok_or(format!("{flag} needs a value"));
+        match flag.as_str() {
+            "--help" | "-h" => {
+                println!("{USAGE}");
+                std::process::exit(0);
+            }
+            // cargo bench passes it to every bench binary.
+            "--bench" => {}
+            "--study" => {
+                a.study = value()?;
+                if !["seed", "spectral", "all"].contains(&a.study.as_str()) {
+                    return Err(format!("--study {}: seed, spectral or all", a.study));
+                }
+            }
+            "--seeds" => a.seeds = parsed(&flag, &value()?)?,
+            "--spectral-seeds" => a.spectral_seeds = parsed(&flag, &value()?)?,
+            "--first-seed" => a.first_seed = parsed(&flag, &value()?)?,
+            "--duration-s" => a.duration_s = parsed(&flag, &value()?)?,
+            "--threads" => a.threads = parsed(&flag, &value()?)?,
+            "--variants" => a.variants = value()?,
+            "--ideal-floors" => a.floors = value()?,
+            "--ekf" => a.ekf = on_off(&flag, &value()?)?,
+            "--csv" => a.csv = Some(value()?),
+            other => return Err(format!("unknown flag {other}")),
+        }
     }
+    if !(a.duration_s > 0.0 && a.duration_s.is_finite()) {
+        return Err(format!("--duration-s {}: a positive number", a.duration_s));
+    }
+    if !(1..=2).contains(&a.threads) {
+        return Err(format!("--threads {}: 1 or 2", a.threads));
+    }
+    for name in a
+        .variants
+        .split(',')
+        .map(str::trim)
+        .filter(|n| !n.is_empty())
+    {
+        if !VARIANTS.iter().any(|v| v.0 == name) {
+            let names: Vec<&str> = VARIANTS.iter().map(|v| v.0).collect();
+            return Err(format!(
+                "--variants: no variant {name:?} ({})",
+                names.join(", ")
+            ));
+        }
+    }
+    for floor in a.floors.split(',').map(str::trim).filter(|f| !f.is_empty()) {
+        parsed::<f64>("--ideal-floors", floor)?;
+    }
+    Ok(a)
 }
 
 /// One estimate of one damper at one checkpoint, as ratios to the truth.
@@ -494,16 +582,26 @@ fn write_csv(path: &str, results: &[SeedResult]) -> Result<(), csv::Error> {
     Ok(())
 }
 
-fn main() {
-    let study: String = env_or("COVERAGE_STUDY", "all".to_string());
-    let seeds: u64 = env_or("COVERAGE_SEEDS", 40);
-    let spectral_seeds: u64 = env_or("COVERAGE_SPECTRAL_SEEDS", 10);
-    let first_seed: u64 = env_or("COVERAGE_FIRST_SEED", 1000);
-    let duration_s: f64 = env_or("COVERAGE_DURATION_S", 60.0);
-    let threads: usize = env_or("COVERAGE_THREADS", 2usize).clamp(1, 2);
-    let variant_names: String = env_or("COVERAGE_VARIANTS", "default".to_string());
-    let floors: String = env_or("COVERAGE_IDEAL_FLOORS", String::new());
-    let ekf: bool = env_or("COVERAGE_EKF", true);
+fn main() -> std::process::ExitCode {
+    let args = match parse_args() {
+        Ok(a) => a,
+        Err(e) => {
+            eprintln!("coverage: {e} (--help lists the flags)");
+            return std::process::ExitCode::from(2);
+        }
+    };
+    let Args {
+        study,
+        seeds,
+        spectral_seeds,
+        first_seed,
+        duration_s,
+        threads,
+        variants: variant_names,
+        floors,
+        ekf,
+        csv,
+    } = args;
 
     let base = DamperScenario::from_toml_str(SEED_SCENARIO).expect("damper-seed.toml");
     let config = base.monitor_config();
@@ -526,7 +624,7 @@ fn main() {
     let mut stencils = vec![("ideal".to_string(), Stencil::new(&config, &base.dampers))];
     for floor in floors.split(',').map(str::trim).filter(|f| !f.is_empty()) {
         let mut c = config;
-        c.process_noise_floor_std_per_step = floor.parse().expect("COVERAGE_IDEAL_FLOORS");
+        c.process_noise_floor_std_per_step = floor.parse().expect("checked by parse_args");
         stencils.push((
             format!("ideal_floor_{floor}"),
             Stencil::new(&c, &base.dampers),
@@ -624,7 +722,7 @@ fn main() {
     let mut methods: Vec<String> = shared.variants.iter().map(|v| v.0.to_string()).collect();
     methods.extend(shared.stencils.iter().map(|s| s.0.clone()));
     methods.push("ekf".to_string());
-    if let Ok(path) = std::env::var("COVERAGE_CSV") {
+    if let Some(path) = csv {
         write_csv(&path, &results).unwrap_or_else(|e| panic!("{path}: {e}"));
         println!("estimates written to {path}");
     }
@@ -632,4 +730,5 @@ fn main() {
         let rs: Vec<&SeedResult> = results.iter().filter(|r| &r.group == group).collect();
         report(group, &rs, duration_s, &methods);
     }
+    std::process::ExitCode::SUCCESS
 }

@@ -22,10 +22,11 @@
 //! the other hyperthread are still shared) and wall time per step, and the ratio of CPU times
 //! to the first variant.
 //!
-//! Run: `cargo bench -p railmon-damper --bench rbpf_variants` (about 40 s);
-//! `RBPF_VARIANTS_ROUNDS` (default 12) blocks per variant, `RBPF_VARIANTS_PARTICLES` (1000),
-//! `RBPF_VARIANTS_ONLY=plain,+noise` (only the variants named, e.g. under `perf record`).
+//! Run: `cargo bench -p railmon-damper --bench rbpf_variants` (about 40 s); flags after `--`:
+//! `--rounds N` (default 12) blocks per variant, `--particles N` (1000), `--only plain,+noise`
+//! (only the variants named, e.g. under `perf record`); `--help`; a bad flag exits 2.
 
+use std::process::ExitCode;
 use std::time::Instant;
 
 use railmon_bench_support::measure;
@@ -38,11 +39,48 @@ const SEED: &str = include_str!("../../config/scenarios/damper-seed.toml");
 const WARM_UP_STEPS: usize = 3000;
 const BLOCK: usize = 250;
 
-fn env_usize(name: &str, default: usize) -> usize {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
+/// What the flags set (see the module's documentation).
+struct Args {
+    rounds: usize,
+    particles: usize,
+    /// The variants to run (empty: all).
+    only: Vec<String>,
+}
+
+const USAGE: &str = "usage: cargo bench -p railmon-damper --bench rbpf_variants -- [FLAGS]
+
+--rounds N      blocks of 250 samples per variant (default 12)
+--particles N   particles (default 1000)
+--only A,B      only the variants named (default: all)
+--help          this text";
+
+fn parse_args() -> Result<Args, String> {
+    let mut a = Args {
+        rounds: 12,
+        particles: 1000,
+        only: vec![],
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(flag) = it.next() {
+        let mut value = || it.next().ok_or(format!("{flag} needs a value"));
+        let number = |v: String| v.parse().map_err(|e| format!("{flag} {v}: {e}"));
+        match flag.as_str() {
+            "--help" | "-h" => {
+                println!("{USAGE}");
+                std::process::exit(0);
+            }
+            // cargo bench passes it to every bench binary.
+            "--bench" => {}
+            "--rounds" => a.rounds = number(value()?)?,
+            "--particles" => a.particles = number(value()?)?,
+            "--only" => a.only = value()?.split(',').map(str::to_owned).collect(),
+            other => return Err(format!("unknown flag {other}")),
+        }
+    }
+    if a.rounds == 0 || a.particles == 0 {
+        return Err("--rounds and --particles: at least 1".into());
+    }
+    Ok(a)
 }
 
 /// `n` samples of the seed scenario, at the configured speed or on `profile`.
@@ -87,10 +125,18 @@ impl Runner {
     }
 }
 
-fn main() {
-    // `cargo bench` passes `--bench`; nothing to parse.
-    let rounds = env_usize("RBPF_VARIANTS_ROUNDS", 12);
-    let particles = env_usize("RBPF_VARIANTS_PARTICLES", 1000);
+fn main() -> ExitCode {
+    let Args {
+        rounds,
+        particles,
+        only,
+    } = match parse_args() {
+        Ok(a) => a,
+        Err(e) => {
+            eprintln!("rbpf_variants: {e} (--help lists the flags)");
+            return ExitCode::from(2);
+        }
+    };
     let n = WARM_UP_STEPS + BLOCK * rounds;
     let (config, constant) = samples(n, None);
     let ramp = SpeedProfile {
@@ -152,12 +198,19 @@ fn main() {
             &ramped,
         ),
     ];
-    if let Ok(only) = std::env::var("RBPF_VARIANTS_ONLY") {
-        variants.retain(|v| only.split(',').any(|o| o == v.0));
-        assert!(
-            !variants.is_empty(),
-            "RBPF_VARIANTS_ONLY={only}: no such variant"
+    if let Some(o) = only
+        .iter()
+        .find(|o| !variants.iter().any(|v| v.0 == o.as_str()))
+    {
+        let names: Vec<&str> = variants.iter().map(|v| v.0).collect();
+        eprintln!(
+            "rbpf_variants: --only: no variant {o:?} ({}) (--help lists the flags)",
+            names.join(", ")
         );
+        return ExitCode::from(2);
+    }
+    if !only.is_empty() {
+        variants.retain(|v| only.iter().any(|o| o == v.0));
     }
     for (_, runner, data) in &mut variants {
         for s in &data[..WARM_UP_STEPS] {
@@ -201,4 +254,5 @@ fn main() {
             s * 1e6 / steps,
         );
     }
+    ExitCode::SUCCESS
 }

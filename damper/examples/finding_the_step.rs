@@ -11,14 +11,15 @@
 //! cargo run --release -p railmon-damper --example finding_the_step -- --seed 9001 --jump off --speeds 10,15
 //! ```
 
-use std::fmt::Display;
 use std::process::ExitCode;
-use std::str::FromStr;
 
 use railmon_damper::{
     BogieSimulator, DamperAlarm, DamperEventKind, DamperFault, DamperId, DamperMonitor,
     DamperMonitorConfig, DamperScenario, FaultKind, Rbpf, SpeedProfile, DEFAULT_SPEED_M_S,
 };
+
+mod flags;
+use flags::{on_off, parsed};
 
 const SEED_SCENARIO: &str = include_str!("../../config/scenarios/damper-seed.toml");
 
@@ -53,13 +54,6 @@ fn usage() -> String {
     )
 }
 
-fn parsed<T: FromStr>(flag: &str, value: &str) -> Result<T, String>
-where
-    T::Err: Display,
-{
-    value.parse().map_err(|e| format!("{flag} {value}: {e}"))
-}
-
 fn parse_args() -> Result<Args, String> {
     let mut args = Args {
         seed: 9000,
@@ -83,13 +77,7 @@ fn parse_args() -> Result<Args, String> {
                     .collect::<Result<_, _>>()?
             }
             "--particles" => args.config.rbpf.particles = parsed(&flag, &value()?)?,
-            "--jump" => {
-                js.enabled = match value()?.as_str() {
-                    "on" => true,
-                    "off" => false,
-                    v => return Err(format!("--jump {v}: on or off")),
-                }
-            }
+            "--jump" => js.enabled = on_off(&flag, &value()?)?,
             "--jump-hazard" => js.hazard_per_s = parsed(&flag, &value()?)?,
             "--jump-odds" => js.materialise_odds = parsed(&flag, &value()?)?,
             other => return Err(format!("unknown flag {other}")),

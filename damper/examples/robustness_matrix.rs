@@ -26,9 +26,7 @@
 //! reference the noise estimate is judged against). Dampers far from nominal from t = 0: the
 //! `off_nominal_starts` example.
 
-use std::fmt::Display;
 use std::process::ExitCode;
-use std::str::FromStr;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -36,6 +34,9 @@ use railmon_damper::{
     BogieSimulator, DamperAlarm, DamperEventKind, DamperFault, DamperId, DamperMonitor,
     DamperMonitorConfig, DamperScenario, ErriLevel, FaultKind, Rbpf, SpeedProfile, TrackSpec,
 };
+
+mod flags;
+use flags::{on_off, parsed};
 
 /// What the flags set: the filter's configuration and the matrix's extent.
 struct Args {
@@ -85,21 +86,6 @@ fn usage() -> String {
         hold = js.resume_hold_time_constants,
         cells = names.join(", "),
     )
-}
-
-fn parsed<T: FromStr>(flag: &str, value: &str) -> Result<T, String>
-where
-    T::Err: Display,
-{
-    value.parse().map_err(|e| format!("{flag} {value}: {e}"))
-}
-
-fn on_off(flag: &str, value: &str) -> Result<bool, String> {
-    match value {
-        "on" => Ok(true),
-        "off" => Ok(false),
-        _ => Err(format!("{flag} {value}: on or off")),
-    }
 }
 
 fn parse_args() -> Result<Args, String> {

@@ -27,6 +27,7 @@ pub mod noise_scale;
 pub mod params;
 pub mod rbpf;
 pub mod sample;
+pub mod sampler;
 pub mod scenario;
 pub mod simulator;
 pub mod speed;

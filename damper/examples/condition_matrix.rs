@@ -1,0 +1,593 @@
+//! The damper's condition matrix (issue 24 item 5): scenarios drawn from the whole operating
+//! envelope by `railmon_damper::sampler` (speed profiles with stops, track, sensor noise,
+//! conicity, body mass, faults), each run through `DamperMonitor` + `DamperAlarm` with the
+//! filter's defaults (it assumes the design vehicle: only the plant varies). The quick check
+//! stays `robustness_matrix` (one factor at a time).
+//!
+//! Per draw one row: the conditions; false `damper_degraded` events (on a damper whose fault
+//! has not started); the lowest published health ratio (posterior mean / nominal) of each
+//! damper while it is healthy, after the alarm's warm-up (`!` when below the alarm's
+//! `degraded_below_ratio`); after 30 s, every 10 ms: the share of time with both means within
+//! 5 % of the truth, the 90 % interval's coverage of each damper, the share of time the
+//! filter reports `model_mismatch`, and the mean error `mean / truth - 1` of each damper; per
+//! faulty damper the detection delay, from the first sample with the truth below the alarm's
+//! threshold while the speed is in the filter's range (a fault at a stop: from moving off
+//! again). Then the totals, the figures by body mass, and the worst draws by each criterion
+//! with the command that reproduces each.
+//!
+//! ```text
+//! cargo run --release -p railmon-damper --example condition_matrix -- \
+//!     --draws 40 --first-seed 5000 --split held-out --particles 500 --duration-s 120
+//! ```
+//! Even seeds are tuning draws, odd seeds held out: tune on `--split tune`, report on
+//! `--split held-out`. A draw depends on its seed and on `--duration-s` (the longest run: a
+//! draw lasts 0.5-1 times it, its events placed within), so a row is reproduced by
+//! `--first-seed S --draws 1 --split all` with the same `--duration-s` and `--particles`.
+
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use railmon_damper::gain_table::GainTable;
+use railmon_damper::sampler::{self, Draw, FaultShape};
+use railmon_damper::{
+    BogieSimulator, DamperAlarm, DamperEventKind, DamperId, DamperMonitor, DamperMonitorConfig,
+    Rbpf,
+};
+
+mod flags;
+use flags::parsed;
+
+/// Accuracy, coverage and mismatch are counted from here (s), as in `robustness_matrix`.
+const JUDGE_FROM_S: f64 = 30.0;
+/// "Within" means both posterior means within this of the truth.
+const WITHIN: f64 = 0.05;
+
+#[derive(Clone, Copy, PartialEq)]
+enum Split {
+    All,
+    Tune,
+    HeldOut,
+}
+
+impl Split {
+    fn name(self) -> &'static str {
+        match self {
+            Split::All => "all",
+            Split::Tune => "tune",
+            Split::HeldOut => "held-out",
+        }
+    }
+}
+
+struct Args {
+    draws: usize,
+    first_seed: u64,
+    split: Split,
+    duration_s: f64,
+    worst: usize,
+    verbose: bool,
+    config: DamperMonitorConfig,
+}
+
+fn usage() -> String {
+    format!(
+        "usage: condition_matrix [FLAGS]\n\
+         \n\
+         --draws N          draws to run, N >= 1 (default 40)\n\
+         --first-seed S     the first seed considered (default 5000)\n\
+         --split all|tune|held-out  which seeds from S on: all, even (tune), odd (held-out;\n\
+         \u{20}                  default)\n\
+         --particles N      rbpf.particles (default {particles})\n\
+         --duration-s S     the longest run, s >= {min} (default {max}): a draw lasts 0.5-1\n\
+         \u{20}                  times it\n\
+         --worst K          the worst K draws by each criterion (default 3)\n\
+         --verbose          print each damper_degraded event\n\
+         --help             this text",
+        particles = DamperMonitorConfig::default().rbpf.particles,
+        min = sampler::MIN_MAX_DURATION_S,
+        max = sampler::MAX_DURATION_S,
+    )
+}
+
+fn parse_args() -> Result<Args, String> {
+    let mut args = Args {
+        draws: 40,
+        first_seed: 5000,
+        split: Split::HeldOut,
+        duration_s: sampler::MAX_DURATION_S,
+        worst: 3,
+        verbose: false,
+        config: DamperMonitorConfig::default(),
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(flag) = it.next() {
+        let mut value = || it.next().ok_or(format!("{flag} needs a value"));
+        match flag.as_str() {
+            "--help" | "-h" => {
+                println!("{}", usage());
+                std::process::exit(0);
+            }
+            "--draws" => args.draws = parsed(&flag, &value()?)?,
+            "--first-seed" => args.first_seed = parsed(&flag, &value()?)?,
+            "--split" => {
+                args.split = match value()?.as_str() {
+                    "all" => Split::All,
+                    "tune" => Split::Tune,
+                    "held-out" => Split::HeldOut,
+                    other => return Err(format!("--split {other}: all, tune or held-out")),
+                }
+            }
+            "--particles" => args.config.rbpf.particles = parsed(&flag, &value()?)?,
+            "--duration-s" => args.duration_s = parsed(&flag, &value()?)?,
+            "--worst" => args.worst = parsed(&flag, &value()?)?,
+            "--verbose" => args.verbose = true,
+            other => return Err(format!("unknown flag {other}")),
+        }
+    }
+    if args.draws == 0 {
+        return Err("--draws 0: at least one".into());
+    }
+    if !(args.duration_s >= sampler::MIN_MAX_DURATION_S && args.duration_s.is_finite()) {
+        return Err(format!(
+            "--duration-s {}: at least {}",
+            args.duration_s,
+            sampler::MIN_MAX_DURATION_S
+        ));
+    }
+    args.config.validate().map_err(|e| e.to_string())?;
+    Ok(args)
+}
+
+/// A faulty damper's detection.
+struct Detection {
+    damper: DamperId,
+    /// Where the delay counts from (`Draw::detectable_from_s`); `None`: not reached in the run.
+    from_s: Option<f64>,
+    /// The first `damper_degraded` of the damper after its fault started.
+    at_s: Option<f64>,
+}
+
+impl Detection {
+    fn delay_s(&self) -> Option<f64> {
+        Some(self.at_s? - self.from_s?)
+    }
+
+    fn missed(&self) -> bool {
+        self.from_s.is_some() && self.at_s.is_none()
+    }
+
+    fn text(&self) -> String {
+        let what = match (self.from_s, self.at_s) {
+            (Some(_), Some(_)) => format!("{:+.1} s", self.delay_s().unwrap_or(0.0)),
+            (Some(_), None) => "MISSED".to_owned(),
+            (None, Some(at)) => format!("at {at:.1} s, before the crossing"),
+            (None, None) => "not reached".to_owned(),
+        };
+        format!("{} {what}", self.damper.name())
+    }
+}
+
+/// One draw's figures.
+struct Outcome {
+    draw: Draw,
+    false_degraded: usize,
+    /// The lowest health ratio of each damper while healthy, after the alarm's warm-up.
+    healthy_min_ratio: [Option<f64>; 2],
+    judged: usize,
+    within: usize,
+    covered: [usize; 2],
+    mismatch: usize,
+    error_sum: [f64; 2],
+    detections: Vec<Detection>,
+    diverged_at_s: Option<f64>,
+    seconds: f64,
+}
+
+impl Outcome {
+    fn share(&self, n: usize) -> f64 {
+        n as f64 / self.judged.max(1) as f64
+    }
+
+    fn within_share(&self) -> f64 {
+        self.share(self.within)
+    }
+
+    fn coverage(&self) -> f64 {
+        self.share(self.covered[0].min(self.covered[1]))
+    }
+
+    fn mismatch_share(&self) -> f64 {
+        self.share(self.mismatch)
+    }
+
+    fn mean_error(&self, k: usize) -> f64 {
+        self.error_sum[k] / self.judged.max(1) as f64
+    }
+
+    fn lowest_healthy(&self) -> f64 {
+        self.healthy_min_ratio
+            .iter()
+            .flatten()
+            .copied()
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    fn missed(&self) -> bool {
+        self.detections.iter().any(Detection::missed)
+    }
+
+    /// The longest detection delay; a miss counts as infinite.
+    fn worst_delay(&self) -> Option<f64> {
+        self.detections
+            .iter()
+            .filter(|d| d.from_s.is_some())
+            .map(|d| d.delay_s().unwrap_or(f64::INFINITY))
+            .reduce(f64::max)
+    }
+
+    fn row(&self, threshold: f64) -> String {
+        let ratio = |r: Option<f64>| match r {
+            Some(r) if r < threshold => format!("{r:.3}!"),
+            Some(r) => format!("{r:.3}"),
+            None => "-".to_owned(),
+        };
+        let pct = |x: f64| format!("{:.1}", 100.0 * x);
+        let detections: Vec<String> = self.detections.iter().map(Detection::text).collect();
+        format!(
+            "| {} | {}{} | {} | {} / {} | {} | {} / {} | {} | {:+.1} / {:+.1} | {} | {:.0} |",
+            self.draw.seed,
+            self.draw.short(),
+            self.diverged_at_s
+                .map_or(String::new(), |t| format!(" (plant diverged at {t:.1} s)")),
+            self.false_degraded,
+            ratio(self.healthy_min_ratio[0]),
+            ratio(self.healthy_min_ratio[1]),
+            pct(self.within_share()),
+            pct(self.share(self.covered[0])),
+            pct(self.share(self.covered[1])),
+            pct(self.mismatch_share()),
+            100.0 * self.mean_error(0),
+            100.0 * self.mean_error(1),
+            if detections.is_empty() {
+                "-".to_owned()
+            } else {
+                detections.join(", ")
+            },
+            self.seconds,
+        )
+    }
+}
+
+const HEADER: &str = "| seed | conditions | false degraded | lowest healthy ratio csy / csay | both within 5 % [%] | 90 % coverage csy / csay [%] | model_mismatch [%] | mean error csy / csay [%] | detection delay | wall s |\n|---|---|---|---|---|---|---|---|---|---|";
+
+fn run(draw: Draw, config: &DamperMonitorConfig, table: &Arc<GainTable>, verbose: bool) -> Outcome {
+    let started = Instant::now();
+    let threshold = config.alarm.degraded_below_ratio;
+    let mut monitor = DamperMonitor::for_bogie(config, 1, Some(table.clone())).unwrap();
+    let mut alarms = DamperAlarm::pair(&config.alarm, &config.filter_model(), [false; 2]);
+    let mut sim = BogieSimulator::new(&draw.scenario).unwrap();
+    let nominal = config.filter_model().nominal;
+    let nominal = [nominal.csy_ns_per_m, nominal.csay_ns_per_m];
+    let initial = draw.scenario.dampers;
+    let initial = [initial.csy_ns_per_m, initial.csay_ns_per_m];
+    let onset = DamperId::ALL.map(|d| draw.fault_onset_s(d));
+    let mut detections: Vec<Detection> = DamperId::ALL
+        .iter()
+        .filter(|d| onset[d.index()].is_some())
+        .map(|&damper| Detection {
+            damper,
+            from_s: draw.detectable_from_s(damper, threshold, &config.speed),
+            at_s: None,
+        })
+        .collect();
+    let mut o = Outcome {
+        draw: draw.clone(),
+        false_degraded: 0,
+        healthy_min_ratio: [None; 2],
+        judged: 0,
+        within: 0,
+        covered: [0; 2],
+        mismatch: 0,
+        error_sum: [0.0; 2],
+        detections: vec![],
+        diverged_at_s: None,
+        seconds: 0.0,
+    };
+    // Judged time as the alarm counts it (not paused, no mismatch), for its warm-up.
+    let mut judged_s = 0.0;
+    let mut step = 0usize;
+    while let Some((sample, truth)) = sim.step() {
+        step += 1;
+        let e = match monitor.step(sample) {
+            Ok(e) => *e,
+            // Above the critical speed the linear plant grows without bound (the sampler
+            // keeps below it: this would be its defect).
+            Err(_) => {
+                o.diverged_at_s = Some(truth.time_s);
+                break;
+            }
+        };
+        let time = e.time_s;
+        if e.paused.is_none() && !e.model_mismatch {
+            judged_s += config.dt_s;
+        }
+        let truths = [truth.dampers.csy_ns_per_m, truth.dampers.csay_ns_per_m];
+        let posts = [e.csy, e.csay];
+        let healthy = [0, 1].map(|k| truths[k] == initial[k]);
+        for event in alarms.iter_mut().filter_map(|a| a.update(&e)) {
+            if event.kind != DamperEventKind::DamperDegraded {
+                continue;
+            }
+            let k = event.damper.index();
+            let faulty = onset[k].is_some_and(|at| truth.time_s - config.dt_s >= at - 1e-9);
+            if faulty {
+                if let Some(d) = detections.iter_mut().find(|d| d.damper == event.damper) {
+                    d.at_s.get_or_insert(time);
+                }
+            } else {
+                o.false_degraded += 1;
+            }
+            if verbose {
+                eprintln!(
+                    "  seed {}: {} degraded at {time:.2} s ({}), health {:.3}, speed {:.1} m/s",
+                    draw.seed,
+                    event.damper.name(),
+                    if faulty { "detection" } else { "FALSE" },
+                    event.health_ratio,
+                    sample.speed_m_s,
+                );
+            }
+        }
+        if judged_s + 0.5 * config.dt_s >= config.alarm.warmup_s {
+            for k in 0..2 {
+                if healthy[k] {
+                    let r = posts[k].mean_ns_per_m / nominal[k];
+                    let m = o.healthy_min_ratio[k].get_or_insert(r);
+                    *m = m.min(r);
+                }
+            }
+        }
+        if time <= JUDGE_FROM_S || !step.is_multiple_of(10) {
+            continue;
+        }
+        o.judged += 1;
+        let errors = [0, 1].map(|k| posts[k].mean_ns_per_m / truths[k] - 1.0);
+        o.within += usize::from(errors.iter().all(|e| e.abs() <= WITHIN));
+        for k in 0..2 {
+            o.error_sum[k] += errors[k];
+            o.covered[k] += usize::from(
+                posts[k].q05_ns_per_m <= truths[k] && truths[k] <= posts[k].q95_ns_per_m,
+            );
+        }
+        o.mismatch += usize::from(e.model_mismatch);
+    }
+    o.detections = detections;
+    o.seconds = started.elapsed().as_secs_f64();
+    o
+}
+
+fn quantiles(mut v: Vec<f64>) -> String {
+    if v.is_empty() {
+        return "-".to_owned();
+    }
+    v.sort_by(f64::total_cmp);
+    let q = |f: f64| v[((v.len() - 1) as f64 * f).round() as usize];
+    format!(
+        "min {:.3}, 10 % {:.3}, median {:.3}, max {:.3}",
+        q(0.0),
+        q(0.1),
+        q(0.5),
+        q(1.0)
+    )
+}
+
+fn main() -> ExitCode {
+    let args = match parse_args() {
+        Ok(a) => a,
+        Err(e) => {
+            eprintln!("condition_matrix: {e} (--help lists the flags)");
+            return ExitCode::from(2);
+        }
+    };
+    let config = args.config;
+    let threshold = config.alarm.degraded_below_ratio;
+    let seeds: Vec<u64> = (args.first_seed..)
+        .filter(|&s| match args.split {
+            Split::All => true,
+            Split::Tune => !sampler::is_held_out(s),
+            Split::HeldOut => sampler::is_held_out(s),
+        })
+        .take(args.draws)
+        .collect();
+    let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed)
+        .expect("the default filter's gain table");
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(2);
+    let started = Instant::now();
+    let next = AtomicUsize::new(0);
+    let outcomes = Mutex::new(Vec::new());
+    std::thread::scope(|scope| {
+        for _ in 0..threads {
+            scope.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(&seed) = seeds.get(i) else { break };
+                let o = run(
+                    sampler::draw(seed, args.duration_s),
+                    &config,
+                    &table,
+                    args.verbose,
+                );
+                eprintln!(
+                    "[{:.0} s] seed {seed} done ({:.0} s)",
+                    started.elapsed().as_secs_f64(),
+                    o.seconds
+                );
+                outcomes.lock().unwrap().push(o);
+            });
+        }
+    });
+    let mut outcomes = outcomes.into_inner().unwrap();
+    outcomes.sort_by_key(|o| o.draw.seed);
+    report(&args, &outcomes, threshold, started.elapsed().as_secs_f64());
+    ExitCode::SUCCESS
+}
+
+fn report(args: &Args, outcomes: &[Outcome], threshold: f64, wall_s: f64) {
+    let particles = args.config.rbpf.particles;
+    println!(
+        "condition matrix: {} draws (seeds {}..={}, split {}), runs of at most {} s, N = {particles}, filter defaults (design vehicle), {wall_s:.0} s wall",
+        outcomes.len(),
+        outcomes.first().map_or(0, |o| o.draw.seed),
+        outcomes.last().map_or(0, |o| o.draw.seed),
+        args.split.name(),
+        args.duration_s,
+    );
+    println!();
+    println!("{HEADER}");
+    for o in outcomes {
+        println!("{}", o.row(threshold));
+    }
+    println!();
+    let count = |f: &dyn Fn(&Outcome) -> bool| outcomes.iter().filter(|o| f(o)).count();
+    let n = outcomes.len();
+    let faulty: usize = outcomes.iter().map(|o| o.detections.len()).sum();
+    let reached: Vec<&Detection> = outcomes
+        .iter()
+        .flat_map(|o| &o.detections)
+        .filter(|d| d.from_s.is_some())
+        .collect();
+    let missed = reached.iter().filter(|d| d.at_s.is_none()).count();
+    let delays: Vec<f64> = reached.iter().filter_map(|d| d.delay_s()).collect();
+    let hours: f64 = outcomes
+        .iter()
+        .map(|o| o.draw.scenario.duration_s)
+        .sum::<f64>()
+        / 3600.0;
+    println!("| figure | value |");
+    println!("|---|---|");
+    println!(
+        "| draws: healthy / step / ramp / step at a stop | {} / {} / {} / {} |",
+        count(&|o| o.draw.fault_shape == FaultShape::None),
+        count(&|o| o.draw.fault_shape == FaultShape::Step),
+        count(&|o| o.draw.fault_shape == FaultShape::Ramp),
+        count(&|o| o.draw.fault_shape == FaultShape::AtStop),
+    );
+    println!(
+        "| draws with a false damper_degraded | {} of {n} ({} events in {hours:.2} h) |",
+        count(&|o| o.false_degraded > 0),
+        outcomes.iter().map(|o| o.false_degraded).sum::<usize>(),
+    );
+    println!(
+        "| draws with a healthy damper's published ratio below {threshold} | {} of {n} |",
+        count(&|o| o.lowest_healthy() < threshold),
+    );
+    println!(
+        "| lowest healthy ratio per draw | {} |",
+        quantiles(
+            outcomes
+                .iter()
+                .map(Outcome::lowest_healthy)
+                .filter(|r| r.is_finite())
+                .collect()
+        )
+    );
+    println!(
+        "| share of time both within 5 % per draw | {} |",
+        quantiles(outcomes.iter().map(Outcome::within_share).collect())
+    );
+    println!(
+        "| 90 % coverage per draw (the lower damper) | {} |",
+        quantiles(outcomes.iter().map(Outcome::coverage).collect())
+    );
+    println!(
+        "| model_mismatch share per draw | {} |",
+        quantiles(outcomes.iter().map(Outcome::mismatch_share).collect())
+    );
+    println!(
+        "| faulty dampers: reached the threshold moving / detected / missed | {faulty}: {} / {} / {missed} |",
+        reached.len(),
+        delays.len(),
+    );
+    println!(
+        "| draws with a missed fault | {} of {} with a fault |",
+        count(&|o| o.missed()),
+        count(&|o| !o.detections.is_empty()),
+    );
+    println!("| detection delay [s] | {} |", quantiles(delays));
+    println!(
+        "| plant diverged | {} |",
+        count(&|o| o.diverged_at_s.is_some())
+    );
+    println!();
+    println!("By body mass (the filter assumes the design mass):");
+    println!();
+    println!("| mass x | draws | false degraded draws | healthy ratio below {threshold} | median both within 5 % [%] | median mean error csy / csay [%] |");
+    println!("|---|---|---|---|---|---|");
+    for (lo, hi) in [(0.0, 0.95), (0.95, 1.05), (1.05, 1.2), (1.2, 2.0)] {
+        let group: Vec<&Outcome> = outcomes
+            .iter()
+            .filter(|o| (lo..hi).contains(&o.draw.mass_ratio))
+            .collect();
+        if group.is_empty() {
+            continue;
+        }
+        let median = |f: &dyn Fn(&Outcome) -> f64| {
+            let mut v: Vec<f64> = group.iter().map(|o| f(o)).collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        println!(
+            "| {lo:.2}-{hi:.2} | {} | {} | {} | {:.1} | {:+.1} / {:+.1} |",
+            group.len(),
+            group.iter().filter(|o| o.false_degraded > 0).count(),
+            group
+                .iter()
+                .filter(|o| o.lowest_healthy() < threshold)
+                .count(),
+            100.0 * median(&|o| o.within_share()),
+            100.0 * median(&|o| o.mean_error(0)),
+            100.0 * median(&|o| o.mean_error(1)),
+        );
+    }
+    println!();
+    let command = |seed: u64| {
+        format!(
+            "cargo run --release -p railmon-damper --example condition_matrix -- --first-seed {seed} --draws 1 --split all --particles {particles} --duration-s {}",
+            args.duration_s
+        )
+    };
+    // (criterion, the figure of a draw: larger is worse, None: not ranked).
+    type Badness = (&'static str, fn(&Outcome) -> Option<f64>);
+    let criteria: [Badness; 6] = [
+        ("false damper_degraded events", |o| {
+            (o.false_degraded > 0).then_some(o.false_degraded as f64)
+        }),
+        ("lowest healthy ratio", |o| {
+            o.lowest_healthy().is_finite().then(|| -o.lowest_healthy())
+        }),
+        ("share of time both within 5 %", |o| Some(-o.within_share())),
+        ("90 % coverage (the lower damper)", |o| Some(-o.coverage())),
+        ("model_mismatch share", |o| Some(o.mismatch_share())),
+        ("detection delay (a miss: worst)", |o| o.worst_delay()),
+    ];
+    println!("Worst draws by each criterion:");
+    for (name, badness) in criteria {
+        let mut ranked: Vec<(f64, &Outcome)> = outcomes
+            .iter()
+            .filter_map(|o| badness(o).map(|b| (b, o)))
+            .collect();
+        ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
+        println!();
+        println!("{name}:");
+        if ranked.is_empty() {
+            println!("  none");
+        }
+        for (_, o) in ranked.iter().take(args.worst) {
+            println!("  {}", o.row(threshold));
+            println!("    {}", command(o.draw.seed));
+        }
+    }
+}
