@@ -63,6 +63,10 @@ impl Default for BusConfig {
     }
 }
 
+/// Bounds of [`StreamConfig`]'s numbers, declared to the reference and checked.
+const SUBSCRIBER_BUFFER_SIZE: std::ops::RangeInclusive<usize> = 1..=65_536;
+const BACKPRESSURE_TIMEOUT_MS: std::ops::RangeInclusive<u64> = 1..=60_000;
+
 /// `[bus.<stream>]`: one publish-subscribe service (and the event service of the same name).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
@@ -70,12 +74,14 @@ pub struct StreamConfig {
     /// iceoryx2 service name of the stream; empty means `railmon/<stream>`.
     pub service_name: String,
     /// Frames a subscriber can hold unread before the publisher waits (or overwrites).
+    #[schemars(range(min = *SUBSCRIBER_BUFFER_SIZE.start(), max = *SUBSCRIBER_BUFFER_SIZE.end()))]
     pub subscriber_buffer_size: usize,
     /// true: a full subscriber buffer silently drops its oldest frame (the publisher never waits).
     /// false: lossless, the publisher waits for the subscriber, at most `backpressure_timeout_ms`.
     pub safe_overflow: bool,
     /// Lossless mode: how long one send may wait for a full subscriber before the frame is
     /// dropped for that subscriber (a SIGKILLed subscriber would otherwise block the publisher).
+    #[schemars(range(min = *BACKPRESSURE_TIMEOUT_MS.start(), max = *BACKPRESSURE_TIMEOUT_MS.end()))]
     pub backpressure_timeout_ms: u64,
 }
 
@@ -103,19 +109,16 @@ impl StreamConfig {
                 ),
             ));
         }
-        if !(1..=65_536).contains(&self.subscriber_buffer_size) {
-            return Err(bad(
-                "subscriber_buffer_size",
-                format!("{} is not in 1..=65536", self.subscriber_buffer_size),
-            ));
-        }
-        if !(1..=60_000).contains(&self.backpressure_timeout_ms) {
-            return Err(bad(
-                "backpressure_timeout_ms",
-                format!("{} is not in 1..=60000", self.backpressure_timeout_ms),
-            ));
-        }
-        Ok(())
+        railmon_settings::check_in_range(
+            &format!("{key}.subscriber_buffer_size"),
+            self.subscriber_buffer_size,
+            &SUBSCRIBER_BUFFER_SIZE,
+        )?;
+        railmon_settings::check_in_range(
+            &format!("{key}.backpressure_timeout_ms"),
+            self.backpressure_timeout_ms,
+            &BACKPRESSURE_TIMEOUT_MS,
+        )
     }
 }
 

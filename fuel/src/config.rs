@@ -59,6 +59,10 @@ impl CategoricalConfig {
 /// (the service's sample clock uses the same share).
 pub const SAMPLE_PERIOD_TOLERANCE: f64 = 0.01;
 
+/// Bounds of `regime_confirm_samples` (declared to the settings reference and checked):
+/// at most an hour of 1 Hz samples.
+const REGIME_CONFIRM_SAMPLES: std::ops::RangeInclusive<usize> = 1..=3600;
+
 /// How the initial samples are split among the components before EM.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
@@ -203,6 +207,7 @@ pub struct FuelMonitorConfig {
     /// pointer estimate flickers: on `fuel-cycles.toml` it changes 233 times in 8475 s while the
     /// driving style changes 4 times; confirming over 10 samples leaves 63 changes and the same
     /// accuracy (docs/fuel.md), so a regime-change event means a change of regime.
+    #[schemars(range(min = *REGIME_CONFIRM_SAMPLES.start(), max = *REGIME_CONFIRM_SAMPLES.end()))]
     pub regime_confirm_samples: usize,
     /// Nominal sampling period (s): consecutive time stamps must lie a whole number of periods
     /// apart (within 1 %), at most `max_gap_s`; used to integrate the first sample's fuel.
@@ -586,7 +591,7 @@ impl FuelMonitorConfig {
         check_positive("switching_prior_stay", self.switching_prior_stay)?;
         check_positive("switching_prior_move", self.switching_prior_move)?;
         check_positive("min_noise_variance", self.min_noise_variance)?;
-        if !(1..=3600).contains(&self.regime_confirm_samples) {
+        if !REGIME_CONFIRM_SAMPLES.contains(&self.regime_confirm_samples) {
             return Err(FuelError::invalid(
                 "regime_confirm_samples",
                 self.regime_confirm_samples,

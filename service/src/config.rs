@@ -4,6 +4,7 @@
 //! section is defined next to its pipeline (`drive::DriveConfig`, ...).
 
 use std::net::SocketAddr;
+use std::ops::RangeInclusive;
 use std::path::{Path, PathBuf};
 
 use railmon_bus::BusConfig;
@@ -29,6 +30,18 @@ pub(crate) fn invalid(key: &str, reason: String) -> ConfigError {
     ConfigError::Invalid(SettingsError::new(key, reason))
 }
 
+// Bounds of the service's numeric settings, declared to the reference on their fields
+// (`railmon config reference`) and checked by `validate` with the same constants.
+const MAX_EVENTS: RangeInclusive<u64> = 1..=1_000_000_000;
+const MAX_AGE_DAYS: RangeInclusive<u32> = 0..=36_500;
+const SNAPSHOT_MAX_AGE_S: RangeInclusive<f64> = 0.0..=86_400.0 * 365.0;
+const HTTP_TIME_MS: RangeInclusive<u64> = 1..=600_000;
+const MAX_CONNECTIONS: RangeInclusive<usize> = 1..=65_536;
+const HTTP_REQUEST_BYTES: RangeInclusive<usize> = 256..=262_144;
+const WAKE_INTERVAL_MS: RangeInclusive<u64> = 1..=10_000;
+const MAX_BATCH: RangeInclusive<usize> = 1..=65_536;
+const CLEANUP_INTERVAL_MS: RangeInclusive<u64> = 10..=600_000;
+
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ServiceConfig {
@@ -52,13 +65,16 @@ pub struct StorageConfig {
     pub data_dir: String,
     /// Events stored longer ago than this are pruned (0: kept however old). By the time they
     /// were stored, not acquired: a replay of an old recording keeps its events.
+    #[schemars(range(min = *MAX_AGE_DAYS.start(), max = *MAX_AGE_DAYS.end()))]
     pub max_age_days: u32,
     /// At most this many events are kept; the oldest are pruned beyond it.
+    #[schemars(range(min = *MAX_EVENTS.start(), max = *MAX_EVENTS.end()))]
     pub max_events: u64,
     /// Each stream's estimator state is saved this often (and at shutdown) under
     /// `data_dir/snapshots` (0: never).
     pub snapshot_interval_s: f64,
     /// A snapshot older than this is not resumed at start (the estimator starts from its prior).
+    #[schemars(range(min = *SNAPSHOT_MAX_AGE_S.start(), max = *SNAPSHOT_MAX_AGE_S.end()))]
     pub snapshot_max_age_s: f64,
 }
 
@@ -76,12 +92,7 @@ impl Default for StorageConfig {
 
 impl StorageConfig {
     pub(crate) fn validate(&self) -> Result<(), ConfigError> {
-        if self.max_events == 0 || self.max_events > 1_000_000_000 {
-            return Err(invalid(
-                "storage.max_events",
-                format!("{} is not in 1..=1000000000", self.max_events),
-            ));
-        }
+        settings::check_in_range("storage.max_events", self.max_events, &MAX_EVENTS)?;
         if !(self.snapshot_interval_s == 0.0 || (0.1..=3600.0).contains(&self.snapshot_interval_s))
         {
             return Err(invalid(
@@ -89,18 +100,12 @@ impl StorageConfig {
                 format!("{} is not 0 or in [0.1, 3600]", self.snapshot_interval_s),
             ));
         }
-        if !(0.0..=86_400.0 * 365.0).contains(&self.snapshot_max_age_s) {
-            return Err(invalid(
-                "storage.snapshot_max_age_s",
-                format!("{} is not in [0, 31536000]", self.snapshot_max_age_s),
-            ));
-        }
-        if self.max_age_days > 36_500 {
-            return Err(invalid(
-                "storage.max_age_days",
-                format!("{} is not in 0..=36500", self.max_age_days),
-            ));
-        }
+        settings::check_in_range(
+            "storage.snapshot_max_age_s",
+            self.snapshot_max_age_s,
+            &SNAPSHOT_MAX_AGE_S,
+        )?;
+        settings::check_in_range("storage.max_age_days", self.max_age_days, &MAX_AGE_DAYS)?;
         Ok(())
     }
 
@@ -192,16 +197,22 @@ pub struct HttpConfig {
     pub listen: String,
     /// A client must send a request's headers within this long; also how long an idle
     /// keep-alive connection is kept (10,000 half-open connections once held 266 MB).
+    #[schemars(range(min = *HTTP_TIME_MS.start(), max = *HTTP_TIME_MS.end()))]
     pub header_timeout_ms: u64,
     /// Longest time one request may take; then it is answered 503 `timeout`.
+    #[schemars(range(min = *HTTP_TIME_MS.start(), max = *HTTP_TIME_MS.end()))]
     pub request_timeout_ms: u64,
     /// Open connections at most; further ones are closed at once (and counted).
+    #[schemars(range(min = *MAX_CONNECTIONS.start(), max = *MAX_CONNECTIONS.end()))]
     pub max_connections: usize,
     /// On SIGTERM, open requests get this long to finish before their connections are cut.
+    #[schemars(range(min = *HTTP_TIME_MS.start(), max = *HTTP_TIME_MS.end()))]
     pub shutdown_deadline_ms: u64,
     /// Longer request targets are answered 414, larger header sections 431 (JSON bodies).
+    #[schemars(range(min = *HTTP_REQUEST_BYTES.start(), max = *HTTP_REQUEST_BYTES.end()))]
     pub max_uri_bytes: usize,
     /// Largest header section of a request (bytes); a larger one is answered 431.
+    #[schemars(range(min = *HTTP_REQUEST_BYTES.start(), max = *HTTP_REQUEST_BYTES.end()))]
     pub max_header_bytes: usize,
 }
 
@@ -226,29 +237,18 @@ impl HttpConfig {
             ("request_timeout_ms", self.request_timeout_ms),
             ("shutdown_deadline_ms", self.shutdown_deadline_ms),
         ] {
-            if !(1..=600_000).contains(&value) {
-                return Err(invalid(
-                    &format!("http.{key}"),
-                    format!("{value} is not in 1..=600000"),
-                ));
-            }
+            settings::check_in_range(&format!("http.{key}"), value, &HTTP_TIME_MS)?;
         }
-        if !(1..=65_536).contains(&self.max_connections) {
-            return Err(invalid(
-                "http.max_connections",
-                format!("{} is not in 1..=65536", self.max_connections),
-            ));
-        }
+        settings::check_in_range(
+            "http.max_connections",
+            self.max_connections,
+            &MAX_CONNECTIONS,
+        )?;
         for (key, value) in [
             ("max_uri_bytes", self.max_uri_bytes),
             ("max_header_bytes", self.max_header_bytes),
         ] {
-            if !(256..=262_144).contains(&value) {
-                return Err(invalid(
-                    &format!("http.{key}"),
-                    format!("{value} is not in 256..=262144"),
-                ));
-            }
+            settings::check_in_range(&format!("http.{key}"), value, &HTTP_REQUEST_BYTES)?;
         }
         Ok(())
     }
@@ -258,10 +258,13 @@ impl HttpConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct IngestConfig {
     /// Longest sleep of an ingest thread without a notification (shutdown and housekeeping latency).
+    #[schemars(range(min = *WAKE_INTERVAL_MS.start(), max = *WAKE_INTERVAL_MS.end()))]
     pub wake_interval_ms: u64,
     /// Frames handled before the results are published to the HTTP side.
+    #[schemars(range(min = *MAX_BATCH.start(), max = *MAX_BATCH.end()))]
     pub max_batch: usize,
     /// How often dead bus peers are cleaned up.
+    #[schemars(range(min = *CLEANUP_INTERVAL_MS.start(), max = *CLEANUP_INTERVAL_MS.end()))]
     pub cleanup_interval_ms: u64,
 }
 
@@ -333,24 +336,17 @@ impl ServiceConfig {
         self.http.validate()?;
         self.bus.validate()?;
         let i = &self.ingest;
-        if !(1..=10_000).contains(&i.wake_interval_ms) {
-            return Err(invalid(
-                "ingest.wake_interval_ms",
-                format!("{} is not in 1..=10000", i.wake_interval_ms),
-            ));
-        }
-        if !(1..=65_536).contains(&i.max_batch) {
-            return Err(invalid(
-                "ingest.max_batch",
-                format!("{} is not in 1..=65536", i.max_batch),
-            ));
-        }
-        if !(10..=600_000).contains(&i.cleanup_interval_ms) {
-            return Err(invalid(
-                "ingest.cleanup_interval_ms",
-                format!("{} is not in 10..=600000", i.cleanup_interval_ms),
-            ));
-        }
+        settings::check_in_range(
+            "ingest.wake_interval_ms",
+            i.wake_interval_ms,
+            &WAKE_INTERVAL_MS,
+        )?;
+        settings::check_in_range("ingest.max_batch", i.max_batch, &MAX_BATCH)?;
+        settings::check_in_range(
+            "ingest.cleanup_interval_ms",
+            i.cleanup_interval_ms,
+            &CLEANUP_INTERVAL_MS,
+        )?;
         self.drive.validate()?;
         self.vehicle.validate()?;
         self.bogie.validate()?;
@@ -514,6 +510,61 @@ mod tests {
             .into_iter()
             .flat_map(|s| s.keys)
             .collect()
+    }
+
+    /// Every integer site setting declares the bounds its check applies (the reference shows
+    /// them): its lowest and highest values load, one beyond either is refused naming the key.
+    #[test]
+    fn site_settings_declare_the_bounds_they_are_checked_against() {
+        let mut undeclared = Vec::new();
+        for key in all_keys() {
+            if !is_site_setting(&key.key) || key.kind != "integer" {
+                continue;
+            }
+            let bounds = key.bounds.clone().unwrap_or_default();
+            let Some((lo, hi)) = bounds.split_once(" ..= ") else {
+                undeclared.push(format!("{} ({bounds})", key.key));
+                continue;
+            };
+            let (lo, hi): (i64, i64) = (lo.parse().unwrap(), hi.parse().unwrap());
+            let load = |value: i64| {
+                let mut table = toml::Table::new();
+                let path: Vec<String> = key.key.split('.').map(String::from).collect();
+                let (last, parents) = path.split_last().unwrap();
+                let mut current = &mut table;
+                for level in parents {
+                    current = current
+                        .entry(level.clone())
+                        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+                        .as_table_mut()
+                        .unwrap();
+                }
+                current.insert(last.clone(), toml::Value::Integer(value));
+                ServiceConfig::load_table(table, &[])
+            };
+            for value in [lo, hi] {
+                if let Err(e) = load(value) {
+                    panic!("{} = {value} (a declared bound) refused: {e}", key.key);
+                }
+            }
+            for value in [lo - 1, hi + 1] {
+                match load(value) {
+                    Ok(_) => panic!("{} = {value} (beyond {bounds}) accepted", key.key),
+                    // An estimator's error names its own key under the estimator's table.
+                    Err(e) => {
+                        let e = e.to_string();
+                        let named = match key.key.split_once(".estimator.") {
+                            Some((stream, inner)) => {
+                                e.contains(&format!("{stream}.estimator")) && e.contains(inner)
+                            }
+                            None => e.contains(&key.key),
+                        };
+                        assert!(named, "{}: {e}", key.key);
+                    }
+                }
+            }
+        }
+        assert!(undeclared.is_empty(), "no declared bounds: {undeclared:?}");
     }
 
     /// The two tiers of settings: `config/railmon.toml` shows every site setting (live, or

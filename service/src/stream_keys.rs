@@ -2,7 +2,7 @@
 //! the error of a setting. A leaf: the streams' config sections use it, and the service's
 //! config (which aggregates them) does not need to be imported by them.
 
-use railmon_settings::SettingsError;
+use railmon_settings::{check_in_range, SettingsError};
 
 /// The setting `key` cannot be used, and why.
 pub(crate) fn invalid(key: &str, reason: String) -> SettingsError {
@@ -10,6 +10,11 @@ pub(crate) fn invalid(key: &str, reason: String) -> SettingsError {
 }
 
 /// The keys every stream section has: staleness, history and event ring sizes.
+/// Bounds of every stream's `stale_after_ms` and `history_interval_ms` (ms), and of its
+/// `history_capacity` (points), declared to the reference on each stream's fields.
+pub(crate) const STREAM_INTERVAL_MS: std::ops::RangeInclusive<u64> = 1..=3_600_000;
+pub(crate) const HISTORY_CAPACITY: std::ops::RangeInclusive<usize> = 1..=1_000_000;
+
 pub(crate) fn validate_stream_keys(
     section: &str,
     stale_after_ms: u64,
@@ -20,18 +25,11 @@ pub(crate) fn validate_stream_keys(
         ("stale_after_ms", stale_after_ms),
         ("history_interval_ms", history_interval_ms),
     ] {
-        if !(1..=3_600_000).contains(&value) {
-            return Err(invalid(
-                &format!("{section}.{key}"),
-                format!("{value} is not in 1..=3600000"),
-            ));
-        }
+        check_in_range(&format!("{section}.{key}"), value, &STREAM_INTERVAL_MS)?;
     }
-    if !(1..=1_000_000).contains(&history_capacity) {
-        return Err(invalid(
-            &format!("{section}.history_capacity"),
-            format!("{history_capacity} is not in 1..=1000000"),
-        ));
-    }
-    Ok(())
+    check_in_range(
+        &format!("{section}.history_capacity"),
+        history_capacity,
+        &HISTORY_CAPACITY,
+    )
 }

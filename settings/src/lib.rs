@@ -39,6 +39,23 @@ impl SettingsError {
     }
 }
 
+/// `Err` naming `key` unless `value` is in `range`. The range is the one the key's field
+/// declares to the reference (`#[schemars(range(min = *RANGE.start(), max = *RANGE.end()))]`),
+/// so that the bounds a user reads are the bounds the check applies.
+pub fn check_in_range<T: PartialOrd + std::fmt::Display>(
+    key: &str,
+    value: T,
+    range: &std::ops::RangeInclusive<T>,
+) -> Result<(), SettingsError> {
+    if range.contains(&value) {
+        return Ok(());
+    }
+    Err(SettingsError::new(
+        key,
+        format!("{value} is not in {}..={}", range.start(), range.end()),
+    ))
+}
+
 /// Parses TOML text; `source` (a file name) goes into the error.
 pub fn parse_table(text: &str, source: &str) -> Result<toml::Table, SettingsError> {
     text.parse::<toml::Table>()

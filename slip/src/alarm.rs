@@ -22,6 +22,11 @@ use crate::error::{check_in, SlipError};
 /// about 5 `s_i` out on a flat load) at 7.5 steps more median onset delay; the alarm F1 it
 /// costs (0.04-0.05) falls on the four short losses the information bound already caps. A
 /// monitor that cries wolf is not read, so the false episodes weigh more.
+/// Bounds of the alarm's step counts (declared to the settings reference and checked): at
+/// most 10 s of 8 kHz steps, longer than any confirmation or hold that still reports slip.
+const CONFIRM_STEPS: std::ops::RangeInclusive<usize> = 1..=80_000;
+const RELEASE_HOLD_STEPS: std::ops::RangeInclusive<usize> = 0..=80_000;
+
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct SlipAlarmConfig {
@@ -30,9 +35,11 @@ pub struct SlipAlarmConfig {
     /// A flagged drive is cleared when its slip probability falls to this.
     pub off_probability: f64,
     /// Consecutive steps at or above `on_probability` before the flag rises (1: at once).
+    #[schemars(range(min = *CONFIRM_STEPS.start(), max = *CONFIRM_STEPS.end()))]
     pub confirm_steps: usize,
     /// Steps a cleared drive stays flagged, a return to `on_probability` continuing the
     /// episode (0: cleared at once).
+    #[schemars(range(min = *RELEASE_HOLD_STEPS.start(), max = *RELEASE_HOLD_STEPS.end()))]
     pub release_hold_steps: usize,
 }
 
@@ -63,11 +70,18 @@ impl SlipAlarmConfig {
             self.on_probability * (1.0 - f64::EPSILON),
             "must be in [0, alarm.on_probability)",
         )?;
-        if self.confirm_steps == 0 {
+        if !CONFIRM_STEPS.contains(&self.confirm_steps) {
             return Err(SlipError::invalid(
                 "alarm.confirm_steps",
-                0,
-                "must be at least 1",
+                self.confirm_steps,
+                "must be in 1..=80000",
+            ));
+        }
+        if !RELEASE_HOLD_STEPS.contains(&self.release_hold_steps) {
+            return Err(SlipError::invalid(
+                "alarm.release_hold_steps",
+                self.release_hold_steps,
+                "must be in 0..=80000",
             ));
         }
         Ok(())

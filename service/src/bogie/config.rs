@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use railmon_settings::SettingsError;
 
-use crate::stream_keys::{invalid, validate_stream_keys};
+use crate::stream_keys::{invalid, validate_stream_keys, HISTORY_CAPACITY, STREAM_INTERVAL_MS};
 
 /// Most bogies one service monitors (a vehicle has two per car; a unit of eight cars 16).
 pub const MAX_BOGIES: usize = 16;
@@ -24,6 +24,7 @@ pub struct BogieConfig {
     pub bogies: Vec<u32>,
     /// The stream is stale (and `/readyz` fails) when no frame came for this long; also the
     /// most the estimates may fall behind the samples' clock before the stream is `lagging`.
+    #[schemars(range(min = *STREAM_INTERVAL_MS.start(), max = *STREAM_INTERVAL_MS.end()))]
     pub stale_after_ms: u64,
     /// Plausible magnitudes of the lateral accelerations (m/s^2) and of the yaw rate (rad/s):
     /// a frame beyond them is refused (`out_of_range`), not estimated. Data scaled by 1000
@@ -32,8 +33,10 @@ pub struct BogieConfig {
     /// Plausible magnitude of the yaw rate (rad/s), as `max_abs_accel_m_s2` for accelerations.
     pub max_abs_yaw_rate_rad_s: f64,
     /// One history point per bogie per this much stream time.
+    #[schemars(range(min = *STREAM_INTERVAL_MS.start(), max = *STREAM_INTERVAL_MS.end()))]
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
+    #[schemars(range(min = *HISTORY_CAPACITY.start(), max = *HISTORY_CAPACITY.end()))]
     pub history_capacity: usize,
     /// Threads stepping the bogies' filters besides the ingest thread (the frames of one
     /// sample time are stepped side by side). Unset: one fewer than the cores, at most one

@@ -7,7 +7,10 @@ use serde::{Deserialize, Serialize};
 
 use railmon_settings::SettingsError;
 
-use crate::stream_keys::{invalid, validate_stream_keys};
+use crate::stream_keys::{invalid, validate_stream_keys, HISTORY_CAPACITY, STREAM_INTERVAL_MS};
+
+/// Bounds of `max_drives`: a frame holds at most [`MAX_DRIVES`].
+const MAX_DRIVES_RANGE: std::ops::RangeInclusive<usize> = 1..=MAX_DRIVES;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
@@ -15,8 +18,10 @@ pub struct DriveConfig {
     /// Ingest the drive stream (traction drives' currents and voltages at 8 kHz: wheel slip).
     pub enabled: bool,
     /// The stream is stale (and `/readyz` fails) when no frame came for this long.
+    #[schemars(range(min = *STREAM_INTERVAL_MS.start(), max = *STREAM_INTERVAL_MS.end()))]
     pub stale_after_ms: u64,
     /// Frames with more drives are rejected (at most the frame capacity, 32).
+    #[schemars(range(min = *MAX_DRIVES_RANGE.start(), max = *MAX_DRIVES_RANGE.end()))]
     pub max_drives: usize,
     /// Plausible magnitudes of the stator currents and voltages: a frame beyond them is
     /// refused (`out_of_range`), not estimated. Currents in mA instead of A once gave a load
@@ -25,8 +30,10 @@ pub struct DriveConfig {
     /// Plausible magnitude of the stator voltages (V), as `max_abs_current_a` for currents.
     pub max_abs_voltage_v: f64,
     /// One history point per this much stream time.
+    #[schemars(range(min = *STREAM_INTERVAL_MS.start(), max = *STREAM_INTERVAL_MS.end()))]
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
+    #[schemars(range(min = *HISTORY_CAPACITY.start(), max = *HISTORY_CAPACITY.end()))]
     pub history_capacity: usize,
     /// The estimator and its slip alarm (`railmon_slip::SlipMonitorConfig`; the alarm's
     /// hysteresis is `[drive.estimator.alarm]`): its default, or the preset the table
@@ -58,12 +65,7 @@ impl DriveConfig {
             self.history_interval_ms,
             self.history_capacity,
         )?;
-        if !(1..=MAX_DRIVES).contains(&self.max_drives) {
-            return Err(invalid(
-                "drive.max_drives",
-                format!("{} is not in 1..={MAX_DRIVES}", self.max_drives),
-            ));
-        }
+        railmon_settings::check_in_range("drive.max_drives", self.max_drives, &MAX_DRIVES_RANGE)?;
         for (key, value) in [
             ("max_abs_current_a", self.max_abs_current_a),
             ("max_abs_voltage_v", self.max_abs_voltage_v),

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use railmon_settings::SettingsError;
 
-use crate::stream_keys::{invalid, validate_stream_keys};
+use crate::stream_keys::{invalid, validate_stream_keys, HISTORY_CAPACITY, STREAM_INTERVAL_MS};
 
 /// `[vehicle]`: the road-vehicle stream (fuel flow, speed, ... at 1 Hz) -> `railmon_fuel::FuelMonitor`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -16,10 +16,13 @@ pub struct VehicleConfig {
     /// requires every enabled stream to be fresh.
     pub enabled: bool,
     /// The stream is stale (and `/readyz` fails) when no frame came for this long.
+    #[schemars(range(min = *STREAM_INTERVAL_MS.start(), max = *STREAM_INTERVAL_MS.end()))]
     pub stale_after_ms: u64,
     /// One history point per this much stream time.
+    #[schemars(range(min = *STREAM_INTERVAL_MS.start(), max = *STREAM_INTERVAL_MS.end()))]
     pub history_interval_ms: u64,
     /// History points kept (the oldest are dropped).
+    #[schemars(range(min = *HISTORY_CAPACITY.start(), max = *HISTORY_CAPACITY.end()))]
     pub history_capacity: usize,
     /// The estimator (`railmon_fuel::FuelMonitorConfig`): its default, or the preset the table
     /// names (`preset = "railcar"`), with the given keys on top.
