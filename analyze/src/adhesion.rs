@@ -650,6 +650,7 @@ mod tests {
                 config,
                 out,
                 no_plots,
+                strict: false,
             },
             table1_skip_steps: 0,
         }

@@ -25,6 +25,7 @@ fn args(out: &Path) -> Args {
             config: None,
             out: out.to_owned(),
             no_plots: false,
+            strict: false,
         },
         particles: Some(100),
         propagation: None,
