@@ -271,9 +271,7 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
         args.bogie,
         source,
         record,
-        max_steps,
-        args.csv_every.max(1),
-        args.run.strict,
+        (max_steps, args.csv_every.max(1), args.run.strict),
     )?;
     let MonitorRun {
         trace,
@@ -413,9 +411,7 @@ fn run_monitor(
     bogie: u32,
     mut source: Source,
     mut record: Option<BogieCsvWriter>,
-    max_steps: Option<u64>,
-    every: usize,
-    strict: bool,
+    (max_steps, every, strict): (Option<u64>, usize, bool),
 ) -> Result<MonitorRun, DamperAnalysisError> {
     let ranges = SampleRanges::default();
     let mut refused = Refusals::new(&REFUSAL_REASONS);
