@@ -41,8 +41,9 @@ impl DamperError {
     pub fn reason(&self) -> Option<&'static str> {
         match self {
             DamperError::InvalidSample {
-                field: "speed_m_s", ..
-            } => Some("speed_out_of_range"),
+                field: "speed_m_s",
+                value,
+            } if value.is_finite() => Some("speed_out_of_range"),
             DamperError::InvalidSample { .. } => Some("not_finite"),
             DamperError::SampleOutOfRange { .. } => Some("out_of_range"),
             _ => None,
