@@ -651,6 +651,7 @@ mod tests {
                 config,
                 out,
                 no_plots,
+                strict: false,
             },
             table1_skip_steps: 0,
         }

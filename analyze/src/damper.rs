@@ -35,13 +35,13 @@ use std::time::{Duration, Instant};
 use railmon_damper::{
     BogieSample, BogieSimulator, BogieStatusEvent, BogieStatusWatch, DamperAlarm, DamperError,
     DamperEstimate, DamperEvent, DamperFault, DamperId, DamperMonitor, DamperMonitorConfig,
-    DamperScenario, FaultKind, Propagation,
+    DamperScenario, FaultKind, Propagation, SampleRanges,
 };
 use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord};
 use railmon_records::{write_csv_table, RecordError};
 
-use crate::report::AnalysisError;
 use crate::report::{create_out_dir, line_plot, progress_bar, Axes, RunArgs, Series};
+use crate::report::{AnalysisError, Refusals};
 
 /// Arguments of `railmon analyze damper`.
 #[derive(clap::Args, Debug, Clone)]
@@ -137,7 +137,13 @@ pub struct DamperReport {
     /// Mean wall time of one monitor step (RBPF + EKF + posterior summary).
     pub mean_step_us: f64,
     pub ekf_diverged_at_s: Option<f64>,
+    /// The samples refused by the service's checks (`SampleRanges`) and skipped.
+    pub refused: Refusals,
 }
+
+/// The reasons a bogie sample is refused for, the labels of the service's bogie stream
+/// (`railmon_damper::DamperError::reason`; `unknown_bogie` is the service's configuration).
+pub const REFUSAL_REASONS: [&str; 3] = ["not_finite", "speed_out_of_range", "out_of_range"];
 
 /// One point of the estimate trace.
 #[derive(Debug, Clone, Copy)]
@@ -159,6 +165,14 @@ enum Source {
 type TruthSample = (BogieSample, f64, Option<[f64; 2]>);
 
 impl Source {
+    /// The line of the recording's row read last (`None` for the simulator).
+    fn line(&self) -> Option<u64> {
+        match self {
+            Source::Simulator(_) => None,
+            Source::Recording(r, _) => Some(r.line()),
+        }
+    }
+
     /// Next sample and truth; `Ok(None)` at the end.
     fn next(&mut self) -> Result<Option<TruthSample>, DamperAnalysisError> {
         match self {
@@ -189,7 +203,9 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
     let (name, mut config, mut source, n_steps, faults, record) =
         match (&args.run.input, &args.run.scenario) {
             (Some(path), _) => {
-                let reader = BogieCsvReader::open(path)?.only_bogie(args.bogie);
+                let reader = BogieCsvReader::open(path)?
+                    .only_bogie(args.bogie)
+                    .as_recorded();
                 let name = path.display().to_string();
                 (
                     name,
@@ -256,8 +272,7 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
         args.bogie,
         source,
         record,
-        max_steps,
-        args.csv_every.max(1),
+        (max_steps, args.csv_every.max(1), args.run.strict),
     )?;
     let MonitorRun {
         trace,
@@ -265,7 +280,9 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
         steps,
         elapsed,
         ekf_diverged_at_s,
+        refused,
     } = run;
+    refused.write_csv(&args.run.out.join("refused.csv"))?;
     write_estimates(&args.run.out.join("estimates.csv"), &trace)?;
     write_events(&args.run.out.join("events.csv"), args.bogie, &events)?;
     let has_truth = trace.iter().all(|p| p.truth.is_some()) && !trace.is_empty();
@@ -314,6 +331,7 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
         steps,
         mean_step_us,
         ekf_diverged_at_s,
+        refused,
     })
 }
 
@@ -365,6 +383,27 @@ struct MonitorRun {
     steps: u64,
     elapsed: Duration,
     ekf_diverged_at_s: Option<f64>,
+    refused: Refusals,
+}
+
+/// A refused sample as an error: `file:line: field "column" = "value": reason` for a
+/// recording, the estimator's words for the simulator.
+fn refusal_error(name: &str, line: Option<u64>, e: DamperError) -> DamperAnalysisError {
+    let field = match &e {
+        DamperError::InvalidSample { field, value }
+        | DamperError::SampleOutOfRange { field, value, .. } => Some((*field, *value)),
+        _ => None,
+    };
+    match (line, field) {
+        (Some(line), Some((field, value))) => DamperAnalysisError::Record(RecordError {
+            file: name.to_owned(),
+            line: Some(line),
+            field: Some(field.to_owned()),
+            value: Some(value.to_string()),
+            reason: e.to_string(),
+        }),
+        _ => estimator_error(name)(e),
+    }
 }
 
 fn run_monitor(
@@ -373,9 +412,12 @@ fn run_monitor(
     bogie: u32,
     mut source: Source,
     mut record: Option<BogieCsvWriter>,
-    max_steps: Option<u64>,
-    every: usize,
+    (max_steps, every, strict): (Option<u64>, usize, bool),
 ) -> Result<MonitorRun, DamperAnalysisError> {
+    let ranges = SampleRanges::default();
+    let mut refused = Refusals::new(&REFUSAL_REASONS);
+    let mut first_refusal = None;
+    let mut read = 0u64;
     let mut monitor =
         DamperMonitor::for_bogie(config, bogie, None).map_err(estimator_error(name))?;
     let mut alarms = DamperAlarm::pair(&config.alarm, &config.filter_model(), [false; 2]);
@@ -385,10 +427,22 @@ fn run_monitor(
     let mut trace = vec![];
     let mut steps = 0u64;
     let mut elapsed = Duration::ZERO;
-    while max_steps.is_none_or(|m| steps < m) {
+    while max_steps.is_none_or(|m| read < m) {
         let Some((sample, time_s, truth)) = source.next()? else {
             break;
         };
+        read += 1;
+        // The service's checks, its reasons: a refused sample is counted and skipped (no
+        // estimate, no record), or with `--strict` the error.
+        if let Err(e) = ranges.check(&sample) {
+            let reason = e.reason().unwrap_or("estimator");
+            if strict {
+                return Err(refusal_error(name, source.line(), e));
+            }
+            refused.add(reason);
+            first_refusal.get_or_insert((source.line(), e));
+            continue;
+        }
         let started = Instant::now();
         let estimate = *monitor.step(&sample).map_err(estimator_error(name))?;
         elapsed += started.elapsed();
@@ -425,6 +479,19 @@ fn run_monitor(
         }
     }
     bar.finish_and_clear();
+    if let Some((line, e)) = first_refusal.filter(|_| refused.total() > steps) {
+        // Mostly refused: not glitches but other units or a broken file.
+        let mut error = refusal_error(name, line, e);
+        let counts = format!(
+            "{} of {read} samples refused, {}; the first",
+            refused.total(),
+            refused.line()
+        );
+        if let DamperAnalysisError::Record(r) = &mut error {
+            r.reason = format!("{counts}: {}", r.reason);
+        }
+        return Err(error);
+    }
     if let Some(w) = record {
         w.finish()?;
     }
@@ -434,6 +501,7 @@ fn run_monitor(
         steps,
         elapsed,
         ekf_diverged_at_s: monitor.ekf_diverged_at_s(),
+        refused,
     })
 }
 

@@ -20,7 +20,7 @@ pub mod rls;
 use std::path::Path;
 
 use railmon_fuel::{FuelError, FuelMonitorConfig, RegimeName, VehicleSample, REGIME_CHANGED};
-use railmon_records::vehicle::{read_vehicle_csv, write_vehicle_csv, VehicleRow};
+use railmon_records::vehicle::{read_vehicle_csv_as_recorded, write_vehicle_csv, VehicleRow};
 use railmon_records::vehicle_scenario::simulate_vehicle_scenario;
 use railmon_records::{write_csv_table, RecordError};
 
@@ -81,9 +81,10 @@ pub fn samples_from_rows(rows: &[VehicleRow]) -> Vec<VehicleSample> {
     rows.iter().map(|r| r.sample).collect()
 }
 
-/// Reads a recording (labels from a `regime` column if it has one).
+/// Reads a recording (labels from a `regime` column if it has one). Values are kept as
+/// recorded (NaN, a time that does not increase): the estimator's checks refuse them.
 pub fn load_recording(path: &Path) -> Result<FuelInput, FuelAnalysisError> {
-    let (_, rows) = read_vehicle_csv(path)?;
+    let (_, rows) = read_vehicle_csv_as_recorded(path)?;
     let labels = if rows.iter().all(|r| r.regime.is_some()) {
         let mut names: Vec<String> = Vec::new();
         let idx = rows
@@ -151,14 +152,16 @@ pub fn run(args: &Args) -> Result<Evaluation, FuelAnalysisError> {
     if let Some(rows) = simulated {
         write_vehicle_csv(&args.run.out.join("simulated.csv"), &rows)?;
     }
-    analyse(&input, &args.run.out, !args.run.no_plots)
+    analyse(&input, &args.run.out, !args.run.no_plots, args.run.strict)
 }
 
-/// Evaluates `input` and writes the report files into `out`.
+/// Evaluates `input` and writes the report files into `out`. A sample the estimator refuses
+/// is counted (`refused.csv`) and skipped, or with `strict` an error naming its line.
 pub fn analyse(
     input: &FuelInput,
     out: &Path,
     plots: bool,
+    strict: bool,
 ) -> Result<Evaluation, FuelAnalysisError> {
     let bar = progress_bar(input.samples.len() as u64, "fuel");
     let labels = input
@@ -166,8 +169,21 @@ pub fn analyse(
         .as_ref()
         .map(|(l, names)| (l.as_slice(), names.as_slice()));
     let evaluation = evaluate(&input.config, &input.samples, labels, || bar.inc(1))
-        .map_err(|source| refusal(input, source))?;
+        .map_err(|source| refusal(input, None, source))?;
     bar.finish_and_clear();
+    if let Some((index, first)) = &evaluation.first_refusal {
+        let refused = evaluation.refused.total() as usize;
+        // A file most of whose samples are refused is not glitches but another unit, rate
+        // or layout: no answer on what is left of it.
+        if strict || 2 * refused > evaluation.samples {
+            let error = refusal(input, Some(*index), first.clone());
+            return Err(match strict {
+                true => error,
+                false => mostly_refused(error, &evaluation),
+            });
+        }
+    }
+    evaluation.refused.write_csv(&out.join("refused.csv"))?;
     let label_names: Option<&[String]> = input.labels.as_ref().map(|(_, n)| n.as_slice());
     write_predictions(&out.join("predictions.csv"), &evaluation, label_names)?;
     write_summary(&out.join("summary.csv"), &evaluation.scores)?;
@@ -185,13 +201,35 @@ pub fn analyse(
     Ok(evaluation)
 }
 
-/// The estimator's refusal of a sample as `file:line: field "column" = "value": reason` when
-/// the sample came from a file; otherwise as the estimator says it (with the time stamp).
-fn refusal(input: &FuelInput, source: FuelError) -> FuelAnalysisError {
-    let line = source.time_s().and_then(|t| {
-        let i = input.samples.iter().position(|s| s.time_s == t)?;
-        input.lines.get(i).copied()
+/// `error` (the first refused sample) with the counts: more than half the samples refused.
+fn mostly_refused(error: FuelAnalysisError, evaluation: &Evaluation) -> FuelAnalysisError {
+    let counts = format!(
+        "{} of {} samples refused, {}; the first",
+        evaluation.refused.total(),
+        evaluation.samples,
+        evaluation.refused.line()
+    );
+    match error {
+        FuelAnalysisError::Record(mut e) => {
+            e.reason = format!("{counts}: {}", e.reason);
+            FuelAnalysisError::Record(e)
+        }
+        other => FuelAnalysisError::Input {
+            file: "<samples>".into(),
+            reason: format!("{counts}: {other}"),
+        },
+    }
+}
+
+/// The estimator's refusal of a sample (the `index`-th, or found by its time) as
+/// `file:line: field "column" = "value": reason` when the sample came from a file;
+/// otherwise as the estimator says it (with the time stamp).
+fn refusal(input: &FuelInput, index: Option<usize>, source: FuelError) -> FuelAnalysisError {
+    let index = index.or_else(|| {
+        let t = source.time_s()?;
+        input.samples.iter().position(|s| s.time_s == t)
     });
+    let line = index.and_then(|i| input.lines.get(i).copied());
     match (line, source.field()) {
         (Some(line), Some((field, value))) => FuelAnalysisError::Record(RecordError {
             file: input.name.clone(),

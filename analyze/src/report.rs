@@ -67,6 +67,77 @@ pub struct RunArgs {
     /// Skip the PNG plots (CSV reports only).
     #[arg(long)]
     pub no_plots: bool,
+    /// Stop at the first sample the service would refuse (an error naming file, line, field
+    /// and value) instead of counting and skipping it (`refused.csv`).
+    #[arg(long)]
+    pub strict: bool,
+}
+
+/// The samples an analysis refused, by reason: the reasons (and labels) the service counts
+/// the same drops under in `railmon_stream_samples_rejected_total{reason}`. Every reason of
+/// the domain is listed, refused or not, so a clean run shows its zeros.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Refusals {
+    counts: Vec<(&'static str, u64)>,
+}
+
+impl Refusals {
+    /// No refusals yet, of the domain's `reasons`.
+    pub fn new(reasons: &[&'static str]) -> Self {
+        Refusals {
+            counts: reasons.iter().map(|&r| (r, 0)).collect(),
+        }
+    }
+
+    /// Counts one refused sample (a reason the domain does not list is added).
+    pub fn add(&mut self, reason: &'static str) {
+        match self.counts.iter_mut().find(|(r, _)| *r == reason) {
+            Some((_, n)) => *n += 1,
+            None => self.counts.push((reason, 1)),
+        }
+    }
+
+    /// The samples refused for `reason`.
+    pub fn count(&self, reason: &str) -> u64 {
+        self.counts
+            .iter()
+            .find(|(r, _)| *r == reason)
+            .map_or(0, |(_, n)| *n)
+    }
+
+    /// Every refused sample.
+    pub fn total(&self) -> u64 {
+        self.counts.iter().map(|(_, n)| n).sum()
+    }
+
+    /// `(reason, count)`, every reason of the domain.
+    pub fn counts(&self) -> &[(&'static str, u64)] {
+        &self.counts
+    }
+
+    /// One line for the terminal: `refused samples: 3 (out_of_range 2, not_finite 1)`.
+    pub fn line(&self) -> String {
+        let some: Vec<String> = self
+            .counts
+            .iter()
+            .filter(|(_, n)| *n > 0)
+            .map(|(r, n)| format!("{r} {n}"))
+            .collect();
+        match some.is_empty() {
+            true => "refused samples: 0".to_owned(),
+            false => format!("refused samples: {} ({})", self.total(), some.join(", ")),
+        }
+    }
+
+    /// `refused.csv`: `reason,count`, one row per reason, then `total`.
+    pub fn write_csv(&self, path: &Path) -> Result<(), railmon_records::RecordError> {
+        let rows = self
+            .counts
+            .iter()
+            .map(|(r, n)| vec![(*r).to_owned(), n.to_string()])
+            .chain([vec!["total".to_owned(), self.total().to_string()]]);
+        railmon_records::write_csv_table(path, &["reason", "count"], rows)
+    }
 }
 
 /// Creates `dir` (and parents) if needed.

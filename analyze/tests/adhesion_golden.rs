@@ -88,6 +88,7 @@ fn seed_scenario_headline_numbers_match_the_golden_file() {
             config: None,
             out: out.clone(),
             no_plots: true,
+            strict: false,
         },
         table1_skip_steps: 0,
     })

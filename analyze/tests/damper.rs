@@ -25,6 +25,7 @@ fn args(out: &Path) -> Args {
             config: None,
             out: out.to_owned(),
             no_plots: false,
+            strict: false,
         },
         particles: Some(100),
         propagation: None,
@@ -125,11 +126,19 @@ fn a_bad_recording_is_an_error_naming_file_line_and_field() {
     let mut a = args(&out);
     a.run.input = Some(input);
     a.duration_s = None;
+    // The service drops the NaN sample (`not_finite`) and goes on: so does analyze.
+    let report = run(&a).unwrap();
+    assert_eq!(report.refused.count("not_finite"), 1);
+    assert_eq!(report.steps, 1);
+    let refused = std::fs::read_to_string(out.join("refused.csv")).unwrap();
+    assert!(refused.contains("not_finite,1\n"), "{refused}");
+    // `--strict`: the error names file, line, field and value.
+    a.run.strict = true;
     let err = run(&a).unwrap_err();
     assert!(matches!(err, DamperAnalysisError::Record(_)));
     let msg = err.to_string();
     assert!(
-        msg.contains("bad.csv:3:") && msg.contains("wheelset2_accel_m_s2") && msg.contains("nan"),
+        msg.contains("bad.csv:3:") && msg.contains("wheelset2_accel_m_s2") && msg.contains("NaN"),
         "{msg}"
     );
     std::fs::remove_dir_all(&out).unwrap();

@@ -90,6 +90,7 @@ fn no_plots_writes_the_same_tables_and_no_png() {
                 config: None,
                 out: out.to_owned(),
                 no_plots,
+                strict: false,
             },
         })
         .unwrap()
@@ -134,6 +135,7 @@ fn scenario_run_writes_every_report() {
             config: None,
             out: out.clone(),
             no_plots: false,
+            strict: false,
         },
     })
     .unwrap();
@@ -221,12 +223,13 @@ fn a_nan_in_a_recording_names_file_line_and_field() {
         "Time[s],Eng_FuelFlow_Direct_DI[ccps],Dyno_Spd[mph]\n-0.0,0.1,0\n1.0,0.2,1\n2.0,0.3,nan\n",
     )
     .unwrap();
-    let msg = match load_recording(&path) {
-        Err(e) => e.to_string(),
-        Ok(_) => panic!("NaN accepted"),
-    };
+    // A sensor's NaN is a sample the service would drop (`not_finite`): counted and skipped,
+    // or with `--strict` an error naming the line, the channel and the value.
+    let ev = analyze_strict(&path, None, &dir.join("out"), false).unwrap();
+    assert_eq!(ev.refused.count("not_finite"), 1, "{:?}", ev.refused);
+    let msg = analyze_strict(&path, None, &dir.join("out-strict"), true).unwrap_err();
     assert!(
-        msg.contains("bad.csv:4") && msg.contains("Dyno_Spd[mph]") && msg.contains("nan"),
+        msg.starts_with("bad.csv:4: field \"speed_m_s\" = \"NaN\"") && msg.contains("not finite"),
         "{msg}"
     );
     std::fs::remove_dir_all(&dir).unwrap();
@@ -240,7 +243,14 @@ fn a_recording_without_a_configured_channel_is_a_clear_error() {
         .config
         .channels
         .push(railmon_fuel::Channel::EngineSpeed);
-    let err = evaluate(&input.config, &input.samples, None, || {}).unwrap_err();
+    // Every sample refused (`missing_channel`, as the service counts it); `analyze` ends
+    // with the first of them when most samples are refused.
+    let ev = evaluate(&input.config, &input.samples, None, || {}).unwrap();
+    assert_eq!(
+        ev.refused.count("missing_channel"),
+        input.samples.len() as u64
+    );
+    let (_, err) = ev.first_refusal.unwrap();
     assert!(
         err.to_string().contains("engine_speed") && err.to_string().contains("missing"),
         "{err}"
@@ -343,6 +353,15 @@ fn write_locomotive_csv(path: &Path, time_unit: f64, speed_unit: f64) {
 }
 
 fn analyze_with(input: &Path, config: Option<&Path>, out: &Path) -> Result<Evaluation, String> {
+    analyze_strict(input, config, out, true)
+}
+
+fn analyze_strict(
+    input: &Path,
+    config: Option<&Path>,
+    out: &Path,
+    strict: bool,
+) -> Result<Evaluation, String> {
     run(&Args {
         run: RunArgs {
             input: Some(input.to_owned()),
@@ -350,9 +369,99 @@ fn analyze_with(input: &Path, config: Option<&Path>, out: &Path) -> Result<Evalu
             config: config.map(Path::to_owned),
             out: out.to_owned(),
             no_plots: true,
+            strict,
         },
     })
     .map_err(|e| e.to_string())
+}
+
+/// Issue 25 item 3, issue 26 item 4: a few implausible samples among good ones are counted
+/// by the service's reasons and skipped; the estimates on the rest are those of the same
+/// file without the bad rows (the same predictions, scores and events); `--strict` stops at
+/// the first, naming file, line, field and value.
+#[test]
+fn bad_samples_are_counted_and_skipped_as_the_service_does() {
+    let dir = std::env::temp_dir().join(format!("railmon-fuel-skip-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("railcar.toml");
+    std::fs::write(&config, "preset = \"railcar\"\n").unwrap();
+    let clean = dir.join("clean.csv");
+    write_locomotive_csv(&clean, 1.0, 1.0);
+    let text = std::fs::read_to_string(&clean).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let with_field = |line: &str, k: usize, value: &str| {
+        let mut f: Vec<&str> = line.split(',').collect();
+        f[k] = value;
+        f.join(",")
+    };
+    let speed = |line: &str| line.split(',').nth(2).unwrap().parse::<f64>().unwrap();
+    // Line 2 + t holds the sample at t s. The kept rows, for the file without the bad ones.
+    let mut kept = lines.clone();
+    for t in [350usize, 300, 200, 100] {
+        kept.remove(1 + t);
+    }
+    let glitch = |l: &str| with_field(l, 2, &(speed(l) + 20.0).to_string());
+    lines[1 + 100] = with_field(&lines[1 + 100], 2, "NaN");
+    lines[1 + 200] = with_field(&lines[1 + 200], 1, "1e6");
+    lines[1 + 300] = glitch(&lines[1 + 300]);
+    lines[1 + 350] = with_field(&lines[1 + 350], 0, "349");
+    let mut bad_text = lines.join("\n");
+    bad_text.push('\n');
+    let bad = dir.join("bad.csv");
+    std::fs::write(&bad, bad_text).unwrap();
+    let mut kept_text = kept.join("\n");
+    kept_text.push('\n');
+    let without = dir.join("without.csv");
+    std::fs::write(&without, kept_text).unwrap();
+
+    let ev = analyze_strict(&bad, Some(&config), &dir.join("out-bad"), false).unwrap();
+    for (reason, n) in [
+        ("not_finite", 1),
+        ("out_of_range", 1),
+        ("acceleration_out_of_range", 1),
+        ("time_not_increasing", 1),
+        ("missing_channel", 0),
+    ] {
+        assert_eq!(ev.refused.count(reason), n, "{reason}: {:?}", ev.refused);
+    }
+    assert_eq!(ev.refused.total(), 4);
+    let refused = std::fs::read_to_string(dir.join("out-bad/refused.csv")).unwrap();
+    assert!(
+        refused.contains("not_finite,1\n") && refused.contains("total,4\n"),
+        "{refused}"
+    );
+    let ref_ev = analyze_strict(&without, Some(&config), &dir.join("out-without"), false).unwrap();
+    assert_eq!(ref_ev.refused.total(), 0);
+    assert!(ev.rows.len() > 400, "{}", ev.rows.len());
+    assert_eq!(ev.rows, ref_ev.rows);
+    assert_eq!(ev.scores, ref_ev.scores);
+    assert_eq!(ev.events, ref_ev.events);
+    for file in [
+        "predictions.csv",
+        "summary.csv",
+        "events.csv",
+        "components.csv",
+    ] {
+        let a = std::fs::read_to_string(dir.join("out-bad").join(file)).unwrap();
+        let b = std::fs::read_to_string(dir.join("out-without").join(file)).unwrap();
+        assert!(a == b, "{file} differs");
+    }
+
+    let msg = analyze_strict(&bad, Some(&config), &dir.join("out-strict"), true).unwrap_err();
+    assert!(
+        msg.starts_with("bad.csv:102: field \"speed_m_s\" = \"NaN\""),
+        "{msg}"
+    );
+    assert!(!dir.join("out-strict/predictions.csv").exists());
+
+    let twice = dir.join("twice.csv");
+    std::fs::write(&twice, "time_s,fuel_cm3_s,speed_m_s,fuel_cm3_s\n0,1,0,2\n").unwrap();
+    let msg = analyze_strict(&twice, None, &dir.join("out-twice"), false).unwrap_err();
+    assert!(
+        msg.contains("twice.csv:1: field \"fuel_cm3_s\": column named twice"),
+        "{msg}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Issue 14 item 1: a locomotive-scale profile runs with the railcar channel ranges

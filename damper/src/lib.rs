@@ -51,7 +51,7 @@ pub use rbpf::{
     slowest_time_constant_s, DamperPosterior, JumpSearchConfig, KernelSchedule, Propagation, Rbpf,
     RbpfConfig, RbpfEstimate, RbpfState, N_SENTINELS,
 };
-pub use sample::{BogieSample, SensorNoise};
+pub use sample::{BogieSample, SampleRanges, SensorNoise};
 pub use scenario::DamperScenario;
 pub use simulator::{BogieSimulator, BogieTruth};
 pub use speed::{PauseReason, SpeedConfig};

@@ -81,6 +81,59 @@ impl BogieSample {
     }
 }
 
+/// Plausible magnitudes of a bogie's sensors: a sample beyond them is refused
+/// (`out_of_range`), not estimated. Data scaled by 1000 (mm/s^2, mrad/s) once read as a
+/// damper at 10 % of its health: a false `degraded`. The service's `[bogie]
+/// max_abs_accel_m_s2` / `max_abs_yaw_rate_rad_s`, `railmon analyze damper`'s defaults.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SampleRanges {
+    /// Each lateral acceleration, m/s^2.
+    pub max_abs_accel_m_s2: f64,
+    /// The yaw rate, rad/s.
+    pub max_abs_yaw_rate_rad_s: f64,
+}
+
+impl Default for SampleRanges {
+    fn default() -> Self {
+        SampleRanges {
+            max_abs_accel_m_s2: 50.0,
+            max_abs_yaw_rate_rad_s: 5.0,
+        }
+    }
+}
+
+impl SampleRanges {
+    /// The checks the service refuses a bogie sample by, in its order: every value finite
+    /// (`not_finite`), the speed in `0..=MAX_SPEED_M_S` (`speed_out_of_range`), every sensor
+    /// within its magnitude (`out_of_range`); [`DamperError::reason`] names which.
+    pub fn check(&self, s: &BogieSample) -> Result<(), DamperError> {
+        let (max_a, max_r) = (self.max_abs_accel_m_s2, self.max_abs_yaw_rate_rad_s);
+        let (accel, yaw) = ("max_abs_accel_m_s2", "max_abs_yaw_rate_rad_s");
+        let channels = [
+            ("wheelset1_accel_m_s2", s.wheelset1_accel_m_s2, max_a, accel),
+            ("wheelset2_accel_m_s2", s.wheelset2_accel_m_s2, max_a, accel),
+            ("bogie_accel_m_s2", s.bogie_accel_m_s2, max_a, accel),
+            ("bogie_yaw_rate_rad_s", s.bogie_yaw_rate_rad_s, max_r, yaw),
+            ("body_accel_m_s2", s.body_accel_m_s2, max_a, accel),
+        ];
+        let speed = ("speed_m_s", s.speed_m_s);
+        let all = channels.iter().map(|c| (c.0, c.1)).chain([speed]);
+        if let Some((field, value)) = all.into_iter().find(|(_, v)| !v.is_finite()) {
+            return Err(DamperError::InvalidSample { field, value });
+        }
+        s.validate()?;
+        match channels.into_iter().find(|c| c.1.abs() > c.2) {
+            Some((field, value, max, key)) => Err(DamperError::SampleOutOfRange {
+                field,
+                value,
+                max,
+                key,
+            }),
+            None => Ok(()),
+        }
+    }
+}
+
 /// Standard deviations of the sensor noise (white, independent).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
@@ -122,6 +175,35 @@ impl SensorNoise {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ranges_refuse_in_the_service_order_with_its_reasons() {
+        let ranges = SampleRanges::default();
+        let reason = |s: BogieSample| ranges.check(&s).unwrap_err().reason();
+        let ok = BogieSample::default();
+        assert!(ranges.check(&ok).is_ok());
+        let nan_speed = BogieSample {
+            speed_m_s: f64::NAN,
+            ..ok
+        };
+        assert_eq!(reason(nan_speed), Some("not_finite"));
+        let fast = BogieSample {
+            speed_m_s: 200.0,
+            body_accel_m_s2: 1e3,
+            ..ok
+        };
+        assert_eq!(reason(fast), Some("speed_out_of_range"));
+        let mm = BogieSample {
+            bogie_yaw_rate_rad_s: 6.0,
+            ..ok
+        };
+        assert_eq!(reason(mm), Some("out_of_range"));
+        let msg = ranges.check(&mm).unwrap_err().to_string();
+        assert!(
+            msg.contains("bogie_yaw_rate_rad_s") && msg.contains("max_abs_yaw_rate_rad_s"),
+            "{msg}"
+        );
+    }
 
     #[test]
     fn nan_sample_is_rejected_by_field_name() {

@@ -40,8 +40,8 @@ pub enum FuelError {
     /// as m/s multiplies every acceleration by 3.6) or a faulty speed sensor.
     #[error(
         "sample at t = {time_s} s: speed {speed_m_s} m/s after {previous_speed_m_s} m/s {step_s} s \
-         before is an acceleration of {acceleration_m_s2:.3} m/s^2, outside [{min}, {max}] (speed \
-         in km/h?)"
+         before is an acceleration of {acceleration_m_s2:.3} m/s^2, outside [{min}, {max}] (a sensor \
+         glitch or speed in km/h?)"
     )]
     AccelerationOutOfRange {
         speed_m_s: f64,
@@ -111,6 +111,28 @@ impl FuelError {
             | FuelError::SamplePeriod { time_s, .. } => Some(("time_s", time_s.to_string())),
             FuelError::UnknownCategory { gear, .. } => Some(("gear", gear.to_string())),
             _ => None,
+        }
+    }
+
+    /// Why a sample is refused, as the service's metric label (`reason="out_of_range"`),
+    /// for errors about one sample that leave the estimator unchanged (`None` for the
+    /// others: a configuration or numerical failure is not the sample's fault). The service
+    /// counts a refused sample under this label and goes on; `railmon analyze` counts and
+    /// skips it the same way.
+    pub fn reason(&self) -> Option<&'static str> {
+        match self {
+            FuelError::MissingChannel { .. } | FuelError::MissingGear { .. } => {
+                Some("missing_channel")
+            }
+            FuelError::NonFinite { .. } => Some("not_finite"),
+            FuelError::OutOfRange { .. } => Some("out_of_range"),
+            FuelError::AccelerationOutOfRange { .. } => Some("acceleration_out_of_range"),
+            FuelError::UnknownCategory { .. } => Some("unknown_category"),
+            FuelError::TimeNotIncreasing { .. } => Some("time_not_increasing"),
+            FuelError::SamplePeriod { .. } => Some("period_mismatch"),
+            FuelError::InvalidParameter { .. }
+            | FuelError::Numerical(_)
+            | FuelError::Scenario(_) => None,
         }
     }
 

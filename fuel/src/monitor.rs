@@ -312,6 +312,12 @@ impl FuelMonitor {
         })
     }
 
+    /// Checks `sample` as [`FuelMonitor::update`] would, without changing anything: `Err`
+    /// (with [`FuelError::reason`]) when `update` would refuse it.
+    pub fn check(&self, sample: &VehicleSample) -> Result<(), FuelError> {
+        self.prepare(sample).map(|_| ())
+    }
+
     /// Processes one sample: validates it (on error nothing changes), then Algorithm 3.4's
     /// on-line step and the outputs. The first `init_samples` only fill the initial batch.
     pub fn update(&mut self, sample: &VehicleSample) -> Result<&FuelEstimate, FuelError> {

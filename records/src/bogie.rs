@@ -86,6 +86,8 @@ pub struct BogieCsvReader<R: Read> {
     /// [`Self::only_bogie`]'s choice, and how many of its rows were returned.
     selected: Option<u32>,
     selected_rows: u64,
+    /// Sensors and speed as recorded ([`Self::as_recorded`]).
+    as_recorded: bool,
 }
 
 impl BogieCsvReader<File> {
@@ -126,7 +128,17 @@ impl<R: Read> BogieCsvReader<R> {
             last_time_s: Vec::new(),
             selected: None,
             selected_rows: 0,
+            as_recorded: false,
         })
+    }
+
+    /// Keeps the sensors and the speed as recorded (NaN, infinities, a speed beyond
+    /// `MAX_SPEED_M_S`) for the estimator's plausibility check to refuse and count, as the
+    /// service does (`railmon analyze damper`); the format, the bogie ids and the time are
+    /// checked as without.
+    pub fn as_recorded(mut self) -> Self {
+        self.as_recorded = true;
+        self
     }
 
     /// Reads only the rows of bogie `id` (1 for a file without a `bogie` column); the other
@@ -254,11 +266,15 @@ impl<R: Read> BogieCsvReader<R> {
         }
         let mut sensors = [0.0; 5];
         for (v, c) in sensors.iter_mut().zip(&self.sensors) {
-            *v = row.f64(c)?;
+            *v = match self.as_recorded {
+                true => row.f64_as_recorded(c)?,
+                false => row.f64(c)?,
+            };
         }
-        let speed_m_s = match &self.speed {
-            Some(c) => Some(row.f64_in(c, 0.0, MAX_SPEED_M_S, "m/s")?),
-            None => None,
+        let speed_m_s = match (&self.speed, self.as_recorded) {
+            (Some(c), true) => Some(row.f64_as_recorded(c)?),
+            (Some(c), false) => Some(row.f64_in(c, 0.0, MAX_SPEED_M_S, "m/s")?),
+            (None, _) => None,
         };
         let truth_ns_per_m = match &self.truth {
             Some([csy, csay]) => Some([

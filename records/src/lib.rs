@@ -146,6 +146,26 @@ impl<R: Read> CsvTable<R> {
         if header.iter().all(|h| h.is_empty()) {
             return Err(RecordError::file(label, "empty file: no header line"));
         }
+        // A column named twice would be read from its first copy only, whatever the second
+        // holds: refused, naming it.
+        if let Some((i, name)) = header
+            .iter()
+            .enumerate()
+            .find(|(i, h)| !h.is_empty() && header[..*i].contains(h))
+        {
+            let first = header.iter().position(|h| h == name).unwrap_or(0);
+            return Err(RecordError {
+                file: label.to_owned(),
+                line: Some(1),
+                field: Some(name.clone()),
+                value: None,
+                reason: format!(
+                    "column named twice (columns {} and {}): which one holds the data?",
+                    first + 1,
+                    i + 1
+                ),
+            });
+        }
         Ok(CsvTable {
             file: label.to_owned(),
             header,
@@ -258,6 +278,18 @@ impl Row<'_> {
             Ok(_) => Err(self.error(column, "not a finite number")),
             Err(_) => Err(self.error(column, "not a number")),
         }
+    }
+
+    /// A floating-point field as recorded: NaN and infinities (`NaN`, `inf`, `1e400`) are
+    /// values, kept for the estimator's plausibility check to refuse and count (as the
+    /// service counts them); empty and non-numeric fields are errors.
+    pub fn f64_as_recorded(&self, column: &Column) -> Result<f64, RecordError> {
+        let text = self.text(column);
+        if text.is_empty() {
+            return Err(self.error(column, "empty field"));
+        }
+        text.parse::<f64>()
+            .map_err(|_| self.error(column, "not a number"))
     }
 
     /// A finite floating-point field within `[min, max]` (inclusive); `unit` is named in the
@@ -433,6 +465,43 @@ mod tests {
             "{err}"
         );
         assert!(row.u64(&n).is_err());
+    }
+
+    #[test]
+    fn a_column_named_twice_is_refused_naming_it() {
+        let Err(err) = CsvTable::from_reader("t.csv", "a,b,a\n1,2,3\n".as_bytes()) else {
+            panic!("a duplicate column was accepted");
+        };
+        assert_eq!(err.line, Some(1));
+        assert_eq!(err.field.as_deref(), Some("a"));
+        assert!(
+            err.to_string()
+                .starts_with("t.csv:1: field \"a\": column named twice"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn as_recorded_keeps_non_finite_values_and_refuses_text() {
+        let mut t = table("x\nNaN\n1e400\nabc\n");
+        let x = t.column("x").unwrap();
+        assert!(t
+            .next_row()
+            .unwrap()
+            .unwrap()
+            .f64_as_recorded(&x)
+            .unwrap()
+            .is_nan());
+        assert_eq!(
+            t.next_row().unwrap().unwrap().f64_as_recorded(&x).unwrap(),
+            f64::INFINITY
+        );
+        let row = t.next_row().unwrap().unwrap();
+        assert!(row
+            .f64_as_recorded(&x)
+            .unwrap_err()
+            .to_string()
+            .contains("not a number"));
     }
 
     #[test]

@@ -65,7 +65,26 @@ const CAMRY_SPEED: &str = "Dyno_Spd[mph]";
 /// Reads a vehicle recording from a file, recognising the layout from the header.
 pub fn read_vehicle_csv(path: &Path) -> Result<(VehicleLayout, Vec<VehicleRow>), RecordError> {
     let table = CsvTable::open(path)?;
-    read_vehicle_table(table)
+    read_vehicle_table(table, Values::Finite)
+}
+
+/// As [`read_vehicle_csv`], with the values as recorded: NaN and infinite values and times
+/// that do not increase are kept, for the estimator to refuse sample by sample and count as
+/// the service does (`railmon analyze fuel`); the format (numbers, columns, gears) is
+/// checked as there.
+pub fn read_vehicle_csv_as_recorded(
+    path: &Path,
+) -> Result<(VehicleLayout, Vec<VehicleRow>), RecordError> {
+    read_vehicle_table(CsvTable::open(path)?, Values::AsRecorded)
+}
+
+/// Whether a reader refuses implausible values itself or keeps them.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Values {
+    /// Every value finite and time increasing, else an error (a replay publishes what it reads).
+    Finite,
+    /// Any number, any time order: the estimator's checks judge them.
+    AsRecorded,
 }
 
 /// As [`read_vehicle_csv`], from any reader (`label` names it in errors).
@@ -73,11 +92,12 @@ pub fn read_vehicle_from(
     label: &str,
     reader: impl Read,
 ) -> Result<(VehicleLayout, Vec<VehicleRow>), RecordError> {
-    read_vehicle_table(CsvTable::from_reader(label, reader)?)
+    read_vehicle_table(CsvTable::from_reader(label, reader)?, Values::Finite)
 }
 
 fn read_vehicle_table<R: Read>(
     mut table: CsvTable<R>,
+    values: Values,
 ) -> Result<(VehicleLayout, Vec<VehicleRow>), RecordError> {
     let camry = table.has_column(CAMRY_TIME);
     let layout = if camry {
@@ -116,9 +136,14 @@ fn read_vehicle_table<R: Read>(
     let speed_factor = if camry { M_S_PER_MPH } else { 1.0 };
     let mut rows = Vec::new();
     let mut previous_time: Option<f64> = None;
+    let as_recorded = values == Values::AsRecorded;
     while let Some(row) = table.next_row()? {
-        let time_s = row.f64(&time)? + 0.0; // `-0.0 + 0.0` is `+0.0`: the Camry's first stamp.
-        if previous_time.is_some_and(|p| time_s <= p) {
+        let number = |c: &crate::Column| match as_recorded {
+            true => row.f64_as_recorded(c),
+            false => row.f64(c),
+        };
+        let time_s = number(&time)? + 0.0; // `-0.0 + 0.0` is `+0.0`: the Camry's first stamp.
+        if !as_recorded && previous_time.is_some_and(|p| time_s <= p) {
             return Err(row.error(
                 &time,
                 format!(
@@ -128,7 +153,7 @@ fn read_vehicle_table<R: Read>(
             ));
         }
         previous_time = Some(time_s);
-        let opt = |c: &Option<crate::Column>| c.as_ref().map(|c| row.f64(c)).transpose();
+        let opt = |c: &Option<crate::Column>| c.as_ref().map(number).transpose();
         let gear = match &gear {
             Some(c) => Some(
                 row.text(c)

@@ -72,6 +72,7 @@ pub fn damper(report: &DamperReport) -> String {
             }
         );
     }
+    let _ = write!(out, "\n  {}", report.refused.line());
     out
 }
 
@@ -106,5 +107,6 @@ pub fn fuel(report: &Evaluation) -> String {
             100.0 * named.confirmed_accuracy()
         );
     }
+    let _ = write!(out, "\n  {}", report.refused.line());
     out
 }

@@ -14,6 +14,19 @@ use railmon_fuel::{
 };
 
 use super::rls::RlsPeer;
+use crate::report::Refusals;
+
+/// The reasons a vehicle sample is refused for, the labels of the service's vehicle stream
+/// (`railmon_fuel::FuelError::reason`; `unknown_channels` is the bus frame's own).
+pub const REFUSAL_REASONS: [&str; 7] = [
+    "not_finite",
+    "missing_channel",
+    "out_of_range",
+    "acceleration_out_of_range",
+    "unknown_category",
+    "time_not_increasing",
+    "period_mismatch",
+];
 
 /// Forgetting and prior of the recursive-least-squares peer: none, and a weak prior.
 const RLS_FORGETTING: f64 = 1.0;
@@ -204,6 +217,11 @@ pub struct Evaluation {
     pub operating_points: Vec<(OperatingPoint, ComponentName)>,
     pub components: usize,
     pub samples: usize,
+    /// The samples the mixture refused (each counted under [`FuelError::reason`], as the
+    /// service counts them) and skipped: no estimator saw them.
+    pub refused: Refusals,
+    /// The first refused sample: its index in the samples, and why.
+    pub first_refusal: Option<(usize, FuelError)>,
 }
 
 impl Evaluation {
@@ -271,6 +289,9 @@ impl Path {
 
 /// Runs the three estimators over `samples`. `labels[t]` (indices into a label list of length
 /// `n_labels`) enables the regime score. `on_step` is called after every sample (progress).
+/// A sample the mixture refuses (`FuelMonitor::check`: the service's checks, with its
+/// reasons) is counted in [`Evaluation::refused`] and skipped by every estimator, as the
+/// service skips it; an error that is not about one sample ends the run.
 pub fn evaluate(
     config: &FuelMonitorConfig,
     samples: &[VehicleSample],
@@ -295,7 +316,18 @@ pub fn evaluate(
     let mut rows = Vec::new();
     let mut events = Vec::new();
     let mut previous_fuel: Option<f64> = None;
+    let mut refused = Refusals::new(&REFUSAL_REASONS);
+    let mut first_refusal = None;
     for (t, sample) in samples.iter().enumerate() {
+        // The single regression checks the same channels and ranges (its config differs in
+        // the number of components only): a sample is refused by both or by neither.
+        if let Err(e) = mixture.check(sample).and_then(|()| single.check(sample)) {
+            let reason = e.reason().ok_or_else(|| e.clone())?;
+            refused.add(reason);
+            first_refusal.get_or_insert((t, e));
+            on_step();
+            continue;
+        }
         let a = mixture.update(sample)?.mixture.clone();
         let b = single.update(sample)?.mixture.clone();
         let fuel = sample.fuel_cm3_s.unwrap_or(f64::NAN);
@@ -398,6 +430,8 @@ pub fn evaluate(
         operating_points,
         components: config.components,
         samples: samples.len(),
+        refused,
+        first_refusal,
     })
 }
 

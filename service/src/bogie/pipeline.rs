@@ -11,7 +11,7 @@ use railmon_bus::{BogieFrame, FrameHeader};
 use railmon_damper::gain_table::GainTable;
 use railmon_damper::{
     BogieSample, BogieStatusWatch, DamperAlarm, DamperError, DamperEventKind, DamperMonitor,
-    DamperMonitorState, DamperPosterior, PauseReason, Propagation, Rbpf,
+    DamperMonitorState, DamperPosterior, PauseReason, Propagation, Rbpf, SampleRanges,
 };
 
 use railmon_bus::StreamKind;
@@ -100,16 +100,11 @@ impl BogieSlot {
     }
 }
 
+/// Why the estimator refused a sample, as a metric label: the estimator crate's own
+/// ([`DamperError::reason`]); `estimator` for a failure that is not the sample's.
 fn rejection_of(e: DamperError) -> Rejection {
-    let reason = match &e {
-        DamperError::InvalidSample {
-            field: "speed_m_s", ..
-        } => "speed_out_of_range",
-        DamperError::InvalidSample { .. } => "not_finite",
-        _ => "estimator",
-    };
     Rejection {
-        reason,
+        reason: e.reason().unwrap_or("estimator"),
         message: e.to_string(),
     }
 }
@@ -508,51 +503,16 @@ impl Pipeline for BogiePipeline {
             .checked_sample()
             .map_err(|e| Rejection::new(e.reason(), e.to_string()))?;
         let slot = self.slot_of(frame)?;
-        let (max_a, max_r) = (
-            self.config.max_abs_accel_m_s2,
-            self.config.max_abs_yaw_rate_rad_s,
-        );
-        let channels = [
-            (
-                "wheelset1_accel_m_s2",
-                frame.wheelset1_accel_m_s2,
-                max_a,
-                "max_abs_accel_m_s2",
-            ),
-            (
-                "wheelset2_accel_m_s2",
-                frame.wheelset2_accel_m_s2,
-                max_a,
-                "max_abs_accel_m_s2",
-            ),
-            (
-                "bogie_accel_m_s2",
-                frame.bogie_accel_m_s2,
-                max_a,
-                "max_abs_accel_m_s2",
-            ),
-            (
-                "bogie_yaw_rate_rad_s",
-                frame.bogie_yaw_rate_rad_s,
-                max_r,
-                "max_abs_yaw_rate_rad_s",
-            ),
-            (
-                "body_accel_m_s2",
-                frame.body_accel_m_s2,
-                max_a,
-                "max_abs_accel_m_s2",
-            ),
-        ];
-        if let Some((name, value, max, key)) = channels.into_iter().find(|c| c.1.abs() > c.2) {
-            return Err(Rejection::new(
-                "out_of_range",
-                format!(
-                    "bogie {}: {name} = {value:.4e} is beyond +-{max} (bogie.{key}; wrong units?)",
-                    frame.bogie_id
-                ),
-            ));
-        }
+        // The magnitudes, by the estimator crate's check (`railmon analyze damper` refuses
+        // by the same one).
+        let ranges = SampleRanges {
+            max_abs_accel_m_s2: self.config.max_abs_accel_m_s2,
+            max_abs_yaw_rate_rad_s: self.config.max_abs_yaw_rate_rad_s,
+        };
+        ranges.check(&sample).map_err(|e| {
+            let reason = e.reason().unwrap_or("estimator");
+            Rejection::new(reason, format!("bogie {}: {e}", frame.bogie_id))
+        })?;
         Ok(CheckedBogieSample { slot, sample })
     }
 

@@ -74,21 +74,12 @@ impl VehicleGauges {
     }
 }
 
-/// Why the estimator refused a sample, as a metric label.
+/// Why the estimator refused a sample, as a metric label: the estimator crate's own
+/// ([`FuelError::reason`], which `railmon analyze fuel` counts by too); `estimator` for a
+/// failure that is not the sample's.
 fn rejection_of(e: FuelError) -> Rejection {
-    let reason = match &e {
-        FuelError::MissingChannel { .. } | FuelError::MissingGear { .. } => "missing_channel",
-        FuelError::NonFinite { .. } => "not_finite",
-        FuelError::OutOfRange { .. } => "out_of_range",
-        FuelError::AccelerationOutOfRange { .. } => "acceleration_out_of_range",
-        FuelError::UnknownCategory { .. } => "unknown_category",
-        FuelError::TimeNotIncreasing { .. } => "time_not_increasing",
-        // The sample clock refuses these first; the estimator's own check is the same rule.
-        FuelError::SamplePeriod { .. } => "period_mismatch",
-        _ => "estimator",
-    };
     Rejection {
-        reason,
+        reason: e.reason().unwrap_or("estimator"),
         message: e.to_string(),
     }
 }
