@@ -132,9 +132,9 @@ impl AppState {
     }
 
     /// Writes every event still queued and stops the store's writer thread (at shutdown, after
-    /// the ingest threads stopped).
-    pub fn close_store(&self) {
-        self.store.close();
+    /// the ingest threads stopped); returns how many could not be written (counted, logged).
+    pub fn close_store(&self) -> u64 {
+        let dropped = self.store.close();
         let writer = self
             .store_writer
             .lock()
@@ -145,6 +145,7 @@ impl AppState {
                 tracing::error!("the event store's writer thread panicked");
             }
         }
+        dropped
     }
 
     /// The status of `kind`, if that stream is enabled.

@@ -319,6 +319,49 @@ pub struct Metrics {
     /// Connections the HTTP server refused at `http.max_connections` (synchronised from
     /// `http::server::HttpCounters` at each scrape: [`Metrics::count_refused_connections`]).
     http_connections_refused: IntCounter,
+    store: StoreMetrics,
+}
+
+/// The event store's counters (synchronised from `store::StoreCounters` at each scrape:
+/// [`Metrics::count_store`]).
+struct StoreMetrics {
+    stored: IntCounter,
+    pending: IntGauge,
+    dropped: IntCounterVec,
+    write_errors: IntCounter,
+    unreadable: IntCounter,
+}
+
+/// Why events were dropped (`railmon_events_dropped_total{reason}`).
+pub const DROP_REASONS: [&str; 2] = ["buffer_full", "shutdown"];
+
+impl StoreMetrics {
+    fn new(f: &Families) -> Result<Self, prometheus::Error> {
+        let dropped = f.int_counter_vec(
+            "events_dropped_total",
+            "Events raised but never stored: the backlog of unwritten events was full (buffer_full), or the service stopped before the database took them (shutdown).",
+            &["reason"],
+        )?;
+        for reason in DROP_REASONS {
+            dropped.with_label_values(&[reason]);
+        }
+        Ok(Self {
+            stored: f.int_counter("events_stored_total", "Events committed to the event database.")?,
+            pending: f.int_gauge(
+                "events_pending",
+                "Events waiting to be written (they wait here while the database does not take writes).",
+            )?,
+            dropped,
+            write_errors: f.int_counter(
+                "event_store_write_errors_total",
+                "Failed commits of the event database (each retried with backoff).",
+            )?,
+            unreadable: f.int_counter(
+                "events_unreadable_total",
+                "Stored rows that could not be read as events (skipped in pages, each counted once).",
+            )?,
+        })
+    }
 }
 
 impl Metrics {
@@ -368,9 +411,11 @@ impl Metrics {
             "http_connections_refused_total",
             "Connections the HTTP server closed at once because http.max_connections were open.",
         )?;
+        let store = StoreMetrics::new(&f)?;
         let family_names = f.names.into_inner();
         Ok(Metrics {
             http_connections_refused,
+            store,
             registry,
             family_names,
             stream,
@@ -400,6 +445,27 @@ impl Metrics {
         let counted = self.http_connections_refused.get();
         self.http_connections_refused
             .inc_by(total.saturating_sub(counted));
+    }
+
+    /// Brings the event store's series to its counters (counters only rise).
+    pub fn count_store(&self, status: &crate::store::StoreStatus) {
+        let rise = |counter: &IntCounter, total: u64| {
+            counter.inc_by(total.saturating_sub(counter.get()));
+        };
+        let s = &self.store;
+        rise(&s.stored, status.events_stored);
+        rise(&s.write_errors, status.write_errors);
+        rise(&s.unreadable, status.events_unreadable);
+        rise(
+            &s.dropped.with_label_values(&["buffer_full"]),
+            status.events_dropped_buffer_full,
+        );
+        rise(
+            &s.dropped.with_label_values(&["shutdown"]),
+            status.events_dropped_shutdown,
+        );
+        s.pending
+            .set(i64::try_from(status.events_pending).unwrap_or(i64::MAX));
     }
 
     /// The text exposition format.

@@ -67,6 +67,10 @@ fn log_filter(
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let config = ServiceConfig::load(args.config.as_deref(), std::env::vars())
         .context("invalid configuration")?;
+    // A file size limit (RLIMIT_FSIZE) reached gives write errors (EFBIG), which the event
+    // store and the snapshots handle, instead of killing the process.
+    // SAFETY: sets a signal's disposition to ignore; no handler runs.
+    unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
     let addr = config.listen_addr()?;
     // The bus root path is checked once here: an unusable one (another user's, open to others,
     // a symlink) is a setting to fix, not a bus failure the ingest threads would retry for ever.
@@ -108,10 +112,16 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
             tracing::error!("an ingest thread panicked");
         }
     }
-    // Then every event they raised is written before the process ends.
-    state_for_close.close_store();
+    // Then every event they raised is written before the process ends, or counted and logged.
+    let dropped = state_for_close.close_store();
+    served?;
+    if dropped > 0 {
+        anyhow::bail!(
+            "stopped with {dropped} events not stored: the event database did not take writes"
+        );
+    }
     tracing::info!("stopped");
-    served
+    Ok(())
 }
 
 /// Resolves on SIGINT or SIGTERM.

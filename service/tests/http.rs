@@ -662,3 +662,68 @@ async fn wrong_method_long_target_and_large_headers_are_json_errors() {
     assert!(status.is_client_error(), "{status}");
     assert!(body["error"]["code"].is_string(), "{body}");
 }
+
+/// A stored row whose `detail` is not JSON (written by hand, a bug, a bit flip) is skipped and
+/// counted, never a 500: the rest of the page is served and the cursor moves past it.
+#[tokio::test]
+async fn a_row_that_cannot_be_read_is_skipped_not_a_500() {
+    use railmon_bus::StreamKind;
+    use railmon_service::store::{EventStore, NewEvent};
+    let dir = std::env::temp_dir().join(format!("railmon-http-bad-row-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut config = test_config();
+    config.storage.data_dir = dir.display().to_string();
+    {
+        let identity = config.identity.resolve();
+        let (store, thread) = EventStore::open(&config.storage, &identity).unwrap();
+        store.append(
+            (1..=3)
+                .map(|k| NewEvent {
+                    stream: StreamKind::Drive,
+                    kind: "slip_started".into(),
+                    subject: k.to_string(),
+                    time_utc_ns: 1_795_000_000_000_000_000,
+                    time_s: 0.0,
+                    run: 0,
+                    run_time_s: 0.0,
+                    detail: serde_json::Map::new(),
+                    alarm: None,
+                })
+                .collect(),
+        );
+        assert_eq!(store.close(), 0);
+        thread.join().unwrap();
+    }
+    let db = rusqlite::Connection::open(dir.join("events.sqlite3")).unwrap();
+    db.execute("UPDATE events SET detail = '{oops' WHERE id = 2", [])
+        .unwrap();
+    drop(db);
+    let state = AppState::new(config).unwrap();
+    let (status, page) = get_json(&state, "/api/v1/events").await;
+    assert_eq!(status, StatusCode::OK, "{page}");
+    let ids: Vec<u64> = page["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["id"].as_u64().unwrap())
+        .collect();
+    assert_eq!(ids, vec![1, 3]);
+    let (status, page) = get_json(&state, "/api/v1/events?after_id=1&limit=1").await;
+    assert_eq!(status, StatusCode::OK, "{page}");
+    assert_eq!(page["events"], serde_json::json!([]));
+    assert_eq!(page["next_after_id"], 2, "past the skipped row");
+    let (_, status_view) = get_json(&state, "/api/v1/status").await;
+    assert_eq!(
+        status_view["events"]["events_unreadable"], 1,
+        "{status_view}"
+    );
+    let (_, _, metrics) = get(&state, "/metrics").await;
+    assert!(
+        metrics
+            .lines()
+            .any(|l| l.starts_with("railmon_events_unreadable_total") && l.ends_with(" 1")),
+        "{metrics}"
+    );
+    state.close_store();
+    let _ = std::fs::remove_dir_all(&dir);
+}

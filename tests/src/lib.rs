@@ -216,6 +216,15 @@ impl Drop for Service {
 impl Service {
     /// Starts `railmon serve` on `bus` with a free port and extra `RAILMON_...` settings.
     pub fn start(bus: &PrivateBus, settings: &[(&str, &str)]) -> Service {
+        Self::start_with_stderr(bus, settings, Stdio::inherit())
+    }
+
+    /// [`Service::start`] with its stderr sent to `stderr` (`Stdio::piped()` to read its log).
+    pub fn start_with_stderr(
+        bus: &PrivateBus,
+        settings: &[(&str, &str)],
+        stderr: Stdio,
+    ) -> Service {
         static N: AtomicUsize = AtomicUsize::new(0);
         let addr_file = std::env::temp_dir().join(format!(
             "railmon-test-addr-{}-{}",
@@ -246,7 +255,8 @@ impl Service {
             .env("RAILMON_LOG", "warn")
             .envs(bus.env())
             .envs(settings.iter().map(|(k, v)| (k.to_string(), v.to_string())))
-            .stdin(Stdio::null());
+            .stdin(Stdio::null())
+            .stderr(stderr);
         let child = command.spawn().expect("starting railmon serve");
         let mut process = Process {
             child,

@@ -20,7 +20,8 @@ pub const DEFAULT_PAGE: usize = 100;
 #[derive(Debug, Serialize, ToSchema)]
 pub struct EventsPage {
     pub events: Vec<EventView>,
-    /// Pass as `after_id` for the next page (the last id of this one, or the `after_id` given).
+    /// Pass as `after_id` for the next page (the last id read for this one, also of a stored row
+    /// skipped because it could not be read; else the `after_id` given).
     pub next_after_id: u64,
 }
 
@@ -160,11 +161,11 @@ pub async fn page(
         .vehicle
         .as_ref()
         .is_some_and(|v| *v != state.identity.vehicle_id);
-    let events = match other_vehicle {
-        true => Vec::new(),
+    let page = match other_vehicle {
+        true => crate::store::ReadPage::default(),
         false => {
             let store = state.store.clone();
-            tokio::task::spawn_blocking(move || store.page(&query))
+            tokio::task::spawn_blocking(move || store.read_page(&query))
                 .await
                 .map_err(|e| {
                     tracing::error!("event page task: {e}");
@@ -176,9 +177,10 @@ pub async fn page(
                 })?
         }
     };
-    let next_after_id = events.last().map_or(after_id, |e| e.id);
+    // Past the last row read, also one skipped as unreadable: a cursor never sticks on it.
+    let next_after_id = page.last_read_id.map_or(after_id, |id| id.max(after_id));
     Ok(Json(EventsPage {
-        events,
+        events: page.events,
         next_after_id,
     }))
 }

@@ -114,6 +114,7 @@ pub async fn metrics(State(state): State<AppState>) -> Result<Response, AppError
         .connections_refused
         .load(std::sync::atomic::Ordering::Relaxed);
     state.metrics.count_refused_connections(refused);
+    state.metrics.count_store(&state.store.status());
     let text = state.metrics.render().map_err(|e| {
         tracing::error!("rendering metrics: {e}");
         AppError::Internal
