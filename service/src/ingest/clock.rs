@@ -2,6 +2,11 @@
 //! stream's configured period. Data at another rate (100 Hz bogie data for a 1 kHz model),
 //! in other units (ms for s), going backwards or jumping far ahead would otherwise be
 //! estimated as if it were right.
+//!
+//! Across a restart of the service the gap is judged otherwise ([`resume_rule`]): the first
+//! frame after a resumed snapshot may be far ahead of the snapshot's last sample time (frames
+//! estimated after the snapshot, the subscriber's buffer, the time the service was down), and
+//! the resumed estimator steps on from it as long as that gap is within a bounded catch-up.
 
 use super::Rejection;
 
@@ -26,6 +31,64 @@ pub struct SampleClock {
     last_ns: Option<u64>,
     /// The time of a refused jump: if the next frame continues from it, the jump was real.
     jumped_to_ns: Option<u64>,
+    /// Set by [`SampleClock::resume`] until a frame is used or the estimator restarts: the
+    /// largest forward gap (ns) across the restart the resumed estimator steps over.
+    catch_up_ns: Option<u64>,
+}
+
+/// How the first frame after a resumed snapshot is judged against the snapshot's last sample
+/// time. See [`resume_rule`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResumeVerdict {
+    /// The sample clock goes on: the resumed estimator steps from this frame;
+    /// `skipped_periods` sample periods between the two were never estimated by it.
+    Keep { skipped_periods: u64 },
+    /// The resumed state does not fit this frame (`reason`): the estimator starts afresh.
+    Restart { reason: &'static str },
+}
+
+/// The resume rule: from the snapshot's last sample time `last_ns`, a frame at `next_ns`
+/// keeps the resumed estimator when it is at most `catch_up_ns` ahead by whole periods of
+/// `period_ns` (or at the same time, where `repeats_allowed`). Backwards, beyond the bound or
+/// off the period grid, the estimator restarts. The stream's live staleness rule does not
+/// apply here: a restart always loses some frames (those after the snapshot, the subscriber's
+/// buffer, the downtime), and a filter converged over minutes is worth more than the
+/// seconds lost.
+pub fn resume_rule(
+    last_ns: u64,
+    next_ns: u64,
+    period_ns: u64,
+    repeats_allowed: bool,
+    catch_up_ns: u64,
+) -> ResumeVerdict {
+    let period_ns = period_ns.max(1);
+    let Some(advance) = next_ns.checked_sub(last_ns) else {
+        return ResumeVerdict::Restart {
+            reason: "time_backwards",
+        };
+    };
+    if advance == 0 {
+        return match repeats_allowed {
+            true => ResumeVerdict::Keep { skipped_periods: 0 },
+            false => ResumeVerdict::Restart {
+                reason: "time_repeated",
+            },
+        };
+    }
+    if advance > catch_up_ns {
+        return ResumeVerdict::Restart {
+            reason: "beyond_catch_up",
+        };
+    }
+    let periods = advance as f64 / period_ns as f64;
+    if periods.round() < 1.0 || (periods - periods.round()).abs() > PERIOD_TOLERANCE {
+        return ResumeVerdict::Restart {
+            reason: "period_mismatch",
+        };
+    }
+    ResumeVerdict::Keep {
+        skipped_periods: periods.round() as u64 - 1,
+    }
 }
 
 /// How far a time difference may be from a whole number of periods, as a share of a period.
@@ -39,6 +102,7 @@ impl SampleClock {
             max_advance_ns: max_advance_ns.max(period_ns),
             last_ns: None,
             jumped_to_ns: None,
+            catch_up_ns: None,
         }
     }
 
@@ -47,15 +111,38 @@ impl SampleClock {
         self.last_ns
     }
 
-    /// Goes on from `last_ns` (a resumed estimator).
-    pub fn resume(&mut self, last_ns: Option<u64>) {
+    /// Goes on from `last_ns` (a resumed estimator); the first frame used after it is judged
+    /// by [`resume_rule`] with `catch_up_ns` ([`SampleClock::judge_resume`]).
+    pub fn resume(&mut self, last_ns: Option<u64>, catch_up_ns: u64) {
         self.last_ns = last_ns;
         self.jumped_to_ns = None;
+        self.catch_up_ns = last_ns.map(|_| catch_up_ns);
+    }
+
+    /// Whether the clock was resumed and no frame has been used since.
+    pub fn resume_pending(&self) -> bool {
+        self.catch_up_ns.is_some()
+    }
+
+    /// While a resume is pending, the resume rule's verdict on a frame at `sample_time_ns`
+    /// (`None`: no resume pending, [`SampleClock::check`] judges).
+    pub fn judge_resume(&self, sample_time_ns: u64) -> Option<ResumeVerdict> {
+        let (Some(catch_up_ns), Some(last)) = (self.catch_up_ns, self.last_ns) else {
+            return None;
+        };
+        Some(resume_rule(
+            last,
+            sample_time_ns,
+            self.period_ns,
+            self.repeats_allowed,
+            catch_up_ns.max(self.max_advance_ns),
+        ))
     }
 
     pub fn restart(&mut self) {
         self.last_ns = None;
         self.jumped_to_ns = None;
+        self.catch_up_ns = None;
     }
 
     /// Whether `from -> to` is a regular advance (whole periods, within the limit).
@@ -126,6 +213,7 @@ impl SampleClock {
     pub fn accept(&mut self, sample_time_ns: u64) {
         self.last_ns = Some(sample_time_ns);
         self.jumped_to_ns = None;
+        self.catch_up_ns = None;
     }
 
     /// The frame at `sample_time_ns` was refused for `rejection`: after a jump (ahead or
@@ -205,5 +293,93 @@ mod tests {
         };
         off.refused(MS / 2, &half);
         assert_eq!(reason(off.check(MS / 2 + MS)), "period_mismatch");
+    }
+
+    #[test]
+    fn the_resume_rule_keeps_a_forward_gap_within_the_catch_up() {
+        let s = 1_000 * MS;
+        // 2 s lost at 1 kHz (the live rule would call it a jump past 500 ms): kept.
+        assert_eq!(
+            resume_rule(10 * s, 12 * s, MS, false, 600 * s),
+            ResumeVerdict::Keep {
+                skipped_periods: 1999
+            }
+        );
+        assert_eq!(
+            resume_rule(10 * s, 10 * s + MS, MS, false, 600 * s),
+            ResumeVerdict::Keep { skipped_periods: 0 }
+        );
+        // The bound itself is kept, one period more is not.
+        assert_eq!(
+            resume_rule(0, 600 * s, MS, false, 600 * s),
+            ResumeVerdict::Keep {
+                skipped_periods: 599_999
+            }
+        );
+        assert_eq!(
+            resume_rule(0, 600 * s + MS, MS, false, 600 * s),
+            ResumeVerdict::Restart {
+                reason: "beyond_catch_up"
+            }
+        );
+        // Backwards (a replay started over), repeated, off the grid: restart.
+        assert_eq!(
+            resume_rule(10 * s, 0, MS, false, 600 * s),
+            ResumeVerdict::Restart {
+                reason: "time_backwards"
+            }
+        );
+        assert_eq!(
+            resume_rule(10 * s, 10 * s, MS, false, 600 * s),
+            ResumeVerdict::Restart {
+                reason: "time_repeated"
+            }
+        );
+        assert_eq!(
+            resume_rule(10 * s, 10 * s, MS, true, 600 * s),
+            ResumeVerdict::Keep { skipped_periods: 0 },
+            "the other bogies of the last step"
+        );
+        assert_eq!(
+            resume_rule(10 * s, 10 * s + 3 * MS / 2, MS, false, 600 * s),
+            ResumeVerdict::Restart {
+                reason: "period_mismatch"
+            }
+        );
+    }
+
+    #[test]
+    fn a_resumed_clock_judges_its_first_used_frame_by_the_resume_rule_only() {
+        let s = 1_000 * MS;
+        let mut c = SampleClock::new(MS, false, 500 * MS);
+        c.resume(Some(10 * s), 600 * s);
+        assert!(c.resume_pending());
+        assert_eq!(
+            c.judge_resume(14 * s),
+            Some(ResumeVerdict::Keep {
+                skipped_periods: 3999
+            })
+        );
+        // A frame refused for its content leaves the resume pending.
+        assert!(c.resume_pending());
+        c.accept(14 * s);
+        assert!(!c.resume_pending());
+        assert_eq!(c.judge_resume(20 * s), None);
+        assert_eq!(reason(c.check(20 * s)), "time_jump", "the live rule again");
+        // Nothing to go on from: no resume rule.
+        let mut fresh = SampleClock::new(MS, false, 500 * MS);
+        fresh.resume(None, 600 * s);
+        assert!(!fresh.resume_pending());
+        // The catch-up is never below the live limit.
+        let mut small = SampleClock::new(MS, false, 500 * MS);
+        small.resume(Some(0), 0);
+        assert_eq!(
+            small.judge_resume(400 * MS),
+            Some(ResumeVerdict::Keep {
+                skipped_periods: 399
+            })
+        );
+        small.restart();
+        assert!(!small.resume_pending());
     }
 }

@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use iceoryx2::prelude::CallbackProgression;
 use railmon_bus::{monotonic_ns, BusConfig, BusError, BusNode, Frame, FrameHeader};
 
-pub use clock::{ClockCheck, SampleClock, PERIOD_TOLERANCE};
+pub use clock::{resume_rule, ClockCheck, ResumeVerdict, SampleClock, PERIOD_TOLERANCE};
 pub use realtime::RealTimeTracker;
 pub use sequence::{SequenceCheck, SequenceTracker};
 pub use status::{
@@ -137,6 +137,11 @@ impl SourceTracking {
 /// check the sample time and the frame, step, time. The sequence is followed before the
 /// frame's content is judged, so a rejected frame is counted once, as a rejection, and never
 /// again as a gap.
+///
+/// After a resumed snapshot, the first frame used is judged by the resume rule
+/// ([`resume_rule`]) against the snapshot's last sample time, not by the live clock rule; a new
+/// publisher (a restarted replay) then restarts the estimator only if its sample times do not
+/// continue the resumed ones within the catch-up.
 fn handle_frame<P: Pipeline>(
     pipeline: &mut P,
     source: &mut SourceTracking,
@@ -149,10 +154,18 @@ fn handle_frame<P: Pipeline>(
     if let Err(e) = header.check() {
         return status.reject(header, Rejection::new(e.reason(), e.to_string()));
     }
+    let mut new_source = false;
     match source.sequence.check(header, received_at_ns) {
         SequenceCheck::InOrder => {}
+        SequenceCheck::NewSource if source.clock.resume_pending() => {
+            // Its frames are not counted against the old publisher's sequence (no gap).
+            status.record_new_source();
+            new_source = true;
+            tracing::info!(stream = %status.kind, instance = header.publisher_instance, run = header.run, sequence = header.sequence, "new source after a resume: its sample times decide whether the estimator goes on");
+        }
         SequenceCheck::NewSource => {
             status.record_new_source();
+            new_source = true;
             tracing::info!(stream = %status.kind, instance = header.publisher_instance, run = header.run, sequence = header.sequence, "new source: estimator restarts");
             source.restart(pipeline);
         }
@@ -174,7 +187,22 @@ fn handle_frame<P: Pipeline>(
         }
     }
     source.sequence.accept(header, received_at_ns);
-    match source.clock.check(header.sample_time_ns) {
+    let clock = match source.clock.judge_resume(header.sample_time_ns) {
+        Some(ResumeVerdict::Keep { skipped_periods }) => {
+            tracing::info!(stream = %status.kind, sample_time_s = header.sample_time_ns as f64 * 1e-9, skipped_periods, "the resumed estimator goes on across the restart");
+            ClockCheck::Ok
+        }
+        Some(ResumeVerdict::Restart { reason }) => {
+            if !new_source {
+                status.record_new_source();
+            }
+            tracing::info!(stream = %status.kind, sample_time_s = header.sample_time_ns as f64 * 1e-9, reason, "the source's clock does not continue the resumed snapshot: estimator restarts");
+            source.restart(pipeline);
+            ClockCheck::Ok
+        }
+        None => source.clock.check(header.sample_time_ns),
+    };
+    match clock {
         ClockCheck::Ok => {}
         ClockCheck::NewTimeline => {
             status.record_new_source();
@@ -264,7 +292,11 @@ fn resume_snapshot<P: Pipeline>(
                 source
                     .sequence
                     .resume(state.publisher_instance, state.run, state.next_sequence);
-                source.clock.resume(state.last_sample_time_ns);
+                // The catch-up across the restart: as far in sample time as the snapshot may
+                // be old in wall time (at least the live limit).
+                source
+                    .clock
+                    .resume(state.last_sample_time_ns, (max_age_s * 1e9) as u64);
                 tracing::info!(stream = %kind, file = %file.path().display(), "estimator resumed from its snapshot");
                 return;
             }
@@ -370,6 +402,38 @@ fn ingest_loop<P: Pipeline>(
             }
             last_cleanup = Instant::now();
         }
+    }
+    // What the subscriber already holds is estimated before the last snapshot (a restart
+    // would otherwise lose the whole buffer): at most one buffer's worth, so publishers still
+    // sending cannot hold the shutdown.
+    let held = bus.stream(kind).subscriber_buffer_size;
+    let mut drained = 0;
+    while drained < held {
+        let handled = match subscriber.drain(ingest.max_batch.min(held - drained), |rx| {
+            handle_frame(
+                pipeline,
+                &mut source,
+                status,
+                rx.header,
+                rx.frame,
+                rx.received_at_ns,
+            )
+        }) {
+            Ok(handled) => handled,
+            Err(e) => {
+                tracing::warn!(stream = %kind, "cannot drain the subscriber at shutdown: {e}");
+                break;
+            }
+        };
+        if handled == 0 {
+            break;
+        }
+        pipeline.publish();
+        record_deferred(pipeline, status);
+        drained += handled;
+    }
+    if drained > 0 {
+        tracing::info!(stream = %kind, frames = drained, "estimated the frames held at shutdown");
     }
     if let Some(file) = &snapshot_file {
         save_snapshot(file, pipeline, &source);

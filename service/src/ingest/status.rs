@@ -115,7 +115,8 @@ pub struct StreamStatusView {
     pub sequence_gaps: u64,
     pub samples_rejected: u64,
     pub last_rejection: Option<RejectionRecord>,
-    /// Publisher lifetimes or runs seen (each restarts the estimator).
+    /// Publisher lifetimes or runs seen (each restarts the estimator, unless it continues a
+    /// resumed snapshot's sample clock), and restarts of a resumed estimator by the resume rule.
     pub sources: u64,
     pub estimator_steps: u64,
     pub estimator_step_mean_us: Option<f64>,
