@@ -138,14 +138,20 @@ fn sigkill_at_random_moments_loses_and_duplicates_no_event() {
 
 /// A service stopped and started again on the same data directory resumes each estimator
 /// from the snapshot written at shutdown: the replay's frames continue the saved source (no
-/// new source, no restart of the filters).
+/// new source, no restart of the filters). Then killed (SIGKILL) and started again after
+/// more than the stream's staleness limit: the periodic snapshot is resumed and the gap in
+/// sample time across the restart (frames after the snapshot, the downtime) is caught up by
+/// the resume rule, not taken for a jump of the source's clock (issue 26 item 1).
 #[test]
 fn a_restarted_service_resumes_its_estimator_from_the_snapshot() {
     let bus = PrivateBus::new();
     let data_dir = std::env::temp_dir().join(format!("railmon-resume-{}", bus.prefix));
     let _ = std::fs::remove_dir_all(&data_dir);
     let data = data_dir.to_str().unwrap().to_string();
-    let settings = [("RAILMON_STORAGE__DATA_DIR", data.as_str())];
+    let settings = [
+        ("RAILMON_STORAGE__DATA_DIR", data.as_str()),
+        ("RAILMON_STORAGE__SNAPSHOT_INTERVAL_S", "1"),
+    ];
     let mut service = Service::start(&bus, &settings);
     let mut replay = start_replay(
         &bus,
@@ -168,13 +174,31 @@ fn a_restarted_service_resumes_its_estimator_from_the_snapshot() {
     assert!(service.process.terminate(Duration::from_secs(10)).success());
     assert!(data_dir.join("snapshots/drive.snapshot").exists());
 
-    let service = Service::start(&bus, &settings);
+    let mut service = Service::start(&bus, &settings);
     let after = service.wait_for_status("drive", Duration::from_secs(20), "frames again", |s| {
         s["estimator_steps"].as_u64() > Some(800)
     });
     assert_eq!(after["sources"], 0, "resumed, not a new source: {after}");
     let drives = service.get_json("/api/v1/drives");
     // Drives 2 and 3 never slip: a restarted EKF bank locking on again would flag them.
+    for d in &drives["drives"].as_array().unwrap()[1..] {
+        assert!(d["slip_probability"].as_f64().unwrap() < 0.1, "{drives}");
+    }
+
+    // kill -9 between two periodic snapshots, down for longer than `stale_after_ms` (500 ms).
+    std::thread::sleep(Duration::from_millis(1500));
+    service.process.kill_hard();
+    std::thread::sleep(Duration::from_millis(1200));
+    let service = Service::start(&bus, &settings);
+    let after = service.wait_for_status("drive", Duration::from_secs(20), "frames again", |s| {
+        s["estimator_steps"].as_u64() > Some(800)
+    });
+    assert_eq!(after["sources"], 0, "resumed after kill -9: {after}");
+    assert!(
+        after["sequence_gaps"].as_u64() > Some(0),
+        "the frames after the snapshot and of the downtime are counted lost: {after}"
+    );
+    let drives = service.get_json("/api/v1/drives");
     for d in &drives["drives"].as_array().unwrap()[1..] {
         assert!(d["slip_probability"].as_f64().unwrap() < 0.1, "{drives}");
     }
