@@ -19,11 +19,17 @@ use crate::params::{positive, Dampers};
 use crate::speed::SpeedConfig;
 use crate::DamperError;
 
+/// Bounds of `points_per_axis` (declared to the settings reference and checked): a speed node
+/// solves `points_per_axis^2` Riccati equations (33^2 took 0.28-0.53 s), so 129 already costs
+/// several seconds per node and minutes for a speed table.
+const POINTS_PER_AXIS: std::ops::RangeInclusive<usize> = 2..=129;
+
 /// Grid of steady-state Riccati solutions over `(ln C_sy, ln C_say)`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct GainGridConfig {
-    /// Nodes per axis.
+    /// Nodes per axis (`points_per_axis^2` Riccati solutions per speed node).
+    #[schemars(range(min = *POINTS_PER_AXIS.start(), max = *POINTS_PER_AXIS.end()))]
     pub points_per_axis: usize,
     /// Lower end of the grid as a ratio of the nominal coefficients (both axes); particles
     /// outside use the edge gain (their own `Phi` stays exact).
@@ -46,11 +52,11 @@ impl GainGridConfig {
     /// Errors name the field by its place in the settings (`rbpf.gain_grid`), where the
     /// grid is configured.
     pub fn validate(&self) -> Result<(), DamperError> {
-        if self.points_per_axis < 2 {
+        if !POINTS_PER_AXIS.contains(&self.points_per_axis) {
             return Err(DamperError::InvalidParameter {
                 field: "rbpf.gain_grid.points_per_axis",
                 value: self.points_per_axis as f64,
-                reason: "must be at least 2",
+                reason: "must be in 2..=129",
             });
         }
         positive("rbpf.gain_grid.min_ratio", self.min_ratio)?;

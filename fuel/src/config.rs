@@ -62,6 +62,19 @@ pub const SAMPLE_PERIOD_TOLERANCE: f64 = 0.01;
 /// Bounds of `regime_confirm_samples` (declared to the settings reference and checked):
 /// at most an hour of 1 Hz samples.
 const REGIME_CONFIRM_SAMPLES: std::ops::RangeInclusive<usize> = 1..=3600;
+/// Bounds of the integer settings below (declared to the settings reference and checked).
+/// Components: each holds a regression's statistics and a row of the switching tables.
+const COMPONENTS: std::ops::RangeInclusive<usize> = 1..=64;
+const REGRESSION_MEMORY: std::ops::RangeInclusive<usize> = 0..=10;
+/// The outer bounds; within them the switching condition may have at most
+/// `SWITCHING_ROWS_MAX` configurations (fuel levels^m_alpha x acceleration levels).
+const SWITCHING_MEMORY: std::ops::RangeInclusive<usize> = 1..=12;
+const SWITCHING_ROWS_MAX: f64 = 4096.0;
+/// The outer bounds; within them at least the longer memory plus three samples.
+const INIT_SAMPLES: std::ops::RangeInclusive<usize> = 4..=1_000_000;
+const INIT_ITERATIONS: std::ops::RangeInclusive<usize> = 0..=1000;
+/// Up to an hour of 1 Hz samples ahead.
+const FORECAST_HORIZON_STEPS: std::ops::RangeInclusive<usize> = 1..=3600;
 
 /// How the initial samples are split among the components before EM.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -155,8 +168,10 @@ pub struct FuelMonitorConfig {
     /// The categorical channel `z_t` (gear), if the source has one.
     pub categorical: Option<CategoricalConfig>,
     /// Number of components `m_c` (driving regimes).
+    #[schemars(range(min = *COMPONENTS.start(), max = *COMPONENTS.end()))]
     pub components: usize,
     /// Memory `m_y` of the regression: `psi_t = [y_{t-1}, .., y_{t-m_y}, z_{t-1}, 1]`.
+    #[schemars(range(min = *REGRESSION_MEMORY.start(), max = *REGRESSION_MEMORY.end()))]
     pub regression_memory: usize,
     /// Bin edges (m/s) discretising the speed into `s_t` (section 4.2: 4 values). Used in the
     /// categorical component's condition `[z_{t-1}, s_{t-1}]`.
@@ -171,13 +186,18 @@ pub struct FuelMonitorConfig {
     /// this is the most informative discrete datum the switching can condition on.
     pub acceleration_bins_m_s2: Vec<f64>,
     /// Memory `m_alpha` of the switching model: `phi_{t-1} = [f_{t-1}, .., f_{t-m_alpha}]`
-    /// (the paper's future work 3: longer switching memory).
+    /// (the paper's future work 3: longer switching memory); the condition may take at most
+    /// 4096 values (fuel levels^`m_alpha` x acceleration levels).
+    #[schemars(range(min = *SWITCHING_MEMORY.start(), max = *SWITCHING_MEMORY.end()))]
     pub switching_memory: usize,
-    /// Samples used to initialise the statistics before the on-line part (150 in the paper).
+    /// Samples used to initialise the statistics before the on-line part (150 in the paper); at
+    /// least the longer of the two memories plus 3.
+    #[schemars(range(min = *INIT_SAMPLES.start(), max = *INIT_SAMPLES.end()))]
     pub init_samples: usize,
     /// How the initial samples are first split among the components.
     pub init_partition: InitialPartition,
     /// EM iterations on the initial samples (0: the initial partition by fuel level as is).
+    #[schemars(range(min = *INIT_ITERATIONS.start(), max = *INIT_ITERATIONS.end()))]
     pub init_iterations: usize,
     /// Weight of each initial sample in the statistics, in (0, 1000] (below 1 the on-line data
     /// take over sooner; above 1 the initial data count as more than one sample each).
@@ -201,6 +221,7 @@ pub struct FuelMonitorConfig {
     /// of the paper's plug-in `r`.
     pub parameter_uncertainty: bool,
     /// Horizon of the multi-step fuel forecast, in samples.
+    #[schemars(range(min = *FORECAST_HORIZON_STEPS.start(), max = *FORECAST_HORIZON_STEPS.end()))]
     pub forecast_horizon_steps: usize,
     /// The reported regime follows the most probable component once that has been the most
     /// probable for this many samples in a row (1: at once, the paper's pointer estimate). The
@@ -509,14 +530,14 @@ impl FuelMonitorConfig {
                 }
             }
         }
-        if !(1..=64).contains(&self.components) {
+        if !COMPONENTS.contains(&self.components) {
             return Err(FuelError::invalid(
                 "components",
                 self.components,
                 "must be in 1..=64",
             ));
         }
-        if self.regression_memory > 10 {
+        if !REGRESSION_MEMORY.contains(&self.regression_memory) {
             return Err(FuelError::invalid(
                 "regression_memory",
                 self.regression_memory,
@@ -526,26 +547,26 @@ impl FuelMonitorConfig {
         check_edges("speed_bins_m_s", &self.speed_bins_m_s)?;
         check_edges("fuel_bins_cm3_s", &self.fuel_bins_cm3_s)?;
         check_edges("acceleration_bins_m_s2", &self.acceleration_bins_m_s2)?;
-        if self.switching_memory == 0
+        if !SWITCHING_MEMORY.contains(&self.switching_memory)
             || (self.fuel_levels() as f64).powi(self.switching_memory as i32)
                 * self.acceleration_levels() as f64
-                > 4096.0
+                > SWITCHING_ROWS_MAX
         {
             return Err(FuelError::invalid(
                 "switching_memory",
                 self.switching_memory,
-                "must be >= 1 with at most 4096 configurations of [f_{t-1}, .., a_{t-1}]",
+                "must be in 1..=12 with at most 4096 configurations of [f_{t-1}, .., a_{t-1}]",
             ));
         }
         let min_init = self.regression_memory.max(self.switching_memory) + 3;
-        if self.init_samples < min_init || self.init_samples > 1_000_000 {
+        if self.init_samples < min_init || !INIT_SAMPLES.contains(&self.init_samples) {
             return Err(FuelError::invalid(
                 "init_samples",
                 self.init_samples,
                 "must cover the memories plus two samples, and be at most 10^6",
             ));
         }
-        if self.init_iterations > 1000 {
+        if !INIT_ITERATIONS.contains(&self.init_iterations) {
             return Err(FuelError::invalid(
                 "init_iterations",
                 self.init_iterations,
@@ -598,7 +619,7 @@ impl FuelMonitorConfig {
                 "must be in 1..=3600",
             ));
         }
-        if !(1..=3600).contains(&self.forecast_horizon_steps) {
+        if !FORECAST_HORIZON_STEPS.contains(&self.forecast_horizon_steps) {
             return Err(FuelError::invalid(
                 "forecast_horizon_steps",
                 self.forecast_horizon_steps,

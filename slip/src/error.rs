@@ -55,6 +55,22 @@ impl SlipError {
             reason,
         }
     }
+
+    /// The same error with a parameter's field named under `table` (`table.field`).
+    pub(crate) fn under(self, table: &str) -> Self {
+        match self {
+            SlipError::InvalidParameter {
+                field,
+                value,
+                reason,
+            } => SlipError::InvalidParameter {
+                field: format!("{table}.{field}"),
+                value,
+                reason,
+            },
+            other => other,
+        }
+    }
 }
 
 /// `Ok(())` when `value` is finite and `> 0`, else an error naming `field`.

@@ -24,11 +24,20 @@ pub enum KernelSchedule {
     AtResampling,
 }
 
+/// Bounds of `particles` (declared to the settings reference and checked): each particle holds
+/// a 17-state covariance (~2.5 kB), and 1e9 particles aborted the service on a 136 GB allocation
+/// at its first frame.
+const PARTICLES: std::ops::RangeInclusive<usize> = 2..=1_000_000;
+/// Bounds of `taylor_order`: each order costs a matrix-vector product per particle and step,
+/// and orders 6-10 already give the exact likelihood mode (`benches/accuracy.rs`).
+const TAYLOR_ORDER: std::ops::RangeInclusive<usize> = 1..=30;
+
 /// The Rao-Blackwellised particle filter (section 4).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RbpfConfig {
     /// `N`.
+    #[schemars(range(min = *PARTICLES.start(), max = *PARTICLES.end()))]
     pub particles: usize,
     /// Liu-West discount factor `delta` (eq. 24): `a = (3 delta - 1) / (2 delta)`,
     /// `h^2 = 1 - a^2`.
@@ -57,6 +66,7 @@ pub struct RbpfConfig {
     /// Order of the Taylor series for `Phi(theta) x` (steady-state propagation). 6, 8 and 10
     /// give the exact filter's likelihood mode to 0.01% (`benches/accuracy.rs`); 1 (the
     /// paper's `I + A T`) moves it by 20%.
+    #[schemars(range(min = *TAYLOR_ORDER.start(), max = *TAYLOR_ORDER.end()))]
     pub taylor_order: usize,
     pub gain_grid: GainGridConfig,
     /// The online estimate of the sensors' noise (issue 9 item 2).
@@ -89,9 +99,7 @@ impl Default for RbpfConfig {
 
 impl RbpfConfig {
     pub fn validate(&self) -> Result<(), DamperError> {
-        // At most a million: each particle holds a 17-state covariance (~2.5 kB), and 1e9
-        // particles aborted the service on a 136 GB allocation at its first frame.
-        if !(2..=1_000_000).contains(&self.particles) {
+        if !PARTICLES.contains(&self.particles) {
             return Err(DamperError::InvalidParameter {
                 field: "rbpf.particles",
                 value: self.particles as f64,
@@ -130,7 +138,7 @@ impl RbpfConfig {
                 reason: "must be in (0, 1]",
             });
         }
-        if !(1..=30).contains(&self.taylor_order) {
+        if !TAYLOR_ORDER.contains(&self.taylor_order) {
             return Err(DamperError::InvalidParameter {
                 field: "rbpf.taylor_order",
                 value: self.taylor_order as f64,

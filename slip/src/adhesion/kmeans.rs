@@ -17,6 +17,7 @@ use crate::error::SlipError;
 #[serde(deny_unknown_fields, default)]
 pub struct KMeansConfig {
     /// Assignment/update iterations per step (the paper: 2).
+    #[schemars(range(min = *super::ITERATIONS.start(), max = *super::ITERATIONS.end()))]
     pub iterations: usize,
     /// Seed of the generator that picks the initial points.
     pub seed: u64,
@@ -33,7 +34,7 @@ impl Default for KMeansConfig {
 
 impl KMeansConfig {
     pub fn validate(&self) -> Result<(), SlipError> {
-        if self.iterations == 0 || self.iterations > 10_000 {
+        if !super::ITERATIONS.contains(&self.iterations) {
             return Err(SlipError::invalid(
                 "kmeans.iterations",
                 self.iterations,

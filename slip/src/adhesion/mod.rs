@@ -11,6 +11,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::SlipError;
 
+/// Bounds of the iterative methods' iterations per step (declared to the settings reference and
+/// checked): 10,000 iterations of 8 kHz steps is already far slower than real time.
+pub(crate) const ITERATIONS: std::ops::RangeInclusive<usize> = 1..=10_000;
+
 pub mod kmeans;
 pub mod median;
 pub mod mixture;
@@ -93,13 +97,17 @@ pub struct AdhesionConfig {
 }
 
 impl AdhesionConfig {
+    /// Errors name the key by its place in the settings (`adhesion.vb.iterations`), where a
+    /// user finds it.
     pub fn validate(&self) -> Result<(), SlipError> {
-        self.vb.validate("vb")?;
-        self.vmp.validate()?;
-        self.kmeans.validate()?;
-        self.median.validate()?;
-        self.temporal.validate()?;
-        Ok(())
+        let methods = || {
+            self.vb.validate("vb")?;
+            self.vmp.validate()?;
+            self.kmeans.validate()?;
+            self.median.validate()?;
+            self.temporal.validate()
+        };
+        methods().map_err(|e| e.under("adhesion"))
     }
 }
 

@@ -57,6 +57,10 @@ use super::AdhesionOutput;
 use crate::error::{check_in, SlipError};
 use crate::sample::{SLIP_RULE_FLOOR_NM, SLIP_RULE_FRACTION};
 
+/// Bounds of `warmup_steps` (declared to the settings reference and checked): at most 10 s of
+/// 8 kHz steps, far beyond the 50-100 steps the EKFs need to lock.
+const WARMUP_STEPS: std::ops::RangeInclusive<usize> = 0..=80_000;
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct TemporalConfig {
@@ -79,6 +83,7 @@ pub struct TemporalConfig {
     pub memory_floor: f64,
     /// Steps after start-up during which no slip is reported: the EKFs start from an unknown
     /// rotor angle and load and need some 50-100 steps to lock (400 steps = 50 ms).
+    #[schemars(range(min = *WARMUP_STEPS.start(), max = *WARMUP_STEPS.end()))]
     pub warmup_steps: usize,
     /// Probability per step that an adhering drive starts to slip.
     pub enter_probability: f64,
@@ -211,6 +216,13 @@ impl TemporalConfig {
         ];
         for (field, value, lo, hi, why) in checks {
             check_in(field, value, lo, hi, why)?;
+        }
+        if !WARMUP_STEPS.contains(&self.warmup_steps) {
+            return Err(SlipError::invalid(
+                "temporal.warmup_steps",
+                self.warmup_steps,
+                "must be in 0..=80000",
+            ));
         }
         Ok(())
     }

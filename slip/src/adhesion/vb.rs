@@ -19,6 +19,7 @@ use crate::special::{digamma, ln_gamma, BetaFactor, GammaFactor};
 #[serde(deny_unknown_fields, default)]
 pub struct VbConfig {
     /// Iterations per step (the paper: 5); the maximum when `stop_tolerance` is set.
+    #[schemars(range(min = *super::ITERATIONS.start(), max = *super::ITERATIONS.end()))]
     pub iterations: usize,
     /// Stop when the lower bound rises by less than this fraction of its magnitude (the paper's
     /// suggestion); absent: always run `iterations`.
@@ -66,7 +67,7 @@ impl Default for VbConfig {
 impl VbConfig {
     pub fn validate(&self, prefix: &str) -> Result<(), SlipError> {
         let f = |n: &str| format!("{prefix}.{n}");
-        if self.iterations == 0 || self.iterations > 10_000 {
+        if !super::ITERATIONS.contains(&self.iterations) {
             return Err(SlipError::invalid(
                 f("iterations"),
                 self.iterations,

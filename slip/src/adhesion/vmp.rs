@@ -22,6 +22,7 @@ use crate::special::{digamma, normal_kl, BetaFactor, GammaFactor};
 #[serde(deny_unknown_fields, default)]
 pub struct VmpConfig {
     /// Iterations per step (the paper: 5); the maximum when `stop_tolerance` is set.
+    #[schemars(range(min = *super::ITERATIONS.start(), max = *super::ITERATIONS.end()))]
     pub iterations: usize,
     /// Stop when the bound rises by less than this fraction of its magnitude.
     pub stop_tolerance: Option<f64>,
@@ -59,7 +60,7 @@ impl Default for VmpConfig {
 
 impl VmpConfig {
     pub fn validate(&self) -> Result<(), SlipError> {
-        if self.iterations == 0 || self.iterations > 10_000 {
+        if !super::ITERATIONS.contains(&self.iterations) {
             return Err(SlipError::invalid(
                 "vmp.iterations",
                 self.iterations,
