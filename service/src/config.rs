@@ -202,7 +202,8 @@ pub struct HttpConfig {
     /// Longest time one request may take; then it is answered 503 `timeout`.
     #[schemars(range(min = *HTTP_TIME_MS.start(), max = *HTTP_TIME_MS.end()))]
     pub request_timeout_ms: u64,
-    /// Open connections at most; further ones are closed at once (and counted).
+    /// Open connections at most; a further one takes the slot of the longest-idle connection, or
+    /// is closed at once when every one is serving a request (both counted).
     #[schemars(range(min = *MAX_CONNECTIONS.start(), max = *MAX_CONNECTIONS.end()))]
     pub max_connections: usize,
     /// On SIGTERM, open requests get this long to finish before their connections are cut.

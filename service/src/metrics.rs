@@ -316,9 +316,10 @@ pub struct Metrics {
     pub drive: DriveMetrics,
     pub bogie: BogieMetrics,
     pub vehicle: VehicleMetrics,
-    /// Connections the HTTP server refused at `http.max_connections` (synchronised from
-    /// `http::server::HttpCounters` at each scrape: [`Metrics::count_refused_connections`]).
+    /// Connections the HTTP server refused or evicted at `http.max_connections` (synchronised
+    /// from `http::server::HttpCounters` at each scrape: [`Metrics::count_connections`]).
     http_connections_refused: IntCounter,
+    http_connections_evicted: IntCounter,
     store: StoreMetrics,
 }
 
@@ -409,12 +410,19 @@ impl Metrics {
         .set(1);
         let http_connections_refused = f.int_counter(
             "http_connections_refused_total",
-            "Connections the HTTP server closed at once because http.max_connections were open.",
+            "Connections the HTTP server closed at once because http.max_connections were open, \
+             each serving a request.",
+        )?;
+        let http_connections_evicted = f.int_counter(
+            "http_connections_evicted_total",
+            "Idle connections the HTTP server closed to admit a new one when http.max_connections \
+             were open.",
         )?;
         let store = StoreMetrics::new(&f)?;
         let family_names = f.names.into_inner();
         Ok(Metrics {
             http_connections_refused,
+            http_connections_evicted,
             store,
             registry,
             family_names,
@@ -439,12 +447,15 @@ impl Metrics {
         })
     }
 
-    /// Brings the refused-connections counter to `total` (the server's own count; a counter
-    /// only rises).
-    pub fn count_refused_connections(&self, total: u64) {
-        let counted = self.http_connections_refused.get();
-        self.http_connections_refused
-            .inc_by(total.saturating_sub(counted));
+    /// Brings the refused and evicted connection counters to the server's own counts (a
+    /// counter only rises).
+    pub fn count_connections(&self, refused: u64, evicted: u64) {
+        for (counter, total) in [
+            (&self.http_connections_refused, refused),
+            (&self.http_connections_evicted, evicted),
+        ] {
+            counter.inc_by(total.saturating_sub(counter.get()));
+        }
     }
 
     /// Brings the event store's series to its counters (counters only rise).
@@ -533,15 +544,15 @@ mod tests {
         );
         assert!(text.lines().any(|l| l == build), "{build} in {text}");
         // Refused connections are counted from the server's own count, never backwards.
-        metrics.count_refused_connections(3);
-        metrics.count_refused_connections(2);
+        metrics.count_connections(3, 5);
+        metrics.count_connections(2, 4);
         let refused = metrics.render().unwrap();
-        assert!(
-            refused
-                .lines()
-                .any(|l| l == "railmon_http_connections_refused_total 3"),
-            "{refused}"
-        );
+        for line in [
+            "railmon_http_connections_refused_total 3",
+            "railmon_http_connections_evicted_total 5",
+        ] {
+            assert!(refused.lines().any(|l| l == line), "{line} in {refused}");
+        }
         // Declared families are known before they have a series.
         assert!(metrics
             .family_names()

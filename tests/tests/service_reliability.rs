@@ -174,15 +174,54 @@ fn idle_and_half_open_connections_are_closed_and_capped() {
         closed, 10,
         "every half-open connection closed by the header timeout"
     );
-    let refused = service.get_json("/api/v1/status");
+    // Each connection beyond the cap took the slot of the longest-idle one (none was serving).
+    let status = service.get_json("/api/v1/status");
     assert!(
-        refused["http_connections_refused"].as_u64().unwrap() >= 6,
-        "{refused}"
+        status["http_connections_evicted"].as_u64().unwrap() >= 6,
+        "{status}"
     );
     // Idle keep-alive after a complete request: closed by the same timeout.
     let mut idle = connect(&service.addr, b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n");
     assert!(closed_within(&mut idle, Duration::from_millis(1500)));
     assert_eq!(service.get("/healthz").0, 200);
+}
+
+/// One client holding every connection slot (half-open, or idle after a request) cannot keep
+/// the probes and scrapes out: the newcomer takes the slot of the longest-idle connection
+/// (issue 26: 2 of 61 probes were answered).
+#[test]
+fn a_client_holding_every_slot_cannot_keep_the_probes_out() {
+    let bus = PrivateBus::new();
+    let service = Service::start(
+        &bus,
+        &[
+            ("RAILMON_HTTP__HEADER_TIMEOUT_MS", "60000"),
+            ("RAILMON_HTTP__MAX_CONNECTIONS", "4"),
+        ],
+    );
+    let mut held: Vec<TcpStream> = Vec::new();
+    let mut answered = 0;
+    for probe in 0..20 {
+        // The attacker tops the house up before every probe: half-open and idle alike.
+        for i in 0..4 {
+            let request: &[u8] = match (probe + i) % 2 {
+                0 => b"GET /healthz HTTP/1.1\r\nHost: x\r\n",
+                _ => b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n",
+            };
+            held.push(connect(&service.addr, request));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+        if service.get("/healthz").0 == 200 {
+            answered += 1;
+        }
+    }
+    assert_eq!(
+        answered, 20,
+        "probes answered while one client held every slot"
+    );
+    let status = service.get_json("/api/v1/status");
+    assert_eq!(status["http_connections_refused"], 0, "{status}");
+    drop(held);
 }
 
 #[test]

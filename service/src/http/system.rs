@@ -6,6 +6,7 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use railmon_bus::monotonic_ns;
 use serde::Serialize;
+use std::sync::atomic::Ordering::Relaxed;
 use utoipa::ToSchema;
 
 use super::AppError;
@@ -18,8 +19,10 @@ pub struct StatusView {
     pub uptime_s: f64,
     pub version: String,
     pub streams: Vec<StreamStatusView>,
-    /// Connections refused because `http.max_connections` were open.
+    /// Connections refused because `http.max_connections` were open, each serving a request.
     pub http_connections_refused: u64,
+    /// Idle connections closed to admit a new one when `http.max_connections` were open.
+    pub http_connections_evicted: u64,
     /// The event store.
     pub events: crate::store::StoreStatus,
 }
@@ -33,10 +36,8 @@ pub async fn status(State(state): State<AppState>) -> Json<StatusView> {
         uptime_s: state.started.elapsed().as_secs_f64(),
         version: env!("CARGO_PKG_VERSION").into(),
         streams: state.streams.iter().map(|s| s.view(now)).collect(),
-        http_connections_refused: state
-            .http
-            .connections_refused
-            .load(std::sync::atomic::Ordering::Relaxed),
+        http_connections_refused: state.http.connections_refused.load(Relaxed),
+        http_connections_evicted: state.http.connections_evicted.load(Relaxed),
         events: state.store.status(),
     })
 }
@@ -109,11 +110,10 @@ pub async fn metrics(State(state): State<AppState>) -> Result<Response, AppError
     for stream in &state.streams {
         stream.refresh_gauges(now);
     }
-    let refused = state
-        .http
-        .connections_refused
-        .load(std::sync::atomic::Ordering::Relaxed);
-    state.metrics.count_refused_connections(refused);
+    state.metrics.count_connections(
+        state.http.connections_refused.load(Relaxed),
+        state.http.connections_evicted.load(Relaxed),
+    );
     state.metrics.count_store(&state.store.status());
     let text = state.metrics.render().map_err(|e| {
         tracing::error!("rendering metrics: {e}");
