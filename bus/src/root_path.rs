@@ -12,8 +12,9 @@
 //! same session, or set `bus.root_path` (`RAILMON_BUS__ROOT_PATH`) for both. A root path set
 //! explicitly is created 0700 if missing, and refused if it is world-writable.
 
-use std::os::unix::fs::{DirBuilderExt, MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
+
+use railmon_records::private_dir::{checked_private_dir, make_private_dir};
 
 use crate::BusError;
 
@@ -31,74 +32,6 @@ fn euid() -> u32 {
     unsafe { libc::geteuid() }
 }
 
-/// Makes sure `dir` exists, belongs to us and is private (0700); creates it 0700 if missing.
-fn private_dir(dir: &Path) -> Result<(), String> {
-    if !dir.exists() {
-        std::fs::DirBuilder::new()
-            .recursive(true)
-            .mode(0o700)
-            .create(dir)
-            .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
-    }
-    let meta = std::fs::symlink_metadata(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    if !meta.is_dir() {
-        return Err(format!("{} is not a directory", dir.display()));
-    }
-    if meta.uid() != euid() {
-        return Err(format!(
-            "{} belongs to uid {}, not to us (uid {})",
-            dir.display(),
-            meta.uid(),
-            euid()
-        ));
-    }
-    if meta.mode() & 0o077 != 0 {
-        // Ours: make it private rather than give up.
-        std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o700))
-            .map_err(|e| format!("cannot make {} private (0700): {e}", dir.display()))?;
-    }
-    Ok(())
-}
-
-/// An explicit `bus.root_path` held to the default's rules, and refused rather than repaired
-/// where files may already have been planted in it: a directory (not a symlink to one) of this
-/// user, writable by no one else, in a parent that no one else can rename it in (not writable
-/// by others, or sticky like /tmp); created 0700 if missing, made private if others may read it.
-fn explicit_root(dir: &Path) -> Result<(), String> {
-    let dir = Path::new(dir.to_str().map_or(dir.as_os_str(), |s| {
-        std::ffi::OsStr::new(s.trim_end_matches('/'))
-    }));
-    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
-        if let Ok(meta) = std::fs::metadata(parent) {
-            if meta.mode() & 0o022 != 0 && meta.mode() & 0o1000 == 0 {
-                return Err(format!(
-                    "its parent {} is writable by others (mode {:o}) and not sticky: anyone \
-                     could replace the directory; use a private parent",
-                    parent.display(),
-                    meta.mode() & 0o7777
-                ));
-            }
-        }
-    }
-    if let Ok(meta) = std::fs::symlink_metadata(dir) {
-        if meta.file_type().is_symlink() {
-            return Err("a symbolic link: give the directory itself".into());
-        }
-        if meta.is_dir() && meta.mode() & 0o022 != 0 {
-            let who = if meta.mode() & 0o002 != 0 {
-                "world-writable"
-            } else {
-                "group-writable"
-            };
-            return Err(format!(
-                "{who} (mode {:o}): others could plant bus files there; use a private directory",
-                meta.mode() & 0o7777
-            ));
-        }
-    }
-    private_dir(dir)
-}
-
 fn with_slash(path: &Path) -> String {
     let mut text = path.display().to_string();
     if !text.ends_with('/') {
@@ -114,7 +47,7 @@ pub fn resolve_root_path(
     xdg_runtime_dir: Option<&str>,
 ) -> Result<RootPath, BusError> {
     if !configured.is_empty() {
-        explicit_root(Path::new(configured)).map_err(|why| BusError::Config {
+        checked_private_dir(Path::new(configured)).map_err(|why| BusError::Config {
             key: "bus.root_path".into(),
             reason: format!("`{configured}`: {why}"),
         })?;
@@ -132,7 +65,7 @@ pub fn resolve_root_path(
     candidates.push(PathBuf::from("/run/railmon"));
     candidates.push(PathBuf::from(format!("/tmp/railmon-{}", euid())));
     for dir in candidates {
-        match private_dir(&dir) {
+        match make_private_dir(&dir) {
             Ok(()) => {
                 return Ok(RootPath {
                     path: with_slash(&dir),
@@ -154,6 +87,7 @@ pub fn resolve_root_path(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
 
     fn scratch(name: &str) -> PathBuf {
         let dir = std::env::temp_dir().join(format!("railmon-root-{name}-{}", std::process::id()));

@@ -21,6 +21,7 @@ pub mod bogie;
 pub mod bounded;
 pub mod drive;
 pub mod output;
+pub mod private_dir;
 pub mod vehicle;
 pub mod vehicle_scenario;
 

@@ -23,8 +23,19 @@ pub struct AtomicFile {
 }
 
 impl AtomicFile {
-    /// Starts writing `path` (its directory must exist).
+    /// Starts writing `path` (its directory must exist), with the umask's permissions.
     pub fn create(path: &Path) -> Result<Self, RecordError> {
+        Self::create_with_mode(path, 0o666)
+    }
+
+    /// Starts writing `path` readable by this user only (0600): the service's state (snapshots,
+    /// the high-water id), which another local user must neither read nor be able to swap.
+    pub fn create_private(path: &Path) -> Result<Self, RecordError> {
+        Self::create_with_mode(path, 0o600)
+    }
+
+    fn create_with_mode(path: &Path, mode: u32) -> Result<Self, RecordError> {
+        use std::os::unix::fs::OpenOptionsExt;
         static N: AtomicU64 = AtomicU64::new(0);
         let label = path.display().to_string();
         let name = path
@@ -41,6 +52,7 @@ impl AtomicFile {
         let file = File::options()
             .write(true)
             .create_new(true)
+            .mode(mode)
             .open(&temporary)
             .map_err(|e| RecordError::file(&label, format!("cannot create: {e}")))?;
         Ok(Self {

@@ -59,7 +59,8 @@ pub struct ServiceConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct StorageConfig {
-    /// Directory of the event database (`events.sqlite3`), created if missing (mode 0700).
+    /// Directory of the event database (`events.sqlite3`) and snapshots, created if missing
+    /// (mode 0700, files 0600); refused if others may write into it or it is a symlink.
     /// Empty: `$XDG_STATE_HOME/railmon`, else `~/.local/state/railmon`. `:memory:` keeps
     /// events in memory only (tests): they are then lost at a restart.
     pub data_dir: String,

@@ -113,8 +113,11 @@ impl SnapshotFile {
             checksum: format!("{:016x}", fnv1a(&payload)),
         };
         let dir = self.path.parent().expect("snapshots/<stream>.snapshot");
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-        let mut file = AtomicFile::create(&self.path).map_err(|e| e.to_string())?;
+        // Private (0700, files 0600): a snapshot is resumed as the estimator's own state, so no
+        // other local user may read or replace one (the data directory itself is checked at
+        // start: `store::EventStore::open`).
+        railmon_records::private_dir::make_private_dir(dir)?;
+        let mut file = AtomicFile::create_private(&self.path).map_err(|e| e.to_string())?;
         let write = |file: &mut AtomicFile| -> std::io::Result<()> {
             writeln!(file, "{MAGIC}")?;
             writeln!(file, "{}", serde_json::to_string(&header)?)?;

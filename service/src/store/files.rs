@@ -117,7 +117,7 @@ pub fn read_high_water(path: &Path) -> Result<Option<u64>, String> {
 
 /// Writes the high-water id whole (temporary file, fsync, rename, directory fsync).
 pub fn write_high_water(path: &Path, id: u64) -> Result<(), String> {
-    let mut out = railmon_records::AtomicFile::create(path).map_err(|e| e.to_string())?;
+    let mut out = railmon_records::AtomicFile::create_private(path).map_err(|e| e.to_string())?;
     out.write_all(format!("{id}\n").as_bytes())
         .map_err(|e| format!("{}: {e}", path.display()))?;
     out.commit().map_err(|e| e.to_string())

@@ -38,6 +38,7 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use railmon_bus::StreamKind;
+use railmon_records::private_dir::{checked_private_dir, make_private_file};
 use rusqlite::{params, Connection, OptionalExtension};
 use serde::Serialize;
 use utoipa::ToSchema;
@@ -257,6 +258,16 @@ fn connect(path: &Path) -> Result<Connection, StoreError> {
             reason: "SQLite opened it read-only".into(),
         });
     }
+    // SQLite creates the files with the umask's mode (0644 typically: every local user could
+    // read the events); a -wal file created later takes the database's mode.
+    for file in [path.to_path_buf(), path.with_file_name(wal_name(path))] {
+        if file.exists() {
+            make_private_file(&file).map_err(|reason| StoreError::Open {
+                path: file.display().to_string(),
+                reason,
+            })?;
+        }
+    }
     Ok(connection)
 }
 
@@ -378,7 +389,7 @@ impl EventStore {
         let location = match config.database_path() {
             Some(path) => {
                 if let Some(dir) = path.parent() {
-                    create_private_dir(dir).map_err(|reason| StoreError::Open {
+                    checked_private_dir(dir).map_err(|reason| StoreError::Open {
                         path: dir.display().to_string(),
                         reason,
                     })?;
@@ -732,24 +743,10 @@ fn insert_service_event(
     Ok(())
 }
 
-/// Creates `dir` (and parents) private to this user; refuses one another user owns.
-fn create_private_dir(dir: &Path) -> Result<(), String> {
-    use std::os::unix::fs::{DirBuilderExt, MetadataExt};
-    std::fs::DirBuilder::new()
-        .recursive(true)
-        .mode(0o700)
-        .create(dir)
-        .map_err(|e| e.to_string())?;
-    let meta = std::fs::metadata(dir).map_err(|e| e.to_string())?;
-    // SAFETY: geteuid has no preconditions.
-    let me = unsafe { libc::geteuid() };
-    if meta.uid() != me {
-        return Err(format!(
-            "owned by uid {}, not by this user ({me})",
-            meta.uid()
-        ));
-    }
-    Ok(())
+/// `events.sqlite3-wal` for `events.sqlite3`.
+fn wal_name(path: &Path) -> String {
+    let name = path.file_name().unwrap_or_default().to_string_lossy();
+    format!("{name}-wal")
 }
 
 /// The writer thread's side: commits into the shared connection.
@@ -1045,6 +1042,35 @@ mod tests {
                 .map_err(StoreError::from)
         });
         assert!(other.as_ref().is_err_and(StoreError::is_busy), "{other:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// The events are this user's only (issue 26 item 8: a data directory of mode 0777 was
+    /// accepted and the database was 0644): a directory others may write into is refused, one
+    /// they may read is made 0700, the database and its WAL are 0600.
+    #[test]
+    fn the_data_directory_and_its_files_are_private() {
+        use std::os::unix::fs::{MetadataExt, PermissionsExt};
+        let dir = temp_dir("private");
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o777)).unwrap();
+        let err = EventStore::open(&config(&dir), &identity()).err().unwrap();
+        assert!(err.to_string().contains("world-writable"), "{err}");
+        assert!(!dir.join("events.sqlite3").exists(), "nothing created");
+        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let (store, writer) = EventStore::open(&config(&dir), &identity()).unwrap();
+        let now = railmon_bus::utc_now_ns();
+        store.append(vec![event("slip_started", "1", now, None)]);
+        store.close();
+        writer.join().unwrap();
+        let mode = |name: &str| std::fs::metadata(dir.join(name)).unwrap().mode() & 0o777;
+        assert_eq!(mode(""), 0o700);
+        assert_eq!(mode("events.sqlite3"), 0o600);
+        for name in ["events.sqlite3-wal", files::HIGH_WATER_FILE] {
+            if dir.join(name).exists() {
+                assert_eq!(mode(name), 0o600, "{name}");
+            }
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 
