@@ -209,10 +209,10 @@ impl SlipMonitor {
 
     /// [`SlipMonitor::step`] with the train's own measured speed (m/s, a magnitude in
     /// [`crate::speed_reference::TRAIN_SPEED_RANGE_M_S`]; radar, GNSS or an unpowered axle) when
-    /// there is one: each drive's slip probability is then the larger of the adhesion method's
-    /// and that of its rotor's departure from the train speed ([`crate::speed_reference`]),
-    /// which sees every drive losing adhesion at once, and the estimate's `reference` is
-    /// `train_speed`. `None` is exactly [`SlipMonitor::step`] (and restarts the train-speed
+    /// there is one: each drive's slip probability is then that of its rotor's departure from
+    /// the train speed ([`crate::speed_reference`]), which sees every drive losing adhesion at
+    /// once, and the estimate's `reference` is `train_speed` (after the test's warm-up and
+    /// calibration, 0.15 s by default; until then `group`, the adhesion method's). `None` is exactly [`SlipMonitor::step`] (and restarts the train-speed
     /// test's filters for when the speed returns). A reading out of range is refused before
     /// anything changes.
     pub fn step_with_train_speed(
@@ -263,17 +263,21 @@ impl SlipMonitor {
                 }
                 SpeedReference::Group
             }
-            Some(v) => {
-                if let Some(t) = &mut self.train {
+            Some(v) => match &mut self.train {
+                Some(t) => {
                     let p = self
                         .estimate
                         .drives
                         .iter_mut()
                         .map(|d| &mut d.slip_probability);
-                    t.update(&self.bank, v, p);
+                    if t.update(&self.bank, v, p) {
+                        SpeedReference::TrainSpeed
+                    } else {
+                        SpeedReference::Group
+                    }
                 }
-                SpeedReference::TrainSpeed
-            }
+                None => SpeedReference::Group,
+            },
         };
         Ok(&self.estimate)
     }

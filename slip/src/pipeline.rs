@@ -24,10 +24,12 @@ pub struct MultiMethodPipeline {
     /// The train-speed test and its probabilities of the last step.
     train: TrainSpeedCheck,
     train_probability: Vec<f64>,
-    /// Per method, the larger of its probability and the train-speed test's (steps with a
-    /// train speed only).
+    /// Per method, its probability or, for the drives the train-speed test judges, the test's
+    /// (steps with a train speed only).
     combined: Vec<Vec<f64>>,
     reference: SpeedReference,
+    /// Whether the last step had a train speed.
+    train_steps: bool,
 }
 
 impl MultiMethodPipeline {
@@ -61,6 +63,7 @@ impl MultiMethodPipeline {
             train_probability: vec![0.0; n_drives],
             combined: vec![vec![0.0; n_drives]; methods.len()],
             reference: SpeedReference::Group,
+            train_steps: false,
         })
     }
 
@@ -77,8 +80,8 @@ impl MultiMethodPipeline {
     }
 
     /// [`MultiMethodPipeline::step`] with the train's measured speed (m/s) when there is one:
-    /// every method's probability (and its alarm) is then the larger of its own and the
-    /// train-speed test's, as [`crate::SlipMonitor::step_with_train_speed`].
+    /// every method's probability (and its alarm) is then the train-speed test's for the drives
+    /// it judges, as [`crate::SlipMonitor::step_with_train_speed`].
     pub fn step_with_train_speed(
         &mut self,
         samples: &[DriveSample],
@@ -96,9 +99,10 @@ impl MultiMethodPipeline {
             e.estimate(&self.torque)?;
         }
         let Some(v) = train_speed_m_s else {
-            if self.reference == SpeedReference::TrainSpeed {
+            if self.train_steps {
                 self.train.reset();
                 self.reference = SpeedReference::Group;
+                self.train_steps = false;
             }
             for ((e, alarm), events) in self
                 .estimators
@@ -111,10 +115,19 @@ impl MultiMethodPipeline {
             }
             return Ok(());
         };
-        self.reference = SpeedReference::TrainSpeed;
-        self.train_probability.fill(0.0);
-        self.train
+        // The test's calibration learns where the first method does not flag.
+        self.train_probability
+            .copy_from_slice(&self.estimators[0].output().slip_probability);
+        let all = self
+            .train
             .update(&self.bank, v, self.train_probability.iter_mut());
+        self.reference = if all {
+            SpeedReference::TrainSpeed
+        } else {
+            SpeedReference::Group
+        };
+        self.train_steps = true;
+        let judged = self.train.judged();
         for (((e, alarm), events), combined) in self
             .estimators
             .iter()
@@ -122,12 +135,13 @@ impl MultiMethodPipeline {
             .zip(&mut self.events)
             .zip(&mut self.combined)
         {
-            for ((c, p), q) in combined
+            for (((c, p), q), judged) in combined
                 .iter_mut()
                 .zip(&e.output().slip_probability)
                 .zip(&self.train_probability)
+                .zip(judged)
             {
-                *c = p.max(*q);
+                *c = if *judged { *q } else { *p };
             }
             events.clear();
             alarm.update(combined, events);
@@ -146,10 +160,10 @@ impl MultiMethodPipeline {
     }
 
     /// `(method, slip probability per drive)` of every method after the last step: the
-    /// method's own ([`MultiMethodPipeline::outputs`]) without a train speed, the larger of it
-    /// and the train-speed test's with one.
+    /// method's own ([`MultiMethodPipeline::outputs`]) without a train speed, the train-speed
+    /// test's for the drives it judges with one.
     pub fn slip_probability(&self) -> impl Iterator<Item = (AdhesionMethod, &[f64])> {
-        let train = self.reference == SpeedReference::TrainSpeed;
+        let train = self.train_steps;
         self.estimators
             .iter()
             .zip(&self.combined)

@@ -31,7 +31,8 @@
 //! `calibration_min_s`. `s_k` is low-passed (time constant
 //! `time_constant_s`, which also averages the train-speed sensor's noise) and compared with
 //! `max(slip_threshold_m_s, slip_threshold_fraction * v)`; the probability is a logistic in
-//! the margin, 0.5 at the threshold.
+//! the margin, 0.5 at the threshold. Once a drive is calibrated this probability replaces the
+//! adhesion method's ([`TrainSpeedCheck::update`] says why).
 
 use serde::{Deserialize, Serialize};
 
@@ -55,16 +56,18 @@ pub fn validate_train_speed(train_speed_m_s: f64) -> Result<(), SlipError> {
     )
 }
 
-/// Which reference a drive's slip is judged against at a step.
+/// Which reference the drives' slip was judged against at a step.
 #[derive(
     Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
 )]
 #[serde(rename_all = "snake_case")]
 pub enum SpeedReference {
-    /// The other drives (the adhesion method alone): no train speed this step.
+    /// The other drives (the adhesion method): no train speed this step, or the train-speed
+    /// test still warming up or calibrating some drive (then those drives are judged by the
+    /// group).
     #[default]
     Group,
-    /// The train's measured speed as well as the other drives.
+    /// The train's measured speed, every drive.
     TrainSpeed,
 }
 
@@ -162,6 +165,8 @@ pub struct TrainSpeedCheck {
     ratio: Vec<f64>,
     /// Per drive, the steps its ratio has been learnt over.
     calibrated: Vec<u64>,
+    /// Per drive, whether the last step judged it.
+    judged: Vec<bool>,
     /// Steps with a train speed since it last appeared.
     steps: u64,
 }
@@ -174,6 +179,7 @@ impl TrainSpeedCheck {
             slip_m_s: vec![0.0; n_drives],
             ratio: vec![1.0; n_drives],
             calibrated: vec![0; n_drives],
+            judged: vec![false; n_drives],
             steps: 0,
         })
     }
@@ -192,7 +198,13 @@ impl TrainSpeedCheck {
         self.slip_m_s.fill(0.0);
         self.ratio.fill(1.0);
         self.calibrated.fill(0);
+        self.judged.fill(false);
         self.steps = 0;
+    }
+
+    /// Per drive, whether the last step judged it (its probability is the test's).
+    pub fn judged(&self) -> &[bool] {
+        &self.judged
     }
 
     /// Per drive, the learnt ratio of its wheel speed (from the EKF) to the train speed.
@@ -201,13 +213,21 @@ impl TrainSpeedCheck {
     }
 
     /// One step with the train speed `v` (m/s, already validated) and the bank after its step:
-    /// raises each drive's probability in `p` to the train-speed test's where that is higher.
+    /// replaces each drive's probability in `p` (the adhesion method's) by the train-speed
+    /// test's once the drive is calibrated; returns whether every drive was (the reference is
+    /// then the train speed, else still the group for some).
+    ///
+    /// Replaced, not combined: with a train speed a drive whose wheel rolls with the train
+    /// adheres, whatever its torque next to the other drives'. The group comparison, combined,
+    /// flagged healthy drives for thousands of steps on the torque-controlled plant (the
+    /// partner of a drive being pulled back into adhesion carries less than it, draw 1017 of
+    /// `sample_matrix --kind train-speed`).
     pub fn update<'a>(
         &mut self,
         bank: &EkfBank,
         train_speed_m_s: f64,
         p: impl IntoIterator<Item = &'a mut f64>,
-    ) {
+    ) -> bool {
         let model = bank.model();
         let pole_pairs = model.params.pole_pairs;
         let k_t = model.params.torque_constant_nm_per_a();
@@ -220,19 +240,21 @@ impl TrainSpeedCheck {
         let width = 0.25 * threshold;
         self.steps += 1;
         if (self.steps as f64) * model.dt_s < c.warmup_s {
-            return;
+            return false;
         }
+        let mut all_judged = true;
         let full = (c.calibration_time_constant_s / model.dt_s).max(1.0);
         let judge_after = (c.calibration_min_s / model.dt_s).round() as u64;
         // Below 1 m/s the ratio is mostly the sensor's noise: learnt only above.
         let learn = train_speed_m_s >= 1.0;
-        for ((((s, f), p), ratio), n) in self
+        for (((((s, f), p), ratio), n), judged_now) in self
             .slip_m_s
             .iter_mut()
             .zip(bank.filters())
             .zip(p)
             .zip(&mut self.ratio)
             .zip(&mut self.calibrated)
+            .zip(&mut self.judged)
         {
             let x = &f.x;
             let omega = x[idx::OMEGA];
@@ -243,28 +265,39 @@ impl TrainSpeedCheck {
             let wheel = c.wheel_speed_m_s(omega.abs(), pole_pairs);
             if *n == 0 {
                 if !learn {
+                    all_judged = false;
                     continue;
                 }
                 *ratio = wheel / train_speed_m_s;
             }
             *s += alpha * ((wheel / *ratio - train_speed_m_s) * direction - *s);
             let judged = *n >= judge_after;
+            *judged_now = judged;
             let q = if judged {
                 1.0 / (1.0 + (-(*s - threshold) / width).exp())
             } else {
                 0.0
             };
-            // Learn while neither test flags the drive (else the calibration would take the
-            // slip it is there to show).
-            if learn && p.max(q) <= 0.5 {
+            // Learn while the drive is not flagged (else the calibration would take the slip it
+            // is there to show): by this test once judged, by the adhesion method before.
+            let flagged = if judged { q } else { *p } > 0.5;
+            if learn && !flagged {
                 *n += 1;
                 let w = 1.0 / (*n as f64).min(full);
                 *ratio += w * (wheel / train_speed_m_s - *ratio);
             }
             if judged {
-                *p = p.max(q);
+                // The adhesion method's flag stands where the wheel has left the train by half
+                // the threshold in the direction of the effort (its torque evidence comes
+                // first; the departure confirms it).
+                let half = 0.5 * threshold;
+                let confirmed = 1.0 / (1.0 + (-(*s - half) / (0.25 * half)).exp());
+                *p = q.max(p.min(confirmed));
+            } else {
+                all_judged = false;
             }
         }
+        all_judged
     }
 }
 

@@ -27,7 +27,7 @@ fn state_layout_golden_is_pinned_under_the_format_version() {
                 let (samples, _) = simulator.step().expect("4,000 steps in the scenario");
                 // Steps with a train speed, so that the train-speed test's state is filled; every
                 // other monitor's last steps without, so that both references are seen.
-                let train = (k >= 3_000 && (i % 2 == 0 || k < 3_900)).then_some(5.75);
+                let train = (k >= 1_500 && (i % 2 == 0 || k < 3_900)).then_some(5.75);
                 monitor.step_with_train_speed(samples, train).unwrap();
             }
             monitor

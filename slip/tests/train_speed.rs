@@ -88,7 +88,11 @@ fn all_six_drives_losing_adhesion_at_once_are_flagged_with_a_train_speed() {
     ] {
         let s = scenario(seed, 6, load, depth, 8000.0, spread, Some(0.2));
         let (scores, _, references) = run(&s);
-        assert_eq!(references, [SpeedReference::TrainSpeed]);
+        // The group while the test warms up and calibrates (0.15 s), then the train speed.
+        assert_eq!(
+            references,
+            [SpeedReference::Group, SpeedReference::TrainSpeed]
+        );
         for (k, score) in scores.iter().enumerate() {
             assert!(
                 score.f1.unwrap_or(0.0) >= 0.95 && score.missed_events == 0,
@@ -114,10 +118,10 @@ fn without_a_train_speed_the_reference_is_the_group_and_the_common_loss_goes_uns
     }
 }
 
-/// The train speed's noise (0.2 m/s, 3.5 % of the speed per sample) adds no flag on healthy
-/// drives: every step a drive is flagged with the train speed it is flagged by the group alone
-/// over the same frames (which, on this torque-controlled plant, blips for a few steps at 3 N m
-/// on seed 23: the adhesion method's, not the train speed's), and at 25 N m neither flags.
+/// The train speed's noise (0.2 m/s, 3.5 % of the speed per sample) flags no healthy drive,
+/// in traction, braking and coasting; nor does the group's blip on seed 23 at 3 N m (7 steps
+/// of the adhesion method over the same frames without the train speed), which the train speed,
+/// judging alone once calibrated, overrules.
 #[test]
 fn healthy_drives_under_a_noisy_train_speed_are_not_flagged() {
     for (seed, load) in [(21, 25.0), (22, -25.0), (23, 3.0), (24, 0.2), (25, -3.0)] {
@@ -143,10 +147,7 @@ fn healthy_drives_under_a_noisy_train_speed_are_not_flagged() {
                 added += usize::from(f && !g);
             }
         }
-        assert_eq!(added, 0, "seed {seed}, load {load}");
-        if load.abs() > 10.0 {
-            assert_eq!(flagged, 0, "seed {seed}, load {load}");
-        }
+        assert_eq!((added, flagged), (0, 0), "seed {seed}, load {load}");
     }
 }
 
@@ -180,7 +181,7 @@ fn a_drive_losing_adhesion_runs_away_from_the_train() {
 
 #[test]
 fn a_train_speed_out_of_range_is_refused_and_changes_nothing() {
-    let s = scenario(41, 3, 10.0, 0.0, 100.0, 0.0, Some(0.1));
+    let s = scenario(41, 3, 10.0, 0.0, 1000.0, 0.0, Some(0.1));
     let mut sim = DriveSimulator::new(&s).unwrap();
     let mut monitor = SlipMonitor::new(&s.monitor_config(), 3).unwrap();
     let (samples, _) = sim.step().unwrap();
@@ -192,7 +193,15 @@ fn a_train_speed_out_of_range_is_refused_and_changes_nothing() {
         assert!(e.contains("train_speed_m_s"), "{e}");
         assert_eq!(monitor.bank().filters()[0].frames, 0);
     }
-    let e = monitor.step_with_train_speed(samples, Some(5.0)).unwrap();
+    // Warming up and calibrating, the group still judges; then the train speed.
+    let e = monitor.step_with_train_speed(samples, Some(5.75)).unwrap();
+    assert_eq!(e.reference, SpeedReference::Group);
+    for _ in 1..1_200 {
+        let (samples, _, train) = sim.step_with_train_speed().unwrap();
+        monitor.step_with_train_speed(samples, train).unwrap();
+    }
+    let (samples, _) = sim.step().unwrap();
+    let e = monitor.step_with_train_speed(samples, Some(5.75)).unwrap();
     assert_eq!(e.reference, SpeedReference::TrainSpeed);
     let e = monitor.step(samples).unwrap();
     assert_eq!(e.reference, SpeedReference::Group);
