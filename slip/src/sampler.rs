@@ -26,6 +26,12 @@
 //! the last); long draws keep at most [`MAX_DRIVE_STEPS`] drive-steps by having fewer drives,
 //! so that 200 draws run in minutes.
 //!
+//! **Families** ([`DrawKind`], [`draw_kind`]): the envelope above (ordinary, [`draw`]); the
+//! same draws with a measured train speed (train-speed: `[train_speed]`, noise 0.05-0.2 m/s,
+//! drawn after everything else so the rest of the draw is the ordinary one); and draws where
+//! every drive loses adhesion at once with a train speed (all-at-once: traction or braking,
+//! simultaneous or within 5 ms, 30-90 % for 0.5-5 s).
+//!
 //! **Split.** Even seeds are tuning draws, odd seeds held out ([`is_held_out`]): a method is
 //! tuned on even seeds and reported on odd ones.
 
@@ -435,6 +441,25 @@ mod tests {
             let s = draw(seed).scenario;
             let text = toml::to_string(&s).unwrap();
             assert_eq!(AdhesionScenario::from_toml_str(&text).unwrap(), s, "{text}");
+        }
+    }
+
+    #[test]
+    fn train_speed_draws_are_the_ordinary_ones_with_a_speed_and_all_at_once_loses_every_drive() {
+        for seed in 0..60 {
+            let (o, t) = (draw(seed), draw_kind(seed, DrawKind::TrainSpeed));
+            let noise = t.scenario.train_speed.expect("a train speed").noise_std_m_s;
+            assert!((TRAIN_SPEED_NOISE_M_S.0..=TRAIN_SPEED_NOISE_M_S.1).contains(&noise));
+            assert_eq!(o.scenario.events, t.scenario.events, "seed {seed}");
+            assert_eq!(o.scenario.load, t.scenario.load, "seed {seed}");
+            assert!(o.scenario.train_speed.is_none());
+            let a = draw_kind(seed, DrawKind::AllAtOnce);
+            a.scenario.validate().unwrap();
+            assert_eq!(a.slipping.len(), a.scenario.n_drives(), "seed {seed}");
+            assert!(a.regime != Regime::Coasting && a.onsets != Onsets::Staggered);
+            assert!(a.scenario.train_speed.is_some());
+            let text = toml::to_string(&a.scenario).unwrap();
+            assert_eq!(AdhesionScenario::from_toml_str(&text).unwrap(), a.scenario);
         }
     }
 
