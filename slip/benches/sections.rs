@@ -8,6 +8,8 @@
 //! - each adhesion method alone, over the EKF torque estimates of the whole run,
 //! - the whole pipeline (EKFs, all five methods, their alarms: `MultiMethodPipeline`),
 //! - what the service runs: the EKFs and the default method (`SlipMonitor`, temporal),
+//! - the same with a train speed on every frame (`step_with_train_speed`, a constant 5.75 m/s:
+//!   the cost of the train-speed reference),
 //!
 //! printed as drive-steps per second of CPU time (one core), with the sum of the sections next
 //! to the measured whole. CPU time (`railmon_bench_support`) instead of wall clock: on the
@@ -51,9 +53,9 @@ fn main() {
         print!(" {m} |");
     }
     println!(
-        " sum of sections | whole pipeline | EKFs + temporal (service) | EKF step sparse / dense |"
+        " sum of sections | whole pipeline | EKFs + temporal (service) | service with a train speed | EKF step sparse / dense |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for path in scenario_paths(filter.as_deref()) {
         let text = std::fs::read_to_string(&path).expect("scenario file");
         let scenario = AdhesionScenario::from_toml_str(&text)
@@ -127,16 +129,24 @@ fn main() {
                 black_box(monitor.step(f).expect("step").global_torque_nm);
             }
         });
+        let service_train_s = cpu_seconds(|| {
+            let mut monitor = SlipMonitor::new(&config, n).expect("monitor");
+            for f in &frames {
+                let e = monitor.step_with_train_speed(f, Some(5.75)).expect("step");
+                black_box(e.global_torque_nm);
+            }
+        });
         let rate = |s: f64| format!("{:.2}", drive_steps / s / 1e6);
         print!("| {} | {n} | {} |", scenario.name, rate(ekf_s));
         for s in &method_s {
             print!(" {} |", rate(*s));
         }
         println!(
-            " {} | {} | {} | {:.2} |",
+            " {} | {} | {} | {} | {:.2} |",
             rate(ekf_s + method_s.iter().sum::<f64>()),
             rate(whole_s),
             rate(service_s),
+            rate(service_train_s),
             dense_s / sparse_s
         );
     }

@@ -7,7 +7,9 @@
 //! [`AdhesionEstimator`] (VB, VMP, k-means, median, or our temporal method) -> global torque
 //! `M_z^(G)` and per-drive slip probabilities -> [`SlipAlarm`] (the slipping flag and its
 //! events, hysteresis on the probability). [`SlipMonitor`] ties the first two together;
-//! [`DriveSimulator`] produces data with ground truth from an [`AdhesionScenario`].
+//! [`DriveSimulator`] produces data with ground truth from an [`AdhesionScenario`]. With the
+//! train's own speed ([`SlipMonitor::step_with_train_speed`], [`speed_reference`]) each drive is
+//! also judged against it, which sees every drive losing adhesion at once.
 
 pub mod adhesion;
 pub mod alarm;
@@ -23,6 +25,7 @@ pub mod scenario;
 pub mod score;
 pub mod simulator;
 pub mod special;
+pub mod speed_reference;
 
 pub use adhesion::{AdhesionConfig, AdhesionEstimator, AdhesionMethod, AdhesionOutput};
 pub use alarm::{SlipAlarm, SlipAlarmConfig, SlipAlarmEvent, SlipAlarmKind};
@@ -35,3 +38,6 @@ pub use sample::{is_slipping, DriveSample, DriveTruth, SLIP_RULE_FLOOR_NM, SLIP_
 pub use scenario::{AdhesionScenario, SlipEvent};
 pub use score::{DetectionCounter, DetectionScore};
 pub use simulator::DriveSimulator;
+pub use speed_reference::{
+    validate_train_speed, SpeedReference, SpeedReferenceConfig, TRAIN_SPEED_RANGE_M_S,
+};

@@ -10,6 +10,9 @@ use crate::ekf::{EkfBank, EkfConfig};
 use crate::error::{check_positive, SlipError};
 use crate::model::{DriveModel, MotorParams};
 use crate::sample::{validate_frame, DriveSample};
+use crate::speed_reference::{
+    validate_train_speed, SpeedReference, SpeedReferenceConfig, TrainSpeedCheck,
+};
 
 /// Everything the monitor needs: motor parameters, sampling period, EKF noise, the method and
 /// the settings of every method.
@@ -113,6 +116,11 @@ pub struct SlipEstimate {
     pub global_torque_nm: f64,
     pub method: AdhesionMethod,
     pub drives: Vec<DriveEstimate>,
+    /// What the slip probabilities were judged against at this step: `group` (the other
+    /// drives only; no train speed came with the frame) or `train_speed` (the train's measured
+    /// speed as well, [`crate::speed_reference`]).
+    #[serde(default)]
+    pub reference: SpeedReference,
 }
 
 /// One EKF per drive plus the configured adhesion estimator.
@@ -123,6 +131,10 @@ pub struct SlipMonitor {
     estimator: AdhesionEstimator,
     torque: Vec<f64>,
     estimate: SlipEstimate,
+    /// The train-speed test, from the first frame with a train speed (or
+    /// [`SlipMonitor::set_speed_reference`]) on.
+    #[serde(default)]
+    train: Option<TrainSpeedCheck>,
 }
 
 impl SlipMonitor {
@@ -131,8 +143,9 @@ impl SlipMonitor {
     /// snapshot. Raise it with every change of the layout; `tests/state_layout.rs` pins the
     /// layout under it (`tests/data/golden/state-layout-slip.txt`), so a change cannot ship
     /// without it. 3: the EKF bank lost the load-jump test's state (the rejected
-    /// `[ekf.jump]`, issue 27).
-    pub const STATE_FORMAT_VERSION: u32 = 3;
+    /// `[ekf.jump]`, issue 27). 4: the train-speed reference (its settings and per-drive
+    /// filters, the estimate's `reference`, issue 23 item 2).
+    pub const STATE_FORMAT_VERSION: u32 = 4;
 
     pub fn new(config: &SlipMonitorConfig, n_drives: usize) -> Result<Self, SlipError> {
         config.validate()?;
@@ -153,8 +166,23 @@ impl SlipMonitor {
                 global_torque_nm: 0.0,
                 method: config.method,
                 drives: vec![drive; n_drives],
+                reference: SpeedReference::Group,
             },
+            train: None,
         })
+    }
+
+    /// Sets the drives' geometry and the slip test against the train speed (without it, the
+    /// first frame with a train speed takes [`SpeedReferenceConfig::default`]). Restarts the
+    /// test's filters.
+    pub fn set_speed_reference(&mut self, config: SpeedReferenceConfig) -> Result<(), SlipError> {
+        self.train = Some(TrainSpeedCheck::new(config, self.n_drives())?);
+        Ok(())
+    }
+
+    /// The train-speed test's settings, once set or used.
+    pub fn speed_reference(&self) -> Option<&SpeedReferenceConfig> {
+        self.train.as_ref().map(TrainSpeedCheck::config)
     }
 
     pub fn n_drives(&self) -> usize {
@@ -172,9 +200,33 @@ impl SlipMonitor {
     }
 
     /// Validates the whole frame first (length == n_drives, all finite): on error nothing
-    /// changes. An EKF failure of any drive also leaves every filter as it was.
+    /// changes. An EKF failure of any drive also leaves every filter as it was. Judged against
+    /// the group only ([`SpeedReference::Group`]); the same as
+    /// [`SlipMonitor::step_with_train_speed`] without a train speed.
     pub fn step(&mut self, samples: &[DriveSample]) -> Result<&SlipEstimate, SlipError> {
+        self.step_with_train_speed(samples, None)
+    }
+
+    /// [`SlipMonitor::step`] with the train's own measured speed (m/s, a magnitude in
+    /// [`crate::speed_reference::TRAIN_SPEED_RANGE_M_S`]; radar, GNSS or an unpowered axle) when
+    /// there is one: each drive's slip probability is then that of its rotor's departure from
+    /// the train speed ([`crate::speed_reference`]), which sees every drive losing adhesion at
+    /// once, and the estimate's `reference` is `train_speed` (after the test's warm-up and
+    /// calibration, 0.15 s by default; until then `group`, the adhesion method's). `None` is exactly [`SlipMonitor::step`] (and restarts the train-speed
+    /// test's filters for when the speed returns). A reading out of range is refused before
+    /// anything changes.
+    pub fn step_with_train_speed(
+        &mut self,
+        samples: &[DriveSample],
+        train_speed_m_s: Option<f64>,
+    ) -> Result<&SlipEstimate, SlipError> {
         validate_frame(samples, self.n_drives())?;
+        if let Some(v) = train_speed_m_s {
+            validate_train_speed(v)?;
+            if self.train.is_none() {
+                self.set_speed_reference(SpeedReferenceConfig::default())?;
+            }
+        }
         // The bank commits only when every drive's update succeeds; keep a copy (reusing its
         // allocation) to roll back if the estimator then fails, so that nothing changes.
         self.backup.clone_from(&self.bank);
@@ -204,6 +256,29 @@ impl SlipMonitor {
                 slip_probability: *p,
             };
         }
+        self.estimate.reference = match train_speed_m_s {
+            None => {
+                if let Some(t) = &mut self.train {
+                    t.reset();
+                }
+                SpeedReference::Group
+            }
+            Some(v) => match &mut self.train {
+                Some(t) => {
+                    let p = self
+                        .estimate
+                        .drives
+                        .iter_mut()
+                        .map(|d| &mut d.slip_probability);
+                    if t.update(&self.bank, v, p) {
+                        SpeedReference::TrainSpeed
+                    } else {
+                        SpeedReference::Group
+                    }
+                }
+                None => SpeedReference::Group,
+            },
+        };
         Ok(&self.estimate)
     }
 }

@@ -7,7 +7,10 @@ use crate::alarm::{SlipAlarm, SlipAlarmEvent};
 use crate::ekf::EkfBank;
 use crate::error::SlipError;
 use crate::monitor::SlipMonitorConfig;
-use crate::sample::DriveSample;
+use crate::sample::{validate_frame, DriveSample};
+use crate::speed_reference::{
+    validate_train_speed, SpeedReference, SpeedReferenceConfig, TrainSpeedCheck,
+};
 
 /// EKF bank plus one estimator and one alarm per method.
 #[derive(Debug, Clone)]
@@ -18,6 +21,15 @@ pub struct MultiMethodPipeline {
     /// Per method, the alarm's events of the last step.
     events: Vec<Vec<SlipAlarmEvent>>,
     torque: Vec<f64>,
+    /// The train-speed test and its probabilities of the last step.
+    train: TrainSpeedCheck,
+    train_probability: Vec<f64>,
+    /// Per method, its probability or, for the drives the train-speed test judges, the test's
+    /// (steps with a train speed only).
+    combined: Vec<Vec<f64>>,
+    reference: SpeedReference,
+    /// Whether the last step had a train speed.
+    train_steps: bool,
 }
 
 impl MultiMethodPipeline {
@@ -47,11 +59,38 @@ impl MultiMethodPipeline {
             alarms,
             events: vec![Vec::new(); methods.len()],
             torque: vec![0.0; n_drives],
+            train: TrainSpeedCheck::new(SpeedReferenceConfig::default(), n_drives)?,
+            train_probability: vec![0.0; n_drives],
+            combined: vec![vec![0.0; n_drives]; methods.len()],
+            reference: SpeedReference::Group,
+            train_steps: false,
         })
+    }
+
+    /// Sets the drives' geometry and the train-speed test (default:
+    /// [`SpeedReferenceConfig::default`]).
+    pub fn set_speed_reference(&mut self, config: SpeedReferenceConfig) -> Result<(), SlipError> {
+        self.train = TrainSpeedCheck::new(config, self.bank.n_drives())?;
+        Ok(())
     }
 
     /// One frame through the EKFs and every estimator. A bad frame changes nothing.
     pub fn step(&mut self, samples: &[DriveSample]) -> Result<(), SlipError> {
+        self.step_with_train_speed(samples, None)
+    }
+
+    /// [`MultiMethodPipeline::step`] with the train's measured speed (m/s) when there is one:
+    /// every method's probability (and its alarm) is then the train-speed test's for the drives
+    /// it judges, as [`crate::SlipMonitor::step_with_train_speed`].
+    pub fn step_with_train_speed(
+        &mut self,
+        samples: &[DriveSample],
+        train_speed_m_s: Option<f64>,
+    ) -> Result<(), SlipError> {
+        if let Some(v) = train_speed_m_s {
+            validate_frame(samples, self.bank.n_drives())?;
+            validate_train_speed(v)?;
+        }
         self.bank.step(samples)?;
         for (t, f) in self.torque.iter_mut().zip(self.bank.filters()) {
             *t = f.torque_nm();
@@ -59,16 +98,83 @@ impl MultiMethodPipeline {
         for e in &mut self.estimators {
             e.estimate(&self.torque)?;
         }
-        for ((e, alarm), events) in self
+        let Some(v) = train_speed_m_s else {
+            if self.train_steps {
+                self.train.reset();
+                self.reference = SpeedReference::Group;
+                self.train_steps = false;
+            }
+            for ((e, alarm), events) in self
+                .estimators
+                .iter()
+                .zip(&mut self.alarms)
+                .zip(&mut self.events)
+            {
+                events.clear();
+                alarm.update(&e.output().slip_probability, events);
+            }
+            return Ok(());
+        };
+        // The test's calibration learns where the first method does not flag.
+        self.train_probability
+            .copy_from_slice(&self.estimators[0].output().slip_probability);
+        let all = self
+            .train
+            .update(&self.bank, v, self.train_probability.iter_mut());
+        self.reference = if all {
+            SpeedReference::TrainSpeed
+        } else {
+            SpeedReference::Group
+        };
+        self.train_steps = true;
+        let judged = self.train.judged();
+        for (((e, alarm), events), combined) in self
             .estimators
             .iter()
             .zip(&mut self.alarms)
             .zip(&mut self.events)
+            .zip(&mut self.combined)
         {
+            for (((c, p), q), judged) in combined
+                .iter_mut()
+                .zip(&e.output().slip_probability)
+                .zip(&self.train_probability)
+                .zip(judged)
+            {
+                *c = if *judged { *q } else { *p };
+            }
             events.clear();
-            alarm.update(&e.output().slip_probability, events);
+            alarm.update(combined, events);
         }
         Ok(())
+    }
+
+    /// What the last step's probabilities were judged against.
+    pub fn reference(&self) -> SpeedReference {
+        self.reference
+    }
+
+    /// The train-speed test (its low-passed slip velocities).
+    pub fn train_speed_check(&self) -> &TrainSpeedCheck {
+        &self.train
+    }
+
+    /// `(method, slip probability per drive)` of every method after the last step: the
+    /// method's own ([`MultiMethodPipeline::outputs`]) without a train speed, the train-speed
+    /// test's for the drives it judges with one.
+    pub fn slip_probability(&self) -> impl Iterator<Item = (AdhesionMethod, &[f64])> {
+        let train = self.train_steps;
+        self.estimators
+            .iter()
+            .zip(&self.combined)
+            .map(move |(e, c)| {
+                let p = if train {
+                    c.as_slice()
+                } else {
+                    e.output().slip_probability.as_slice()
+                };
+                (e.method(), p)
+            })
     }
 
     pub fn bank(&self) -> &EkfBank {

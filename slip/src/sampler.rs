@@ -26,6 +26,12 @@
 //! the last); long draws keep at most [`MAX_DRIVE_STEPS`] drive-steps by having fewer drives,
 //! so that 200 draws run in minutes.
 //!
+//! **Families** ([`DrawKind`], [`draw_kind`]): the envelope above (ordinary, [`draw`]); the
+//! same draws with a measured train speed (train-speed: `[train_speed]`, noise 0.05-0.2 m/s,
+//! drawn after everything else so the rest of the draw is the ordinary one); and draws where
+//! every drive loses adhesion at once with a train speed (all-at-once: traction or braking,
+//! simultaneous or within 5 ms, 30-90 % for 0.5-5 s).
+//!
 //! **Split.** Even seeds are tuning draws, odd seeds held out ([`is_held_out`]): a method is
 //! tuned on even seeds and reported on odd ones.
 
@@ -36,6 +42,7 @@ use crate::model::MotorParams;
 use crate::monitor::SlipMonitorConfig;
 use crate::scenario::{
     AdhesionScenario, ControllerConfig, LoadProfile, NoiseConfig, PlantConfig, SlipEvent,
+    TrainSpeedConfig,
 };
 
 /// Fewest and most drives of a draw.
@@ -61,6 +68,60 @@ pub const TAIL_STEPS: usize = 1500;
 /// A draw has at most this many drive-steps (`n_drives * n_steps`); a long draw has fewer
 /// drives instead.
 pub const MAX_DRIVE_STEPS: usize = 400_000;
+
+/// Noise of the measured train speed in draws with one, m/s (radar, GNSS).
+pub const TRAIN_SPEED_NOISE_M_S: (f64, f64) = (0.05, 0.2);
+/// Shortest and longest loss of [`DrawKind::AllAtOnce`], steps (0.5 s to 5 s): a loss of
+/// every drive the train speed sees only as the rotors run away, at
+/// `p_p (T_healthy - T_limit) / J`, so that a short shallow one is over before the slip
+/// velocity clears the sensor's noise.
+pub const ALL_AT_ONCE_LOSS_STEPS: (f64, f64) = (4_000.0, 40_000.0);
+/// Smallest and largest loss of [`DrawKind::AllAtOnce`], fraction of the healthy load.
+pub const ALL_AT_ONCE_DEPTH: (f64, f64) = (0.3, 0.9);
+
+/// Which family a draw comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DrawKind {
+    /// The envelope of the module's documentation, no train speed (what [`draw`] gives).
+    #[default]
+    Ordinary,
+    /// The same draw with a measured train speed (`[train_speed]`, noise in
+    /// [`TRAIN_SPEED_NOISE_M_S`]): the drives are torque-controlled and run away from the
+    /// train when they lose adhesion.
+    TrainSpeed,
+    /// Every drive loses adhesion, simultaneously or within 5 ms, with a train speed: in
+    /// traction or braking, depth in [`ALL_AT_ONCE_DEPTH`], duration in
+    /// [`ALL_AT_ONCE_LOSS_STEPS`]; the rest of the envelope as ordinary draws.
+    AllAtOnce,
+}
+
+impl DrawKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            DrawKind::Ordinary => "ordinary",
+            DrawKind::TrainSpeed => "train-speed",
+            DrawKind::AllAtOnce => "all-at-once",
+        }
+    }
+
+    pub fn has_train_speed(self) -> bool {
+        self != DrawKind::Ordinary
+    }
+}
+
+impl std::str::FromStr for DrawKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        [
+            DrawKind::Ordinary,
+            DrawKind::TrainSpeed,
+            DrawKind::AllAtOnce,
+        ]
+        .into_iter()
+        .find(|k| k.name() == s)
+        .ok_or_else(|| format!("{s}: not ordinary, train-speed or all-at-once"))
+    }
+}
 
 /// Whether `seed` is held out (odd) or a tuning draw (even).
 pub fn is_held_out(seed: u64) -> bool {
@@ -118,6 +179,7 @@ impl Onsets {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Draw {
     pub seed: u64,
+    pub kind: DrawKind,
     pub regime: Regime,
     pub onsets: Onsets,
     /// Drives that lose adhesion (0-based), sorted.
@@ -136,11 +198,22 @@ fn log_uniform(rng: &mut ChaCha8Rng, (lo, hi): (f64, f64)) -> f64 {
 
 /// The scenario of `seed` (see the module's documentation for the envelope).
 pub fn draw(seed: u64) -> Draw {
+    draw_kind(seed, DrawKind::Ordinary)
+}
+
+/// The scenario of `seed` from the family `kind`. [`DrawKind::Ordinary`] is [`draw`];
+/// [`DrawKind::TrainSpeed`] is the same draw (the same drives, losses and noise) with a train
+/// speed added; [`DrawKind::AllAtOnce`] draws its own.
+pub fn draw_kind(seed: u64, kind: DrawKind) -> Draw {
+    let all = kind == DrawKind::AllAtOnce;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut n = rng.random_range(DRIVES.0..=DRIVES.1);
     let regime = match rng.random_range(0..3) {
         0 => Regime::Traction,
         1 => Regime::Braking,
+        // Coasting carries no load to lose: every drive losing adhesion is drawn in traction or
+        // braking.
+        _ if all => Regime::Traction,
         _ => Regime::Coasting,
     };
     let sign = if regime == Regime::Braking { -1.0 } else { 1.0 };
@@ -151,11 +224,17 @@ pub fn draw(seed: u64) -> Draw {
     let onsets = match rng.random_range(0..3) {
         0 => Onsets::Simultaneous,
         1 => Onsets::Together,
+        _ if all => Onsets::Simultaneous,
         _ => Onsets::Staggered,
     };
-    let duration = log_uniform(&mut rng, LOSS_STEPS).round();
+    let (loss_steps, depth_range) = if all {
+        (ALL_AT_ONCE_LOSS_STEPS, ALL_AT_ONCE_DEPTH)
+    } else {
+        (LOSS_STEPS, DEPTH)
+    };
+    let duration = log_uniform(&mut rng, loss_steps).round();
     let per_drive_depth = rng.random_bool(0.5);
-    let group_depth = uniform(&mut rng, DEPTH);
+    let group_depth = uniform(&mut rng, depth_range);
     let ramp = rng.random_bool(0.25);
     let ramp_steps = uniform(&mut rng, (50.0, 2000.0)).round().min(duration);
     let edge_smoothing = uniform(&mut rng, (0.0, 60.0)).round();
@@ -165,6 +244,7 @@ pub fn draw(seed: u64) -> Draw {
     // Fewer drives rather than more than the budget of drive-steps.
     n = n.min((MAX_DRIVE_STEPS / n_steps).max(DRIVES.0));
     let k = rng.random_range(1..n);
+    let k = if all { n } else { k };
     let mut drives: Vec<usize> = (0..n).collect();
     // Partial Fisher-Yates: the first k are the slipping drives.
     for i in 0..k {
@@ -179,7 +259,7 @@ pub fn draw(seed: u64) -> Draw {
         .map(|&d| {
             let start = first_onset + uniform(&mut rng, (0.0, spread)).round();
             let depth = if per_drive_depth {
-                uniform(&mut rng, DEPTH)
+                uniform(&mut rng, depth_range)
             } else {
                 group_depth
             };
@@ -235,12 +315,24 @@ pub fn draw(seed: u64) -> Draw {
     };
     let substeps = rng.random_range(1..=4);
     let simulation_seed = rng.random::<u64>();
+    // Drawn last, so that a train-speed draw is its ordinary draw with the speed added.
+    let train_speed = kind.has_train_speed().then(|| TrainSpeedConfig {
+        noise_std_m_s: uniform(&mut rng, TRAIN_SPEED_NOISE_M_S),
+        ..TrainSpeedConfig::default()
+    });
     let onset_word = onsets.name();
     let scenario = AdhesionScenario {
-        name: format!("adhesion-draw-{seed}"),
+        name: match kind {
+            DrawKind::Ordinary => format!("adhesion-draw-{seed}"),
+            _ => format!("adhesion-draw-{}-{seed}", kind.name()),
+        },
         description: format!(
-            "condition sampler draw {seed}: {n} drives, {k} losing adhesion ({onset_word}) for {duration} steps, {}, noise x{noise_factor:.2}",
-            regime.name()
+            "condition sampler draw {seed}: {n} drives, {k} losing adhesion ({onset_word}) for {duration} steps, {}, noise x{noise_factor:.2}{}",
+            regime.name(),
+            train_speed.map_or(String::new(), |t| format!(
+                ", train speed measured with {:.3} m/s noise",
+                t.noise_std_m_s
+            ))
         ),
         n_drives: n,
         n_steps,
@@ -259,10 +351,12 @@ pub fn draw(seed: u64) -> Draw {
             drive_scale,
         },
         events,
+        train_speed,
         monitor: SlipMonitorConfig::default(),
     };
     Draw {
         seed,
+        kind,
         regime,
         onsets,
         slipping,
@@ -347,6 +441,25 @@ mod tests {
             let s = draw(seed).scenario;
             let text = toml::to_string(&s).unwrap();
             assert_eq!(AdhesionScenario::from_toml_str(&text).unwrap(), s, "{text}");
+        }
+    }
+
+    #[test]
+    fn train_speed_draws_are_the_ordinary_ones_with_a_speed_and_all_at_once_loses_every_drive() {
+        for seed in 0..60 {
+            let (o, t) = (draw(seed), draw_kind(seed, DrawKind::TrainSpeed));
+            let noise = t.scenario.train_speed.expect("a train speed").noise_std_m_s;
+            assert!((TRAIN_SPEED_NOISE_M_S.0..=TRAIN_SPEED_NOISE_M_S.1).contains(&noise));
+            assert_eq!(o.scenario.events, t.scenario.events, "seed {seed}");
+            assert_eq!(o.scenario.load, t.scenario.load, "seed {seed}");
+            assert!(o.scenario.train_speed.is_none());
+            let a = draw_kind(seed, DrawKind::AllAtOnce);
+            a.scenario.validate().unwrap();
+            assert_eq!(a.slipping.len(), a.scenario.n_drives(), "seed {seed}");
+            assert!(a.regime != Regime::Coasting && a.onsets != Onsets::Staggered);
+            assert!(a.scenario.train_speed.is_some());
+            let text = toml::to_string(&a.scenario).unwrap();
+            assert_eq!(AdhesionScenario::from_toml_str(&text).unwrap(), a.scenario);
         }
     }
 

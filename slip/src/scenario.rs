@@ -10,6 +10,7 @@ use crate::error::{check_finite, check_in, check_non_negative, check_positive, S
 use crate::model::MotorParams;
 use crate::monitor::SlipMonitorConfig;
 use crate::sample::is_slipping;
+use crate::speed_reference::SpeedReferenceConfig;
 
 /// The field-oriented speed controller of the simulated drives (PI speed loop giving the
 /// quadrature current reference, PI current loops in the d-q frame with decoupling).
@@ -107,6 +108,77 @@ impl Default for NoiseConfig {
             current_std_a: 0.1,
             voltage_std_v: 0.0,
             load_std_nm: 0.0,
+        }
+    }
+}
+
+/// The train's own speed (issue 23 item 2): present, the simulated vehicle moves at a speed of
+/// its own, measured with noise (radar, GNSS), and the drives are coupled to it through the
+/// wheel-rail contact instead of holding a speed of their own.
+///
+/// **The plant then** (`DriveSimulator`): each drive is torque-controlled (`i_q` reference =
+/// its healthy load, the driver's notch, over `k_t`; the motor's torque fades above twice the
+/// starting speed, constant power, and an electric brake fades below a tenth of it). The rail
+/// takes from the wheel the creep force `K (omega - omega_v)` (`omega_v` the rotor speed the
+/// train speed implies, `K` the creep stiffness: the linear part of the creep curve, Kalker;
+/// Polach, Wear 258, 2005) up to the adhesion limit: the healthy load plus a reserve
+/// (`adhesion_reserve` of it, at least 0.5 N m) while the drive adheres, the scenario's load
+/// where its events break the slip rule. Past the limit the rail takes only the limit and the
+/// rotor runs away from the train, ahead in traction, behind in braking, until the limit
+/// returns and the creep force pulls it back. The truth torque is what the rail takes, the
+/// truth flag the slip rule on it (a wheel being pulled back is still slipping). The train
+/// speed `v` follows `M dv/dt = sum_k (T_rail,k - T_healthy,k) G / r` (the healthy efforts
+/// balance the running resistance and gradient; `M` = `mass_per_drive_kg` x drives).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainSpeedConfig {
+    /// Standard deviation of the measured train speed (radar/GNSS: 0.05-0.2 m/s), white.
+    pub noise_std_m_s: f64,
+    /// Gear ratio and wheel radius of the plant (the monitor's own copy is its
+    /// [`SpeedReferenceConfig`]).
+    pub gear_ratio: f64,
+    pub wheel_radius_m: f64,
+    /// Vehicle mass per drive (scaled to the small motors of the scenarios).
+    pub mass_per_drive_kg: f64,
+    /// Creep stiffness `K`, N m per electrical rad/s of the rotor's departure from the train.
+    pub creep_stiffness_nm_s_per_rad: f64,
+    /// The adhesion limit of an adhering wheel above its healthy load, as a fraction of it.
+    pub adhesion_reserve: f64,
+}
+
+impl Default for TrainSpeedConfig {
+    fn default() -> Self {
+        let geometry = SpeedReferenceConfig::default();
+        TrainSpeedConfig {
+            noise_std_m_s: 0.1,
+            gear_ratio: geometry.gear_ratio,
+            wheel_radius_m: geometry.wheel_radius_m,
+            mass_per_drive_kg: 2000.0,
+            creep_stiffness_nm_s_per_rad: 40.0,
+            adhesion_reserve: 0.3,
+        }
+    }
+}
+
+impl TrainSpeedConfig {
+    fn validate(&self) -> Result<(), SlipError> {
+        check_non_negative("train_speed.noise_std_m_s", self.noise_std_m_s)?;
+        check_positive("train_speed.gear_ratio", self.gear_ratio)?;
+        check_positive("train_speed.wheel_radius_m", self.wheel_radius_m)?;
+        check_positive("train_speed.mass_per_drive_kg", self.mass_per_drive_kg)?;
+        check_positive(
+            "train_speed.creep_stiffness_nm_s_per_rad",
+            self.creep_stiffness_nm_s_per_rad,
+        )?;
+        check_non_negative("train_speed.adhesion_reserve", self.adhesion_reserve)
+    }
+
+    /// The monitor's train-speed settings for this plant: its geometry, the rest default.
+    pub fn speed_reference(&self) -> SpeedReferenceConfig {
+        SpeedReferenceConfig {
+            gear_ratio: self.gear_ratio,
+            wheel_radius_m: self.wheel_radius_m,
+            ..SpeedReferenceConfig::default()
         }
     }
 }
@@ -345,6 +417,10 @@ pub struct AdhesionScenario {
     pub load: LoadProfile,
     #[serde(default)]
     pub events: Vec<SlipEvent>,
+    /// The train's own speed; absent (the default), the drives hold the controller's
+    /// reference speed and no train speed is measured, as before issue 23 item 2.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train_speed: Option<TrainSpeedConfig>,
     /// The monitor's settings: absent, [`SlipMonitorConfig::default`]; a table may start
     /// from a preset (`preset = "paper"`) and override single keys.
     #[serde(
@@ -422,6 +498,20 @@ impl AdhesionScenario {
         }
         for (k, e) in self.events.iter().enumerate() {
             e.validate(k, self.n_drives)?;
+        }
+        if let Some(t) = &self.train_speed {
+            t.validate()?;
+            let speed = self.plant.controller.reference_speed_rad_s.abs()
+                / self.plant.motor.pole_pairs
+                * t.wheel_radius_m
+                / t.gear_ratio;
+            if !(speed > 0.0 && speed <= crate::speed_reference::TRAIN_SPEED_RANGE_M_S.1) {
+                return Err(SlipError::invalid(
+                    "plant.controller.reference_speed_rad_s",
+                    self.plant.controller.reference_speed_rad_s,
+                    "with a train speed, must give a starting speed in (0, 100] m/s",
+                ));
+            }
         }
         if (self.monitor.dt_s - self.dt_s).abs() > 1e-12 * self.dt_s {
             return Err(SlipError::invalid(

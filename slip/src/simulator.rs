@@ -13,8 +13,8 @@ use rand_distr::{Distribution, Normal};
 
 use crate::error::SlipError;
 use crate::model::{idx, wrap_angle, DriveModel, DriveState};
-use crate::sample::{DriveSample, DriveTruth};
-use crate::scenario::{AdhesionScenario, ControllerConfig};
+use crate::sample::{is_slipping, DriveSample, DriveTruth, SLIP_RULE_FLOOR_NM};
+use crate::scenario::{AdhesionScenario, ControllerConfig, TrainSpeedConfig};
 
 /// PI controller state of one drive.
 #[derive(Debug, Clone, Copy)]
@@ -31,6 +31,22 @@ struct Drive {
     controller: Controller,
 }
 
+/// The vehicle of a scenario with a train speed ([`TrainSpeedConfig`]).
+#[derive(Debug, Clone, Copy)]
+struct Train {
+    config: TrainSpeedConfig,
+    /// Electrical rotor speed per m/s of train speed, `G p_p / r`.
+    rad_s_per_m_s: f64,
+    /// The motor's corner speed (constant power above) and the electric brake's fade speed,
+    /// electrical rad/s.
+    base_speed_rad_s: f64,
+    fade_speed_rad_s: f64,
+    /// True train speed.
+    speed_m_s: f64,
+    /// The measurement of the last step.
+    measured_m_s: f64,
+}
+
 /// The simulator of a scenario.
 pub struct DriveSimulator {
     scenario: AdhesionScenario,
@@ -41,6 +57,7 @@ pub struct DriveSimulator {
     truth: Vec<DriveTruth>,
     rng: ChaCha8Rng,
     step: usize,
+    train: Option<Train>,
 }
 
 impl DriveSimulator {
@@ -51,14 +68,31 @@ impl DriveSimulator {
         let mut rng = ChaCha8Rng::seed_from_u64(scenario.seed);
         let k_t = plant.motor.torque_constant_nm_per_a();
         let speed = plant.controller.reference_speed_rad_s;
+        let train = scenario.train_speed.map(|config| {
+            let rad_s_per_m_s = config.gear_ratio * plant.motor.pole_pairs / config.wheel_radius_m;
+            let speed_m_s = speed.abs() / rad_s_per_m_s;
+            Train {
+                config,
+                rad_s_per_m_s,
+                base_speed_rad_s: 2.0 * speed.abs(),
+                fade_speed_rad_s: 0.1 * speed.abs(),
+                speed_m_s,
+                measured_m_s: speed_m_s,
+            }
+        });
         let drives = (0..scenario.n_drives)
             .map(|k| {
                 // Start in steady state at the reference speed carrying the initial load, at a
-                // random rotor angle (the wheels are not aligned).
+                // random rotor angle (the wheels are not aligned). With a train, the rotor runs
+                // at the train's speed plus the creep that carries the load.
                 let load = scenario.true_load_nm(k, 0.0).0;
                 let i_q = load / k_t;
                 let theta = wrap_angle(rand::Rng::random::<f64>(&mut rng) * std::f64::consts::TAU);
                 let (s, c) = theta.sin_cos();
+                let speed = match &train {
+                    Some(t) => speed + load / t.config.creep_stiffness_nm_s_per_rad,
+                    None => speed,
+                };
                 Drive {
                     x: DriveState::new(-i_q * s, i_q * c, speed, theta, load),
                     controller: Controller {
@@ -85,7 +119,20 @@ impl DriveSimulator {
             ],
             rng,
             step: 0,
+            train,
         })
+    }
+
+    /// The measured train speed (m/s) of the step the last call returned, when the scenario
+    /// has a train speed (`[train_speed]`): what the monitor's
+    /// [`crate::SlipMonitor::step_with_train_speed`] takes.
+    pub fn train_speed_m_s(&self) -> Option<f64> {
+        self.train.as_ref().map(|t| t.measured_m_s)
+    }
+
+    /// The true train speed (m/s) at that step.
+    pub fn true_train_speed_m_s(&self) -> Option<f64> {
+        self.train.as_ref().map(|t| t.speed_m_s)
     }
 
     pub fn scenario(&self) -> &AdhesionScenario {
@@ -97,10 +144,26 @@ impl DriveSimulator {
         self.step
     }
 
+    /// [`DriveSimulator::step`] with the measured train speed of the step (m/s; `None` when
+    /// the scenario has none), what [`crate::SlipMonitor::step_with_train_speed`] takes.
+    #[allow(clippy::type_complexity)]
+    pub fn step_with_train_speed(
+        &mut self,
+    ) -> Option<(&[DriveSample], &[DriveTruth], Option<f64>)> {
+        self.step()?;
+        let train = self.train_speed_m_s();
+        Some((&self.samples, &self.truth, train))
+    }
+
     /// Next time step, or `None` after `n_steps`.
     pub fn step(&mut self) -> Option<(&[DriveSample], &[DriveTruth])> {
         if self.step >= self.scenario.n_steps {
             return None;
+        }
+        if self.train.is_some() {
+            self.advance_with_train();
+            self.step += 1;
+            return Some((&self.samples, &self.truth));
         }
         let t = self.step as f64;
         let noise = self.scenario.noise;
@@ -121,6 +184,7 @@ impl DriveSimulator {
                 &mut drive.controller,
                 &drive.x,
                 &i_meas,
+                None,
             );
             self.samples[k] = DriveSample {
                 u_alpha_v: u[0] + gaussian(&mut self.rng, noise.voltage_std_v),
@@ -141,6 +205,74 @@ impl DriveSimulator {
         }
         self.step += 1;
         Some((&self.samples, &self.truth))
+    }
+
+    /// One step of a scenario with a train speed ([`TrainSpeedConfig`] has the physics).
+    fn advance_with_train(&mut self) {
+        let Some(train) = &mut self.train else {
+            return;
+        };
+        let t = self.step as f64;
+        let noise = self.scenario.noise;
+        let controller = self.scenario.plant.controller;
+        let dt = self.scenario.dt_s;
+        let params = self.scenario.plant.motor;
+        let c = train.config;
+        let omega_v = train.speed_m_s * train.rad_s_per_m_s;
+        let mut deficit_nm = 0.0;
+        for (k, drive) in self.drives.iter_mut().enumerate() {
+            let healthy = self.scenario.healthy_load_nm(k, t);
+            let (load, breaks_rule) = self.scenario.true_load_nm(k, t);
+            let limit = if breaks_rule {
+                load.abs()
+            } else {
+                load.abs() + (c.adhesion_reserve * healthy.abs()).max(SLIP_RULE_FLOOR_NM)
+            };
+            let omega = drive.x[idx::OMEGA];
+            let rail = (c.creep_stiffness_nm_s_per_rad * (omega - omega_v)).clamp(-limit, limit);
+            deficit_nm += rail - healthy;
+            drive.x[idx::TORQUE] = rail + gaussian(&mut self.rng, noise.load_std_nm);
+            // The notch asks for the healthy load; the motor gives it up to constant power
+            // above its corner speed, and its electric brake fades near standstill.
+            let demand = if healthy * omega >= 0.0 {
+                healthy * (train.base_speed_rad_s / omega.abs().max(1e-9)).min(1.0)
+            } else {
+                healthy * (omega.abs() / train.fade_speed_rad_s).min(1.0)
+            };
+            let i_meas = Vector2::new(
+                drive.x[idx::I_ALPHA] + gaussian(&mut self.rng, noise.current_std_a),
+                drive.x[idx::I_BETA] + gaussian(&mut self.rng, noise.current_std_a),
+            );
+            let u = foc_voltage(
+                &controller,
+                &params,
+                dt,
+                &mut drive.controller,
+                &drive.x,
+                &i_meas,
+                Some(demand),
+            );
+            self.samples[k] = DriveSample {
+                u_alpha_v: u[0] + gaussian(&mut self.rng, noise.voltage_std_v),
+                u_beta_v: u[1] + gaussian(&mut self.rng, noise.voltage_std_v),
+                i_alpha_a: i_meas[0],
+                i_beta_a: i_meas[1],
+            };
+            self.truth[k] = DriveTruth {
+                speed_rad_s: omega,
+                angle_rad: drive.x[idx::THETA],
+                torque_nm: rail,
+                slipping: is_slipping(rail, healthy),
+            };
+            for _ in 0..self.scenario.plant.substeps {
+                drive.x = self.sub_model.transition(&drive.x, &u);
+            }
+            drive.x[idx::THETA] = wrap_angle(drive.x[idx::THETA]);
+        }
+        train.measured_m_s = train.speed_m_s + gaussian(&mut self.rng, c.noise_std_m_s);
+        let mass_kg = c.mass_per_drive_kg * self.drives.len() as f64;
+        let force_n = deficit_nm * c.gear_ratio / c.wheel_radius_m;
+        train.speed_m_s = (train.speed_m_s + dt * force_n / mass_kg).max(0.0);
     }
 }
 
@@ -164,6 +296,7 @@ fn foc_voltage(
     state: &mut Controller,
     x: &DriveState,
     i_meas: &Vector2<f64>,
+    torque_demand_nm: Option<f64>,
 ) -> Vector2<f64> {
     let omega = x[idx::OMEGA];
     let theta = x[idx::THETA];
@@ -171,13 +304,22 @@ fn foc_voltage(
     let i_d = i_meas[0] * co + i_meas[1] * s;
     let i_q = -i_meas[0] * s + i_meas[1] * co;
 
-    let speed_error = c.reference_speed_rad_s - omega;
-    let i_q_ref_raw = c.speed_kp_a_per_rad_s * speed_error + state.speed_integral_a;
-    let i_q_ref = i_q_ref_raw.clamp(-c.max_current_a, c.max_current_a);
-    // Anti-windup: integrate only while the reference is not saturated.
-    if i_q_ref == i_q_ref_raw {
-        state.speed_integral_a += c.speed_ki_a_per_rad * speed_error * dt;
-    }
+    let i_q_ref = match torque_demand_nm {
+        // Torque control (a vehicle with a train speed): the notch's torque.
+        Some(torque) => {
+            (torque / m.torque_constant_nm_per_a()).clamp(-c.max_current_a, c.max_current_a)
+        }
+        None => {
+            let speed_error = c.reference_speed_rad_s - omega;
+            let i_q_ref_raw = c.speed_kp_a_per_rad_s * speed_error + state.speed_integral_a;
+            let i_q_ref = i_q_ref_raw.clamp(-c.max_current_a, c.max_current_a);
+            // Anti-windup: integrate only while the reference is not saturated.
+            if i_q_ref == i_q_ref_raw {
+                state.speed_integral_a += c.speed_ki_a_per_rad * speed_error * dt;
+            }
+            i_q_ref
+        }
+    };
 
     let e_d = -i_d;
     let e_q = i_q_ref - i_q;

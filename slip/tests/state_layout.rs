@@ -14,7 +14,8 @@ fn state_layout_golden_is_pinned_under_the_format_version() {
     let scenario = AdhesionScenario::from_toml_str(SEED).unwrap();
     let monitors: Vec<SlipMonitor> = AdhesionMethod::ALL
         .iter()
-        .map(|&method| {
+        .enumerate()
+        .map(|(i, &method)| {
             let mut config = scenario.monitor_config();
             config.method = method;
             config.adhesion.vb.stop_tolerance = Some(1e-6);
@@ -22,9 +23,12 @@ fn state_layout_golden_is_pinned_under_the_format_version() {
             config.adhesion.vmp.stop_tolerance = Some(1e-6);
             let mut monitor = SlipMonitor::new(&config, scenario.n_drives()).unwrap();
             let mut simulator = DriveSimulator::new(&scenario).unwrap();
-            for _ in 0..4_000 {
+            for k in 0..4_000 {
                 let (samples, _) = simulator.step().expect("4,000 steps in the scenario");
-                monitor.step(samples).unwrap();
+                // Steps with a train speed, so that the train-speed test's state is filled; every
+                // other monitor's last steps without, so that both references are seen.
+                let train = (k >= 1_500 && (i % 2 == 0 || k < 3_900)).then_some(5.75);
+                monitor.step_with_train_speed(samples, train).unwrap();
             }
             monitor
         })
