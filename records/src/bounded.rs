@@ -55,6 +55,55 @@ pub fn read_text_file(path: &Path, max_bytes: u64) -> Result<String, std::io::Er
 }
 
 /// The file's bytes, refused once more than `max_bytes` come (a file growing while read).
+/// Longest line a CSV reader takes: real rows are well under a kilobyte, and a regular file
+/// of one endless line (no newline in gigabytes) would otherwise be buffered whole.
+pub const MAX_CSV_LINE_BYTES: usize = 1 << 20;
+
+/// A reader that fails (`InvalidData`, naming the line) once a line exceeds
+/// [`MAX_CSV_LINE_BYTES`], so a parser above it never buffers more than that.
+#[derive(Debug)]
+pub struct LineBounded<R> {
+    inner: R,
+    /// Bytes since the last newline.
+    line_bytes: usize,
+    /// Newlines seen.
+    newlines: u64,
+}
+
+impl<R> LineBounded<R> {
+    pub fn new(inner: R) -> Self {
+        LineBounded {
+            inner,
+            line_bytes: 0,
+            newlines: 0,
+        }
+    }
+}
+
+impl<R: Read> Read for LineBounded<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        // Never hand out more than the rest of the allowance, so the bound is exact.
+        let room = MAX_CSV_LINE_BYTES - self.line_bytes;
+        let want = buf.len().min(room.max(1));
+        let n = self.inner.read(&mut buf[..want])?;
+        for &byte in &buf[..n] {
+            if byte == b'\n' {
+                self.newlines += 1;
+                self.line_bytes = 0;
+            } else {
+                self.line_bytes += 1;
+                if self.line_bytes > MAX_CSV_LINE_BYTES {
+                    return Err(invalid(format!(
+                        "line {} is longer than {MAX_CSV_LINE_BYTES} bytes (no line break)",
+                        self.newlines + 1
+                    )));
+                }
+            }
+        }
+        Ok(n)
+    }
+}
+
 fn read_at_most(file: File, max_bytes: u64) -> Result<Vec<u8>, std::io::Error> {
     let mut bytes = Vec::new();
     file.take(max_bytes.saturating_add(1))
