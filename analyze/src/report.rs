@@ -140,6 +140,84 @@ impl Refusals {
     }
 }
 
+/// What a run needs, estimated from its size before any work starts.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RunSize {
+    /// Held in memory until the end (traces for the tables and plots).
+    pub memory_bytes: u64,
+    /// Written into `--out`.
+    pub disk_bytes: u64,
+}
+
+impl RunSize {
+    /// `units` (drive-steps, bogie-steps) at the measured bytes per unit.
+    pub fn of(units: u64, memory_bytes_per_unit: u64, disk_bytes_per_unit: u64) -> Self {
+        RunSize {
+            memory_bytes: units.saturating_mul(memory_bytes_per_unit),
+            disk_bytes: units.saturating_mul(disk_bytes_per_unit),
+        }
+    }
+
+    /// Refuses a run that cannot finish on this machine: more memory than is available now
+    /// (`MemAvailable`), or more output than the file system of `out` has free (an allowed
+    /// `n_steps` once needed ~24 GB of RAM and 77 GB of disk, found hours into the run). A
+    /// figure the system does not give is not checked.
+    pub fn check_fits(&self, out: &Path, what: &str) -> Result<(), ReportError> {
+        let gb = |b: u64| b as f64 / 1e9;
+        if let Some(available) = memory_available_bytes() {
+            if self.memory_bytes > available {
+                return Err(ReportError::new(
+                    out,
+                    format!(
+                        "{what} would hold ~{:.1} GB in memory; {:.1} GB are available: \
+                         shorten the run",
+                        gb(self.memory_bytes),
+                        gb(available)
+                    ),
+                ));
+            }
+        }
+        if let Some(free) = disk_free_bytes(out) {
+            if self.disk_bytes > free {
+                return Err(ReportError::new(
+                    out,
+                    format!(
+                        "{what} would write ~{:.1} GB; its file system has {:.1} GB free: \
+                         shorten the run or choose another --out",
+                        gb(self.disk_bytes),
+                        gb(free)
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `MemAvailable` of /proc/meminfo, in bytes.
+fn memory_available_bytes() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Bytes an unprivileged process may still write on the file system of `dir`.
+fn disk_free_bytes(dir: &Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let path = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    let mut stat = std::mem::MaybeUninit::<libc::statvfs>::uninit();
+    // SAFETY: `path` is a valid C string and `stat` a buffer of the right type; statvfs writes
+    // it in full when it returns 0.
+    let stat = unsafe {
+        if libc::statvfs(path.as_ptr(), stat.as_mut_ptr()) != 0 {
+            return None;
+        }
+        stat.assume_init()
+    };
+    Some((stat.f_bavail as u64).saturating_mul(stat.f_frsize as u64))
+}
+
 /// Creates `dir` (and parents) if needed.
 pub fn create_out_dir(dir: &Path) -> Result<(), ReportError> {
     std::fs::create_dir_all(dir)
@@ -353,6 +431,26 @@ pub fn histogram(path: &Path, axes: &Axes, values: &[f64], bins: usize) -> Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_run_that_cannot_fit_is_refused_by_what_it_lacks() {
+        let out = std::env::temp_dir();
+        RunSize::of(1000, 100, 270)
+            .check_fits(&out, "a run")
+            .unwrap();
+        let e = RunSize::of(u64::MAX / 1000, 1000, 0)
+            .check_fits(&out, "a run")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("in memory"), "{e}");
+        let e = RunSize::of(u64::MAX, 0, 1)
+            .check_fits(&out, "a run")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("GB free"), "{e}");
+        assert!(memory_available_bytes().is_some_and(|b| b > 0));
+        assert!(disk_free_bytes(&out).is_some_and(|b| b > 0));
+    }
 
     #[test]
     fn plots_are_written_as_png() {
