@@ -12,9 +12,9 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
 use crate::error::SlipError;
-use crate::model::{idx, wrap_angle, DriveModel, DriveState};
+use crate::model::{idx, wrap_angle, DriveModel, DriveState, MotorParams};
 use crate::sample::{is_slipping, DriveSample, DriveTruth, SLIP_RULE_FLOOR_NM};
-use crate::scenario::{AdhesionScenario, ControllerConfig, TrainSpeedConfig};
+use crate::scenario::{AdhesionScenario, ControllerConfig, NoiseConfig, TrainSpeedConfig};
 
 /// PI controller state of one drive.
 #[derive(Debug, Clone, Copy)]
@@ -173,35 +173,20 @@ impl DriveSimulator {
         for (k, drive) in self.drives.iter_mut().enumerate() {
             let (load, slipping) = self.scenario.true_load_nm(k, t);
             drive.x[idx::TORQUE] = load + gaussian(&mut self.rng, noise.load_std_nm);
-            let i_meas = Vector2::new(
-                drive.x[idx::I_ALPHA] + gaussian(&mut self.rng, noise.current_std_a),
-                drive.x[idx::I_BETA] + gaussian(&mut self.rng, noise.current_std_a),
-            );
-            let u = foc_voltage(
-                &controller,
-                &params,
-                dt,
-                &mut drive.controller,
-                &drive.x,
-                &i_meas,
-                None,
-            );
-            self.samples[k] = DriveSample {
-                u_alpha_v: u[0] + gaussian(&mut self.rng, noise.voltage_std_v),
-                u_beta_v: u[1] + gaussian(&mut self.rng, noise.voltage_std_v),
-                i_alpha_a: i_meas[0],
-                i_beta_a: i_meas[1],
-            };
             self.truth[k] = DriveTruth {
                 speed_rad_s: drive.x[idx::OMEGA],
                 angle_rad: drive.x[idx::THETA],
                 torque_nm: load,
                 slipping,
             };
-            for _ in 0..self.scenario.plant.substeps {
-                drive.x = self.sub_model.transition(&drive.x, &u);
-            }
-            drive.x[idx::THETA] = wrap_angle(drive.x[idx::THETA]);
+            let plant = Plant {
+                controller: &controller,
+                params: &params,
+                dt_s: dt,
+                sub_model: &self.sub_model,
+                substeps: self.scenario.plant.substeps,
+            };
+            self.samples[k] = plant.measure_and_step(drive, &mut self.rng, &noise, None);
         }
         self.step += 1;
         Some((&self.samples, &self.truth))
@@ -239,40 +224,72 @@ impl DriveSimulator {
             } else {
                 healthy * (omega.abs() / train.fade_speed_rad_s).min(1.0)
             };
-            let i_meas = Vector2::new(
-                drive.x[idx::I_ALPHA] + gaussian(&mut self.rng, noise.current_std_a),
-                drive.x[idx::I_BETA] + gaussian(&mut self.rng, noise.current_std_a),
-            );
-            let u = foc_voltage(
-                &controller,
-                &params,
-                dt,
-                &mut drive.controller,
-                &drive.x,
-                &i_meas,
-                Some(demand),
-            );
-            self.samples[k] = DriveSample {
-                u_alpha_v: u[0] + gaussian(&mut self.rng, noise.voltage_std_v),
-                u_beta_v: u[1] + gaussian(&mut self.rng, noise.voltage_std_v),
-                i_alpha_a: i_meas[0],
-                i_beta_a: i_meas[1],
-            };
             self.truth[k] = DriveTruth {
                 speed_rad_s: omega,
                 angle_rad: drive.x[idx::THETA],
                 torque_nm: rail,
                 slipping: is_slipping(rail, healthy),
             };
-            for _ in 0..self.scenario.plant.substeps {
-                drive.x = self.sub_model.transition(&drive.x, &u);
-            }
-            drive.x[idx::THETA] = wrap_angle(drive.x[idx::THETA]);
+            let plant = Plant {
+                controller: &controller,
+                params: &params,
+                dt_s: dt,
+                sub_model: &self.sub_model,
+                substeps: self.scenario.plant.substeps,
+            };
+            self.samples[k] = plant.measure_and_step(drive, &mut self.rng, &noise, Some(demand));
         }
         train.measured_m_s = train.speed_m_s + gaussian(&mut self.rng, c.noise_std_m_s);
         let mass_kg = c.mass_per_drive_kg * self.drives.len() as f64;
         let force_n = deficit_nm * c.gear_ratio / c.wheel_radius_m;
         train.speed_m_s = (train.speed_m_s + dt * force_n / mass_kg).max(0.0);
+    }
+}
+
+/// What one drive's step needs of the scenario's plant.
+struct Plant<'a> {
+    controller: &'a ControllerConfig,
+    params: &'a MotorParams,
+    dt_s: f64,
+    sub_model: &'a DriveModel,
+    substeps: usize,
+}
+
+impl Plant<'_> {
+    /// Measures `drive`'s currents, runs its controller (`demand`: a torque demand, else
+    /// speed control), steps it through the substeps and gives the sample the inverter's
+    /// sensors see (noise drawn in the order currents, then voltages).
+    fn measure_and_step(
+        &self,
+        drive: &mut Drive,
+        rng: &mut ChaCha8Rng,
+        noise: &NoiseConfig,
+        demand: Option<f64>,
+    ) -> DriveSample {
+        let i_meas = Vector2::new(
+            drive.x[idx::I_ALPHA] + gaussian(rng, noise.current_std_a),
+            drive.x[idx::I_BETA] + gaussian(rng, noise.current_std_a),
+        );
+        let u = foc_voltage(
+            self.controller,
+            self.params,
+            self.dt_s,
+            &mut drive.controller,
+            &drive.x,
+            &i_meas,
+            demand,
+        );
+        let sample = DriveSample {
+            u_alpha_v: u[0] + gaussian(rng, noise.voltage_std_v),
+            u_beta_v: u[1] + gaussian(rng, noise.voltage_std_v),
+            i_alpha_a: i_meas[0],
+            i_beta_a: i_meas[1],
+        };
+        for _ in 0..self.substeps {
+            drive.x = self.sub_model.transition(&drive.x, &u);
+        }
+        drive.x[idx::THETA] = wrap_angle(drive.x[idx::THETA]);
+        sample
     }
 }
 
@@ -291,7 +308,7 @@ fn gaussian(rng: &mut ChaCha8Rng, std: f64) -> f64 {
 /// the *monitor* is (it sees only voltages and currents).
 fn foc_voltage(
     c: &ControllerConfig,
-    m: &crate::model::MotorParams,
+    m: &MotorParams,
     dt: f64,
     state: &mut Controller,
     x: &DriveState,
