@@ -12,7 +12,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::CallbackProgression;
-use railmon_bus::{monotonic_ns, BusConfig, BusError, BusNode, Frame, FrameHeader};
+use railmon_bus::{
+    monotonic_ns, BusConfig, BusError, BusNode, Frame, FrameHeader, FrameSubscriber,
+};
 
 pub use clock::{resume_rule, ClockCheck, ResumeVerdict, SampleClock, PERIOD_TOLERANCE};
 pub use realtime::RealTimeTracker;
@@ -308,6 +310,32 @@ fn resume_snapshot<P: Pipeline>(
     pipeline.snapshot_refused(file.path(), &refused);
 }
 
+/// Estimates up to `max` frames the subscriber holds and publishes the estimates; returns how
+/// many frames it took.
+fn estimate_batch<P: Pipeline>(
+    subscriber: &FrameSubscriber<P::Frame>,
+    max: usize,
+    pipeline: &mut P,
+    source: &mut SourceTracking,
+    status: &StreamStatus,
+) -> Result<usize, BusError> {
+    let handled = subscriber.drain(max, |rx| {
+        handle_frame(
+            pipeline,
+            source,
+            status,
+            rx.header,
+            rx.frame,
+            rx.received_at_ns,
+        )
+    })?;
+    if handled > 0 {
+        pipeline.publish();
+        record_deferred(pipeline, status);
+    }
+    Ok(handled)
+}
+
 fn ingest_loop<P: Pipeline>(
     bus: &BusConfig,
     ingest: &IngestConfig,
@@ -371,20 +399,8 @@ fn ingest_loop<P: Pipeline>(
             source.sequence.publisher_died();
         }
         loop {
-            let handled = subscriber.drain(ingest.max_batch, |rx| {
-                handle_frame(
-                    pipeline,
-                    &mut source,
-                    status,
-                    rx.header,
-                    rx.frame,
-                    rx.received_at_ns,
-                )
-            })?;
-            if handled > 0 {
-                pipeline.publish();
-                record_deferred(pipeline, status);
-            }
+            let handled =
+                estimate_batch(&subscriber, ingest.max_batch, pipeline, &mut source, status)?;
             if handled < ingest.max_batch || shutdown.load(Ordering::Relaxed) {
                 break;
             }
@@ -409,16 +425,8 @@ fn ingest_loop<P: Pipeline>(
     let held = bus.stream(kind).subscriber_buffer_size;
     let mut drained = 0;
     while drained < held {
-        let handled = match subscriber.drain(ingest.max_batch.min(held - drained), |rx| {
-            handle_frame(
-                pipeline,
-                &mut source,
-                status,
-                rx.header,
-                rx.frame,
-                rx.received_at_ns,
-            )
-        }) {
+        let batch = ingest.max_batch.min(held - drained);
+        let handled = match estimate_batch(&subscriber, batch, pipeline, &mut source, status) {
             Ok(handled) => handled,
             Err(e) => {
                 tracing::warn!(stream = %kind, "cannot drain the subscriber at shutdown: {e}");
@@ -428,8 +436,6 @@ fn ingest_loop<P: Pipeline>(
         if handled == 0 {
             break;
         }
-        pipeline.publish();
-        record_deferred(pipeline, status);
         drained += handled;
     }
     if drained > 0 {
