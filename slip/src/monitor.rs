@@ -23,6 +23,7 @@ use crate::sample::{validate_frame, DriveSample};
 #[serde(deny_unknown_fields, default)]
 pub struct SlipMonitorConfig {
     /// Sampling period of the drive data (the paper: 125 us).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub dt_s: f64,
     pub motor: MotorParams,
     pub ekf: EkfConfig,
