@@ -203,7 +203,7 @@ fn enum_names(schema: &Value) -> Option<Vec<String>> {
 fn bounds(schema: &Value) -> Option<String> {
     let item = schema.get("items").unwrap_or(schema);
     let end = |closed: &str, open: &str| {
-        let value = |name: &str| item.get(name).and_then(Value::as_f64);
+        let value = |name: &str| item.get(name).and_then(Value::as_number).map(number_text);
         match (value(open), value(closed)) {
             (Some(o), _) => Some((o, false)),
             (None, Some(c)) => Some((c, true)),
@@ -223,6 +223,16 @@ fn bounds(schema: &Value) -> Option<String> {
         (None, Some((hi, closed))) => format!("{} {hi}", if closed { "<=" } else { "<" }),
         (None, None) => return None,
     })
+}
+
+/// A bound as text: integers as they are (`1000000000`), a float below 1e-4 or from 1e9 on
+/// in exponent form (`1e-12`, not `0.000000000001`), otherwise as Rust prints it (`0.5`).
+fn number_text(n: &serde_json::Number) -> String {
+    match n.as_f64() {
+        Some(f) if n.is_f64() && f != 0.0 && !(1e-4..1e9).contains(&f.abs()) => format!("{f:e}"),
+        Some(f) if n.is_f64() => format!("{f}"),
+        _ => n.to_string(),
+    }
 }
 
 /// The unit a key's name ends in (the house rule: units in names where not obvious).
@@ -464,9 +474,14 @@ mod tests {
             b(json!({"type": "array", "items": {"exclusiveMinimum": 0}})).as_deref(),
             Some("> 0")
         );
+        assert_eq!(b(json!({"minimum": 1e-9})).as_deref(), Some(">= 1e-9"));
         assert_eq!(
-            b(json!({"minimum": 1e-9})).as_deref(),
-            Some(">= 0.000000001")
+            b(json!({"minimum": 0.0, "maximum": 1e9})).as_deref(),
+            Some("0 ..= 1e9")
+        );
+        assert_eq!(
+            b(json!({"minimum": 1, "maximum": 1_000_000_000})).as_deref(),
+            Some("1 ..= 1000000000")
         );
     }
 
