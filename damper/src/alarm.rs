@@ -15,13 +15,16 @@ use crate::DamperError;
 pub struct DamperAlarmConfig {
     /// A damper is degraded when its whole 90% interval (the 95% quantile) lies below this
     /// ratio of nominal.
+    #[schemars(extend("exclusiveMinimum" = 0.0, "exclusiveMaximum" = 1.0))]
     pub degraded_below_ratio: f64,
     /// A degraded damper recovers when its whole 90% interval (the 5% quantile) lies above
     /// this ratio of nominal. Above `degraded_below_ratio`: the gap is the hysteresis.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1.0))]
     pub recovered_above_ratio: f64,
     /// The interval must stay beyond the threshold for this much judged stream time before
     /// the flag changes (s). A transient excursion of the posterior (a burst of track input,
     /// noise the filter did not expect) does not raise an alarm; a failed damper stays failed.
+    #[schemars(range(min = 0.0))]
     pub hold_s: f64,
     /// No flag changes until the filter has been judged this long since it started from its
     /// prior (s of judged stream time; pauses do not count). The RBPF's first seconds can be
@@ -29,6 +32,7 @@ pub struct DamperAlarmConfig {
     /// seed's `C_say` interval lay below 0.7 x nominal from 4.7 s after the start, a false
     /// `damper_degraded` at 9.7 s (7.3 false per hour in the robustness matrix); it had
     /// recovered by the end of the warm-up.
+    #[schemars(range(min = 0.0))]
     pub warmup_s: f64,
 }
 

@@ -27,8 +27,10 @@ pub struct DamperMonitorConfig {
     /// The healthy dampers; health ratio = estimate / nominal.
     pub nominal: Dampers,
     /// Sample period `T` (s).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub dt_s: f64,
     /// The filters' white track-velocity model: `Q_w = sigma^2 I` per step ((m/s)).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub track_velocity_std_m_s: f64,
     /// The filters' sensor noise `Q_v`.
     pub sensors: SensorNoise,
@@ -38,9 +40,11 @@ pub struct DamperMonitorConfig {
     /// roundoff and a covariance loses definiteness within 0.3 s; the unmodelled forces of a
     /// real vehicle (wind, traction, creep non-linearity) are the physical floor. 1e-8 per
     /// step moves a position by 0.3 um per second: nothing the sensors could see.
+    #[schemars(range(min = 0.0))]
     pub process_noise_floor_std_per_step: f64,
     /// Rate at which the filter model lets the unobservable track position relax (1/s), see
     /// `model` docs; changes nothing observable, keeps covariances bounded.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub drift_leak_per_s: f64,
     pub rbpf: RbpfConfig,
     pub ekf: EkfConfig,

@@ -15,14 +15,18 @@ use crate::DamperError;
 #[serde(default, deny_unknown_fields)]
 pub struct ConsistencyConfig {
     /// The normalised innovation squared is averaged over windows this long (s).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub window_s: f64,
     /// Lower end of the band of a window mean, as a ratio of its expectation (5, the number of
     /// sensors).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub nis_low_ratio: f64,
     /// Upper end of that band, as a ratio of the expectation.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub nis_high_ratio: f64,
     /// Window means outside the band for this long in a row raise `model_mismatch`; inside
     /// for this long clear it (s).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub sustain_s: f64,
 }
 

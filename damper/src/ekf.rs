@@ -27,11 +27,14 @@ pub struct EkfConfig {
     /// Run the augmented EKF beside the RBPF (its estimate is published for comparison).
     pub enabled: bool,
     /// Initial parameter estimate as a ratio of nominal.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub initial_ratio: f64,
     /// Standard deviation of the initial estimate (ratio of nominal).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub initial_ratio_std: f64,
     /// Random walk of the parameters (`Q_n`, eq. 17), standard deviation per sqrt(s) in
     /// ratio units.
+    #[schemars(range(min = 0.0))]
     pub ratio_random_walk_per_sqrt_s: f64,
 }
 

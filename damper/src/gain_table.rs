@@ -33,8 +33,10 @@ pub struct GainGridConfig {
     pub points_per_axis: usize,
     /// Lower end of the grid as a ratio of the nominal coefficients (both axes); particles
     /// outside use the edge gain (their own `Phi` stays exact).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub min_ratio: f64,
     /// Upper end of the grid as a ratio of the nominal coefficients (both axes).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub max_ratio: f64,
 }
 

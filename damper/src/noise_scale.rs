@@ -41,12 +41,16 @@ pub struct NoiseScaleConfig {
     /// Forgetting time constant `tau` (s): the estimate averages the last `tau` seconds or so.
     /// Long against the 1-4 s a damper fault takes to be found (so a fault's larger
     /// innovations are not absorbed as noise), short against a 10-minute run.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub time_constant_s: f64,
     /// Weight of the prior (scale 1) in samples; forgotten like the data.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub prior_samples: f64,
     /// Smallest estimated standard deviation, as a ratio of the configured one.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub min_std_ratio: f64,
     /// Largest estimated standard deviation, as a ratio of the configured one.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub max_std_ratio: f64,
 }
 

@@ -9,8 +9,10 @@ use crate::DamperError;
 #[serde(deny_unknown_fields)]
 pub struct Dampers {
     /// Secondary lateral damping per bogie `C_sy` (N s/m).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub csy_ns_per_m: f64,
     /// Secondary anti-yaw damping per bogie `C_say` (N s/m).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub csay_ns_per_m: f64,
 }
 
@@ -58,39 +60,56 @@ pub const DEFAULT_SPEED_M_S: f64 = 45.3;
 #[serde(default, deny_unknown_fields)]
 pub struct BogieParams {
     /// `m_w`, each wheelset (kg).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub wheelset_mass_kg: f64,
     /// `I_w`, wheelset yaw inertia (kg m^2).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub wheelset_yaw_inertia_kg_m2: f64,
     /// `m_b` (kg).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub bogie_mass_kg: f64,
     /// `I_b` (kg m^2).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub bogie_yaw_inertia_kg_m2: f64,
     /// `m_bd`, half of the body mass (kg).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub half_body_mass_kg: f64,
     /// `K_y`, primary lateral stiffness per wheelset (N/m).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub primary_lateral_stiffness_n_per_m: f64,
     /// `K_x`, primary longitudinal stiffness per wheelset (N/m).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub primary_longitudinal_stiffness_n_per_m: f64,
     /// `K_sy`, secondary lateral stiffness per bogie (N/m).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub secondary_lateral_stiffness_n_per_m: f64,
     /// `K_sry`, secondary lateral end stiffness (in series with `C_sy`) (N/m).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub secondary_end_stiffness_n_per_m: f64,
     /// `f_11`, longitudinal creep coefficient (N).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub longitudinal_creep_n: f64,
     /// `f_22`, lateral creep coefficient (N).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub lateral_creep_n: f64,
     /// `a`, semi wheelbase (m).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub semi_wheelbase_m: f64,
     /// `l`, half gauge (m).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub half_gauge_m: f64,
     /// `lambda`, effective conicity (dimensionless).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1.0))]
     pub conicity: f64,
     /// `v`, forward speed (m/s). The filters take the measured speed of each sample
     /// ([`crate::BogieSample::speed_m_s`]); this one anchors their speed grid.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub speed_m_s: f64,
     /// `r_0`, rolling radius (m).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub wheel_radius_m: f64,
     /// `l_bw`, semi bogie width: the anti-yaw dampers' lever arm (m).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub semi_bogie_width_m: f64,
 }
 

@@ -139,8 +139,10 @@ impl SampleRanges {
 #[serde(default, deny_unknown_fields)]
 pub struct SensorNoise {
     /// Each of the four lateral accelerometers (m/s^2).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub accel_std_m_s2: f64,
     /// The bogie yaw-rate gyro (rad/s).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub gyro_std_rad_s: f64,
 }
 

@@ -7,12 +7,16 @@ use serde::{Deserialize, Serialize};
 use crate::params::{non_negative, positive};
 use crate::DamperError;
 
+/// Bounds of `grid_ratio` (declared to the settings reference and checked).
+const GRID_RATIO: std::ops::RangeInclusive<f64> = 1.001..=2.0;
+
 /// The speeds the filter's model is valid at, and its speed schedule (`gain_table` docs).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct SpeedConfig {
     /// Below this speed (standstill, shunting) the filter holds its parameter posterior and
     /// reports `paused: low_speed`: the creep model `~ 1 / v` is not valid there (m/s).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub min_m_s: f64,
     /// Above it the filter holds likewise (`paused: high_speed`): the range the gain table
     /// covers (m/s). The default stays below the linear model's critical speed: with the
@@ -21,13 +25,16 @@ pub struct SpeedConfig {
     /// 40 % (`tests::the_default_top_speed_is_below_the_critical_speed`). Beyond it the linear
     /// plant grows without bound, which no real bogie does (it hunts in a limit cycle the
     /// linear model cannot represent), so a filter built on it would learn nonsense.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub max_m_s: f64,
     /// Ratio of neighbouring speed nodes of the gain table (geometric grid about the
     /// vehicle's configured speed).
+    #[schemars(range(min = *GRID_RATIO.start(), max = *GRID_RATIO.end()))]
     pub grid_ratio: f64,
     /// After a pause the per-particle state estimates are those of the last valid sample:
     /// for this long they are run (predict and update) without weighting the particles, so
     /// that the transient of stale states does not move the posterior (s).
+    #[schemars(range(min = 0.0))]
     pub resume_settle_s: f64,
 }
 
@@ -55,7 +62,7 @@ impl SpeedConfig {
         }
         // At most 2 (a node every factor of 2 would be no schedule); at least 1.001 (a
         // thousand nodes between 5 and 70 m/s would be a gigabyte of grids).
-        if !(self.grid_ratio >= 1.001 && self.grid_ratio <= 2.0) {
+        if !GRID_RATIO.contains(&self.grid_ratio) {
             return Err(DamperError::InvalidParameter {
                 field: "speed.grid_ratio",
                 value: self.grid_ratio,

@@ -75,6 +75,10 @@ const INIT_SAMPLES: std::ops::RangeInclusive<usize> = 4..=1_000_000;
 const INIT_ITERATIONS: std::ops::RangeInclusive<usize> = 0..=1000;
 /// Up to an hour of 1 Hz samples ahead.
 const FORECAST_HORIZON_STEPS: std::ops::RangeInclusive<usize> = 1..=3600;
+/// Bounds of float settings below with ends other than 0 (declared to the settings reference
+/// and checked).
+const SPEED_NOISE_M_S: std::ops::RangeInclusive<f64> = 0.0..=5.0;
+const INIT_WEIGHT_MAX: f64 = 1000.0;
 
 /// How the initial samples are split among the components before EM.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -132,6 +136,7 @@ pub struct FuelMonitorConfig {
     /// component's covariance collapses to its floor; at `min_noise_variance`'s 1e-6 a stop
     /// at another grade then costs hundreds of nats and another component takes it
     /// (docs/fuel.md: 3e-2 there). 1e-6 by default, which only matters with `pointer_levels`.
+    #[schemars(range(min = 0.0))]
     pub pointer_level_min_variance: f64,
     /// Standstill (speed below `naming.standstill_speed_m_s`) is a regime given, not learned:
     /// component 0 holds every standing sample and no moving one, and its level statistics
@@ -152,6 +157,7 @@ pub struct FuelMonitorConfig {
     /// the reading against the filtered speed, so that noise alone is not refused. 0 (the
     /// default): no filter, the difference as before (a measured speed with no noise worth
     /// filtering, as on the Camry files).
+    #[schemars(range(min = *SPEED_NOISE_M_S.start(), max = *SPEED_NOISE_M_S.end()))]
     pub speed_noise_m_s: f64,
     /// Blend each h-step fuel forecast of the mixture with that of a single regression run
     /// alongside (same settings, one component), weighted per horizon by the convex
@@ -164,6 +170,7 @@ pub struct FuelMonitorConfig {
     /// (the paper).
     pub forecast_blend: bool,
     /// Forgetting of the squared-error sums that set the blend weights, in (0, 1].
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1.0))]
     pub blend_forgetting: f64,
     /// The categorical channel `z_t` (gear), if the source has one.
     pub categorical: Option<CategoricalConfig>,
@@ -201,21 +208,29 @@ pub struct FuelMonitorConfig {
     pub init_iterations: usize,
     /// Weight of each initial sample in the statistics, in (0, 1000] (below 1 the on-line data
     /// take over sooner; above 1 the initial data count as more than one sample each).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = INIT_WEIGHT_MAX))]
     pub init_weight: f64,
     /// Exponential forgetting factor lambda in (0, 1]; 1 = none. Applied as `lambda^w` to a
     /// component updated with weight `w`, towards the prior (stabilised forgetting).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1.0))]
     pub forgetting: f64,
     /// Prior information matrix `V_0 = prior_information * I` (standardised units).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub prior_information: f64,
     /// Prior count `kappa_0`.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub prior_kappa: f64,
     /// Prior Dirichlet count of every cell of the categorical tables.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub dirichlet_prior: f64,
     /// Prior switching count for staying in the same component (`c_t = c_{t-1}`).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub switching_prior_stay: f64,
     /// Prior switching count for every change of component.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub switching_prior_move: f64,
     /// Floor on the eigenvalues of each component's noise covariance (standardised units).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub min_noise_variance: f64,
     /// Use the GiW predictive covariance `r (1 + psi' V_psi^-1 psi)` for the proximities instead
     /// of the paper's plug-in `r`.
@@ -232,9 +247,11 @@ pub struct FuelMonitorConfig {
     pub regime_confirm_samples: usize,
     /// Nominal sampling period (s): consecutive time stamps must lie a whole number of periods
     /// apart (within 1 %), at most `max_gap_s`; used to integrate the first sample's fuel.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub sample_period_s: f64,
     /// Longest gap between consecutive samples (s) the estimator bridges: beyond it a sample is
     /// refused ([`FuelError::SamplePeriod`]). Time stamps in ms read as s give 1000 s steps.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub max_gap_s: f64,
     /// Plausible range of every channel (the vehicle's, not the estimator's).
     pub ranges: ChannelRanges,
@@ -476,7 +493,7 @@ impl FuelMonitorConfig {
 
     /// Checks every field; the error names the first bad one.
     pub fn validate(&self) -> Result<(), FuelError> {
-        if !(self.speed_noise_m_s.is_finite() && (0.0..=5.0).contains(&self.speed_noise_m_s)) {
+        if !SPEED_NOISE_M_S.contains(&self.speed_noise_m_s) {
             return Err(FuelError::invalid(
                 "speed_noise_m_s",
                 self.speed_noise_m_s,
@@ -573,7 +590,7 @@ impl FuelMonitorConfig {
                 "must be at most 1000",
             ));
         }
-        if !(self.init_weight > 0.0 && self.init_weight <= 1000.0) {
+        if !(self.init_weight > 0.0 && self.init_weight <= INIT_WEIGHT_MAX) {
             return Err(FuelError::invalid(
                 "init_weight",
                 self.init_weight,
@@ -612,6 +629,15 @@ impl FuelMonitorConfig {
         check_positive("switching_prior_stay", self.switching_prior_stay)?;
         check_positive("switching_prior_move", self.switching_prior_move)?;
         check_positive("min_noise_variance", self.min_noise_variance)?;
+        // Unchecked before: an infinite floor made every level covariance infinite.
+        if !(self.pointer_level_min_variance.is_finite() && self.pointer_level_min_variance >= 0.0)
+        {
+            return Err(FuelError::invalid(
+                "pointer_level_min_variance",
+                self.pointer_level_min_variance,
+                "must be finite and >= 0",
+            ));
+        }
         if !REGIME_CONFIRM_SAMPLES.contains(&self.regime_confirm_samples) {
             return Err(FuelError::invalid(
                 "regime_confirm_samples",

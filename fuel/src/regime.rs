@@ -96,15 +96,19 @@ impl std::fmt::Display for RegimeName {
 #[serde(deny_unknown_fields, default)]
 pub struct RegimeNaming {
     /// Weighted samples a component needs before it is named.
+    #[schemars(range(min = 0.0))]
     pub min_samples: f64,
     /// Below this mean speed the component is standing, m/s.
+    #[schemars(range(min = 0.0))]
     pub standstill_speed_m_s: f64,
     /// Mean acceleration beyond which the component is speeding up or braking, m/s^2.
+    #[schemars(range(min = 0.0))]
     pub acceleration_m_s2: f64,
     /// Mean fuel at or below which a moving, steady component draws no traction power, cm^3/s.
     pub coasting_fuel_cm3_s: f64,
     /// Two components of one regime whose mean fuel differs by less than this are the same
     /// power tier (told apart by an ordinal only), cm^3/s.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub same_power_cm3_s: f64,
 }
 

@@ -35,6 +35,8 @@ pub(crate) fn invalid(key: &str, reason: String) -> ConfigError {
 const MAX_EVENTS: RangeInclusive<u64> = 1..=1_000_000_000;
 const MAX_AGE_DAYS: RangeInclusive<u32> = 0..=36_500;
 const SNAPSHOT_MAX_AGE_S: RangeInclusive<f64> = 0.0..=86_400.0 * 365.0;
+/// `snapshot_interval_s` is 0 (never) or in this range; the reference shows `0 ..= 3600`.
+const SNAPSHOT_INTERVAL_S: RangeInclusive<f64> = 0.1..=3600.0;
 const HTTP_TIME_MS: RangeInclusive<u64> = 1..=600_000;
 const MAX_CONNECTIONS: RangeInclusive<usize> = 1..=65_536;
 const HTTP_REQUEST_BYTES: RangeInclusive<usize> = 256..=262_144;
@@ -73,6 +75,7 @@ pub struct StorageConfig {
     pub max_events: u64,
     /// Each stream's estimator state is saved this often (and at shutdown) under
     /// `data_dir/snapshots` (0: never).
+    #[schemars(range(min = 0.0, max = *SNAPSHOT_INTERVAL_S.end()))]
     pub snapshot_interval_s: f64,
     /// A snapshot older than this is not resumed at start (the estimator starts from its prior).
     #[schemars(range(min = *SNAPSHOT_MAX_AGE_S.start(), max = *SNAPSHOT_MAX_AGE_S.end()))]
@@ -94,7 +97,8 @@ impl Default for StorageConfig {
 impl StorageConfig {
     pub(crate) fn validate(&self) -> Result<(), ConfigError> {
         settings::check_in_range("storage.max_events", self.max_events, &MAX_EVENTS)?;
-        if !(self.snapshot_interval_s == 0.0 || (0.1..=3600.0).contains(&self.snapshot_interval_s))
+        if !(self.snapshot_interval_s == 0.0
+            || SNAPSHOT_INTERVAL_S.contains(&self.snapshot_interval_s))
         {
             return Err(invalid(
                 "storage.snapshot_interval_s",
@@ -514,6 +518,40 @@ mod tests {
             .collect()
     }
 
+    /// Loads the defaults with one key set to `value`.
+    fn load_key(key: &str, value: toml::Value) -> Result<ServiceConfig, ConfigError> {
+        let mut table = toml::Table::new();
+        let path: Vec<String> = key.split('.').map(String::from).collect();
+        let (last, parents) = path.split_last().unwrap();
+        let mut current = &mut table;
+        for level in parents {
+            current = current
+                .entry(level.clone())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+                .as_table_mut()
+                .unwrap();
+        }
+        current.insert(last.clone(), value);
+        ServiceConfig::load_table(table, &[])
+    }
+
+    /// Whether a refusal names `key`. An estimator's error names its own key under the
+    /// estimator's table; the bogie model's vehicle, nominal and sensor parameters by their
+    /// name alone (`wheelset_mass_kg`, as the damper crate has always reported them).
+    fn names_key(key: &str, e: &ConfigError) -> bool {
+        let e = e.to_string();
+        match key.split_once(".estimator.") {
+            Some((stream, inner)) => {
+                let field = match inner.split_once('.') {
+                    Some(("vehicle" | "nominal" | "sensors", field)) if stream == "bogie" => field,
+                    _ => inner,
+                };
+                e.contains(&format!("{stream}.estimator")) && e.contains(field)
+            }
+            None => e.contains(key),
+        }
+    }
+
     /// Every integer setting, site or expert, declares the bounds its check applies (the
     /// reference shows them): its lowest and highest values load, one beyond either is refused
     /// naming the key. A seed takes any value its type holds; where a bound also depends on
@@ -537,21 +575,7 @@ mod tests {
                 continue;
             };
             let (lo, hi): (i64, i64) = (lo.parse().unwrap(), hi.parse().unwrap());
-            let load = |value: i64| {
-                let mut table = toml::Table::new();
-                let path: Vec<String> = key.key.split('.').map(String::from).collect();
-                let (last, parents) = path.split_last().unwrap();
-                let mut current = &mut table;
-                for level in parents {
-                    current = current
-                        .entry(level.clone())
-                        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
-                        .as_table_mut()
-                        .unwrap();
-                }
-                current.insert(last.clone(), toml::Value::Integer(value));
-                ServiceConfig::load_table(table, &[])
-            };
+            let load = |value: i64| load_key(&key.key, toml::Value::Integer(value));
             for value in [lo, hi] {
                 if DEPENDENT.contains(&key.key.as_str()) {
                     continue;
@@ -563,23 +587,164 @@ mod tests {
             for value in [lo - 1, hi + 1] {
                 match load(value) {
                     Ok(_) => panic!("{} = {value} (beyond {bounds}) accepted", key.key),
-                    // An estimator's error names its own key under the estimator's table.
-                    Err(e) => {
-                        let e = e.to_string();
-                        let named = match key.key.split_once(".estimator.") {
-                            Some((stream, inner)) => {
-                                e.contains(&format!("{stream}.estimator")) && e.contains(inner)
-                            }
-                            None => e.contains(&key.key),
-                        };
-                        assert!(named, "{}: {e}", key.key);
-                    }
+                    Err(e) => assert!(names_key(&key.key, &e), "{}: {e}", key.key),
                 }
             }
         }
         assert!(undeclared.is_empty(), "no declared bounds: {undeclared:?}");
         // The site settings and the 13 integer expert keys (the three seeds aside).
         assert!(checked >= 25, "{checked} integer settings checked");
+    }
+
+    /// The bounds a float key declares, read back from the reference: each end as
+    /// `(value, closed)`.
+    type FloatBounds = (Option<(f64, bool)>, Option<(f64, bool)>);
+
+    fn parse_float_bounds(text: &str) -> FloatBounds {
+        let num = |s: &str| s.trim().parse::<f64>().unwrap_or_else(|_| panic!("{text}"));
+        if let Some((lo, hi)) = text.split_once(" ..= ") {
+            return (Some((num(lo), true)), Some((num(hi), true)));
+        }
+        for (op, lower, closed) in [
+            (">= ", true, true),
+            ("> ", true, false),
+            ("<= ", false, true),
+            ("< ", false, false),
+        ] {
+            if let Some(v) = text.strip_prefix(op) {
+                let end = Some((num(v), closed));
+                return if lower { (end, None) } else { (None, end) };
+            }
+        }
+        let (lo, hi) = text.split_once(", ").unwrap_or_else(|| panic!("{text}"));
+        let lo_closed = lo.starts_with('[');
+        let hi_closed = hi.ends_with(']');
+        (
+            Some((num(&lo[1..]), lo_closed)),
+            Some((num(&hi[..hi.len() - 1]), hi_closed)),
+        )
+    }
+
+    /// Every float setting (`number`, optional or an array's items) declares the bounds its
+    /// check applies, or is one of the few that take any finite value (`ANY_FINITE`, each with
+    /// its reason). A closed end loads and a value just beyond it is refused naming the key;
+    /// an open end is refused and a value just inside loads. Where the admissible range also
+    /// depends on other keys (`DEPENDENT`), the declared outer bounds are probed from outside
+    /// only.
+    #[test]
+    fn float_settings_declare_the_bounds_they_are_checked_against() {
+        const ANY_FINITE: [(&str, &str); 10] = [
+            (
+                "drive.estimator.ekf.initial_speed_rad_s",
+                "an initial guess, either direction",
+            ),
+            (
+                "drive.estimator.ekf.initial_angle_rad",
+                "an initial guess, wrapped",
+            ),
+            (
+                "drive.estimator.ekf.initial_torque_nm",
+                "an initial guess, motoring or braking",
+            ),
+            (
+                "drive.estimator.adhesion.vb.loss_mean_nm",
+                "a torque, motoring or braking",
+            ),
+            (
+                "drive.estimator.adhesion.vmp.loss_mean_nm",
+                "a torque, motoring or braking",
+            ),
+            (
+                "vehicle.estimator.speed_bins_m_s",
+                "bin edges: strictly increasing",
+            ),
+            (
+                "vehicle.estimator.fuel_bins_cm3_s",
+                "bin edges: strictly increasing",
+            ),
+            (
+                "vehicle.estimator.acceleration_bins_m_s2",
+                "bin edges: strictly increasing",
+            ),
+            // Every `[low, high]` pair: low < high (acceleration: low < 0 < high).
+            (
+                "vehicle.estimator.ranges.",
+                "plausible ranges of the data, low < high",
+            ),
+            (
+                "vehicle.estimator.naming.coasting_fuel_cm3_s",
+                "a fuel threshold, either sign",
+            ),
+        ];
+        const DEPENDENT: [&str; 9] = [
+            "drive.estimator.alarm.on_probability",
+            "drive.estimator.alarm.off_probability",
+            "bogie.estimator.rbpf.gain_grid.max_ratio",
+            "bogie.estimator.rbpf.noise_scale.max_std_ratio",
+            "bogie.estimator.speed.max_m_s",
+            "bogie.estimator.alarm.degraded_below_ratio",
+            "bogie.estimator.alarm.recovered_above_ratio",
+            "bogie.estimator.consistency.nis_high_ratio",
+            "vehicle.estimator.max_gap_s",
+        ];
+        let any_finite = |key: &str| ANY_FINITE.iter().any(|(k, _)| key.starts_with(k));
+        let (mut undeclared, mut failures) = (Vec::new(), Vec::new());
+        let mut checked = 0;
+        for key in all_keys() {
+            if !key.kind.contains("number") {
+                continue;
+            }
+            let Some(bounds) = key.bounds.clone() else {
+                if !any_finite(&key.key) {
+                    undeclared.push(key.key.clone());
+                }
+                continue;
+            };
+            assert!(!any_finite(&key.key), "{} declares {bounds}", key.key);
+            checked += 1;
+            // An array gets every item set to the value probed.
+            let items = toml::from_str::<toml::Table>(&format!("v = {}", key.default))
+                .ok()
+                .and_then(|t| t["v"].as_array().map(Vec::len));
+            let load = |value: f64| {
+                let value = match items {
+                    Some(n) => toml::Value::Array(vec![toml::Value::Float(value); n]),
+                    None => toml::Value::Float(value),
+                };
+                load_key(&key.key, value)
+            };
+            let step = |b: f64| (b.abs() * 1e-6).max(1e-9);
+            let dependent = DEPENDENT.contains(&key.key.as_str());
+            let (lower, upper) = parse_float_bounds(&bounds);
+            for (end, outward) in [(lower, -1.0), (upper, 1.0)] {
+                let Some((b, closed)) = end else { continue };
+                let (inside, outside) = match closed {
+                    true => (b, b + outward * step(b)),
+                    false => (b - outward * step(b), b),
+                };
+                if !dependent {
+                    if let Err(e) = load(inside) {
+                        failures.push(format!(
+                            "{} = {inside} (within {bounds}) refused: {e}",
+                            key.key
+                        ));
+                    }
+                }
+                match load(outside) {
+                    Ok(_) => failures.push(format!(
+                        "{} = {outside} (beyond {bounds}) accepted",
+                        key.key
+                    )),
+                    Err(e) if !names_key(&key.key, &e) => {
+                        failures.push(format!("{}: {e}", key.key))
+                    }
+                    Err(_) => {}
+                }
+            }
+        }
+        assert!(failures.is_empty(), "{failures:#?}");
+        assert!(undeclared.is_empty(), "no declared bounds: {undeclared:?}");
+        assert!(checked >= 110, "{checked} float settings checked");
     }
 
     /// The two tiers of settings: `config/railmon.toml` shows every site setting (live, or

@@ -14,6 +14,9 @@ pub(crate) fn invalid(key: &str, reason: String) -> SettingsError {
 /// `history_capacity` (points), declared to the reference on each stream's fields.
 pub(crate) const STREAM_INTERVAL_MS: std::ops::RangeInclusive<u64> = 1..=3_600_000;
 pub(crate) const HISTORY_CAPACITY: std::ops::RangeInclusive<usize> = 1..=1_000_000;
+/// Upper end of the plausible sample magnitudes (`drive.max_abs_current_a`, ...): each is
+/// in `(0, MAX_ABS_SAMPLE]` (declared to the settings reference and checked).
+pub(crate) const MAX_ABS_SAMPLE: f64 = 1e6;
 
 pub(crate) fn validate_stream_keys(
     section: &str,

@@ -17,6 +17,17 @@ pub mod reference;
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 
+/// A schemars transform declaring an open lower bound on an array's items
+/// (`#[schemars(transform = railmon_settings::items_above(0.0))]`): `extend` would set it on
+/// the array itself, and `inner(range(..))` declares closed bounds only.
+pub fn items_above(lo: f64) -> impl FnMut(&mut schemars::Schema) {
+    move |schema: &mut schemars::Schema| {
+        if let Some(items) = schema.get_mut("items").and_then(|i| i.as_object_mut()) {
+            items.insert("exclusiveMinimum".into(), lo.into());
+        }
+    }
+}
+
 pub const ENV_PREFIX: &str = "RAILMON_";
 
 /// The key a table uses to start from a named preset instead of the default.

@@ -195,15 +195,43 @@ fn enum_names(schema: &Value) -> Option<Vec<String>> {
         .collect()
 }
 
+/// The bounds a schema (or an array's items) declares, as a user reads them at once: `>= 0`,
+/// `> 0`, `(0, 1]`, `[0, 1)`, `< 1`, or `lo ..= hi` where both ends are closed (as integer
+/// ranges are written). JSON Schema's `minimum`/`maximum` are closed ends,
+/// `exclusiveMinimum`/`exclusiveMaximum` open ones (schemars: `range(min = ..)`, or
+/// `extend("exclusiveMinimum" = ..)`); an open end wins where a key declares both.
 fn bounds(schema: &Value) -> Option<String> {
     let item = schema.get("items").unwrap_or(schema);
-    let min = item.get("minimum").and_then(Value::as_f64);
-    let max = item.get("maximum").and_then(Value::as_f64);
-    match (min, max) {
-        (Some(lo), Some(hi)) => Some(format!("{lo} ..= {hi}")),
-        (Some(lo), None) => Some(format!(">= {lo}")),
-        (None, Some(hi)) => Some(format!("<= {hi}")),
-        (None, None) => None,
+    let end = |closed: &str, open: &str| {
+        let value = |name: &str| item.get(name).and_then(Value::as_number).map(number_text);
+        match (value(open), value(closed)) {
+            (Some(o), _) => Some((o, false)),
+            (None, Some(c)) => Some((c, true)),
+            (None, None) => None,
+        }
+    };
+    let lower = end("minimum", "exclusiveMinimum");
+    let upper = end("maximum", "exclusiveMaximum");
+    Some(match (lower, upper) {
+        (Some((lo, true)), Some((hi, true))) => format!("{lo} ..= {hi}"),
+        (Some((lo, lo_closed)), Some((hi, hi_closed))) => format!(
+            "{}{lo}, {hi}{}",
+            if lo_closed { '[' } else { '(' },
+            if hi_closed { ']' } else { ')' }
+        ),
+        (Some((lo, closed)), None) => format!("{} {lo}", if closed { ">=" } else { ">" }),
+        (None, Some((hi, closed))) => format!("{} {hi}", if closed { "<=" } else { "<" }),
+        (None, None) => return None,
+    })
+}
+
+/// A bound as text: integers as they are (`1000000000`), a float below 1e-4 or from 1e9 on
+/// in exponent form (`1e-12`, not `0.000000000001`), otherwise as Rust prints it (`0.5`).
+fn number_text(n: &serde_json::Number) -> String {
+    match n.as_f64() {
+        Some(f) if n.is_f64() && f != 0.0 && !(1e-4..1e9).contains(&f.abs()) => format!("{f:e}"),
+        Some(f) if n.is_f64() => format!("{f}"),
+        _ => n.to_string(),
     }
 }
 
@@ -409,6 +437,52 @@ mod tests {
         name: String,
         /// Where the inner part lives.
         inner: Inner,
+    }
+
+    /// Closed ends as `>=`/`<=` or `lo ..= hi` (the integer ranges), open ones as `>`/`<`, and a
+    /// mixed or open pair in interval notation; an array's bounds are its items'.
+    #[test]
+    fn bounds_read_as_intervals() {
+        let b = |schema: Value| bounds(&schema);
+        use serde_json::json;
+        assert_eq!(b(json!({"type": "number"})), None);
+        assert_eq!(b(json!({"minimum": 0})).as_deref(), Some(">= 0"));
+        assert_eq!(b(json!({"exclusiveMinimum": 0.0})).as_deref(), Some("> 0"));
+        assert_eq!(b(json!({"maximum": 1.0})).as_deref(), Some("<= 1"));
+        assert_eq!(b(json!({"exclusiveMaximum": 1})).as_deref(), Some("< 1"));
+        assert_eq!(
+            b(json!({"minimum": 1, "maximum": 10000})).as_deref(),
+            Some("1 ..= 10000")
+        );
+        assert_eq!(
+            b(json!({"exclusiveMinimum": 0, "maximum": 1})).as_deref(),
+            Some("(0, 1]")
+        );
+        assert_eq!(
+            b(json!({"minimum": 0, "exclusiveMaximum": 1})).as_deref(),
+            Some("[0, 1)")
+        );
+        assert_eq!(
+            b(json!({"exclusiveMinimum": -0.5, "exclusiveMaximum": 0.25})).as_deref(),
+            Some("(-0.5, 0.25)")
+        );
+        assert_eq!(
+            b(json!({"minimum": 0, "exclusiveMinimum": 0})).as_deref(),
+            Some("> 0")
+        );
+        assert_eq!(
+            b(json!({"type": "array", "items": {"exclusiveMinimum": 0}})).as_deref(),
+            Some("> 0")
+        );
+        assert_eq!(b(json!({"minimum": 1e-9})).as_deref(), Some(">= 1e-9"));
+        assert_eq!(
+            b(json!({"minimum": 0.0, "maximum": 1e9})).as_deref(),
+            Some("0 ..= 1e9")
+        );
+        assert_eq!(
+            b(json!({"minimum": 1, "maximum": 1_000_000_000})).as_deref(),
+            Some("1 ..= 1000000000")
+        );
     }
 
     /// Every key with its path, kind, unit, default and first sentence; sections in order,

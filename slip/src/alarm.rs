@@ -31,8 +31,10 @@ const RELEASE_HOLD_STEPS: std::ops::RangeInclusive<usize> = 0..=80_000;
 #[serde(deny_unknown_fields, default)]
 pub struct SlipAlarmConfig {
     /// A drive is flagged once its slip probability reaches this (for `confirm_steps`).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1.0))]
     pub on_probability: f64,
     /// A flagged drive is cleared when its slip probability falls to this.
+    #[schemars(range(min = 0.0), extend("exclusiveMaximum" = 1.0))]
     pub off_probability: f64,
     /// Consecutive steps at or above `on_probability` before the flag rises (1: at once).
     #[schemars(range(min = *CONFIRM_STEPS.start(), max = *CONFIRM_STEPS.end()))]

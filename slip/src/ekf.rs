@@ -20,10 +20,13 @@ use crate::sample::{validate_frame, DriveSample};
 pub struct EkfConfig {
     /// Diagonal of the process-noise covariance `Q` for
     /// `[i_alpha, i_beta, omega, theta, T_L]` (section 3.2.1).
+    #[schemars(transform = railmon_settings::items_above(0.0))]
     pub process_noise_diag: [f64; 5],
     /// Variance of each current measurement, `R = r I` (section 3.2.1), in A^2.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub measurement_noise_a2: f64,
     /// Diagonal of the initial covariance `P_0` ("low integers", section 3.2.1).
+    #[schemars(transform = railmon_settings::items_above(0.0))]
     pub initial_covariance_diag: [f64; 5],
     /// Initial electrical speed guess; a drive controller knows its speed reference.
     pub initial_speed_rad_s: f64,

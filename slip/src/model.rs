@@ -29,18 +29,25 @@ pub mod idx {
 #[serde(deny_unknown_fields, default)]
 pub struct MotorParams {
     /// Stator resistance `R_s`.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub r_s_ohm: f64,
     /// Stator inductance `L_s` (= `L_d` = `L_q`, the paper's simplification).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub l_s_h: f64,
     /// Permanent-magnet flux linkage `Psi_pm`.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub psi_pm_wb: f64,
     /// Number of pole pairs `p_p`.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub pole_pairs: f64,
     /// Moment of inertia `J`.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub inertia_kg_m2: f64,
     /// Viscous friction `B` (N m s / rad).
+    #[schemars(range(min = 0.0))]
     pub friction_nm_s_per_rad: f64,
     /// Park constant `k_p` (1.5 for the amplitude-invariant Clarke transform).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub park_constant: f64,
 }
 

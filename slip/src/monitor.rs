@@ -26,6 +26,7 @@ use crate::speed_reference::{
 #[serde(deny_unknown_fields, default)]
 pub struct SlipMonitorConfig {
     /// Sampling period of the drive data (the paper: 125 us).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub dt_s: f64,
     pub motor: MotorParams,
     pub ekf: EkfConfig,

@@ -24,6 +24,9 @@ pub enum KernelSchedule {
     AtResampling,
 }
 
+/// `delta` must exceed this (declared to the settings reference and checked): the shrinkage
+/// `a = (3 delta - 1) / (2 delta)` must lie in (0, 1).
+const DELTA_ABOVE: f64 = 1.0 / 3.0;
 /// Bounds of `particles` (declared to the settings reference and checked): each particle holds
 /// a 17-state covariance (~2.5 kB), and 1e9 particles aborted the service on a 136 GB allocation
 /// at its first frame.
@@ -41,22 +44,29 @@ pub struct RbpfConfig {
     pub particles: usize,
     /// Liu-West discount factor `delta` (eq. 24): `a = (3 delta - 1) / (2 delta)`,
     /// `h^2 = 1 - a^2`.
+    #[schemars(extend("exclusiveMinimum" = DELTA_ABOVE, "exclusiveMaximum" = 1.0))]
     pub delta: f64,
     /// Resample when the effective sample size falls below this fraction of `N`.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1.0))]
     pub resample_ess_fraction: f64,
     /// Prior mean: `ln C ~ N(ln(prior_ratio * nominal), prior_ln_std^2)` for each damper.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub prior_ratio: f64,
     /// Prior standard deviation of `ln C` (0: the parameters are known).
+    #[schemars(range(min = 0.0))]
     pub prior_ln_std: f64,
     /// Extra random walk of `ln C` (1/sqrt(s)) added to the Liu-West move, so that the filter
     /// can follow a damper that fails after the posterior has narrowed. `0` is the paper's
     /// static-parameter filter.
+    #[schemars(range(min = 0.0))]
     pub ln_diffusion_per_sqrt_s: f64,
     /// Probability, per particle and coefficient, of being redrawn (log-uniform over the gain
     /// grid's range) at each kernel move, so that a damper that fails suddenly (a step far
     /// outside the narrowed posterior) is found again. `0` is the paper's filter.
+    #[schemars(range(min = 0.0), extend("exclusiveMaximum" = 0.5))]
     pub regeneration_fraction: f64,
     /// Weight of a regenerated particle relative to the others, in (0, 1].
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1.0))]
     pub regeneration_weight: f64,
     /// Evidence-triggered search for a failed damper (`crate::rbpf::jump`): sentinels beside
     /// the particles whose posterior odds of a jump, once high enough, become particles.
@@ -106,7 +116,7 @@ impl RbpfConfig {
                 reason: "must be in 2..=1000000",
             });
         }
-        if !(self.delta > 1.0 / 3.0 && self.delta < 1.0) {
+        if !(self.delta > DELTA_ABOVE && self.delta < 1.0) {
             // a = (3 delta - 1) / (2 delta) must lie in (0, 1).
             return Err(DamperError::InvalidParameter {
                 field: "rbpf.delta",

@@ -79,15 +79,19 @@ pub struct JumpSearchConfig {
     /// The odds of a healthy bogie's hypothesis reach `A` about once in `A / lambda` s per
     /// sentinel; a failure needs about `ln(19 r / lambda)` nats of evidence for 95 % of the
     /// posterior (`r` the nats per second it gains).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub hazard_per_s: f64,
     /// Posterior odds `A` at which a sentinel's hypothesis becomes particles.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub materialise_odds: f64,
     /// Newcomers replace a share of the particles equal to the hypotheses' posterior mass
     /// (equal weights), but at least this share (so that the jitter covers a sentinel's
     /// neighbourhood), in (0, 0.5].
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 0.5))]
     pub min_newcomer_fraction: f64,
     /// Spread of the newcomers' coefficient about the sentinel's (standard deviation in
     /// `ln C`; about half the sentinels' spacing).
+    #[schemars(range(min = 0.0))]
     pub newcomer_ln_std: f64,
     /// After a pause (low or high speed) the filter settles (its states run, its weights and
     /// the sentinels' odds do not move) for at least this many time constants of the
@@ -99,6 +103,7 @@ pub struct JumpSearchConfig {
     /// a cascade of newcomers at 25-35 % of nominal within a second, then a false
     /// `damper_degraded`, on the speed profile with stops; docs/damper.md "Low speed: the
     /// jump search"). The filter without the search keeps `speed.resume_settle_s` alone.
+    #[schemars(range(min = 0.0))]
     pub resume_hold_time_constants: f64,
 }
 

@@ -6,7 +6,9 @@ use serde::{Deserialize, Serialize};
 
 use railmon_settings::SettingsError;
 
-use crate::stream_keys::{invalid, validate_stream_keys, HISTORY_CAPACITY, STREAM_INTERVAL_MS};
+use crate::stream_keys::{
+    invalid, validate_stream_keys, HISTORY_CAPACITY, MAX_ABS_SAMPLE, STREAM_INTERVAL_MS,
+};
 
 /// Most bogies one service monitors (a vehicle has two per car; a unit of eight cars 16).
 pub const MAX_BOGIES: usize = 16;
@@ -29,8 +31,10 @@ pub struct BogieConfig {
     /// Plausible magnitudes of the lateral accelerations (m/s^2) and of the yaw rate (rad/s):
     /// a frame beyond them is refused (`out_of_range`), not estimated. Data scaled by 1000
     /// (mm/s^2, mrad/s) once read as a damper at 10 % of its health: a false `degraded`.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_ABS_SAMPLE))]
     pub max_abs_accel_m_s2: f64,
     /// Plausible magnitude of the yaw rate (rad/s), as `max_abs_accel_m_s2` for accelerations.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_ABS_SAMPLE))]
     pub max_abs_yaw_rate_rad_s: f64,
     /// One history point per bogie per this much stream time.
     #[schemars(range(min = *STREAM_INTERVAL_MS.start(), max = *STREAM_INTERVAL_MS.end()))]
@@ -86,7 +90,7 @@ impl BogieConfig {
             ("max_abs_accel_m_s2", self.max_abs_accel_m_s2),
             ("max_abs_yaw_rate_rad_s", self.max_abs_yaw_rate_rad_s),
         ] {
-            if !(value > 0.0 && value <= 1e6) {
+            if !(value > 0.0 && value <= MAX_ABS_SAMPLE) {
                 return Err(invalid(
                     &format!("bogie.{key}"),
                     format!("{value} is not in (0, 1e6]"),

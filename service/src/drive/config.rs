@@ -7,7 +7,9 @@ use serde::{Deserialize, Serialize};
 
 use railmon_settings::SettingsError;
 
-use crate::stream_keys::{invalid, validate_stream_keys, HISTORY_CAPACITY, STREAM_INTERVAL_MS};
+use crate::stream_keys::{
+    invalid, validate_stream_keys, HISTORY_CAPACITY, MAX_ABS_SAMPLE, STREAM_INTERVAL_MS,
+};
 
 /// Bounds of `max_drives`: a frame holds at most [`MAX_DRIVES`].
 const MAX_DRIVES_RANGE: std::ops::RangeInclusive<usize> = 1..=MAX_DRIVES;
@@ -26,8 +28,10 @@ pub struct DriveConfig {
     /// Plausible magnitudes of the stator currents and voltages: a frame beyond them is
     /// refused (`out_of_range`), not estimated. Currents in mA instead of A once gave a load
     /// torque of 13,320 N m with no complaint.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_ABS_SAMPLE))]
     pub max_abs_current_a: f64,
     /// Plausible magnitude of the stator voltages (V), as `max_abs_current_a` for currents.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_ABS_SAMPLE))]
     pub max_abs_voltage_v: f64,
     /// One history point per this much stream time.
     #[schemars(range(min = *STREAM_INTERVAL_MS.start(), max = *STREAM_INTERVAL_MS.end()))]
@@ -70,7 +74,7 @@ impl DriveConfig {
             ("max_abs_current_a", self.max_abs_current_a),
             ("max_abs_voltage_v", self.max_abs_voltage_v),
         ] {
-            if !(value > 0.0 && value <= 1e6) {
+            if !(value > 0.0 && value <= MAX_ABS_SAMPLE) {
                 return Err(invalid(
                     &format!("drive.{key}"),
                     format!("{value} is not in (0, 1e6]"),

@@ -9,10 +9,14 @@ use super::AdhesionOutput;
 use crate::error::{check_in, SlipError};
 use crate::sample::SLIP_RULE_FRACTION;
 
+/// Bounds of `relative_threshold` (declared to the settings reference and checked).
+const RELATIVE_THRESHOLD: std::ops::RangeInclusive<f64> = 0.0..=10.0;
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct MedianConfig {
     /// Flag a drive when `|T_i - median| > relative_threshold * |median|`.
+    #[schemars(range(min = *RELATIVE_THRESHOLD.start(), max = *RELATIVE_THRESHOLD.end()))]
     pub relative_threshold: f64,
 }
 
@@ -29,8 +33,8 @@ impl MedianConfig {
         check_in(
             "median.relative_threshold",
             self.relative_threshold,
-            0.0,
-            10.0,
+            *RELATIVE_THRESHOLD.start(),
+            *RELATIVE_THRESHOLD.end(),
             "must be in [0, 10]",
         )
     }

@@ -14,6 +14,10 @@ use crate::error::SlipError;
 /// Bounds of the iterative methods' iterations per step (declared to the settings reference and
 /// checked): 10,000 iterations of 8 kHz steps is already far slower than real time.
 pub(crate) const ITERATIONS: std::ops::RangeInclusive<usize> = 1..=10_000;
+/// Bounds of the mixtures' `stop_tolerance` (a relative rise of the bound) and of their
+/// `initial_loss_probability` (declared to the settings reference and checked).
+pub(crate) const STOP_TOLERANCE: std::ops::RangeInclusive<f64> = 0.0..=1.0;
+pub(crate) const INITIAL_LOSS_PROBABILITY: std::ops::RangeInclusive<f64> = 1e-9..=1.0 - 1e-9;
 
 pub mod kmeans;
 pub mod median;

@@ -60,41 +60,65 @@ use crate::sample::{SLIP_RULE_FLOOR_NM, SLIP_RULE_FRACTION};
 /// Bounds of `warmup_steps` (declared to the settings reference and checked): at most 10 s of
 /// 8 kHz steps, far beyond the 50-100 steps the EKFs need to lock.
 const WARMUP_STEPS: std::ops::RangeInclusive<usize> = 0..=80_000;
+/// Bounds of the float settings below (declared to the settings reference and checked).
+const RELATIVE_TOLERANCE: std::ops::RangeInclusive<f64> = 1e-6..=10.0;
+const MIN_TOLERANCE_NM: std::ops::RangeInclusive<f64> = 0.0..=1e6;
+const SIGNIFICANCE_SIGMAS: std::ops::RangeInclusive<f64> = 0.0..=100.0;
+const KERNEL_SIGMAS: std::ops::RangeInclusive<f64> = 0.1..=100.0;
+const SPREAD_FORGETTING: std::ops::RangeInclusive<f64> = 0.0..=0.999_999;
+const INITIAL_SPREAD_NM: std::ops::RangeInclusive<f64> = 1e-6..=1e6;
+const MEMORY_FLOOR: std::ops::RangeInclusive<f64> = 1e-6..=1.0;
+const ENTER_PROBABILITY: std::ops::RangeInclusive<f64> = 1e-12..=0.5;
+const EXIT_PROBABILITY: std::ops::RangeInclusive<f64> = 1e-12..=0.5;
+const EVIDENCE_FLOOR: std::ops::RangeInclusive<f64> = 1e-12..=0.49;
+const MAX_DEPARTURE_CORRELATION: std::ops::RangeInclusive<f64> = 0.0..=0.99;
+const SLIP_LEVEL_MEMORY_STEPS: std::ops::RangeInclusive<f64> = 0.0..=1e9;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct TemporalConfig {
     /// Relative departure from the global torque that counts as slipping (the slip rule).
+    #[schemars(range(min = *RELATIVE_TOLERANCE.start(), max = *RELATIVE_TOLERANCE.end()))]
     pub relative_tolerance: f64,
     /// Smallest departure that counts (the slip rule's absolute floor), for loads near 0
     /// where 10 % of the load is below the resolution of the torque estimates.
+    #[schemars(range(min = *MIN_TOLERANCE_NM.start(), max = *MIN_TOLERANCE_NM.end()))]
     pub min_tolerance_nm: f64,
     /// A departure within this many of the drive's learnt standard deviations is never
     /// flagged: its EKF cannot resolve it.
+    #[schemars(range(min = *SIGNIFICANCE_SIGMAS.start(), max = *SIGNIFICANCE_SIGMAS.end()))]
     pub significance_sigmas: f64,
     /// Width of the reference's kernel in healthy spreads `s_i`.
+    #[schemars(range(min = *KERNEL_SIGMAS.start(), max = *KERNEL_SIGMAS.end()))]
     pub kernel_sigmas: f64,
     /// Weight of the past in each drive's learnt spread (memory ~ `1 / (1 - l)` adhering
     /// steps).
+    #[schemars(range(min = *SPREAD_FORGETTING.start(), max = *SPREAD_FORGETTING.end()))]
     pub spread_forgetting: f64,
     /// Spread of a drive before anything is learnt, and its smallest value.
+    #[schemars(range(min = *INITIAL_SPREAD_NM.start(), max = *INITIAL_SPREAD_NM.end()))]
     pub initial_spread_nm: f64,
     /// Smallest weight a drive that has been slipping keeps in the reference.
+    #[schemars(range(min = *MEMORY_FLOOR.start(), max = *MEMORY_FLOOR.end()))]
     pub memory_floor: f64,
     /// Steps after start-up during which no slip is reported: the EKFs start from an unknown
     /// rotor angle and load and need some 50-100 steps to lock (400 steps = 50 ms).
     #[schemars(range(min = *WARMUP_STEPS.start(), max = *WARMUP_STEPS.end()))]
     pub warmup_steps: usize,
     /// Probability per step that an adhering drive starts to slip.
+    #[schemars(range(min = *ENTER_PROBABILITY.start(), max = *ENTER_PROBABILITY.end()))]
     pub enter_probability: f64,
     /// Probability per step that a slipping drive regains adhesion.
+    #[schemars(range(min = *EXIT_PROBABILITY.start(), max = *EXIT_PROBABILITY.end()))]
     pub exit_probability: f64,
     /// The evidence `q_i` is clipped to `[floor, 1 - floor]` so that one step can never make
     /// the chain certain.
+    #[schemars(range(min = *EVIDENCE_FLOOR.start(), max = *EVIDENCE_FLOOR.end()))]
     pub evidence_floor: f64,
     /// Largest lag-1 autocorrelation `rho_i` of a drive's departure that the evidence is
     /// discounted for (each step's log-likelihood ratio is divided by `1 + rho_i`); 0 treats
     /// every step as independent evidence.
+    #[schemars(range(min = *MAX_DEPARTURE_CORRELATION.start(), max = *MAX_DEPARTURE_CORRELATION.end()))]
     pub max_departure_correlation: f64,
     /// A slipping drive is judged against the level it has been slipping at as well as
     /// against the reference, and let go as soon as its estimate is closer, in likelihood, to
@@ -103,6 +127,7 @@ pub struct TemporalConfig {
     /// enough to hold the level while the EKF's estimate climbs back after a step (some 30
     /// steps), short enough to follow a gradual return (with 100 steps two gradual returns
     /// were let go early and flagged again). 0: the tolerance test alone.
+    #[schemars(range(min = *SLIP_LEVEL_MEMORY_STEPS.start(), max = *SLIP_LEVEL_MEMORY_STEPS.end()))]
     pub slip_level_memory_steps: f64,
 }
 
@@ -128,94 +153,82 @@ impl Default for TemporalConfig {
 
 impl TemporalConfig {
     pub fn validate(&self) -> Result<(), SlipError> {
-        let checks: [(&str, f64, f64, f64, &str); 12] = [
+        let checks: [(&str, f64, &std::ops::RangeInclusive<f64>, &str); 12] = [
             (
                 "temporal.relative_tolerance",
                 self.relative_tolerance,
-                1e-6,
-                10.0,
-                "must be in (0, 10]",
+                &RELATIVE_TOLERANCE,
+                "must be in [1e-6, 10]",
             ),
             (
                 "temporal.min_tolerance_nm",
                 self.min_tolerance_nm,
-                0.0,
-                1e6,
+                &MIN_TOLERANCE_NM,
                 "must be in [0, 1e6]",
             ),
             (
                 "temporal.significance_sigmas",
                 self.significance_sigmas,
-                0.0,
-                100.0,
+                &SIGNIFICANCE_SIGMAS,
                 "must be in [0, 100]",
             ),
             (
                 "temporal.kernel_sigmas",
                 self.kernel_sigmas,
-                0.1,
-                100.0,
+                &KERNEL_SIGMAS,
                 "must be in [0.1, 100]",
             ),
             (
                 "temporal.spread_forgetting",
                 self.spread_forgetting,
-                0.0,
-                0.999_999,
-                "must be in [0, 1)",
+                &SPREAD_FORGETTING,
+                "must be in [0, 0.999999]",
             ),
             (
                 "temporal.initial_spread_nm",
                 self.initial_spread_nm,
-                1e-6,
-                1e6,
-                "must be in (0, 1e6]",
+                &INITIAL_SPREAD_NM,
+                "must be in [1e-6, 1e6]",
             ),
             (
                 "temporal.memory_floor",
                 self.memory_floor,
-                1e-6,
-                1.0,
-                "must be in (0, 1]",
+                &MEMORY_FLOOR,
+                "must be in [1e-6, 1]",
             ),
             (
                 "temporal.enter_probability",
                 self.enter_probability,
-                1e-12,
-                0.5,
-                "must be in (0, 0.5]",
+                &ENTER_PROBABILITY,
+                "must be in [1e-12, 0.5]",
             ),
             (
                 "temporal.exit_probability",
                 self.exit_probability,
-                1e-12,
-                0.5,
-                "must be in (0, 0.5]",
+                &EXIT_PROBABILITY,
+                "must be in [1e-12, 0.5]",
             ),
             (
                 "temporal.evidence_floor",
                 self.evidence_floor,
-                1e-12,
-                0.49,
-                "must be in (0, 0.49]",
+                &EVIDENCE_FLOOR,
+                "must be in [1e-12, 0.49]",
             ),
             (
                 "temporal.max_departure_correlation",
                 self.max_departure_correlation,
-                0.0,
-                0.99,
+                &MAX_DEPARTURE_CORRELATION,
                 "must be in [0, 0.99]",
             ),
             (
                 "temporal.slip_level_memory_steps",
                 self.slip_level_memory_steps,
-                0.0,
-                1e9,
+                &SLIP_LEVEL_MEMORY_STEPS,
                 "must be in [0, 1e9]",
             ),
         ];
-        for (field, value, lo, hi, why) in checks {
-            check_in(field, value, lo, hi, why)?;
+        for (field, value, range, why) in checks {
+            check_in(field, value, *range.start(), *range.end(), why)?;
         }
         if !WARMUP_STEPS.contains(&self.warmup_steps) {
             return Err(SlipError::invalid(

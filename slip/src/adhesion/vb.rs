@@ -23,24 +23,32 @@ pub struct VbConfig {
     pub iterations: usize,
     /// Stop when the lower bound rises by less than this fraction of its magnitude (the paper's
     /// suggestion); absent: always run `iterations`.
+    #[schemars(range(min = *super::STOP_TOLERANCE.start(), max = *super::STOP_TOLERANCE.end()))]
     pub stop_tolerance: Option<f64>,
     /// Beta prior pseudo-count of "adhesion" (`alpha_0`; the paper: 1).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub alpha_adhesion: f64,
     /// Beta prior pseudo-count of "adhesion lost" (`alpha_1`; the paper: 1).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub alpha_loss: f64,
     /// `pi` used in the first indicator update, before `q(pi)` exists (the paper: 0.5).
+    #[schemars(range(min = *super::INITIAL_LOSS_PROBABILITY.start(), max = *super::INITIAL_LOSS_PROBABILITY.end()))]
     pub initial_loss_probability: f64,
     /// Wishart degrees of freedom `nu` of both components (the paper: 3).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub wishart_dof: f64,
     /// Wishart scale `W` of both components (the paper: 100).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub wishart_scale: f64,
     /// Wishart scale of the "adhesion lost" component when it should differ from
     /// `wishart_scale` (absent: the paper's, the same for both). A small value makes that
     /// component broad, so it takes any outlier rather than letting the adhesion component
     /// widen to swallow a drive that departs slowly.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub loss_wishart_scale: Option<f64>,
     /// Normal-Wishart `beta`, the prior precision scale of the means. Not printed in the paper
     /// (its "alpha = beta = 1" may mean this too); 1 serves both readings.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub mean_scale: f64,
     /// Prior mean of the "adhesion lost" component (the paper: 0). The "adhesion" component
     /// starts at the largest torque of the step.
@@ -75,16 +83,22 @@ impl VbConfig {
             ));
         }
         if let Some(t) = self.stop_tolerance {
-            check_in(&f("stop_tolerance"), t, 0.0, 1.0, "must be in [0, 1]")?;
+            check_in(
+                &f("stop_tolerance"),
+                t,
+                *super::STOP_TOLERANCE.start(),
+                *super::STOP_TOLERANCE.end(),
+                "must be in [0, 1]",
+            )?;
         }
         check_positive(&f("alpha_adhesion"), self.alpha_adhesion)?;
         check_positive(&f("alpha_loss"), self.alpha_loss)?;
         check_in(
             &f("initial_loss_probability"),
             self.initial_loss_probability,
-            1e-9,
-            1.0 - 1e-9,
-            "must be in (0, 1)",
+            *super::INITIAL_LOSS_PROBABILITY.start(),
+            *super::INITIAL_LOSS_PROBABILITY.end(),
+            "must be in [1e-9, 1 - 1e-9]",
         )?;
         // The Wishart needs nu > D - 1 = 0; nu > 0 keeps the Gamma proper.
         check_positive(&f("wishart_dof"), self.wishart_dof)?;

@@ -25,18 +25,25 @@ pub struct VmpConfig {
     #[schemars(range(min = *super::ITERATIONS.start(), max = *super::ITERATIONS.end()))]
     pub iterations: usize,
     /// Stop when the bound rises by less than this fraction of its magnitude.
+    #[schemars(range(min = *super::STOP_TOLERANCE.start(), max = *super::STOP_TOLERANCE.end()))]
     pub stop_tolerance: Option<f64>,
     /// Beta prior pseudo-count of "adhesion" (the paper: 1).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub alpha_adhesion: f64,
     /// Beta prior pseudo-count of "adhesion lost" (the paper: 1).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub alpha_loss: f64,
     /// `pi` in the first indicator update.
+    #[schemars(range(min = *super::INITIAL_LOSS_PROBABILITY.start(), max = *super::INITIAL_LOSS_PROBABILITY.end()))]
     pub initial_loss_probability: f64,
     /// Prior precision of each component mean (the paper: 0.01).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub mean_precision: f64,
     /// Shape of the Gamma prior of each precision (the paper: (0.1, 0.1), after Gelman et al.).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub gamma_shape: f64,
     /// Rate of the Gamma prior of each precision (the paper: 0.1).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub gamma_rate: f64,
     /// Prior mean of "adhesion lost" (0); "adhesion" starts at the largest torque.
     pub loss_mean_nm: f64,
@@ -68,16 +75,22 @@ impl VmpConfig {
             ));
         }
         if let Some(t) = self.stop_tolerance {
-            check_in("vmp.stop_tolerance", t, 0.0, 1.0, "must be in [0, 1]")?;
+            check_in(
+                "vmp.stop_tolerance",
+                t,
+                *super::STOP_TOLERANCE.start(),
+                *super::STOP_TOLERANCE.end(),
+                "must be in [0, 1]",
+            )?;
         }
         check_positive("vmp.alpha_adhesion", self.alpha_adhesion)?;
         check_positive("vmp.alpha_loss", self.alpha_loss)?;
         check_in(
             "vmp.initial_loss_probability",
             self.initial_loss_probability,
-            1e-9,
-            1.0 - 1e-9,
-            "must be in (0, 1)",
+            *super::INITIAL_LOSS_PROBABILITY.start(),
+            *super::INITIAL_LOSS_PROBABILITY.end(),
+            "must be in [1e-9, 1 - 1e-9]",
         )?;
         check_positive("vmp.mean_precision", self.mean_precision)?;
         check_positive("vmp.gamma_shape", self.gamma_shape)?;
