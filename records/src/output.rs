@@ -25,6 +25,13 @@ pub struct AtomicFile {
 impl AtomicFile {
     /// Starts writing `path` (its directory must exist).
     pub fn create(path: &Path) -> Result<Self, RecordError> {
+        Self::create_with_mode(path, 0o666)
+    }
+
+    /// [`AtomicFile::create`] with the permission bits `mode` (less the umask), e.g. `0o600`
+    /// for a file only its owner reads.
+    pub fn create_with_mode(path: &Path, mode: u32) -> Result<Self, RecordError> {
+        use std::os::unix::fs::OpenOptionsExt;
         static N: AtomicU64 = AtomicU64::new(0);
         let label = path.display().to_string();
         let name = path
@@ -41,6 +48,7 @@ impl AtomicFile {
         let file = File::options()
             .write(true)
             .create_new(true)
+            .mode(mode)
             .open(&temporary)
             .map_err(|e| RecordError::file(&label, format!("cannot create: {e}")))?;
         Ok(Self {
