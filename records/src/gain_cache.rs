@@ -296,12 +296,13 @@ mod tests {
                 solved.solved_grid(k + 1).unwrap().values(),
             )
         };
-        let damage: Vec<(&str, Box<dyn Fn(&mut Vec<u8>)>)> = vec![
+        type Damage = Box<dyn Fn(&mut Vec<u8>)>;
+        let damage: Vec<(&str, Damage)> = vec![
             ("magic", Box::new(|b| b[0] = b'X')),
             ("format version", Box::new(|b| b[8] = 9)),
             ("fingerprint", Box::new(|b| b[20] ^= 1)),
-            ("expected", Box::new(|b| b.truncate(n - 8))),
-            ("checksum", Box::new(|b| b[n - 3] ^= 0x10)),
+            ("expected", Box::new(move |b| b.truncate(n - 8))),
+            ("checksum", Box::new(move |b| b[n - 3] ^= 0x10)),
             ("header", Box::new(|b| b.truncate(10))),
             ("cannot read", Box::new(|b| b.extend_from_slice(&[0; 8]))),
         ];
