@@ -66,6 +66,10 @@ impl NodeWarmer {
                     let Some(node) = table.missing_near(v, table.n_nodes()) else {
                         if !reported && (0..table.n_nodes()).all(|n| table.is_solved(n)) {
                             reported = true;
+                            // The nodes a filter solved itself, before this thread got to them.
+                            if let Some(Err(e)) = cache.as_ref().map(|c| c.store_all(&table)) {
+                                tracing::warn!("bogie gain table: not stored: {e}");
+                            }
                             tracing::info!(
                                 "bogie gain table: all {} speed nodes ready {:.2} s after start \
                                  ({loaded} from the cache, {solved} solved here)",
