@@ -30,12 +30,16 @@
 //! Errors and settling times are evaluated on the `--csv-every` grid (10 ms by default).
 
 use std::path::Path;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+use railmon_damper::gain_table::GainTable;
+use railmon_records::gain_cache::GainCache;
 
 use railmon_damper::{
     BogieSample, BogieSimulator, BogieStatusEvent, BogieStatusWatch, DamperAlarm, DamperError,
     DamperEstimate, DamperEvent, DamperFault, DamperId, DamperMonitor, DamperMonitorConfig,
-    DamperScenario, FaultKind, Propagation, SampleRanges,
+    DamperScenario, FaultKind, Propagation, Rbpf, SampleRanges,
 };
 use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord};
 use railmon_records::{write_csv_table, RecordError};
@@ -65,6 +69,12 @@ pub struct Args {
     /// Write a row of `estimates.csv` (and a plot point) every this many steps.
     #[arg(long, default_value_t = 10)]
     pub csv_every: usize,
+    /// Keep the solved gain grids in this directory (created if needed): nodes stored there
+    /// are loaded instead of solved, nodes solved are stored (`railmon damper warm-cache`
+    /// fills one; the service's is `<storage.data_dir>/gain-cache`). Without it every run
+    /// solves the nodes it reaches (0.3-0.5 s each).
+    #[arg(long, value_name = "DIR")]
+    pub gain_cache: Option<std::path::PathBuf>,
 }
 
 fn parse_propagation(s: &str) -> Result<Propagation, String> {
@@ -271,14 +281,34 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
         // traces stream to disk (RSS flat), 147 B of CSV.
         RunSize::of(max_steps.unwrap_or(0), 0, 150).check_fits(&args.run.out, "this run")?;
     }
+    let cache = match (&args.gain_cache, config.rbpf.propagation) {
+        (Some(dir), Propagation::SteadyState) => Some(GainCache::new(dir)),
+        _ => None,
+    };
+    let table = match &cache {
+        Some(cache) => {
+            let table =
+                Rbpf::unsolved_gain_table(&config.filter_model(), &config.rbpf, &config.speed)
+                    .map_err(estimator_error(&name))?;
+            for e in cache.load_all(&table).refused {
+                eprintln!("railmon analyze damper: warning: {e}");
+            }
+            Some(table)
+        }
+        None => None,
+    };
     let run = run_monitor(
         &name,
         &config,
         args.bogie,
         source,
         record,
+        table.clone(),
         (max_steps, args.csv_every.max(1), args.run.strict),
     )?;
+    if let (Some(cache), Some(table)) = (&cache, &table) {
+        cache.store_all(table)?;
+    }
     let MonitorRun {
         trace,
         events,
@@ -417,6 +447,7 @@ fn run_monitor(
     bogie: u32,
     mut source: Source,
     mut record: Option<BogieCsvWriter>,
+    table: Option<Arc<GainTable>>,
     (max_steps, every, strict): (Option<u64>, usize, bool),
 ) -> Result<MonitorRun, DamperAnalysisError> {
     let ranges = SampleRanges::default();
@@ -424,7 +455,7 @@ fn run_monitor(
     let mut first_refusal = None;
     let mut read = 0u64;
     let mut monitor =
-        DamperMonitor::for_bogie(config, bogie, None).map_err(estimator_error(name))?;
+        DamperMonitor::for_bogie(config, bogie, table).map_err(estimator_error(name))?;
     let mut alarms = DamperAlarm::pair(&config.alarm, &config.filter_model(), [false; 2]);
     let mut status = BogieStatusWatch::new();
     let mut events = vec![];

@@ -32,7 +32,34 @@ fn args(out: &Path) -> Args {
         duration_s: Some(3.0),
         bogie: 1,
         csv_every: 10,
+        gain_cache: None,
     }
+}
+
+/// With `--gain-cache` a first run stores the nodes it solved and a second loads them: both
+/// write exactly the estimates of a run without the cache.
+#[test]
+fn a_run_with_the_gain_cache_cold_or_warm_estimates_as_one_without() {
+    let cache = out_dir("gain-cache");
+    let estimates = |tag: &str, gain_cache: Option<PathBuf>| {
+        let out = out_dir(tag);
+        let mut a = args(&out);
+        a.run.scenario = Some(scenario("damper-seed"));
+        a.run.no_plots = true;
+        a.gain_cache = gain_cache;
+        run(&a).unwrap();
+        let text = std::fs::read_to_string(out.join("estimates.csv")).unwrap();
+        std::fs::remove_dir_all(&out).unwrap();
+        text
+    };
+    let without = estimates("no-cache", None);
+    let cold = estimates("cold", Some(cache.clone()));
+    let stored = std::fs::read_dir(&cache).unwrap().count();
+    assert!(stored >= 1, "{stored} nodes stored");
+    let warm = estimates("warm", Some(cache.clone()));
+    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), stored);
+    assert!(cold == without && warm == without);
+    std::fs::remove_dir_all(&cache).unwrap();
 }
 
 #[test]

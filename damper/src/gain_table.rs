@@ -110,36 +110,12 @@ impl GainGrid {
         dt_s: f64,
     ) -> Result<Arc<Self>, DamperError> {
         let n = grid.points_per_axis;
-        let nom = nominal.ln();
-        let ln_min = [nom[0] + grid.min_ratio.ln(), nom[1] + grid.min_ratio.ln()];
-        let span = (grid.max_ratio / grid.min_ratio).ln();
-        let ln_step = [span / (n - 1) as f64; 2];
-        let h = model.h_matrix();
-        let g = model.g_matrix();
+        let (ln_min, ln_step) = geometry(nominal, grid);
         let mut data = vec![0.0; n * n * NODE_LEN];
         for i in 0..n {
             for j in 0..n {
-                let d = Dampers::from_ln([
-                    ln_min[0] + i as f64 * ln_step[0],
-                    ln_min[1] + j as f64 * ln_step[1],
-                ]);
-                let disc = discretize(&model.a_matrix(&d), &g, dt_s)?;
-                let ss = steady_state(&disc, &h, noise)?;
                 let node = &mut data[(i * n + j) * NODE_LEN..(i * n + j + 1) * NODE_LEN];
-                for r in 0..N_STATES {
-                    for c in 0..N_OUTPUTS {
-                        node[r * N_OUTPUTS + c] = ss.gain[(r, c)];
-                    }
-                }
-                for r in 0..N_OUTPUTS {
-                    for c in 0..N_OUTPUTS {
-                        node[S_INV_OFFSET + r * N_OUTPUTS + c] = ss.s_inv[(r, c)];
-                    }
-                }
-                node[LN_DET_OFFSET] = ss.ln_det_s;
-                for (r, v) in ss.s_diag.iter().enumerate() {
-                    node[INV_S_DIAG_OFFSET + r] = 1.0 / v;
-                }
+                solve_point(model, noise, dt_s, ln_min, ln_step, [i, j], node)?;
             }
         }
         Ok(Arc::new(GainGrid {
@@ -148,6 +124,12 @@ impl GainGrid {
             n,
             data,
         }))
+    }
+
+    /// The stored values, node `(i, j)` at `(i * n + j) * NODE_LEN` (for a cache:
+    /// [`GainTable::import`] takes them back).
+    pub fn values(&self) -> &[f64] {
+        &self.data
     }
 
     /// The cell of `ln theta`, clamped to the table (outside it the edge value holds).
@@ -187,6 +169,98 @@ impl GainGrid {
         for k in 0..NODE_LEN {
             out[k] = w[0] * c00[k] + w[1] * c01[k] + w[2] * c10[k] + w[3] * c11[k];
         }
+    }
+}
+
+/// The grid's lower corner and steps in `ln theta`.
+fn geometry(nominal: &Dampers, grid: &GainGridConfig) -> ([f64; 2], [f64; 2]) {
+    let n = grid.points_per_axis;
+    let nom = nominal.ln();
+    let ln_min = [nom[0] + grid.min_ratio.ln(), nom[1] + grid.min_ratio.ln()];
+    let span = (grid.max_ratio / grid.min_ratio).ln();
+    (ln_min, [span / (n - 1) as f64; 2])
+}
+
+/// The steady state at grid point `(i, j)` into `node` (length `NODE_LEN`).
+fn solve_point(
+    model: &BogieModel,
+    noise: &NoiseCovariances,
+    dt_s: f64,
+    ln_min: [f64; 2],
+    ln_step: [f64; 2],
+    [i, j]: [usize; 2],
+    node: &mut [f64],
+) -> Result<(), DamperError> {
+    let d = Dampers::from_ln([
+        ln_min[0] + i as f64 * ln_step[0],
+        ln_min[1] + j as f64 * ln_step[1],
+    ]);
+    let disc = discretize(&model.a_matrix(&d), &model.g_matrix(), dt_s)?;
+    let ss = steady_state(&disc, &model.h_matrix(), noise)?;
+    for r in 0..N_STATES {
+        for c in 0..N_OUTPUTS {
+            node[r * N_OUTPUTS + c] = ss.gain[(r, c)];
+        }
+    }
+    for r in 0..N_OUTPUTS {
+        for c in 0..N_OUTPUTS {
+            node[S_INV_OFFSET + r * N_OUTPUTS + c] = ss.s_inv[(r, c)];
+        }
+    }
+    node[LN_DET_OFFSET] = ss.ln_det_s;
+    for (r, v) in ss.s_diag.iter().enumerate() {
+        node[INV_S_DIAG_OFFSET + r] = 1.0 / v;
+    }
+    Ok(())
+}
+
+/// Version of the solution a [`GainTable::fingerprint`] names: raise it whenever the solver
+/// (`expm::discretize`, `kalman::steady_state`, [`GainGrid::build`]) or the layout of
+/// [`GainGrid::values`] changes, so that a cache of the old solutions is not used. (A cached
+/// node is also checked against a fresh solution of one of its points on import.)
+pub const GAIN_SOLUTION_VERSION: u32 = 1;
+
+/// FNV-1a, 128 bits: a hash that is the same on every platform and Rust version (unlike
+/// `std`'s `DefaultHasher`), for fingerprints and checksums of stored data. Not
+/// cryptographic: it tells apart inputs, it does not resist forgery.
+#[derive(Debug, Clone, Copy)]
+pub struct Fnv128(u128);
+
+impl Default for Fnv128 {
+    fn default() -> Self {
+        Fnv128(0x6c62_272e_07bb_0142_62b8_2175_6295_c58d)
+    }
+}
+
+impl Fnv128 {
+    pub fn bytes(&mut self, bytes: &[u8]) -> &mut Self {
+        for &b in bytes {
+            self.0 ^= b as u128;
+            self.0 = self
+                .0
+                .wrapping_mul(0x0000_0000_0100_0000_0000_0000_0000_013b);
+        }
+        self
+    }
+
+    pub fn u64(&mut self, v: u64) -> &mut Self {
+        self.bytes(&v.to_le_bytes())
+    }
+
+    /// The bits of `v` (so `-0.0` and `0.0`, or two NaNs, differ as the solver's inputs may).
+    pub fn f64(&mut self, v: f64) -> &mut Self {
+        self.u64(v.to_bits())
+    }
+
+    pub fn f64s<'a>(&mut self, vs: impl IntoIterator<Item = &'a f64>) -> &mut Self {
+        for v in vs {
+            self.f64(*v);
+        }
+        self
+    }
+
+    pub fn finish(&self) -> u128 {
+        self.0
     }
 }
 
@@ -264,6 +338,134 @@ impl GainTable {
         Ok(Arc::new(table))
     }
 
+    /// As [`GainTable::for_model`] without solving any node yet: for a caller that first
+    /// imports stored nodes ([`GainTable::import`]).
+    pub fn unsolved_for_model(
+        model: &FilterModel,
+        grid: &GainGridConfig,
+        speed: &SpeedConfig,
+    ) -> Result<Arc<Self>, DamperError> {
+        let bogie = model.bogie_model()?;
+        let v0 = bogie.params().speed_m_s;
+        let ln_ratio = speed.grid_ratio.ln();
+        let k_of = |v: f64| ((v / v0).ln() / ln_ratio).round() as i32;
+        let k_min = k_of(speed.min_m_s).min(0);
+        let k_max = k_of(speed.max_m_s).max(0);
+        Ok(Arc::new(GainTable {
+            model: bogie,
+            noise: model.noise(),
+            nominal: model.nominal,
+            grid: *grid,
+            dt_s: model.dt_s,
+            ln_ratio,
+            k_min,
+            nodes: (k_min..=k_max).map(|_| Mutex::new(None)).collect(),
+        }))
+    }
+
+    /// How many values a node's grid holds ([`GainGrid::values`]).
+    pub fn values_per_node(&self) -> usize {
+        self.grid.points_per_axis * self.grid.points_per_axis * NODE_LEN
+    }
+
+    /// The node of the vehicle's configured speed (solved first by [`GainTable::build`]).
+    pub fn configured_node(&self) -> usize {
+        self.node_of(self.model.params().speed_m_s)
+    }
+
+    /// The model at node `node`'s speed.
+    fn model_at(&self, node: usize) -> Result<BogieModel, DamperError> {
+        let mut model = self.model.clone();
+        model.set_speed(self.node_speed_m_s(node))?;
+        Ok(model)
+    }
+
+    /// A stable hash of everything node `node`'s solution is computed from (the model's
+    /// matrices at the node's speed, the noise, the grid, the sample period) and of
+    /// [`GAIN_SOLUTION_VERSION`]: the same on every platform and build, different (but for
+    /// a 2^-128 chance) whenever the solution would be. The key of a stored node.
+    pub fn fingerprint(&self, node: usize) -> Result<u128, DamperError> {
+        let model = self.model_at(node)?;
+        let (ln_min, ln_step) = geometry(&self.nominal, &self.grid);
+        let mut h = Fnv128::default();
+        h.bytes(b"railmon gain grid")
+            .u64(GAIN_SOLUTION_VERSION as u64)
+            .u64(NODE_LEN as u64)
+            .u64(self.grid.points_per_axis as u64)
+            .f64s(&ln_min)
+            .f64s(&ln_step)
+            .f64(self.dt_s);
+        model.hash_solver_inputs(&mut h);
+        h.f64s(self.noise.q_w.iter())
+            .f64s(self.noise.q_v.iter())
+            .f64(self.noise.q_floor);
+        Ok(h.finish())
+    }
+
+    /// Takes node `node`'s grid from stored `values` ([`GainGrid::values`] of a grid solved
+    /// for the same [`GainTable::fingerprint`]), exactly: the filters then compute what they
+    /// would with the node solved here. Checked first: the length, every value finite, and one
+    /// grid point (the centre) solved afresh must match to the bit; an error says which check
+    /// failed and leaves the node as it was. `Ok(false)`: the node was already solved (kept).
+    pub fn import(&self, node: usize, values: Vec<f64>) -> Result<bool, DamperError> {
+        let n = self.grid.points_per_axis;
+        let invalid = |reason: &'static str| DamperError::InvalidParameter {
+            field: "gain grid",
+            value: node as f64,
+            reason,
+        };
+        if values.len() != n * n * NODE_LEN {
+            return Err(invalid("stored grid has the wrong number of values"));
+        }
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(invalid("stored grid has a non-finite value"));
+        }
+        let (ln_min, ln_step) = geometry(&self.nominal, &self.grid);
+        let (i, j) = (n / 2, n / 2);
+        let at = (i * n + j) * NODE_LEN;
+        let mut fresh = [0.0; NODE_LEN];
+        solve_point(
+            &self.model_at(node)?,
+            &self.noise,
+            self.dt_s,
+            ln_min,
+            ln_step,
+            [i, j],
+            &mut fresh,
+        )?;
+        let stored = &values[at..at + NODE_LEN];
+        if fresh
+            .iter()
+            .zip(stored)
+            .any(|(a, b)| a.to_bits() != b.to_bits())
+        {
+            return Err(invalid(
+                "stored grid differs from a fresh solution of its centre point",
+            ));
+        }
+        let mut cell = self.nodes[node]
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        if cell.is_some() {
+            return Ok(false);
+        }
+        *cell = Some(Arc::new(GainGrid {
+            ln_min,
+            ln_step,
+            n,
+            data: values,
+        }));
+        Ok(true)
+    }
+
+    /// Node `node`'s grid if it has been solved (waits for a solution under way).
+    pub fn solved_grid(&self, node: usize) -> Option<Arc<GainGrid>> {
+        self.nodes[node]
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+            .clone()
+    }
+
     /// The node whose cell holds `speed_m_s` (clamped to the table).
     pub fn node_of(&self, speed_m_s: f64) -> usize {
         let v0 = self.model.params().speed_m_s;
@@ -293,8 +495,7 @@ impl GainTable {
         if let Some(g) = cell.as_ref() {
             return Ok(g.clone());
         }
-        let mut model = self.model.clone();
-        model.set_speed(self.node_speed_m_s(node))?;
+        let model = self.model_at(node)?;
         let built = GainGrid::build(&model, &self.noise, &self.nominal, &self.grid, self.dt_s)?;
         *cell = Some(built.clone());
         Ok(built)
@@ -328,5 +529,96 @@ impl GainTable {
             Err(TryLockError::Poisoned(p)) => p.into_inner().is_some(),
             Err(TryLockError::WouldBlock) => false,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{DamperMonitorConfig, Rbpf};
+
+    fn small() -> DamperMonitorConfig {
+        let mut c = DamperMonitorConfig::default();
+        c.rbpf.gain_grid.points_per_axis = 5;
+        c
+    }
+
+    /// A node taken from another table's values is the node solved here, to the bit, and
+    /// gives the same interpolated gains.
+    #[test]
+    fn an_imported_node_is_the_solved_node_to_the_bit() {
+        let c = small();
+        let solved = Rbpf::gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
+        let node = solved.configured_node() + 3;
+        let grid = solved.grid_at(node).unwrap();
+        let values = grid.values().to_vec();
+        let stored: Vec<u64> = values.iter().map(|v| v.to_bits()).collect();
+        // As a cache would: bits out, bits in.
+        let loaded = Rbpf::unsolved_gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
+        assert_eq!(
+            loaded.fingerprint(node).unwrap(),
+            solved.fingerprint(node).unwrap()
+        );
+        assert!(!loaded.is_solved(node));
+        let back = stored.iter().map(|&b| f64::from_bits(b)).collect();
+        assert!(loaded.import(node, back).unwrap());
+        let imported = loaded.solved_grid(node).unwrap();
+        assert_eq!(*imported, *grid);
+        let (mut a, mut b) = ([0.0; NODE_LEN], [0.0; NODE_LEN]);
+        for ln in [[10.0, 11.0], [9.3, 12.7], [0.0, 0.0]] {
+            let cell = grid.cell(ln);
+            assert_eq!(cell, imported.cell(ln));
+            grid.interpolate(&cell, &mut a);
+            imported.interpolate(&cell, &mut b);
+            assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+        }
+        // Once solved a node stays as it is.
+        assert!(!loaded.import(node, values).unwrap());
+    }
+
+    /// Wrong length, non-finite values and values of another solution are refused, and the
+    /// node stays unsolved.
+    #[test]
+    fn a_stored_grid_that_does_not_match_is_refused() {
+        let c = small();
+        let table = Rbpf::gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
+        let node = table.configured_node();
+        let good = table.grid_at(node).unwrap().values().to_vec();
+        let fresh = Rbpf::unsolved_gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
+        assert!(fresh.import(node, good[1..].to_vec()).is_err());
+        let mut nan = good.clone();
+        nan[7] = f64::NAN;
+        assert!(fresh.import(node, nan).is_err());
+        // Another node's solution under this node's key.
+        let other = table.grid_at(node + 1).unwrap().values().to_vec();
+        let e = fresh.import(node, other).unwrap_err();
+        assert!(e.to_string().contains("fresh solution"), "{e}");
+        assert!(!fresh.is_solved(node));
+    }
+
+    /// The fingerprint tells apart nodes, grids and models, and is stable: the value of the
+    /// default settings is pinned, so that a change of what it covers is a decision
+    /// (raise `GAIN_SOLUTION_VERSION` if the solution changes).
+    #[test]
+    fn the_fingerprint_names_what_the_solution_depends_on() {
+        let c = DamperMonitorConfig::default();
+        let t = Rbpf::unsolved_gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
+        let k = t.configured_node();
+        let fp = t.fingerprint(k).unwrap();
+        assert_ne!(fp, t.fingerprint(k + 1).unwrap());
+        let mut g = c;
+        g.rbpf.gain_grid.points_per_axis = 32;
+        let tg = Rbpf::unsolved_gain_table(&g.filter_model(), &g.rbpf, &g.speed).unwrap();
+        assert_ne!(fp, tg.fingerprint(tg.configured_node()).unwrap());
+        let mut m = c;
+        m.vehicle.bogie_mass_kg *= 1.0 + 1e-12;
+        let tm = Rbpf::unsolved_gain_table(&m.filter_model(), &m.rbpf, &m.speed).unwrap();
+        assert_ne!(fp, tm.fingerprint(tm.configured_node()).unwrap());
+        // A wider speed range adds nodes but leaves the configured speed's node as it is.
+        let mut s = c;
+        s.speed.min_m_s = 2.0;
+        let ts = Rbpf::unsolved_gain_table(&s.filter_model(), &s.rbpf, &s.speed).unwrap();
+        assert_eq!(fp, ts.fingerprint(ts.configured_node()).unwrap());
+        assert_eq!(format!("{fp:032x}"), "c9b090ed367aef3523db26d410d00223");
     }
 }

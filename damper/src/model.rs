@@ -229,6 +229,16 @@ impl BogieModel {
         Ok(())
     }
 
+    /// Everything of the model the gain grid's solution reads (`A(theta)`, `G`, `H`) into a
+    /// fingerprint (`GainTable::fingerprint`).
+    pub(crate) fn hash_solver_inputs(&self, h: &mut crate::gain_table::Fnv128) {
+        h.f64s(self.base.iter())
+            .f64(self.csay_gain)
+            .f64(self.end_stiffness)
+            .f64s(self.g_matrix().iter())
+            .f64s(self.h.iter());
+    }
+
     /// `V` with `W V = I` (see module docs).
     pub fn drift_basis(&self) -> &Matrix17x2 {
         &self.drift_basis

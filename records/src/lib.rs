@@ -20,6 +20,7 @@ pub use output::{refuse_output_that_is_an_input, AtomicFile};
 pub mod bogie;
 pub mod bounded;
 pub mod drive;
+pub mod gain_cache;
 pub mod output;
 pub mod private_dir;
 pub mod vehicle;

@@ -61,8 +61,10 @@ pub struct ServiceConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct StorageConfig {
-    /// Directory of the event database (`events.sqlite3`) and snapshots, created if missing
-    /// (mode 0700, files 0600); refused if others may write into it or it is a symlink.
+    /// Directory of the event database (`events.sqlite3`), the estimator snapshots and the
+    /// damper filters' solved gain grids (`gain-cache/`, `railmon damper warm-cache`), created
+    /// if missing (mode 0700, files 0600); refused if others may write into it or it is a
+    /// symlink.
     /// Empty: `$XDG_STATE_HOME/railmon`, else `~/.local/state/railmon`. `:memory:` keeps
     /// events in memory only (tests): they are then lost at a restart.
     pub data_dir: String,
@@ -112,6 +114,16 @@ impl StorageConfig {
         )?;
         settings::check_in_range("storage.max_age_days", self.max_age_days, &MAX_AGE_DAYS)?;
         Ok(())
+    }
+
+    /// The damper filters' stored gain grids, `<data_dir>/gain-cache` (`railmon damper
+    /// warm-cache` fills it ahead); `None` for the in-memory store.
+    pub fn gain_cache(&self) -> Option<railmon_records::gain_cache::GainCache> {
+        let db = self.database_path()?;
+        let dir = db.parent()?;
+        Some(railmon_records::gain_cache::GainCache::new(
+            dir.join(railmon_records::gain_cache::DIR_NAME),
+        ))
     }
 
     /// The database file, or `None` for the in-memory store.

@@ -186,11 +186,12 @@ pub fn start_ingest(
         threads.push(spawn_ingest(state, pipeline, status, shutdown.clone())?);
     }
     if let Some(status) = state.stream(StreamKind::Bogie) {
-        let pipeline = BogiePipeline::new(
+        let pipeline = BogiePipeline::with_gain_cache(
             state.config.bogie.clone(),
             state.bogie.clone(),
             state.metrics.clone(),
             &restored,
+            state.config.storage.gain_cache(),
         );
         threads.push(spawn_ingest(state, pipeline, status, shutdown.clone())?);
     }

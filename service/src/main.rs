@@ -1,6 +1,7 @@
 //! `railmon`: the onboard condition-monitoring service (`serve`) and offline analysis (`analyze`).
 
 mod config_cmd;
+mod damper_cmd;
 mod serve;
 #[cfg(feature = "analyze")]
 mod summary;
@@ -31,6 +32,9 @@ enum Command {
     /// The settings: their reference, and a check of a configuration.
     #[command(subcommand)]
     Config(config_cmd::ConfigCommand),
+    /// The damper estimator's gain cache.
+    #[command(subcommand)]
+    Damper(damper_cmd::DamperCommand),
     /// Run an estimator offline over a scenario or a recorded CSV: CSV reports and PNG plots.
     #[cfg(feature = "analyze")]
     #[command(subcommand)]
@@ -87,6 +91,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Serve(args) => serve::run(args),
         Command::Config(command) => config_cmd::run(command),
+        Command::Damper(command) => damper_cmd::run(command),
         #[cfg(feature = "analyze")]
         Command::Analyze(analyze) => {
             // Whole seconds: a file system may store coarser times than the clock reads.

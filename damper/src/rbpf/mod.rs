@@ -141,6 +141,17 @@ impl Rbpf {
         GainTable::for_model(filter_model, &config.gain_grid, speed)
     }
 
+    /// [`Rbpf::gain_table`] with no node solved yet (`GainTable::unsolved_for_model`), for a
+    /// caller that imports stored nodes first.
+    pub fn unsolved_gain_table(
+        filter_model: &FilterModel,
+        config: &RbpfConfig,
+        speed: &SpeedConfig,
+    ) -> Result<Arc<GainTable>, DamperError> {
+        Self::validate(filter_model, config, speed)?;
+        GainTable::unsolved_for_model(filter_model, &config.gain_grid, speed)
+    }
+
     /// As [`Rbpf::new`] with a prebuilt table (ignored for `Exact`; built when `None`).
     pub fn with_gain_table(
         filter_model: &FilterModel,

@@ -11,8 +11,10 @@ use railmon_bus::{BogieFrame, FrameHeader};
 use railmon_damper::gain_table::GainTable;
 use railmon_damper::{
     BogieSample, BogieStatusWatch, DamperAlarm, DamperError, DamperEventKind, DamperMonitor,
-    DamperMonitorState, DamperPosterior, PauseReason, Propagation, Rbpf, SampleRanges,
+    DamperMonitorConfig, DamperMonitorState, DamperPosterior, PauseReason, Propagation, Rbpf,
+    SampleRanges,
 };
+use railmon_records::gain_cache::GainCache;
 
 use railmon_bus::StreamKind;
 
@@ -109,6 +111,28 @@ fn rejection_of(e: DamperError) -> Rejection {
     }
 }
 
+/// The gain table of `estimator` with its configured speed's node ready: from `cache` if it
+/// is stored there, else solved (and stored). The other nodes are left to `super::warm`.
+fn gain_table(
+    estimator: &DamperMonitorConfig,
+    cache: Option<&GainCache>,
+) -> Result<Arc<GainTable>, DamperError> {
+    let (model, rbpf, speed) = (estimator.filter_model(), &estimator.rbpf, &estimator.speed);
+    let Some(cache) = cache else {
+        return Rbpf::gain_table(&model, rbpf, speed);
+    };
+    let table = Rbpf::unsolved_gain_table(&model, rbpf, speed)?;
+    let node = table.configured_node();
+    if let Err(e) = cache.load(&table, node) {
+        tracing::warn!("bogie gain table: {e}");
+    }
+    table.grid_at(node)?;
+    if let Err(e) = cache.store(&table, node) {
+        tracing::warn!("bogie gain table: node {node} not stored: {e}");
+    }
+    Ok(table)
+}
+
 pub struct BogiePipeline {
     config: BogieConfig,
     shared: Arc<BogieShared>,
@@ -144,6 +168,18 @@ impl BogiePipeline {
         metrics: Arc<Metrics>,
         restored: &[ActiveAlarm],
     ) -> Self {
+        Self::with_gain_cache(config, shared, metrics, restored, None)
+    }
+
+    /// [`BogiePipeline::new`] keeping the gain table's solved speed nodes in `cache`: those
+    /// stored there are loaded instead of solved (`super::warm`), those solved are stored.
+    pub fn with_gain_cache(
+        config: BogieConfig,
+        shared: Arc<BogieShared>,
+        metrics: Arc<Metrics>,
+        restored: &[ActiveAlarm],
+        cache: Option<GainCache>,
+    ) -> Self {
         let slots = config
             .bogies
             .iter()
@@ -167,11 +203,9 @@ impl BogiePipeline {
         );
         let estimator = &config.estimator;
         let table = match estimator.rbpf.propagation {
-            Propagation::SteadyState => {
-                Rbpf::gain_table(&estimator.filter_model(), &estimator.rbpf, &estimator.speed)
-                    .map(Some)
-                    .map_err(rejection_of)
-            }
+            Propagation::SteadyState => gain_table(estimator, cache.as_ref())
+                .map(Some)
+                .map_err(rejection_of),
             Propagation::Exact => Ok(None),
         };
         if let Err(e) = &table {
@@ -182,7 +216,11 @@ impl BogiePipeline {
         }
         let workers = BogieWorkers::new(config.worker_threads());
         let warmer = match &table {
-            Ok(Some(t)) => Some(NodeWarmer::new(t.clone(), estimator.vehicle.speed_m_s)),
+            Ok(Some(t)) => Some(NodeWarmer::new(
+                t.clone(),
+                estimator.vehicle.speed_m_s,
+                cache,
+            )),
             _ => None,
         };
         let pipeline = Self {
