@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::expm::discretize;
 use crate::filter_model::FilterModel;
+use crate::fingerprint::Fnv128;
 use crate::kalman::{steady_state, NoiseCovariances};
 use crate::model::{BogieModel, N_OUTPUTS, N_STATES};
 use crate::params::{positive, Dampers};
@@ -219,50 +220,6 @@ fn solve_point(
 /// [`GainGrid::values`] changes, so that a cache of the old solutions is not used. (A cached
 /// node is also checked against a fresh solution of one of its points on import.)
 pub const GAIN_SOLUTION_VERSION: u32 = 1;
-
-/// FNV-1a, 128 bits: a hash that is the same on every platform and Rust version (unlike
-/// `std`'s `DefaultHasher`), for fingerprints and checksums of stored data. Not
-/// cryptographic: it tells apart inputs, it does not resist forgery.
-#[derive(Debug, Clone, Copy)]
-pub struct Fnv128(u128);
-
-impl Default for Fnv128 {
-    fn default() -> Self {
-        Fnv128(0x6c62_272e_07bb_0142_62b8_2175_6295_c58d)
-    }
-}
-
-impl Fnv128 {
-    pub fn bytes(&mut self, bytes: &[u8]) -> &mut Self {
-        for &b in bytes {
-            self.0 ^= b as u128;
-            self.0 = self
-                .0
-                .wrapping_mul(0x0000_0000_0100_0000_0000_0000_0000_013b);
-        }
-        self
-    }
-
-    pub fn u64(&mut self, v: u64) -> &mut Self {
-        self.bytes(&v.to_le_bytes())
-    }
-
-    /// The bits of `v` (so `-0.0` and `0.0`, or two NaNs, differ as the solver's inputs may).
-    pub fn f64(&mut self, v: f64) -> &mut Self {
-        self.u64(v.to_bits())
-    }
-
-    pub fn f64s<'a>(&mut self, vs: impl IntoIterator<Item = &'a f64>) -> &mut Self {
-        for v in vs {
-            self.f64(*v);
-        }
-        self
-    }
-
-    pub fn finish(&self) -> u128 {
-        self.0
-    }
-}
 
 /// The gain grids of one vehicle over its speed range, built on first use and shared by
 /// every filter of that vehicle (`Arc`, thread-safe).

@@ -19,6 +19,7 @@ pub mod estimate;
 pub mod expm;
 pub mod faults;
 pub mod filter_model;
+pub mod fingerprint;
 pub mod gain_table;
 pub mod kalman;
 pub mod model;

@@ -231,7 +231,7 @@ impl BogieModel {
 
     /// Everything of the model the gain grid's solution reads (`A(theta)`, `G`, `H`) into a
     /// fingerprint (`GainTable::fingerprint`).
-    pub(crate) fn hash_solver_inputs(&self, h: &mut crate::gain_table::Fnv128) {
+    pub(crate) fn hash_solver_inputs(&self, h: &mut crate::fingerprint::Fnv128) {
         h.f64s(self.base.iter())
             .f64(self.csay_gain)
             .f64(self.end_stiffness)

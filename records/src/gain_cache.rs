@@ -26,7 +26,8 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use railmon_damper::gain_table::{Fnv128, GainTable};
+use railmon_damper::fingerprint::Fnv128;
+use railmon_damper::gain_table::GainTable;
 
 use crate::bounded::read_regular_file;
 use crate::{AtomicFile, RecordError};
