@@ -159,9 +159,13 @@ fn every_drive_losing_adhesion_at_once_is_flagged_the_same_on_every_path_with_a_
         &dir.join("scenario"),
     );
     let recording = dir.join("scenario/drives.csv");
-    let header = std::fs::read_to_string(&recording).unwrap();
+    let recorded = std::fs::read_to_string(&recording).unwrap();
     assert!(
-        header.lines().next().unwrap().ends_with(",train_speed_m_s"),
+        recorded
+            .lines()
+            .next()
+            .unwrap()
+            .ends_with(",train_speed_m_s"),
         "the recording carries the train speed"
     );
     let from_input = analyze(
@@ -205,13 +209,21 @@ fn every_drive_losing_adhesion_at_once_is_flagged_the_same_on_every_path_with_a_
     }
 
     // The service, fed by sensors-replay from the scenario (the simulator's train speed on
-    // the bus).
+    // the bus); its --record is the file analyze wrote, train speed column and all.
     let bus = PrivateBus::new();
     let service = Service::start(&bus, &[]);
+    let replayed = dir.join("replayed.csv");
     let mut replay = start_replay(
         &bus,
         "drive",
-        &["--scenario", scenario.to_str().unwrap(), "--speed", "max"],
+        &[
+            "--scenario",
+            scenario.to_str().unwrap(),
+            "--speed",
+            "max",
+            "--record",
+            replayed.to_str().unwrap(),
+        ],
     );
     assert!(
         replay.wait(Duration::from_secs(60)).success(),
@@ -220,6 +232,10 @@ fn every_drive_losing_adhesion_at_once_is_flagged_the_same_on_every_path_with_a_
     service.wait_for_status("drive", Duration::from_secs(30), "every frame", |s| {
         s["estimator_steps"].as_u64() == Some(n_steps)
     });
+    assert!(
+        std::fs::read_to_string(&replayed).unwrap() == recorded,
+        "sensors-replay --record wrote what analyze --scenario did"
+    );
     let from_service = service_events(&service, from_scenario.len());
     assert_eq!(from_service, from_scenario);
     assert_eq!(service.status("drive")["reference"], "train_speed");
