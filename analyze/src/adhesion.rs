@@ -10,12 +10,22 @@
 //!   F1 of "probability > 0.5" against the true slip flag, and the median detection delay;
 //!   then the same for the alarm rule (`railmon_slip::SlipAlarm`, what the service raises) in
 //!   the `alarm_*` columns; `rule` and `alarm_rule` say which rule each group scores;
+//!   `reference` (added by issue 23 item 2) what the method's last step was judged against,
+//!   `group` or `train_speed`;
 //! - `events.csv`: the `slip_started` / `slip_ended` events the configured method's alarm
 //!   raises (the service's events on the same data): `id,kind,stream_time_s,subject,detail,
 //!   step,method`, stream time `step x dt` in whole nanoseconds as on the bus;
 //! - `drives.csv` (scenarios only): the simulated record, in the layout `--input` reads
 //!   (`railmon_records::drive`), so a scenario run can be replayed from its file;
 //! - PNG plots after the paper's figures 5-9 (see [`plots`]).
+//!
+//! The train's measured speed (a scenario's `[train_speed]`, a recording's `train_speed_m_s`
+//! column) goes to every method with its frame, as the service's drive stream takes it from
+//! the bus: each method's probability is then its train-speed test's for the drives the test
+//! judges (`railmon_slip::MultiMethodPipeline::step_with_train_speed`), in `estimates.csv`,
+//! the scores and the events alike. The test's geometry is the scenario's `[train_speed]`
+//! (`gear_ratio`, `wheel_radius_m`); for `--input`, `railmon_slip::SpeedReferenceConfig`'s
+//! default, the service's `drive.speed_reference` default.
 
 pub mod plots;
 
@@ -27,6 +37,7 @@ use railmon_records::{create_csv, finish_csv, RecordError};
 use railmon_slip::{
     AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveSample,
     DriveSimulator, MultiMethodPipeline, SlipAlarmEvent, SlipError, SlipMonitorConfig,
+    SpeedReference, SpeedReferenceConfig,
 };
 
 use crate::report::AnalysisError;
@@ -53,19 +64,25 @@ enum Source {
     Recording(Box<DriveCsvReader<std::fs::File>>),
 }
 
-/// One frame: samples of every drive and, when known, the truth.
+/// One frame: samples of every drive and, when known, the truth and the train's speed.
 struct Frame {
     samples: Vec<DriveSample>,
     truth: Option<Vec<DriveTruth>>,
+    train_speed_m_s: Option<f64>,
 }
 
 impl Source {
     fn next(&mut self) -> Result<Option<Frame>, RecordError> {
         match self {
-            Source::Simulator(sim) => Ok(sim.step().map(|(samples, truth)| Frame {
-                samples: samples.to_vec(),
-                truth: Some(truth.to_vec()),
-            })),
+            Source::Simulator(sim) => {
+                Ok(sim
+                    .step_with_train_speed()
+                    .map(|(samples, truth, train_speed_m_s)| Frame {
+                        samples: samples.to_vec(),
+                        truth: Some(truth.to_vec()),
+                        train_speed_m_s,
+                    }))
+            }
             Source::Recording(reader) => Ok(reader.next_frame()?.map(|f| Frame {
                 samples: f
                     .drives
@@ -78,6 +95,7 @@ impl Source {
                     })
                     .collect(),
                 truth: f.truth,
+                train_speed_m_s: f.train_speed_m_s,
             })),
         }
     }
@@ -122,6 +140,8 @@ pub struct MethodTrace {
     pub slip_probability: Vec<Vec<f64>>,
     /// `[drive][step]` the alarm's slipping flag.
     pub alarm_slipping: Vec<Vec<bool>>,
+    /// What the last step's probabilities were judged against.
+    pub reference: SpeedReference,
 }
 
 /// A row of `table1.csv`.
@@ -137,6 +157,8 @@ pub struct Table1Row {
 #[derive(Debug, Clone, PartialEq)]
 pub struct DetectionRow {
     pub method: AdhesionMethod,
+    /// What the method's last step was judged against.
+    pub reference: SpeedReference,
     /// 1-based.
     pub drive: usize,
     /// "probability > 0.5".
@@ -178,7 +200,7 @@ fn estimator_error(path: &Path) -> impl Fn(SlipError) -> AdhesionAnalysisError +
 /// Runs the analysis the arguments ask for and writes every report file.
 pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
     create_out_dir(&args.run.out)?;
-    let (name, mut config, source, n_drives, n_steps_hint, record) =
+    let (name, mut config, speed_reference, source, n_drives, n_steps_hint, record) =
         match (&args.run.input, &args.run.scenario) {
             (Some(path), _) => {
                 let reader = DriveCsvReader::open(path, None)?;
@@ -186,6 +208,7 @@ pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
                 (
                     name,
                     SlipMonitorConfig::default(),
+                    SpeedReferenceConfig::default(),
                     Source::Recording(Box::new(reader)),
                     None,
                     0,
@@ -197,12 +220,18 @@ pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
                 let scenario = AdhesionScenario::from_toml_str(&read_text(path)?)
                     .map_err(estimator_error(path))?;
                 let sim = DriveSimulator::new(&scenario).map_err(estimator_error(path))?;
-                let writer = DriveCsvWriter::create(&args.run.out.join("drives.csv"), true)?;
+                let train_speed = scenario.train_speed.as_ref();
+                let writer = DriveCsvWriter::create(
+                    &args.run.out.join("drives.csv"),
+                    true,
+                    train_speed.is_some(),
+                )?;
                 let name = path.display().to_string();
                 let n = scenario.n_drives();
                 (
                     name,
                     scenario.monitor_config(),
+                    train_speed.map_or_else(SpeedReferenceConfig::default, |t| t.speed_reference()),
                     Source::Simulator(Box::new(sim)),
                     Some(n),
                     scenario.n_steps(),
@@ -228,6 +257,7 @@ pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
     let run = analyse(
         &name,
         &config,
+        speed_reference,
         source,
         n_drives,
         n_steps_hint,
@@ -245,9 +275,11 @@ pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
 
 /// Steps every frame through the EKFs and all methods, writing `estimates.csv` (and the
 /// simulated record) as it goes.
+#[allow(clippy::too_many_arguments)]
 fn analyse(
     name: &str,
     config: &SlipMonitorConfig,
+    speed_reference: SpeedReferenceConfig,
     mut source: Source,
     n_drives: Option<usize>,
     n_steps_hint: usize,
@@ -291,22 +323,30 @@ fn analyse(
                         global_torque_nm: Vec::with_capacity(n_steps_hint),
                         slip_probability: vec![Vec::with_capacity(n_steps_hint); n],
                         alarm_slipping: vec![Vec::with_capacity(n_steps_hint); n],
+                        reference: SpeedReference::Group,
                     })
                     .collect();
                 est.write_record(estimates_header(run.truth.is_some()))
                     .map_err(write_err)?;
-                pipeline.insert(MultiMethodPipeline::new(config, n).map_err(|source| {
-                    AdhesionAnalysisError::Estimator {
-                        file: label.clone(),
-                        source,
-                    }
-                })?)
+                let estimator_error = |source| AdhesionAnalysisError::Estimator {
+                    file: label.clone(),
+                    source,
+                };
+                let mut p = MultiMethodPipeline::new(config, n).map_err(estimator_error)?;
+                p.set_speed_reference(speed_reference)
+                    .map_err(estimator_error)?;
+                pipeline.insert(p)
             }
         };
         if let Some(w) = record.as_mut() {
-            w.write_frame(step as u64, &frame.samples, frame.truth.as_deref())?;
+            w.write_frame(
+                step as u64,
+                &frame.samples,
+                frame.truth.as_deref(),
+                frame.train_speed_m_s,
+            )?;
         }
-        pipe.step(&frame.samples)
+        pipe.step_with_train_speed(&frame.samples, frame.train_speed_m_s)
             .map_err(|source| AdhesionAnalysisError::Estimator {
                 file: format!("{label}: step {step}"),
                 source,
@@ -324,20 +364,23 @@ fn analyse(
                 fields.push(fmt(t[k].torque_nm));
                 fields.push(u8::from(t[k].slipping).to_string());
             }
-            for (_, out) in pipe.outputs() {
+            for ((_, out), (_, p)) in pipe.outputs().zip(pipe.slip_probability()) {
                 fields.push(fmt(out.global_torque_nm));
-                fields.push(fmt(out.slip_probability[k]));
+                fields.push(fmt(p[k]));
             }
             est.write_record(&fields).map_err(write_err)?;
         }
-        for ((trace, (_, out)), (_, flags)) in run
+        for ((((trace, (_, out)), (_, flags)), (_, probability)), (_, reference)) in run
             .methods
             .iter_mut()
             .zip(pipe.outputs())
             .zip(pipe.slipping())
+            .zip(pipe.slip_probability())
+            .zip(pipe.references())
         {
             trace.global_torque_nm.push(out.global_torque_nm);
-            for (p, &v) in trace.slip_probability.iter_mut().zip(&out.slip_probability) {
+            trace.reference = reference;
+            for (p, &v) in trace.slip_probability.iter_mut().zip(probability) {
                 p.push(v);
             }
             for (a, &f) in trace.alarm_slipping.iter_mut().zip(flags) {
@@ -420,6 +463,7 @@ pub fn tables(run: &AdhesionRun, skip: usize) -> AdhesionReport {
                 }
                 detection.push(DetectionRow {
                     method: trace.method,
+                    reference: trace.reference,
                     drive: k + 1,
                     score: counter.score(),
                     alarm: alarm.score(),
@@ -485,6 +529,8 @@ fn write_tables(
             // no true slip step in them.
             "alarm_episodes",
             "alarm_false_episodes",
+            // Added by issue 23 item 2: `group` or `train_speed`, the method's last step's.
+            "reference",
         ])
         .map_err(|e| write_error(&path, e))?;
         for r in &report.detection {
@@ -502,6 +548,7 @@ fn write_tables(
                 r.alarm.missed_events.to_string(),
                 r.alarm.detection_episodes.to_string(),
                 r.alarm.false_episodes.to_string(),
+                r.reference.name().to_owned(),
             ]);
             w.write_record(&row).map_err(|e| write_error(&path, e))?;
         }
@@ -573,6 +620,19 @@ fn tables_text(run: &AdhesionRun, report: &AdhesionReport) -> String {
         "{}: {} drives, {} steps",
         run.name, run.n_drives, report.n_steps
     );
+    if let Some(trace) = run.methods.iter().find(|t| t.method == run.method) {
+        let _ = writeln!(
+            out,
+            "reference ({}, last step): {}{}",
+            run.method,
+            trace.reference,
+            match trace.reference {
+                SpeedReference::Group =>
+                    " (the other drives: blind to every drive losing adhesion at once)",
+                SpeedReference::TrainSpeed => " (the train's measured speed)",
+            }
+        );
+    }
     let _ = writeln!(
         out,
         "{:<9} {:>5} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",

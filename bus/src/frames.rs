@@ -7,7 +7,7 @@ use iceoryx2::prelude::ZeroCopySend;
 use crate::StreamKind;
 
 /// Bumped whenever a payload layout changes (also part of every type name).
-pub const FRAME_LAYOUT_VERSION: u32 = 3;
+pub const FRAME_LAYOUT_VERSION: u32 = 4;
 
 /// Capacity of a [`DriveFrame`]: the most drives one vehicle publishes in one frame.
 pub const MAX_DRIVES: usize = 32;
@@ -15,7 +15,7 @@ pub const MAX_DRIVES: usize = 32;
 /// User header of every frame. iceoryx2's own sample header has no sequence number, so the
 /// publisher numbers its frames here; the subscriber counts gaps per `publisher_instance`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ZeroCopySend)]
-#[type_name("railmon::FrameHeader.v3")]
+#[type_name("railmon::FrameHeader.v4")]
 #[repr(C)]
 pub struct FrameHeader {
     /// [`FRAME_LAYOUT_VERSION`] of the publisher.
@@ -77,16 +77,27 @@ impl From<&DriveChannels> for railmon_slip::DriveSample {
     }
 }
 
-/// All drives of one vehicle at one control step.
+/// All drives of one vehicle at one control step, and the train's own measured speed when the
+/// vehicle has one (layout 4, issue 23 item 2).
+///
+/// The train speed's presence is a bit in `present` ([`DriveFrame::TRAIN_SPEED`]), not a NaN
+/// value: a NaN or infinite speed from a faulty sensor must be refused (`not_finite`) like any
+/// other channel, which it could not be if NaN meant "no sensor".
 #[derive(Clone, Copy, Debug, PartialEq, ZeroCopySend)]
-#[type_name("railmon::DriveFrame.v1")]
+#[type_name("railmon::DriveFrame.v2")]
 #[repr(C)]
 pub struct DriveFrame {
     /// Drives in use, `drives[..n_drives]`; a frame claiming more than [`MAX_DRIVES`] is invalid.
     pub n_drives: u32,
-    pub reserved: u32,
+    /// Bit set of the optional channels present: [`DriveFrame::TRAIN_SPEED`] (v1: `reserved`, 0,
+    /// so a v1 frame read as v2 would say "no train speed"; the type name keeps them apart).
+    pub present: u32,
     /// Control step of the publisher, ns.
     pub dt_ns: u64,
+    /// The train's measured speed (radar, GNSS, an unpowered axle), m/s, a magnitude in
+    /// `railmon_slip::TRAIN_SPEED_RANGE_M_S` (0..=100); valid with [`DriveFrame::TRAIN_SPEED`],
+    /// else 0 and ignored.
+    pub train_speed_m_s: f64,
     pub drives: [DriveChannels; MAX_DRIVES],
 }
 
@@ -117,6 +128,12 @@ pub enum FrameError {
         railmon_damper::sample::MAX_SPEED_M_S
     )]
     SpeedOutOfRange { bogie_id: u32, speed_m_s: f64 },
+    #[error(
+        "train_speed_m_s is {train_speed_m_s} (must be in {}..={} m/s)",
+        railmon_slip::TRAIN_SPEED_RANGE_M_S.0,
+        railmon_slip::TRAIN_SPEED_RANGE_M_S.1
+    )]
+    TrainSpeedOutOfRange { train_speed_m_s: f64 },
 }
 
 /// The first NaN or infinity among `values`, as a [`FrameError::NotFinite`] at `place`.
@@ -144,6 +161,7 @@ impl FrameError {
             FrameError::NotFinite { .. } => "not_finite",
             FrameError::UnknownChannels { .. } => "unknown_channels",
             FrameError::SpeedOutOfRange { .. } => "speed_out_of_range",
+            FrameError::TrainSpeedOutOfRange { .. } => "train_speed_out_of_range",
         }
     }
 }
@@ -161,7 +179,11 @@ impl FrameHeader {
 }
 
 impl DriveFrame {
-    /// A frame of `drives.len()` drives; the unused slots are zero.
+    /// `present` bit: the frame carries the train speed.
+    pub const TRAIN_SPEED: u32 = 1 << 0;
+    const ALL: u32 = Self::TRAIN_SPEED;
+
+    /// A frame of `drives.len()` drives, without a train speed; the unused slots are zero.
     pub fn new(dt_ns: u64, drives: &[DriveChannels]) -> Result<Self, FrameError> {
         if drives.len() > MAX_DRIVES {
             return Err(FrameError::TooManyDrives {
@@ -171,12 +193,46 @@ impl DriveFrame {
         }
         let mut frame = DriveFrame {
             n_drives: drives.len() as u32,
-            reserved: 0,
+            present: 0,
             dt_ns,
+            train_speed_m_s: 0.0,
             drives: [DriveChannels::default(); MAX_DRIVES],
         };
         frame.drives[..drives.len()].copy_from_slice(drives);
         Ok(frame)
+    }
+
+    /// The frame with the train speed `train_speed_m_s` (m/s) when there is one.
+    pub fn with_train_speed(mut self, train_speed_m_s: Option<f64>) -> Self {
+        match train_speed_m_s {
+            Some(v) => {
+                self.present |= Self::TRAIN_SPEED;
+                self.train_speed_m_s = v;
+            }
+            None => {
+                self.present &= !Self::TRAIN_SPEED;
+                self.train_speed_m_s = 0.0;
+            }
+        }
+        self
+    }
+
+    /// The train speed, after checking that `present` names only known channels and that a
+    /// present speed is finite and in `railmon_slip::TRAIN_SPEED_RANGE_M_S`.
+    pub fn checked_train_speed(&self) -> Result<Option<f64>, FrameError> {
+        if self.present & !Self::ALL != 0 {
+            return Err(FrameError::UnknownChannels { bits: self.present });
+        }
+        if self.present & Self::TRAIN_SPEED == 0 {
+            return Ok(None);
+        }
+        let v = self.train_speed_m_s;
+        check_finite(|| "vehicle".to_string(), [("train_speed_m_s", v)])?;
+        let (lo, hi) = railmon_slip::TRAIN_SPEED_RANGE_M_S;
+        if !(lo..=hi).contains(&v) {
+            return Err(FrameError::TrainSpeedOutOfRange { train_speed_m_s: v });
+        }
+        Ok(Some(v))
     }
 
     /// The drives in use, after checking the count against `max_drives` (at most
@@ -441,6 +497,39 @@ mod tests {
         assert_eq!(
             frame.checked_drives(MAX_DRIVES).unwrap_err().reason(),
             "not_finite"
+        );
+    }
+
+    #[test]
+    fn drive_frame_carries_an_optional_train_speed() {
+        assert_eq!(std::mem::size_of::<DriveFrame>(), 1048);
+        let frame = DriveFrame::new(1, &channels(2)).unwrap();
+        assert_eq!(frame.checked_train_speed().unwrap(), None);
+        let with = frame.with_train_speed(Some(12.5));
+        assert_eq!(with.checked_train_speed().unwrap(), Some(12.5));
+        assert_eq!(with.checked_drives(MAX_DRIVES).unwrap(), &channels(2)[..]);
+        assert_eq!(with.with_train_speed(None), frame);
+        for (v, reason) in [
+            (f64::NAN, "not_finite"),
+            (f64::INFINITY, "not_finite"),
+            (-0.1, "train_speed_out_of_range"),
+            (100.5, "train_speed_out_of_range"),
+        ] {
+            let err = frame
+                .with_train_speed(Some(v))
+                .checked_train_speed()
+                .unwrap_err();
+            assert_eq!(err.reason(), reason, "{v}");
+            assert!(err.to_string().contains("train_speed_m_s is"), "{err}");
+        }
+        // Absent: the value is ignored, whatever it is.
+        let mut absent = frame;
+        absent.train_speed_m_s = f64::NAN;
+        assert_eq!(absent.checked_train_speed().unwrap(), None);
+        absent.present = 1 << 5;
+        assert_eq!(
+            absent.checked_train_speed().unwrap_err().reason(),
+            "unknown_channels"
         );
     }
 

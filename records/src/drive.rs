@@ -4,8 +4,8 @@
 //! Long layout, one row per time step and drive, drives numbered from 1 (as in the paper):
 //!
 //! ```text
-//! step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a[,true_speed_rad_s,true_angle_rad,true_torque_nm,true_slipping]
-//! 0,1,12.5,-40.1,3.2,7.9,200.0,-0.9,10.0,0
+//! step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a[,true_speed_rad_s,true_angle_rad,true_torque_nm,true_slipping][,train_speed_m_s]
+//! 0,1,12.5,-40.1,3.2,7.9,200.0,-0.9,10.0,0,5.75
 //! 0,2,...
 //! ```
 //!
@@ -15,6 +15,11 @@
 //!   frame); `i_alpha_a, i_beta_a`: stator currents measured now.
 //! - Optional truth (simulated data): electrical speed and angle, load torque, and the slip
 //!   flag (`0/1`): all four or none.
+//! - Optional `train_speed_m_s` (issue 23 item 2): the train's own measured speed at the step
+//!   (radar, GNSS, an unpowered axle), m/s, a magnitude in
+//!   [`railmon_slip::TRAIN_SPEED_RANGE_M_S`] (0..=100); the same on every drive's row of a
+//!   step; an empty field: no train speed at that step. Outside the range, NaN or infinite:
+//!   an error naming file, line, field and value (a sensor fault, not a speed).
 //!
 //! N is taken from the first step unless the caller knows it; a drive number outside
 //! `1..=N`, a missing drive, a repeated or skipped step, a NaN, an infinity, an empty field, a
@@ -46,6 +51,9 @@ pub const DRIVE_TRUTH_COLUMNS: [&str; 4] = [
     "true_slipping",
 ];
 
+/// The optional train-speed column (m/s).
+pub const DRIVE_TRAIN_SPEED_COLUMN: &str = "train_speed_m_s";
+
 /// All drives at one step.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DriveFrame {
@@ -53,6 +61,9 @@ pub struct DriveFrame {
     pub drives: Vec<DriveSample>,
     /// Present when the file has the truth columns.
     pub truth: Option<Vec<DriveTruth>>,
+    /// The train's measured speed at this step, m/s (the `train_speed_m_s` column, when the
+    /// file has it and the field is not empty).
+    pub train_speed_m_s: Option<f64>,
 }
 
 struct Columns {
@@ -63,6 +74,7 @@ struct Columns {
     i_alpha: Column,
     i_beta: Column,
     truth: Option<[Column; 4]>,
+    train_speed: Option<Column>,
 }
 
 /// One parsed row.
@@ -72,6 +84,7 @@ struct ParsedRow {
     drive: u64,
     measurement: DriveSample,
     truth: Option<DriveTruth>,
+    train_speed_m_s: Option<f64>,
 }
 
 /// Streams frames out of a drive recording.
@@ -125,6 +138,7 @@ impl<R: Read> DriveCsvReader<R> {
             i_alpha: table.column("i_alpha_a")?,
             i_beta: table.column("i_beta_a")?,
             truth,
+            train_speed: table.optional_column(DRIVE_TRAIN_SPEED_COLUMN),
         };
         if n_drives == Some(0) {
             return Err(RecordError::file(
@@ -147,6 +161,11 @@ impl<R: Read> DriveCsvReader<R> {
         self.columns.truth.is_some()
     }
 
+    /// Whether the file has the `train_speed_m_s` column.
+    pub fn has_train_speed(&self) -> bool {
+        self.columns.train_speed.is_some()
+    }
+
     /// Number of drives: known after the first frame unless given.
     pub fn n_drives(&self) -> Option<usize> {
         self.n_drives
@@ -166,6 +185,13 @@ impl<R: Read> DriveCsvReader<R> {
             }),
             None => None,
         };
+        let train_speed_m_s = match &c.train_speed {
+            Some(column) if !row.text(column).is_empty() => {
+                let (min, max) = railmon_slip::TRAIN_SPEED_RANGE_M_S;
+                Some(row.f64_in(column, min, max, "m/s")?)
+            }
+            _ => None,
+        };
         Ok(Some(ParsedRow {
             line: row.line(),
             step: row.u64(&c.step)?,
@@ -177,6 +203,7 @@ impl<R: Read> DriveCsvReader<R> {
                 i_beta_a: row.f64(&c.i_beta)?,
             },
             truth,
+            train_speed_m_s,
         }))
     }
 
@@ -219,6 +246,7 @@ impl<R: Read> DriveCsvReader<R> {
             return Err(self.row_error(first.line, &self.columns.drive, first.drive, reason));
         }
         let step = first.step;
+        let train_speed_m_s = first.train_speed_m_s;
         let mut drives = vec![first.measurement];
         let mut truth = first.truth.map(|t| vec![t]);
         loop {
@@ -240,6 +268,19 @@ impl<R: Read> DriveCsvReader<R> {
             if row.drive != expected {
                 let reason = format!("expected drive {expected} of step {step}: drives must be listed 1..=N in order");
                 return Err(self.row_error(row.line, &self.columns.drive, row.drive, reason));
+            }
+            if row.train_speed_m_s.map(f64::to_bits) != train_speed_m_s.map(f64::to_bits) {
+                let column = self
+                    .columns
+                    .train_speed
+                    .as_ref()
+                    .expect("a value came from it");
+                let value = row.train_speed_m_s.map_or(String::new(), |v| v.to_string());
+                let first = train_speed_m_s.map_or("empty".to_owned(), |v| v.to_string());
+                let reason = format!(
+                    "step {step}: drive 1 has {first}: the train speed is one per step, the same on every drive's row"
+                );
+                return Err(self.row_error(row.line, column, value, reason));
             }
             drives.push(row.measurement);
             if let (Some(t), Some(r)) = (truth.as_mut(), row.truth) {
@@ -267,6 +308,7 @@ impl<R: Read> DriveCsvReader<R> {
             step,
             drives,
             truth,
+            train_speed_m_s,
         }))
     }
 }
@@ -290,13 +332,24 @@ pub struct DriveCsvWriter<W: Write> {
     label: String,
     writer: csv::Writer<W>,
     with_truth: bool,
+    with_train_speed: bool,
 }
 
 impl DriveCsvWriter<AtomicFile> {
-    /// Starts `path` (in place only at [`DriveCsvWriter::finish`]); `with_truth` adds the truth columns.
-    pub fn create(path: &Path, with_truth: bool) -> Result<Self, RecordError> {
+    /// Starts `path` (in place only at [`DriveCsvWriter::finish`]); `with_truth` adds the truth
+    /// columns, `with_train_speed` the `train_speed_m_s` column.
+    pub fn create(
+        path: &Path,
+        with_truth: bool,
+        with_train_speed: bool,
+    ) -> Result<Self, RecordError> {
         let writer = create_csv(path)?;
-        Self::new(&path.display().to_string(), writer, with_truth)
+        Self::new(
+            &path.display().to_string(),
+            writer,
+            with_truth,
+            with_train_speed,
+        )
     }
 
     /// Completes the file and puts it in place (until then an existing file is untouched).
@@ -307,14 +360,32 @@ impl DriveCsvWriter<AtomicFile> {
 
 impl<W: Write> DriveCsvWriter<W> {
     /// Over any writer; `label` names it in errors.
-    pub fn from_writer(label: &str, writer: W, with_truth: bool) -> Result<Self, RecordError> {
-        Self::new(label, csv::Writer::from_writer(writer), with_truth)
+    pub fn from_writer(
+        label: &str,
+        writer: W,
+        with_truth: bool,
+        with_train_speed: bool,
+    ) -> Result<Self, RecordError> {
+        Self::new(
+            label,
+            csv::Writer::from_writer(writer),
+            with_truth,
+            with_train_speed,
+        )
     }
 
-    fn new(label: &str, mut writer: csv::Writer<W>, with_truth: bool) -> Result<Self, RecordError> {
+    fn new(
+        label: &str,
+        mut writer: csv::Writer<W>,
+        with_truth: bool,
+        with_train_speed: bool,
+    ) -> Result<Self, RecordError> {
         let mut header: Vec<&str> = DRIVE_COLUMNS.to_vec();
         if with_truth {
             header.extend(DRIVE_TRUTH_COLUMNS);
+        }
+        if with_train_speed {
+            header.push(DRIVE_TRAIN_SPEED_COLUMN);
         }
         writer
             .write_record(&header)
@@ -323,16 +394,25 @@ impl<W: Write> DriveCsvWriter<W> {
             label: label.to_owned(),
             writer,
             with_truth,
+            with_train_speed,
         })
     }
 
-    /// Writes all drives of one step (`truth` is required when the writer has truth columns).
+    /// Writes all drives of one step (`truth` is required when the writer has truth columns;
+    /// a train speed needs the `train_speed_m_s` column, which is left empty without one).
     pub fn write_frame(
         &mut self,
         step: u64,
         drives: &[DriveSample],
         truth: Option<&[DriveTruth]>,
+        train_speed_m_s: Option<f64>,
     ) -> Result<(), RecordError> {
+        if train_speed_m_s.is_some() && !self.with_train_speed {
+            return Err(RecordError::file(
+                &self.label,
+                format!("step {step}: a train speed but no train_speed_m_s column"),
+            ));
+        }
         if self.with_truth && truth.is_none_or(|t| t.len() != drives.len()) {
             return Err(RecordError::file(
                 &self.label,
@@ -356,6 +436,9 @@ impl<W: Write> DriveCsvWriter<W> {
                     t.torque_nm.to_string(),
                     u8::from(t.slipping).to_string(),
                 ]);
+            }
+            if self.with_train_speed {
+                fields.push(train_speed_m_s.map_or(String::new(), |v| v.to_string()));
             }
             self.writer
                 .write_record(&fields)
@@ -450,9 +533,9 @@ mod tests {
             },
         ];
         let mut buf = Vec::new();
-        let mut w = DriveCsvWriter::from_writer("mem", &mut buf, true).unwrap();
-        w.write_frame(0, &drives, Some(&truth)).unwrap();
-        w.write_frame(1, &drives, Some(&truth)).unwrap();
+        let mut w = DriveCsvWriter::from_writer("mem", &mut buf, true, false).unwrap();
+        w.write_frame(0, &drives, Some(&truth), None).unwrap();
+        w.write_frame(1, &drives, Some(&truth), None).unwrap();
         w.into_inner().unwrap();
         let text = String::from_utf8(buf).unwrap();
         let frames = read_all(&text, Some(2)).unwrap();
@@ -528,6 +611,52 @@ mod tests {
             e.to_string(),
             "d.csv:3: field \"step\" = \"2\": expected step 1: steps must increase by one"
         );
+    }
+
+    #[test]
+    fn the_train_speed_column_is_optional_one_per_step_and_checked() {
+        let drives = [DriveSample::default(); 2];
+        let mut buf = Vec::new();
+        let mut w = DriveCsvWriter::from_writer("mem", &mut buf, false, true).unwrap();
+        w.write_frame(0, &drives, None, Some(5.75)).unwrap();
+        w.write_frame(1, &drives, None, None).unwrap();
+        w.write_frame(2, &drives, None, Some(0.1 + 0.2)).unwrap();
+        w.into_inner().unwrap();
+        let text = String::from_utf8(buf).unwrap();
+        assert!(
+            text.starts_with("step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a,train_speed_m_s\n")
+        );
+        let mut r = DriveCsvReader::from_reader("d.csv", text.as_bytes(), None).unwrap();
+        assert!(r.has_train_speed());
+        let speeds: Vec<Option<f64>> = std::iter::from_fn(|| r.next_frame().unwrap())
+            .map(|f| f.train_speed_m_s)
+            .collect();
+        assert_eq!(speeds, [Some(5.75), None, Some(0.1 + 0.2)]);
+        // Without the column: none, and the writer refuses to drop one.
+        assert_eq!(read_all(GOOD, None).unwrap()[0].train_speed_m_s, None);
+        let mut w = DriveCsvWriter::from_writer("mem", Vec::new(), false, false).unwrap();
+        assert!(w.write_frame(0, &drives, None, Some(1.0)).is_err());
+
+        let with = |a: &str, b: &str| {
+            format!(
+                "step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a,train_speed_m_s\n\
+                 0,1,1,2,3,4,5\n0,2,5,6,7,8,5\n1,1,1,2,3,4,{a}\n1,2,5,6,7,8,{b}\n"
+            )
+        };
+        assert_eq!(
+            read_all(&with("6", "6"), None).unwrap()[1].train_speed_m_s,
+            Some(6.0)
+        );
+        for (a, b, expected) in [
+            ("-1", "-1", "d.csv:4: field \"train_speed_m_s\" = \"-1\": out of range [0, 100] m/s"),
+            ("360", "360", "d.csv:4: field \"train_speed_m_s\" = \"360\": out of range [0, 100] m/s"),
+            ("NaN", "NaN", "d.csv:4: field \"train_speed_m_s\" = \"NaN\": not a finite number"),
+            ("inf", "inf", "d.csv:4: field \"train_speed_m_s\" = \"inf\": not a finite number"),
+            ("6", "7", "d.csv:5: field \"train_speed_m_s\" = \"7\": step 1: drive 1 has 6: the train speed is one per step, the same on every drive's row"),
+        ] {
+            let e = read_all(&with(a, b), None).unwrap_err();
+            assert_eq!(e.to_string(), expected);
+        }
     }
 
     #[test]

@@ -18,7 +18,8 @@ pub struct DriveArgs {
     /// Adhesion scenario (e.g. config/scenarios/adhesion-seed.toml): simulated drives.
     #[arg(long, conflicts_with = "csv", required_unless_present = "csv")]
     scenario: Option<PathBuf>,
-    /// Recorded drive CSV (`step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a[,truth...]`).
+    /// Recorded drive CSV (`step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a[,truth...]
+    /// [,train_speed_m_s]`); the train speed, when the file has it, goes out with each frame.
     #[arg(long)]
     csv: Option<PathBuf>,
     /// Control step of the CSV recording, s, in [1e-6, 1] (scenarios carry their own); by
@@ -29,11 +30,13 @@ pub struct DriveArgs {
     replay: ReplayArgs,
 }
 
-/// One step of every drive, with ground truth when the source has it.
+/// One step of every drive, with ground truth and the train's measured speed when the source
+/// has them.
 #[derive(Default)]
 struct Step {
     drives: Vec<DriveSample>,
     truth: Option<Vec<DriveTruth>>,
+    train_speed_m_s: Option<f64>,
 }
 
 enum DriveData {
@@ -96,16 +99,27 @@ impl DriveData {
         }
     }
 
+    /// Whether the source has a train speed (a scenario's `[train_speed]`, a recording's
+    /// `train_speed_m_s` column): a recording of it gets the column.
+    fn has_train_speed(&self) -> bool {
+        match self {
+            DriveData::Scenario { scenario, .. } => scenario.train_speed.is_some(),
+            DriveData::Csv { reader, .. } => reader.has_train_speed(),
+        }
+    }
+
     /// Fills `step` with the next step; false at the end.
     fn next(&mut self, step: &mut Step) -> anyhow::Result<bool> {
         match self {
             DriveData::Scenario { simulator, .. } => {
-                let Some((samples, truth)) = simulator.step() else {
+                let Some((samples, truth, train_speed_m_s)) = simulator.step_with_train_speed()
+                else {
                     return Ok(false);
                 };
                 step.drives.clear();
                 step.drives.extend_from_slice(samples);
                 step.truth = Some(truth.to_vec());
+                step.train_speed_m_s = train_speed_m_s;
                 Ok(true)
             }
             DriveData::Csv { reader, .. } => match reader.next_frame()? {
@@ -119,6 +133,7 @@ impl DriveData {
                     }
                     step.drives = frame.drives;
                     step.truth = frame.truth;
+                    step.train_speed_m_s = frame.train_speed_m_s;
                     Ok(true)
                 }
                 None => Ok(false),
@@ -163,7 +178,8 @@ impl Source for DriveSource {
         self.drives.clear();
         self.drives
             .extend(self.step.drives.iter().map(DriveChannels::from));
-        let frame = DriveFrame::new(self.dt_ns, &self.drives)?;
+        let frame =
+            DriveFrame::new(self.dt_ns, &self.drives)?.with_train_speed(self.step.train_speed_m_s);
         let sample_time_ns = self.run_step * self.dt_ns;
         self.run_step += 1;
         Ok(Some((frame, sample_time_ns)))
@@ -177,7 +193,12 @@ impl Source for DriveSource {
     /// The drive layout numbers steps rather than timing them: `sent` continues across runs.
     fn record(&mut self, sent: u64, _run_offset_s: f64) -> anyhow::Result<()> {
         if let Some(recorder) = self.recorder.as_mut() {
-            recorder.write_frame(sent, &self.step.drives, self.step.truth.as_deref())?;
+            recorder.write_frame(
+                sent,
+                &self.step.drives,
+                self.step.truth.as_deref(),
+                self.step.train_speed_m_s,
+            )?;
         }
         Ok(())
     }
@@ -199,7 +220,11 @@ pub fn run(args: DriveArgs) -> anyhow::Result<Outcome> {
         .refuse_recording_over_an_input(&[args.scenario.as_deref(), args.csv.as_deref()])?;
     let source = DriveData::open(&args)?;
     let recorder = match &args.replay.record {
-        Some(path) => Some(DriveCsvWriter::create(path, source.has_truth())?),
+        Some(path) => Some(DriveCsvWriter::create(
+            path,
+            source.has_truth(),
+            source.has_train_speed(),
+        )?),
         None => None,
     };
     let mut drive = DriveSource {

@@ -101,6 +101,28 @@ fn bad_frames_are_rejected_and_change_nothing() {
         rejection.message
     );
 
+    // An implausible train speed is a sensor fault: refused under its own reason.
+    for (speed, reason) in [
+        (f64::NAN, "not_finite"),
+        (-1.0, "train_speed_out_of_range"),
+        (360.0 / 3.6 + 1.0, "train_speed_out_of_range"),
+    ] {
+        let bad = good.with_train_speed(Some(speed));
+        let rejection = harness.pipeline.check(&next, &bad).unwrap_err();
+        assert_eq!(rejection.reason, reason, "{speed}");
+        assert!(
+            rejection.message.contains("train_speed_m_s"),
+            "{}",
+            rejection.message
+        );
+    }
+    let mut unknown = good;
+    unknown.present = 1 << 7;
+    assert_eq!(
+        harness.pipeline.check(&next, &unknown).unwrap_err().reason,
+        "unknown_channels"
+    );
+
     let mut fewer = good;
     fewer.n_drives = 2;
     assert_eq!(
@@ -139,4 +161,47 @@ fn a_saved_state_resumes_the_estimator_exactly() {
     // Settings of another estimator refuse the state's shape only if it cannot be read: the
     // snapshot file's settings fingerprint is what guards that (tested in snapshot.rs).
     assert!(resumed.pipeline.resume_state(b"not a state").is_err());
+}
+
+/// Frames carrying the train speed reach the monitor's train-speed test: the service's
+/// estimates are the library's `step_with_train_speed`, and the drives view says which
+/// reference judged them (`group` while the test warms up, then `train_speed`).
+#[test]
+fn the_train_speed_of_the_frames_is_the_reference_once_calibrated() {
+    let scenario = seed();
+    let config = ServiceConfig::default().drive;
+    let mut reference = SlipMonitor::new(&config.estimator, scenario.n_drives()).unwrap();
+    reference
+        .set_speed_reference(config.speed_reference)
+        .unwrap();
+    let mut harness = Harness::new();
+    assert_eq!(harness.view().reference, None);
+    let mut seen = Vec::new();
+    for _ in 0..2_000 {
+        let step = harness.step;
+        let (samples, _) = harness.simulator.step().unwrap();
+        let samples = samples.to_vec();
+        harness.step += 1;
+        // The seed plant's rotors at 200 rad/s electrical: 5.75 m/s with the default geometry.
+        let frame = frame_of(&samples, harness.dt_ns).with_train_speed(Some(5.75));
+        let header = header(step, harness.dt_ns);
+        let input = harness.pipeline.check(&header, &frame).unwrap();
+        harness.pipeline.step(&header, input).unwrap();
+        let want = reference
+            .step_with_train_speed(&samples, Some(5.75))
+            .unwrap()
+            .clone();
+        if step.is_multiple_of(250) || step == 1_999 {
+            let view = harness.view();
+            for (got, want) in view.drives.iter().zip(&want.drives) {
+                assert_eq!(got.slip_probability, want.slip_probability);
+            }
+            let got = view.reference.clone().unwrap();
+            assert_eq!(got, want.reference.name());
+            if !seen.contains(&got) {
+                seen.push(got);
+            }
+        }
+    }
+    assert_eq!(seen, ["group", "train_speed"]);
 }

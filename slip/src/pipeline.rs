@@ -21,13 +21,16 @@ pub struct MultiMethodPipeline {
     /// Per method, the alarm's events of the last step.
     events: Vec<Vec<SlipAlarmEvent>>,
     torque: Vec<f64>,
-    /// The train-speed test and its probabilities of the last step.
-    train: TrainSpeedCheck,
-    train_probability: Vec<f64>,
+    /// Per method, its own train-speed test, as a [`crate::SlipMonitor`] of that method runs
+    /// it (the test's calibration learns where the method does not flag, and the method's flag
+    /// stands where the wheel has left the train): each method's probabilities, alarm and
+    /// events are then those of the monitor, and `railmon analyze` raises the service's.
+    train: Vec<TrainSpeedCheck>,
     /// Per method, its probability or, for the drives the train-speed test judges, the test's
     /// (steps with a train speed only).
     combined: Vec<Vec<f64>>,
-    reference: SpeedReference,
+    /// Per method, what its last step was judged against.
+    references: Vec<SpeedReference>,
     /// Whether the last step had a train speed.
     train_steps: bool,
 }
@@ -59,10 +62,12 @@ impl MultiMethodPipeline {
             alarms,
             events: vec![Vec::new(); methods.len()],
             torque: vec![0.0; n_drives],
-            train: TrainSpeedCheck::new(SpeedReferenceConfig::default(), n_drives)?,
-            train_probability: vec![0.0; n_drives],
+            train: methods
+                .iter()
+                .map(|_| TrainSpeedCheck::new(SpeedReferenceConfig::default(), n_drives))
+                .collect::<Result<_, _>>()?,
             combined: vec![vec![0.0; n_drives]; methods.len()],
-            reference: SpeedReference::Group,
+            references: vec![SpeedReference::Group; methods.len()],
             train_steps: false,
         })
     }
@@ -70,7 +75,9 @@ impl MultiMethodPipeline {
     /// Sets the drives' geometry and the train-speed test (default:
     /// [`SpeedReferenceConfig::default`]).
     pub fn set_speed_reference(&mut self, config: SpeedReferenceConfig) -> Result<(), SlipError> {
-        self.train = TrainSpeedCheck::new(config, self.bank.n_drives())?;
+        for t in &mut self.train {
+            *t = TrainSpeedCheck::new(config, self.bank.n_drives())?;
+        }
         Ok(())
     }
 
@@ -100,8 +107,10 @@ impl MultiMethodPipeline {
         }
         let Some(v) = train_speed_m_s else {
             if self.train_steps {
-                self.train.reset();
-                self.reference = SpeedReference::Group;
+                for t in &mut self.train {
+                    t.reset();
+                }
+                self.references.fill(SpeedReference::Group);
                 self.train_steps = false;
             }
             for ((e, alarm), events) in self
@@ -115,48 +124,42 @@ impl MultiMethodPipeline {
             }
             return Ok(());
         };
-        // The test's calibration learns where the first method does not flag.
-        self.train_probability
-            .copy_from_slice(&self.estimators[0].output().slip_probability);
-        let all = self
-            .train
-            .update(&self.bank, v, self.train_probability.iter_mut());
-        self.reference = if all {
-            SpeedReference::TrainSpeed
-        } else {
-            SpeedReference::Group
-        };
         self.train_steps = true;
-        let judged = self.train.judged();
-        for (((e, alarm), events), combined) in self
+        for ((((e, alarm), events), combined), (train, reference)) in self
             .estimators
             .iter()
             .zip(&mut self.alarms)
             .zip(&mut self.events)
             .zip(&mut self.combined)
+            .zip(self.train.iter_mut().zip(&mut self.references))
         {
-            for (((c, p), q), judged) in combined
-                .iter_mut()
-                .zip(&e.output().slip_probability)
-                .zip(&self.train_probability)
-                .zip(judged)
-            {
-                *c = if *judged { *q } else { *p };
-            }
+            // The method's probability, replaced by the test's for the drives it judges.
+            combined.copy_from_slice(&e.output().slip_probability);
+            *reference = if train.update(&self.bank, v, combined.iter_mut()) {
+                SpeedReference::TrainSpeed
+            } else {
+                SpeedReference::Group
+            };
             events.clear();
             alarm.update(combined, events);
         }
         Ok(())
     }
 
-    /// What the last step's probabilities were judged against.
-    pub fn reference(&self) -> SpeedReference {
-        self.reference
+    /// `(method, what its last step's probabilities were judged against)` of every method.
+    pub fn references(&self) -> impl Iterator<Item = (AdhesionMethod, SpeedReference)> + '_ {
+        self.estimators
+            .iter()
+            .zip(&self.references)
+            .map(|(e, r)| (e.method(), *r))
     }
 
-    /// The train-speed test (its low-passed slip velocities).
-    pub fn train_speed_check(&self) -> &TrainSpeedCheck {
-        &self.train
+    /// `(method, its train-speed test)` (the low-passed slip velocities) of every method.
+    pub fn train_speed_checks(&self) -> impl Iterator<Item = (AdhesionMethod, &TrainSpeedCheck)> {
+        self.estimators
+            .iter()
+            .zip(&self.train)
+            .map(|(e, t)| (e.method(), t))
     }
 
     /// `(method, slip probability per drive)` of every method after the last step: the

@@ -4,7 +4,8 @@
 
 use railmon_slip::sampler::{draw_kind, is_held_out, DrawKind};
 use railmon_slip::{
-    AdhesionScenario, DetectionCounter, DetectionScore, DriveSimulator, SlipMonitor, SpeedReference,
+    AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveSimulator,
+    MultiMethodPipeline, SlipAlarm, SlipMonitor, SpeedReference,
 };
 
 /// `n` drives at `load_nm` (negative: braking), every one losing `depth` of it on
@@ -225,4 +226,50 @@ fn sampler_draws_of_every_drive_losing_adhesion_at_once_are_flagged() {
             );
         }
     }
+}
+
+/// Every method of the offline pipeline (`railmon analyze adhesion`) runs its own train-speed
+/// test, as a monitor of that method does (the service): the same probabilities, references
+/// and alarm events, bit for bit, on every drive losing adhesion at once.
+#[test]
+fn the_pipeline_judges_each_method_as_its_monitor_does() {
+    let s = scenario(15, 3, 20.0, 0.5, 3000.0, 0.0, Some(0.2));
+    let n = s.n_drives();
+    let reference = s.train_speed.unwrap().speed_reference();
+    let mut sim = DriveSimulator::new(&s).unwrap();
+    let mut pipe = MultiMethodPipeline::new(&s.monitor_config(), n).unwrap();
+    pipe.set_speed_reference(reference).unwrap();
+    let mut monitors: Vec<(SlipMonitor, SlipAlarm)> = AdhesionMethod::ALL
+        .iter()
+        .map(|&method| {
+            let config = railmon_slip::SlipMonitorConfig {
+                method,
+                ..s.monitor_config()
+            };
+            let mut m = SlipMonitor::new(&config, n).unwrap();
+            m.set_speed_reference(reference).unwrap();
+            (m, SlipAlarm::new(config.alarm, n).unwrap())
+        })
+        .collect();
+    let (mut events, mut started) = (Vec::new(), 0);
+    while let Some((samples, _, train)) = sim.step_with_train_speed() {
+        pipe.step_with_train_speed(samples, train).unwrap();
+        for ((((m, alarm), (_, p)), (_, r)), (_, e)) in monitors
+            .iter_mut()
+            .zip(pipe.slip_probability())
+            .zip(pipe.references())
+            .zip(pipe.events())
+        {
+            let est = m.step_with_train_speed(samples, train).unwrap();
+            let q: Vec<f64> = est.drives.iter().map(|d| d.slip_probability).collect();
+            assert_eq!(q, p);
+            assert_eq!(est.reference, r);
+            events.clear();
+            alarm.update(&q, &mut events);
+            assert_eq!(events.as_slice(), e);
+            started += e.len();
+        }
+    }
+    // Every method flags every drive (3 drives x 5 methods, start and end).
+    assert!(started >= 30, "{started}");
 }

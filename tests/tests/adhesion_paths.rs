@@ -1,7 +1,10 @@
 //! Same data, same answer (issue 8): one drive recording through the three paths gives the same
 //! slip events — the service (replayed over the bus, events from the HTTP API), `railmon
 //! analyze adhesion --input` on the file, and `railmon analyze adhesion --scenario` that wrote
-//! it. 13,000 steps (1.6 s of data) of the seed scenario: drive 1's first two losses.
+//! it. 13,000 steps (1.6 s of data) of the seed scenario: drive 1's first two losses. And with
+//! the train's measured speed (issue 23 item 2): every drive losing adhesion at once
+//! (`config/scenarios/adhesion-all-at-once.toml`) is flagged, with the same events on the
+//! three paths and `train_speed` as the reference they report.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -118,5 +121,128 @@ fn service_and_both_analyze_paths_raise_the_same_slip_events() {
     });
     let from_service = service_events(&service, from_scenario.len());
     assert_eq!(from_service, from_scenario);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `(method, value)` of one column of `detection.csv` after its quoted `alarm_rule` (the
+/// rule's text has commas: counted from the end of the line).
+fn detection_column(out: &Path, name: &str) -> Vec<(String, String)> {
+    let text = std::fs::read_to_string(out.join("detection.csv")).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let from_end = header.len() - header.iter().position(|h| *h == name).unwrap();
+    lines
+        .map(|line| {
+            let fields: Vec<&str> = line.split(',').collect();
+            (
+                fields[0].to_owned(),
+                fields[fields.len() - from_end].to_owned(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn every_drive_losing_adhesion_at_once_is_flagged_the_same_on_every_path_with_a_train_speed() {
+    let dir: PathBuf =
+        std::env::temp_dir().join(format!("railmon-adhesion-all-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let scenario = workspace_root().join("config/scenarios/adhesion-all-at-once.toml");
+    let text = std::fs::read_to_string(&scenario).unwrap();
+    assert!(text.contains("\n[train_speed]\n"));
+    let n_steps = 14_000;
+    let dt_s = 125e-6;
+
+    let from_scenario = analyze(
+        &["--scenario", scenario.to_str().unwrap()],
+        &dir.join("scenario"),
+    );
+    let recording = dir.join("scenario/drives.csv");
+    let recorded = std::fs::read_to_string(&recording).unwrap();
+    assert!(
+        recorded
+            .lines()
+            .next()
+            .unwrap()
+            .ends_with(",train_speed_m_s"),
+        "the recording carries the train speed"
+    );
+    let from_input = analyze(
+        &["--input", recording.to_str().unwrap()],
+        &dir.join("input"),
+    );
+    assert_eq!(from_input, from_scenario);
+    // Every drive (all four lose half their load on [6000, 10000)) starts slipping in the
+    // loss, and nothing starts before it.
+    for drive in 1..=4 {
+        let started: Vec<f64> = from_scenario
+            .iter()
+            .filter(|e| e.0 == "slip_started" && e.2 == drive.to_string())
+            .map(|e| e.1)
+            .collect();
+        assert!(!started.is_empty(), "drive {drive}: {from_scenario:?}");
+        assert!(
+            started
+                .iter()
+                .all(|&t| (6000.0 * dt_s..10_000.0 * dt_s).contains(&t)),
+            "drive {drive}: {started:?}"
+        );
+    }
+    for out in ["scenario", "input"] {
+        for (method, reference) in detection_column(&dir.join(out), "reference") {
+            assert_eq!(reference, "train_speed", "{out}, {method}");
+        }
+    }
+
+    // Without the train speed the same drives are judged by the group, and say so.
+    let without = dir.join("without.toml");
+    let without_text = text.replace("[train_speed]\nnoise_std_m_s = 0.2\n", "");
+    assert!(!without_text.contains("\n[train_speed]\n") && without_text != text);
+    std::fs::write(&without, without_text).unwrap();
+    analyze(
+        &["--scenario", without.to_str().unwrap()],
+        &dir.join("without"),
+    );
+    for (method, reference) in detection_column(&dir.join("without"), "reference") {
+        assert_eq!(reference, "group", "{method}");
+    }
+
+    // The service, fed by sensors-replay from the scenario (the simulator's train speed on
+    // the bus); its --record is the file analyze wrote, train speed column and all.
+    let bus = PrivateBus::new();
+    let service = Service::start(&bus, &[]);
+    let replayed = dir.join("replayed.csv");
+    let mut replay = start_replay(
+        &bus,
+        "drive",
+        &[
+            "--scenario",
+            scenario.to_str().unwrap(),
+            "--speed",
+            "max",
+            "--record",
+            replayed.to_str().unwrap(),
+        ],
+    );
+    assert!(
+        replay.wait(Duration::from_secs(60)).success(),
+        "sensors-replay failed"
+    );
+    service.wait_for_status("drive", Duration::from_secs(30), "every frame", |s| {
+        s["estimator_steps"].as_u64() == Some(n_steps)
+    });
+    assert!(
+        std::fs::read_to_string(&replayed).unwrap() == recorded,
+        "sensors-replay --record wrote what analyze --scenario did"
+    );
+    let from_service = service_events(&service, from_scenario.len());
+    assert_eq!(from_service, from_scenario);
+    assert_eq!(service.status("drive")["reference"], "train_speed");
+    assert_eq!(
+        service.get_json("/api/v1/drives")["reference"],
+        "train_speed"
+    );
+    assert_eq!(service.status("drive")["samples_rejected"], 0);
     let _ = std::fs::remove_dir_all(&dir);
 }

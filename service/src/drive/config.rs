@@ -2,7 +2,7 @@
 //! `railmon_slip::SlipMonitor`.
 
 use railmon_bus::MAX_DRIVES;
-use railmon_slip::SlipMonitorConfig;
+use railmon_slip::{SlipMonitorConfig, SpeedReferenceConfig};
 use serde::{Deserialize, Serialize};
 
 use railmon_settings::SettingsError;
@@ -44,6 +44,12 @@ pub struct DriveConfig {
     /// names (`preset = "paper"`), with the given keys on top.
     #[serde(deserialize_with = "railmon_settings::deserialize_with_preset")]
     pub estimator: SlipMonitorConfig,
+    /// The train-speed reference (`railmon_slip::SpeedReferenceConfig`), used on frames that
+    /// carry the train's measured speed: each drive's wheel speed against it, which sees every
+    /// drive losing adhesion at once (the group comparison cannot). Set `gear_ratio` and
+    /// `wheel_radius_m` to the vehicle's; without a train speed the drives are judged by the
+    /// group alone (docs/adhesion.md).
+    pub speed_reference: SpeedReferenceConfig,
 }
 
 impl Default for DriveConfig {
@@ -57,6 +63,7 @@ impl Default for DriveConfig {
             history_interval_ms: 10,
             history_capacity: 60_000,
             estimator: SlipMonitorConfig::default(),
+            speed_reference: SpeedReferenceConfig::default(),
         }
     }
 }
@@ -83,6 +90,9 @@ impl DriveConfig {
         }
         self.estimator
             .validate()
-            .map_err(|e| invalid("drive.estimator", e.to_string()))
+            .map_err(|e| invalid("drive.estimator", e.to_string()))?;
+        self.speed_reference
+            .validate()
+            .map_err(|e| invalid("drive", e.to_string()))
     }
 }

@@ -114,11 +114,15 @@ impl DrivePipeline {
     }
 
     fn start_monitor(&mut self, n_drives: usize) -> Result<(), Rejection> {
-        let monitor =
-            SlipMonitor::new(&self.config.estimator, n_drives).map_err(|e| Rejection {
-                reason: "estimator",
-                message: e.to_string(),
-            })?;
+        let estimator_error = |e: railmon_slip::SlipError| Rejection {
+            reason: "estimator",
+            message: e.to_string(),
+        };
+        let mut monitor =
+            SlipMonitor::new(&self.config.estimator, n_drives).map_err(estimator_error)?;
+        monitor
+            .set_speed_reference(self.config.speed_reference)
+            .map_err(estimator_error)?;
         self.monitor = Some(monitor);
         // Flags carry over a restart of the source (and of the service): never a silent clear.
         self.alarm.resize(n_drives);
@@ -201,8 +205,9 @@ const SAVED_DRIVES: StateFormat = StateFormat {
 
 impl Pipeline for DrivePipeline {
     type Frame = DriveFrame;
-    /// One sample per drive, every value finite, the configured step.
-    type Checked = Vec<DriveSample>;
+    /// One sample per drive, every value finite, the configured step; the train speed when
+    /// the frame carries one (finite, in range).
+    type Checked = (Vec<DriveSample>, Option<f64>);
     const REJECTION_REASONS: &'static [&'static str] = &[
         "too_many_drives",
         "no_drives",
@@ -210,6 +215,8 @@ impl Pipeline for DrivePipeline {
         "dt_mismatch",
         "drive_count_changed",
         "out_of_range",
+        "train_speed_out_of_range",
+        "unknown_channels",
     ];
 
     fn sample_period_ns(&self) -> u64 {
@@ -220,9 +227,14 @@ impl Pipeline for DrivePipeline {
         &self,
         _header: &FrameHeader,
         frame: &DriveFrame,
-    ) -> Result<Vec<DriveSample>, Rejection> {
+    ) -> Result<(Vec<DriveSample>, Option<f64>), Rejection> {
         let drives = frame
             .checked_drives(self.config.max_drives)
+            .map_err(|e| Rejection::new(e.reason(), e.to_string()))?;
+        // An implausible train speed is a sensor fault: the frame is refused and counted, not
+        // judged against the group as if no speed had come.
+        let train_speed_m_s = frame
+            .checked_train_speed()
             .map_err(|e| Rejection::new(e.reason(), e.to_string()))?;
         // The EKF's model is discretised with the configured step: other data would be misread.
         let expected_ns = self.config.estimator.dt_s * 1e9;
@@ -265,7 +277,10 @@ impl Pipeline for DrivePipeline {
                 ));
             }
         }
-        Ok(drives.iter().map(DriveSample::from).collect())
+        Ok((
+            drives.iter().map(DriveSample::from).collect(),
+            train_speed_m_s,
+        ))
     }
 
     fn restart(&mut self) {
@@ -273,13 +288,17 @@ impl Pipeline for DrivePipeline {
         self.track.restart();
     }
 
-    fn step(&mut self, header: &FrameHeader, samples: Vec<DriveSample>) -> Result<(), Rejection> {
+    fn step(
+        &mut self,
+        header: &FrameHeader,
+        (samples, train_speed_m_s): (Vec<DriveSample>, Option<f64>),
+    ) -> Result<(), Rejection> {
         if self.monitor.is_none() {
             self.start_monitor(samples.len())?;
         }
         let monitor = self.monitor.as_mut().expect("started above");
         monitor
-            .step(&samples)
+            .step_with_train_speed(&samples, train_speed_m_s)
             .map_err(|e| Rejection::new("estimator", e.to_string()))?;
         let stamp = self.track.stamp(header);
         self.update_slipping(&stamp);
@@ -295,8 +314,14 @@ impl Pipeline for DrivePipeline {
         Ok(())
     }
 
+    /// The estimator's and the train-speed reference's settings: a snapshot taken under
+    /// others is refused.
     fn settings(&self) -> String {
-        serde_json::to_string(&self.config.estimator).unwrap_or_default()
+        serde_json::json!({
+            "estimator": self.config.estimator,
+            "speed_reference": self.config.speed_reference,
+        })
+        .to_string()
     }
 
     /// The monitor (EKF states and covariances, the adhesion estimator's carried posterior)
@@ -334,6 +359,7 @@ impl Pipeline for DrivePipeline {
         let estimate = monitor.last();
         let view = DrivesView {
             method: Some(estimate.method.to_string()),
+            reference: Some(estimate.reference.name().to_owned()),
             global_torque_nm: Some(estimate.global_torque_nm),
             time_s: Some(stamp.time_s),
             time_utc: Some(stamp.time_utc()),

@@ -53,6 +53,8 @@ async fn drives(State(state): State<AppState>) -> Result<Json<DrivesView>, AppEr
 #[derive(Debug, Serialize, ToSchema)]
 pub struct DriveDetail {
     pub method: Option<String>,
+    /// `group` or `train_speed`, as in `/api/v1/drives`.
+    pub reference: Option<String>,
     pub global_torque_nm: Option<f64>,
     pub time_s: Option<f64>,
     pub run: u32,
@@ -86,6 +88,7 @@ async fn drive(
     let k = drive_index(&id, snapshot.drives.len())?;
     Ok(Json(DriveDetail {
         method: snapshot.method.clone(),
+        reference: snapshot.reference.clone(),
         global_torque_nm: snapshot.global_torque_nm,
         time_s: snapshot.time_s,
         run: snapshot.run,

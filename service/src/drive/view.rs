@@ -28,6 +28,11 @@ pub struct DriveView {
 pub struct DrivesView {
     /// Adhesion method (`vb`, `vmp`, `kmeans`, `median`, `temporal`); null before the first frame.
     pub method: Option<String>,
+    /// What the slip probabilities were judged against: `train_speed` (the train's measured
+    /// speed came with the frames and every drive is calibrated against it) or `group` (the
+    /// other drives only: blind to every drive losing adhesion at once, docs/adhesion.md);
+    /// null before the first frame.
+    pub reference: Option<String>,
     /// Global load torque `M_z^(G)` over all drives, N m.
     pub global_torque_nm: Option<f64>,
     /// Stream time, s: continuous over publisher restarts and runs.

@@ -35,7 +35,17 @@ pub async fn status(State(state): State<AppState>) -> Json<StatusView> {
     Json(StatusView {
         uptime_s: state.started.elapsed().as_secs_f64(),
         version: env!("CARGO_PKG_VERSION").into(),
-        streams: state.streams.iter().map(|s| s.view(now)).collect(),
+        streams: state
+            .streams
+            .iter()
+            .map(|s| {
+                let mut view = s.view(now);
+                if s.kind == railmon_bus::StreamKind::Drive {
+                    view.reference = state.drive.snapshot.load().reference.clone();
+                }
+                view
+            })
+            .collect(),
         http_connections_refused: state.http.connections_refused.load(Relaxed),
         http_connections_evicted: state.http.connections_evicted.load(Relaxed),
         events: state.store.status(),

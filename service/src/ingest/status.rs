@@ -131,6 +131,11 @@ pub struct StreamStatusView {
     /// The estimator does not keep up: `realtime_load` above 1 or `lag_s` above `stale_after_s`.
     pub lagging: bool,
     pub last_error: Option<String>,
+    /// The drive stream only: what its last estimate's slip probabilities were judged
+    /// against, `group` (the other drives) or `train_speed` (the train's measured speed), as
+    /// in `/api/v1/drives`; absent for the other streams and before the first estimate.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reference: Option<String>,
 }
 
 impl StreamStatus {
@@ -292,6 +297,7 @@ impl StreamStatus {
             lag_s: self.lag_ns.load(Ordering::Relaxed) as f64 * 1e-9,
             lagging: self.lagging.load(Ordering::Relaxed),
             last_error: self.last_error.load_full().map(|e| (*e).clone()),
+            reference: None,
         }
     }
 
