@@ -92,24 +92,32 @@ impl std::fmt::Display for SpeedReference {
 #[serde(deny_unknown_fields, default)]
 pub struct SpeedReferenceConfig {
     /// Gear ratio `G`, motor revolutions per wheel revolution.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub gear_ratio: f64,
     /// Wheel radius `r` (a 920 mm wheel: 0.46 m).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub wheel_radius_m: f64,
     /// Time constant of the low-pass on each drive's slip velocity.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub time_constant_s: f64,
     /// Slip velocity (in the direction of the effort) at which the probability is 0.5, at
     /// least; above creep (< 1 % of the speed), a worn wheel's smaller radius and the sensor's
     /// noise after the low-pass.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub slip_threshold_m_s: f64,
     /// The threshold as a fraction of the train speed, where that is larger.
+    #[schemars(range(min = 0.0))]
     pub slip_threshold_fraction: f64,
     /// Time after the train speed appears (or the monitor starts) before it is used: the EKFs
     /// lock on to the rotor speed in some 50 ms.
+    #[schemars(range(min = 0.0))]
     pub warmup_s: f64,
     /// Time constant of each drive's calibration (the ratio of its wheel speed to the train
     /// speed, learnt while it is not flagged).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub calibration_time_constant_s: f64,
     /// Calibration time after the warm-up before a drive is judged.
+    #[schemars(range(min = 0.0))]
     pub calibration_min_s: f64,
 }
 

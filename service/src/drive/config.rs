@@ -91,8 +91,14 @@ impl DriveConfig {
         self.estimator
             .validate()
             .map_err(|e| invalid("drive.estimator", e.to_string()))?;
-        self.speed_reference
-            .validate()
-            .map_err(|e| invalid("drive", e.to_string()))
+        // Named by its key (`drive.speed_reference.gear_ratio`), where a user finds it.
+        self.speed_reference.validate().map_err(|e| match e {
+            railmon_slip::SlipError::InvalidParameter {
+                field,
+                value,
+                reason,
+            } => invalid(&format!("drive.{field}"), format!("{value}: {reason}")),
+            other => invalid("drive.speed_reference", other.to_string()),
+        })
     }
 }
