@@ -239,7 +239,9 @@ impl DriveSimulator {
             };
             self.samples[k] = plant.measure_and_step(drive, &mut self.rng, &noise, Some(demand));
         }
-        train.measured_m_s = train.speed_m_s + gaussian(&mut self.rng, c.noise_std_m_s);
+        // A speed sensor reads a magnitude: near standstill its noise must not make it
+        // negative (the service refuses a negative train speed as implausible).
+        train.measured_m_s = (train.speed_m_s + gaussian(&mut self.rng, c.noise_std_m_s)).max(0.0);
         let mass_kg = c.mass_per_drive_kg * self.drives.len() as f64;
         let force_n = deficit_nm * c.gear_ratio / c.wheel_radius_m;
         train.speed_m_s = (train.speed_m_s + dt * force_n / mass_kg).max(0.0);

@@ -273,3 +273,21 @@ fn the_pipeline_judges_each_method_as_its_monitor_does() {
     // Every method flags every drive (3 drives x 5 methods, start and end).
     assert!(started >= 30, "{started}");
 }
+
+/// A speed sensor reads a magnitude: however noisy, the simulated train speed is never
+/// negative (the service refuses a negative one as implausible, so a replay of our own
+/// simulator near standstill would have lost frames).
+#[test]
+fn the_measured_train_speed_is_never_negative() {
+    let s = scenario(3, 2, 20.0, 0.0, 200.0, 0.0, Some(1e3));
+    let mut sim = DriveSimulator::new(&s).unwrap();
+    let (mut zeros, mut steps) = (0, 0);
+    while let Some((_, _, train)) = sim.step_with_train_speed() {
+        let v = train.expect("the scenario has a train speed");
+        assert!(v.is_finite() && v >= 0.0, "{v}");
+        zeros += usize::from(v == 0.0);
+        steps += 1;
+    }
+    // About half the readings of a noise this large would have been negative.
+    assert!(zeros > steps / 4, "{zeros} of {steps} at 0");
+}
