@@ -167,9 +167,6 @@ impl DriveSimulator {
         }
         let t = self.step as f64;
         let noise = self.scenario.noise;
-        let controller = self.scenario.plant.controller;
-        let dt = self.scenario.dt_s;
-        let params = self.scenario.plant.motor;
         for (k, drive) in self.drives.iter_mut().enumerate() {
             let (load, slipping) = self.scenario.true_load_nm(k, t);
             drive.x[idx::TORQUE] = load + gaussian(&mut self.rng, noise.load_std_nm);
@@ -179,14 +176,12 @@ impl DriveSimulator {
                 torque_nm: load,
                 slipping,
             };
-            let plant = Plant {
-                controller: &controller,
-                params: &params,
-                dt_s: dt,
-                sub_model: &self.sub_model,
-                substeps: self.scenario.plant.substeps,
-            };
-            self.samples[k] = plant.measure_and_step(drive, &mut self.rng, &noise, None);
+            self.samples[k] = Plant::of(&self.scenario, &self.sub_model).measure_and_step(
+                drive,
+                &mut self.rng,
+                &noise,
+                None,
+            );
         }
         self.step += 1;
         Some((&self.samples, &self.truth))
@@ -199,9 +194,7 @@ impl DriveSimulator {
         };
         let t = self.step as f64;
         let noise = self.scenario.noise;
-        let controller = self.scenario.plant.controller;
         let dt = self.scenario.dt_s;
-        let params = self.scenario.plant.motor;
         let c = train.config;
         let omega_v = train.speed_m_s * train.rad_s_per_m_s;
         let mut deficit_nm = 0.0;
@@ -230,14 +223,12 @@ impl DriveSimulator {
                 torque_nm: rail,
                 slipping: is_slipping(rail, healthy),
             };
-            let plant = Plant {
-                controller: &controller,
-                params: &params,
-                dt_s: dt,
-                sub_model: &self.sub_model,
-                substeps: self.scenario.plant.substeps,
-            };
-            self.samples[k] = plant.measure_and_step(drive, &mut self.rng, &noise, Some(demand));
+            self.samples[k] = Plant::of(&self.scenario, &self.sub_model).measure_and_step(
+                drive,
+                &mut self.rng,
+                &noise,
+                Some(demand),
+            );
         }
         // A speed sensor reads a magnitude: near standstill its noise must not make it
         // negative (the service refuses a negative train speed as implausible).
@@ -257,7 +248,17 @@ struct Plant<'a> {
     substeps: usize,
 }
 
-impl Plant<'_> {
+impl<'a> Plant<'a> {
+    fn of(scenario: &'a AdhesionScenario, sub_model: &'a DriveModel) -> Self {
+        Plant {
+            controller: &scenario.plant.controller,
+            params: &scenario.plant.motor,
+            dt_s: scenario.dt_s,
+            sub_model,
+            substeps: scenario.plant.substeps,
+        }
+    }
+
     /// Measures `drive`'s currents, runs its controller (`demand`: a torque demand, else
     /// speed control), steps it through the substeps and gives the sample the inverter's
     /// sensors see (noise drawn in the order currents, then voltages).
