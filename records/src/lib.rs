@@ -23,6 +23,7 @@ pub mod drive;
 pub mod gain_cache;
 pub mod output;
 pub mod private_dir;
+pub mod sample_clock;
 pub mod vehicle;
 pub mod vehicle_scenario;
 

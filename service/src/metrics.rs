@@ -223,6 +223,7 @@ impl Families<'_> {
 pub struct StreamMetrics {
     pub samples_received: IntCounterVec,
     pub sequence_gaps: IntCounterVec,
+    pub skipped_periods: IntCounterVec,
     pub samples_rejected: IntCounterVec,
     pub last_sample_age: EstimateGaugeVec,
     pub fresh: IntGaugeVec,
@@ -246,6 +247,12 @@ impl StreamMetrics {
             sequence_gaps: f.int_counter_vec(
                 "stream_sequence_gaps_total",
                 "Frames missing from a publisher's sequence (lost on the bus).",
+                stream,
+            )?,
+            skipped_periods: f.int_counter_vec(
+                "stream_skipped_periods_total",
+                "Sample periods between consecutive frames that no frame covered (samples lost at \
+                 the source, or across a restart): the estimator bridged them.",
                 stream,
             )?,
             samples_rejected: f.int_counter_vec(

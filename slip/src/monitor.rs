@@ -145,8 +145,9 @@ impl SlipMonitor {
     /// layout under it (`tests/data/golden/state-layout-slip.txt`), so a change cannot ship
     /// without it. 3: the EKF bank lost the load-jump test's state (the rejected
     /// `[ekf.jump]`, issue 27). 4: the train-speed reference (its settings and per-drive
-    /// filters, the estimate's `reference`, issue 23 item 2).
-    pub const STATE_FORMAT_VERSION: u32 = 4;
+    /// filters, the estimate's `reference`, issue 23 item 2). 5: the EKF bank keeps its
+    /// initial filter, to relock after a gap (issue 26 item 3).
+    pub const STATE_FORMAT_VERSION: u32 = 5;
 
     pub fn new(config: &SlipMonitorConfig, n_drives: usize) -> Result<Self, SlipError> {
         config.validate()?;
@@ -198,6 +199,21 @@ impl SlipMonitor {
     /// The EKF bank (states and covariances of every drive).
     pub fn bank(&self) -> &EkfBank {
         &self.bank
+    }
+
+    /// Carries the estimator over `missing_steps` sample periods no frame covered, before the
+    /// next frame is stepped ([`EkfBank::bridge`]): a short gap is predicted through; after a
+    /// longer one the EKFs relock from the back-EMF, the adhesion method's warm-up runs again
+    /// and the train-speed test restarts its filters, as at start (the slip probabilities and
+    /// what the method learnt about each drive are kept).
+    pub fn bridge(&mut self, missing_steps: u64) {
+        if missing_steps == 0 || !self.bank.bridge(missing_steps) {
+            return;
+        }
+        self.estimator.ekfs_relocked();
+        if let Some(t) = &mut self.train {
+            t.reset();
+        }
     }
 
     /// Validates the whole frame first (length == n_drives, all finite): on error nothing

@@ -81,6 +81,20 @@ impl MultiMethodPipeline {
         Ok(())
     }
 
+    /// Carries every method over `missing_steps` periods no frame covered, as
+    /// [`crate::SlipMonitor::bridge`].
+    pub fn bridge(&mut self, missing_steps: u64) {
+        if missing_steps == 0 || !self.bank.bridge(missing_steps) {
+            return;
+        }
+        for e in &mut self.estimators {
+            e.ekfs_relocked();
+        }
+        for t in &mut self.train {
+            t.reset();
+        }
+    }
+
     /// One frame through the EKFs and every estimator. A bad frame changes nothing.
     pub fn step(&mut self, samples: &[DriveSample]) -> Result<(), SlipError> {
         self.step_with_train_speed(samples, None)

@@ -316,6 +316,14 @@ impl Pipeline for DrivePipeline {
 
     /// The estimator's and the train-speed reference's settings: a snapshot taken under
     /// others is refused.
+    /// Short gaps are predicted through; after a longer one (a restart of the service) the
+    /// EKFs relock from the back-EMF as at start (`SlipMonitor::bridge`).
+    fn bridge(&mut self, skipped_periods: u64) {
+        if let Some(m) = &mut self.monitor {
+            m.bridge(skipped_periods);
+        }
+    }
+
     fn settings(&self) -> String {
         serde_json::json!({
             "estimator": self.config.estimator,

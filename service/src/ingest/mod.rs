@@ -3,7 +3,6 @@
 //! HTTP side reads only atomics and `arc-swap` snapshots ([`status`], `crate::outbox`), so the
 //! hot path takes no lock.
 
-mod clock;
 mod realtime;
 mod sequence;
 mod status;
@@ -16,7 +15,9 @@ use railmon_bus::{
     monotonic_ns, BusConfig, BusError, BusNode, Frame, FrameHeader, FrameSubscriber,
 };
 
-pub use clock::{resume_rule, ClockCheck, ResumeVerdict, SampleClock, PERIOD_TOLERANCE};
+pub use railmon_records::sample_clock::{
+    resume_rule, ClockCheck, Rejection, ResumeVerdict, SampleClock, PERIOD_TOLERANCE,
+};
 pub use realtime::RealTimeTracker;
 pub use sequence::{SequenceCheck, SequenceTracker};
 pub use status::{
@@ -25,23 +26,6 @@ pub use status::{
 
 use crate::config::IngestConfig;
 use crate::snapshot::{IngestState, SnapshotFile, SnapshotPolicy};
-
-/// Why a frame was not used.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Rejection {
-    /// Short label (`not_finite`, `too_many_drives`, ...), the metric's `reason`.
-    pub reason: &'static str,
-    pub message: String,
-}
-
-impl Rejection {
-    pub fn new(reason: &'static str, message: impl Into<String>) -> Self {
-        Self {
-            reason,
-            message: message.into(),
-        }
-    }
-}
 
 /// A stream's estimator, as the ingest loop drives it: `check` turns a frame into the input the
 /// estimator takes (or says why not) without changing anything, `step` consumes that input.
@@ -64,6 +48,11 @@ pub trait Pipeline {
     fn restart(&mut self);
     /// Steps the estimator with a checked frame; on error nothing changed.
     fn step(&mut self, header: &FrameHeader, input: Self::Checked) -> Result<(), Rejection>;
+    /// Carries the estimator over `skipped_periods` sample periods no frame covered (samples
+    /// lost at the source, or across a restart of the service), before the next frame is
+    /// stepped. The default does nothing: the next frame is stepped as if it followed the last
+    /// one (the vehicle stream's mixture reads the gap from its samples' times itself).
+    fn bridge(&mut self, _skipped_periods: u64) {}
     /// Makes the latest results visible (HTTP snapshot, gauges); called once per batch.
     fn publish(&mut self);
     /// Frames whose step was deferred (`step` accepted them, a later call stepped them) and
@@ -189,7 +178,8 @@ fn handle_frame<P: Pipeline>(
         }
     }
     source.sequence.accept(header, received_at_ns);
-    let clock = match source.clock.judge_resume(header.sample_time_ns) {
+    let t = header.sample_time_ns;
+    let clock = match source.clock.judge_resume(t) {
         Some(ResumeVerdict::Keep { skipped_periods }) => {
             tracing::info!(stream = %status.kind, sample_time_s = header.sample_time_ns as f64 * 1e-9, skipped_periods, "the resumed estimator goes on across the restart");
             ClockCheck::Ok
@@ -202,8 +192,9 @@ fn handle_frame<P: Pipeline>(
             source.restart(pipeline);
             ClockCheck::Ok
         }
-        None => source.clock.check(header.sample_time_ns),
+        None => source.clock.check(t),
     };
+    source.clock.observe(t);
     match clock {
         ClockCheck::Ok => {}
         ClockCheck::NewTimeline => {
@@ -220,6 +211,16 @@ fn handle_frame<P: Pipeline>(
         Ok(input) => input,
         Err(rejection) => return status.reject(header, rejection),
     };
+    let skipped_periods = source.clock.skipped_periods(t);
+    if skipped_periods > 0 {
+        pipeline.bridge(skipped_periods);
+        status.record_skipped_periods(skipped_periods);
+        // The estimator now stands one period before this frame, whether its step succeeds
+        // or not: a failed step is bridged by the next frame, never twice.
+        source
+            .clock
+            .accept(t.saturating_sub(pipeline.sample_period_ns()));
+    }
     let start = Instant::now();
     let stepped = pipeline.step(header, input);
     let step_ns = start.elapsed().as_nanos() as u64;

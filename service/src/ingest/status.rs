@@ -56,6 +56,7 @@ pub struct StreamStatus {
     pub stale_after: Duration,
     received: IntCounter,
     gaps: IntCounter,
+    skipped_periods: IntCounter,
     rejected_total: AtomicU64,
     step: Histogram,
     latency: Histogram,
@@ -113,6 +114,9 @@ pub struct StreamStatusView {
     pub samples_received: u64,
     /// Frames missing from publishers' sequences.
     pub sequence_gaps: u64,
+    /// Sample periods between consecutive frames that no frame covered (samples the source
+    /// lost before sending, or the time across a restart), bridged by the estimator.
+    pub skipped_periods: u64,
     pub samples_rejected: u64,
     pub last_rejection: Option<RejectionRecord>,
     /// Publisher lifetimes or runs seen (each restarts the estimator, unless it continues a
@@ -158,6 +162,7 @@ impl StreamStatus {
             stale_after,
             received: metrics.stream.samples_received.with_label_values(&label),
             gaps: metrics.stream.sequence_gaps.with_label_values(&label),
+            skipped_periods: metrics.stream.skipped_periods.with_label_values(&label),
             rejected_total: AtomicU64::new(0),
             step: metrics.stream.estimator_step.with_label_values(&label),
             latency: metrics.stream.publish_to_estimate.with_label_values(&label),
@@ -282,6 +287,7 @@ impl StreamStatus {
             last_sample_age_s: self.last_sample_age_s(now_ns),
             samples_received: self.received.get(),
             sequence_gaps: self.gaps.get(),
+            skipped_periods: self.skipped_periods.get(),
             samples_rejected: self.rejected_total.load(Ordering::Relaxed),
             last_rejection: self.last_rejection.load_full().map(|r| (*r).clone()),
             sources: self.sources.load(Ordering::Relaxed),
@@ -313,6 +319,10 @@ impl StreamStatus {
 
     pub(super) fn record_gap(&self, missing: u64) {
         self.gaps.inc_by(missing);
+    }
+
+    pub(super) fn record_skipped_periods(&self, periods: u64) {
+        self.skipped_periods.inc_by(periods);
     }
 
     pub(super) fn record_competing(&self, now_ns: u64) {

@@ -242,6 +242,14 @@ impl AdhesionEstimator {
         self.output().slip_probability.len()
     }
 
+    /// The EKFs relocked after a gap: the methods with a warm-up run it again (the others
+    /// judge each step on its own and have nothing to restart).
+    pub fn ekfs_relocked(&mut self) {
+        if let AdhesionEstimator::Temporal(e) = self {
+            e.restart_warmup();
+        }
+    }
+
     /// The output of the last step (zeros before the first).
     pub fn output(&self) -> &AdhesionOutput {
         match self {

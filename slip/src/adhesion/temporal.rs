@@ -381,6 +381,15 @@ impl TemporalEstimator {
         &self.out
     }
 
+    /// The EKFs relocked ([`crate::ekf::EkfBank::relock`]): their torque estimates are the
+    /// guesses of a start again, so the warm-up runs again and the reference is found afresh;
+    /// what was learnt about each drive (offset, spread, correlation) is kept. (Holding the
+    /// learning through the warm-up was tried: better on one draw, worse on another.)
+    pub fn restart_warmup(&mut self) {
+        self.steps = 0;
+        self.reference_nm = None;
+    }
+
     /// Per drive, the learnt lag-1 autocorrelation `rho_i` of its departure from the
     /// reference (before the clamp to `[0, max_departure_correlation]`).
     pub fn departure_correlation(&self) -> impl Iterator<Item = f64> + '_ {

@@ -7,8 +7,25 @@
 //! frame after a resumed snapshot may be far ahead of the snapshot's last sample time (frames
 //! estimated after the snapshot, the subscriber's buffer, the time the service was down), and
 //! the resumed estimator steps on from it as long as that gap is within a bounded catch-up.
+//!
+//! The service's ingest and `railmon analyze` judge sample times with the same clock.
 
-use super::Rejection;
+/// Why a frame or sample was not used: a short label (`time_jump`, `not_finite`, ...: the
+/// service's metric `reason` and `analyze`'s `refused.csv` row) and what was wrong, in words.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Rejection {
+    pub reason: &'static str,
+    pub message: String,
+}
+
+impl Rejection {
+    pub fn new(reason: &'static str, message: impl Into<String>) -> Self {
+        Self {
+            reason,
+            message: message.into(),
+        }
+    }
+}
 
 /// What a frame's sample time says.
 #[derive(Clone, Debug, PartialEq)]
@@ -34,7 +51,19 @@ pub struct SampleClock {
     /// Set by [`SampleClock::resume`] until a frame is used or the estimator restarts: the
     /// largest forward gap (ns) across the restart the resumed estimator steps over.
     catch_up_ns: Option<u64>,
+    /// The time of the last frame seen ([`SampleClock::observe`]), used or not.
+    seen_ns: Option<u64>,
+    /// How many frames in a row arrived more than one period after the frame before.
+    skipping_in_a_row: u32,
 }
+
+/// The frame that arrives more than one period after the one before, for the
+/// `RATE_MISMATCH_AFTER`-th time in a row, is refused as `rate_mismatch` (and every one after it
+/// while the source keeps skipping): a source that never sends consecutive periods runs at
+/// another rate (100 Hz stamps on a 1 kHz stream, every other sample missing), and its samples
+/// stepped one period apart would be estimated as if time ran 10 or 2 times slower. A sample
+/// lost now and then (a regular one between) is a gap, bridged by the estimator.
+pub const RATE_MISMATCH_AFTER: u32 = 3;
 
 /// How the first frame after a resumed snapshot is judged against the snapshot's last sample
 /// time. See [`resume_rule`].
@@ -103,7 +132,34 @@ impl SampleClock {
             last_ns: None,
             jumped_to_ns: None,
             catch_up_ns: None,
+            seen_ns: None,
+            skipping_in_a_row: 0,
         }
+    }
+
+    /// The sample periods between the last frame used and a frame at `sample_time_ns` that
+    /// no frame covered (0 for the next period, a repeated time, or before the first frame):
+    /// what the estimator has to bridge before it steps on this frame.
+    pub fn skipped_periods(&self, sample_time_ns: u64) -> u64 {
+        let Some(last) = self.last_ns else { return 0 };
+        let advance = sample_time_ns.saturating_sub(last);
+        ((advance as f64 / self.period_ns as f64).round() as u64).saturating_sub(1)
+    }
+
+    /// Every frame whose time was judged ([`SampleClock::check`] or
+    /// [`SampleClock::judge_resume`]) is observed, used or refused: the source's own rate is
+    /// followed from the frames it sends ([`RATE_MISMATCH_AFTER`]).
+    pub fn observe(&mut self, sample_time_ns: u64) {
+        if let Some(seen) = self.seen_ns {
+            match sample_time_ns.checked_sub(seen) {
+                Some(0) => return,
+                Some(advance) if advance as f64 / self.period_ns as f64 >= 1.5 => {
+                    self.skipping_in_a_row = self.skipping_in_a_row.saturating_add(1)
+                }
+                _ => self.skipping_in_a_row = 0,
+            }
+        }
+        self.seen_ns = Some(sample_time_ns);
     }
 
     /// The last sample time used.
@@ -139,10 +195,34 @@ impl SampleClock {
         ))
     }
 
+    /// Forgets the timeline (the estimator restarts); the source's rate is still followed.
     pub fn restart(&mut self) {
         self.last_ns = None;
         self.jumped_to_ns = None;
         self.catch_up_ns = None;
+    }
+
+    /// `rate_mismatch` when a frame at `sample_time_ns` would be the
+    /// [`RATE_MISMATCH_AFTER`]-th in a row to arrive more than one period after the one before.
+    fn rate(&self, sample_time_ns: u64) -> Result<(), Rejection> {
+        let Some(seen) = self.seen_ns else {
+            return Ok(());
+        };
+        let advance = sample_time_ns.saturating_sub(seen);
+        let periods = advance as f64 / self.period_ns as f64;
+        if periods < 1.5 || self.skipping_in_a_row + 1 < RATE_MISMATCH_AFTER {
+            return Ok(());
+        }
+        Err(Rejection::new(
+            "rate_mismatch",
+            format!(
+                "samples arrive {:.6} s apart, {} times in a row; the configured period is {:.6} s \
+                 (data at another rate, or every other sample lost)",
+                advance as f64 * 1e-9,
+                self.skipping_in_a_row + 1,
+                self.period_ns as f64 * 1e-9
+            ),
+        ))
     }
 
     /// Whether `from -> to` is a regular advance (whole periods, within the limit).
@@ -194,9 +274,15 @@ impl SampleClock {
     /// Judges a frame's sample time; `accept` it if the frame is then used.
     pub fn check(&self, sample_time_ns: u64) -> ClockCheck {
         let Some(last) = self.last_ns else {
-            return ClockCheck::Ok;
+            return match self.rate(sample_time_ns) {
+                Ok(()) => ClockCheck::Ok,
+                Err(rejection) => ClockCheck::Reject(rejection),
+            };
         };
-        match self.regular(last, sample_time_ns) {
+        match self
+            .regular(last, sample_time_ns)
+            .and_then(|()| self.rate(sample_time_ns))
+        {
             Ok(()) => ClockCheck::Ok,
             Err(rejection) => match self.jumped_to_ns {
                 Some(jumped)
@@ -259,6 +345,66 @@ mod tests {
             reason(hundred_hz.check(10 * MS + MS / 3)),
             "period_mismatch"
         );
+    }
+
+    /// Judges and observes a frame as the ingest loop does; whether it was used.
+    fn offer(c: &mut SampleClock, t: u64) -> Result<(), &'static str> {
+        let check = c.check(t);
+        c.observe(t);
+        match check {
+            ClockCheck::Ok => {
+                c.accept(t);
+                Ok(())
+            }
+            ClockCheck::Reject(r) => {
+                c.refused(t, &r);
+                Err(r.reason)
+            }
+            ClockCheck::NewTimeline => panic!("no jump here"),
+        }
+    }
+
+    #[test]
+    fn a_source_at_another_rate_is_refused_and_a_lost_sample_is_a_gap() {
+        // 100 Hz stamps on a 1 kHz stream: the third frame in a row 10 periods apart is
+        // refused, and every one after it.
+        let mut c = SampleClock::new(MS, false, 500 * MS);
+        let used: Vec<_> = (0..10).map(|k| offer(&mut c, 10 * k * MS)).collect();
+        assert_eq!(used[..3], [Ok(()), Ok(()), Ok(())]);
+        assert!(
+            used[3..].iter().all(|u| *u == Err("rate_mismatch")),
+            "{used:?}"
+        );
+        // Every other sample lost: the same.
+        let mut c = SampleClock::new(MS, false, 500 * MS);
+        let used: Vec<_> = (0..10).map(|k| offer(&mut c, 2 * k * MS)).collect();
+        assert_eq!(used.iter().filter(|u| u.is_err()).count(), 7, "{used:?}");
+        // A sample lost now and then is bridged: its period is skipped, nothing refused.
+        let mut c = SampleClock::new(MS, false, 500 * MS);
+        for t in [0, 1, 2, 4, 5, 7, 8, 9, 12, 13] {
+            assert_eq!(
+                c.skipped_periods(t * MS),
+                if t == 0 {
+                    0
+                } else {
+                    match t {
+                        4 | 7 => 1,
+                        12 => 2,
+                        _ => 0,
+                    }
+                }
+            );
+            assert_eq!(offer(&mut c, t * MS), Ok(()), "at {t} ms");
+        }
+        // Two lost in a row then regular again: two skipping arrivals, not a rate.
+        for t in [15, 17, 18, 19] {
+            assert_eq!(offer(&mut c, t * MS), Ok(()), "at {t} ms");
+        }
+        // The bogies of one step share a time: repeats do not count as arrivals.
+        let mut c = SampleClock::new(MS, true, 500 * MS);
+        for t in [0, 0, 0, 2, 2, 2, 3, 3, 3, 5, 5, 5] {
+            assert_eq!(offer(&mut c, t * MS), Ok(()), "at {t} ms");
+        }
     }
 
     #[test]
