@@ -18,6 +18,9 @@ pub struct DetectionCounter {
     episode_overlaps_truth: bool,
     detection_episodes: usize,
     false_episodes: usize,
+    /// Length of the current detection episode and of the longest so far (steps).
+    episode_steps: usize,
+    longest_episode_steps: usize,
 }
 
 /// The score of one drive.
@@ -44,6 +47,8 @@ pub struct DetectionScore {
     /// Detection episodes with no true slip step in them (a false alarm as a maintainer counts
     /// it, however long); an episode still open at the end is counted by what it met so far.
     pub false_episodes: usize,
+    /// The longest detection episode (steps detected in a row).
+    pub longest_episode_steps: usize,
 }
 
 impl DetectionCounter {
@@ -78,6 +83,8 @@ impl DetectionCounter {
             _ => {}
         }
         self.in_detection = detected;
+        self.episode_steps = if detected { self.episode_steps + 1 } else { 0 };
+        self.longest_episode_steps = self.longest_episode_steps.max(self.episode_steps);
     }
 
     pub fn score(&self) -> DetectionScore {
@@ -108,6 +115,7 @@ impl DetectionCounter {
             detection_episodes: self.detection_episodes,
             false_episodes: self.false_episodes
                 + usize::from(self.in_detection && !self.episode_overlaps_truth),
+            longest_episode_steps: self.longest_episode_steps,
         }
     }
 }
@@ -136,6 +144,7 @@ mod tests {
         assert_eq!((s.events, s.missed_events), (2, 1));
         // Episodes 1-1 (false: no true step), 4-6 (meets event 1).
         assert_eq!((s.detection_episodes, s.false_episodes), (2, 1));
+        assert_eq!(s.longest_episode_steps, 3);
     }
 
     #[test]
