@@ -23,14 +23,13 @@ fn slipping_drives_are_the_flagged_ones(seed: u64) {
     let mut step = 0;
     while let Some((samples, truth)) = sim.step() {
         let estimate = monitor.step(samples).unwrap();
-        for k in 0..n {
-            let flagged = estimate.drives[k].slip_probability > 0.5;
-            counters[k].push(step, flagged, truth[k].slipping);
+        for ((c, drive), truth) in counters.iter_mut().zip(&estimate.drives).zip(truth) {
+            c.push(step, drive.slip_probability > 0.5, truth.slipping);
         }
         step += 1;
     }
-    for k in 0..n {
-        let s = counters[k].score();
+    for (k, c) in counters.iter().enumerate() {
+        let s = c.score();
         if d.slipping.contains(&k) {
             assert!(
                 s.recall.unwrap() >= 0.85 && s.f1.unwrap() >= 0.9,
