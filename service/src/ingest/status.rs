@@ -16,7 +16,7 @@ use crate::metrics::{EstimateGauge, Metrics};
 /// The rejection reasons of every stream (header layout, sequence, estimator failure); each
 /// [`super::Pipeline`] adds its own. All are exported from the start, so each series exists (at 0):
 /// Prometheus queries on a counter that appears only with its first increment miss that increment.
-pub const COMMON_REJECTION_REASONS: [&str; 8] = [
+pub const COMMON_REJECTION_REASONS: [&str; 9] = [
     "layout_version",
     "estimator",
     "out_of_order",
@@ -25,6 +25,7 @@ pub const COMMON_REJECTION_REASONS: [&str; 8] = [
     "time_repeated",
     "time_jump",
     "period_mismatch",
+    "rate_mismatch",
 ];
 
 /// At most one log line per rejection reason per this long; the rest are counted and the
