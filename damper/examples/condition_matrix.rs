@@ -68,6 +68,10 @@ struct Args {
     duration_s: f64,
     worst: usize,
     verbose: bool,
+    /// Only draws of this fault shape (`--shape`).
+    shape: Option<FaultShape>,
+    /// Only draws with a stop (`--with-stops`).
+    with_stops: bool,
     config: DamperMonitorConfig,
 }
 
@@ -83,6 +87,10 @@ fn usage() -> String {
          --duration-s S     the longest run, s >= {min} (default {max}): a draw lasts 0.5-1\n\
          \u{20}                  times it\n\
          --worst K          the worst K draws by each criterion (default 3)\n\
+         --shape S          only draws whose fault is S: healthy, step, ramp or at-stop (a\n\
+         \u{20}                  step while standing); the seeds of the split are skipped\n\
+         \u{20}                  until N such draws\n\
+         --with-stops       only draws whose speed profile has a stop\n\
          --verbose          print each damper_degraded event\n\
          --help             this text",
         particles = DamperMonitorConfig::default().rbpf.particles,
@@ -99,6 +107,8 @@ fn parse_args() -> Result<Args, String> {
         duration_s: sampler::MAX_DURATION_S,
         worst: 3,
         verbose: false,
+        shape: None,
+        with_stops: false,
         config: DamperMonitorConfig::default(),
     };
     let mut it = std::env::args().skip(1);
@@ -123,6 +133,18 @@ fn parse_args() -> Result<Args, String> {
             "--duration-s" => args.duration_s = parsed(&flag, &value()?)?,
             "--worst" => args.worst = parsed(&flag, &value()?)?,
             "--verbose" => args.verbose = true,
+            "--shape" => {
+                args.shape = Some(match value()?.as_str() {
+                    "healthy" => FaultShape::None,
+                    "step" => FaultShape::Step,
+                    "ramp" => FaultShape::Ramp,
+                    "at-stop" => FaultShape::AtStop,
+                    other => {
+                        return Err(format!("--shape {other}: healthy, step, ramp or at-stop"))
+                    }
+                })
+            }
+            "--with-stops" => args.with_stops = true,
             other => return Err(format!("unknown flag {other}")),
         }
     }
@@ -393,12 +415,17 @@ fn main() -> ExitCode {
     };
     let config = args.config;
     let threshold = config.alarm.degraded_below_ratio;
+    // Drawing is cheap beside running: the shape and stop filters draw each seed once more.
+    let wanted = |d: &Draw| {
+        args.shape.is_none_or(|s| d.fault_shape == s) && (!args.with_stops || !d.stops.is_empty())
+    };
     let seeds: Vec<u64> = (args.first_seed..)
         .filter(|&s| match args.split {
             Split::All => true,
             Split::Tune => !sampler::is_held_out(s),
             Split::HeldOut => sampler::is_held_out(s),
         })
+        .filter(|&s| wanted(&sampler::draw(s, args.duration_s)))
         .take(args.draws)
         .collect();
     let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed)

@@ -32,18 +32,65 @@ impl DamperMonitorState {
     /// `tests/state_layout.rs` pins the layout under it
     /// (`tests/data/golden/state-layout-damper.txt`), so a change cannot ship without it.
     /// 3: the RBPF's jump-search sentinels (`RbpfState`).
-    pub const STATE_FORMAT_VERSION: u32 = 3;
+    /// 4: the settling after a pause judged on the innovations (`PauseState`).
+    pub const STATE_FORMAT_VERSION: u32 = 4;
 }
 
 /// Where a monitor is with respect to its valid speed range.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 struct PauseState {
     /// Why it is paused (and still settling after the pause), if it is.
     reason: Option<PauseReason>,
-    /// Samples left to run the states without weighting after a pause.
-    settle_steps_left: u64,
+    /// Samples in a row outside the range (the current or the last pause).
+    paused_steps: u64,
+    /// Samples run without weighting since the speed came back into range.
+    settle_steps: u64,
+    /// Per hypothesis ([`Rbpf::hypothesis_nis`]), the sum of its normalised innovations
+    /// squared over the settling's current window (empty before its first sample).
+    settle_nis_sums: Vec<f64>,
+    /// The settling is over: the next sample in range weighs the particles.
+    settled: bool,
     speed_m_s: f64,
 }
+
+impl PauseState {
+    fn running(speed_m_s: f64) -> Self {
+        PauseState {
+            reason: None,
+            paused_steps: 0,
+            settle_steps: 0,
+            settle_nis_sums: Vec::new(),
+            settled: true,
+            speed_m_s,
+        }
+    }
+}
+
+/// The settling after a pause, in samples (`DamperMonitor::step`).
+#[derive(Debug, Clone, Copy)]
+struct Settling {
+    /// At least this long (`speed.resume_settle_s`).
+    min_steps: u64,
+    /// At most this long (`max(speed.resume_settle_s, Rbpf::max_resume_settle_s)`).
+    max_steps: u64,
+    /// The innovations are judged over windows this long ([`SETTLE_WINDOW_S`]).
+    window_steps: u64,
+    /// A pause at least this long (the model's slowest time constant) restarts the states at
+    /// rest; `u64::MAX` without the jump search (the states kept, as before it).
+    reset_after_steps: u64,
+}
+
+/// The window over which the settling judges the innovations (s): 500 samples at 1 kHz, so
+/// that the mean of a chi-square with 5 degrees of freedom (standard deviation
+/// `sqrt(10 / 500)` = 0.14) stays well inside [`SETTLED_NIS_RATIO`] when the states are
+/// right.
+pub const SETTLE_WINDOW_S: f64 = 0.5;
+
+/// The settling ends (after `speed.resume_settle_s`) at the first window whose mean
+/// normalised innovation squared is at most this ratio of its expectation (5): 6 against the
+/// 5.0-5.4 of a settled filter on the shipped speed profile, 8.5-12 while the stale states of
+/// a stop still dominate (docs/notes/damper-log.md, 27 Nov).
+pub const SETTLED_NIS_RATIO: f64 = 1.2;
 
 #[derive(Debug, Clone)]
 pub struct DamperMonitor {
@@ -54,8 +101,22 @@ pub struct DamperMonitor {
     steps: u64,
     consistency: ConsistencyCheck,
     speed: SpeedConfig,
+    settling: Settling,
     pause: PauseState,
     estimate: DamperEstimate,
+}
+
+impl Settling {
+    fn of(config: &DamperMonitorConfig, rbpf: &Rbpf) -> Self {
+        let steps = |s: f64| (s / config.dt_s).round() as u64;
+        let min_steps = steps(config.speed.resume_settle_s);
+        Settling {
+            min_steps,
+            max_steps: min_steps.max(steps(rbpf.max_resume_settle_s())),
+            window_steps: steps(SETTLE_WINDOW_S).max(1),
+            reset_after_steps: rbpf.slowest_time_constant_s().map_or(u64::MAX, steps),
+        }
+    }
 }
 
 impl DamperMonitor {
@@ -115,6 +176,7 @@ impl DamperMonitor {
             None
         };
         let r = rbpf.estimate();
+        let settling = Settling::of(config, &rbpf);
         Ok(DamperMonitor {
             estimate: DamperEstimate {
                 time_s: 0.0,
@@ -135,11 +197,8 @@ impl DamperMonitor {
             dt_s: config.dt_s,
             steps: 0,
             speed: config.speed,
-            pause: PauseState {
-                reason: None,
-                settle_steps_left: 0,
-                speed_m_s: config.vehicle.speed_m_s,
-            },
+            settling,
+            pause: PauseState::running(config.vehicle.speed_m_s),
         })
     }
 
@@ -147,36 +206,42 @@ impl DamperMonitor {
     /// changes), then steps both filters.
     /// Outside the valid speed range (`speed`) the filters are not stepped: the posterior,
     /// the particles and their states stay bit for bit as they were, and the estimate says
-    /// `paused`. Back inside, the per-particle states run `speed.resume_settle_s` (with the
-    /// jump search at least [`Rbpf::min_resume_settle_s`]) without weighting (still
-    /// `paused`) before the posterior learns again.
+    /// `paused`. Back inside, the per-particle states run without weighting (still `paused`)
+    /// before the posterior learns again. With the jump search, after a pause of at least the
+    /// model's slowest time constant the states first restart at rest, as at the filter's
+    /// start: the plant has forgotten the state the pause began with, and after a stop it is
+    /// at rest itself. The settling lasts `speed.resume_settle_s` at least, then ends at the
+    /// first [`SETTLE_WINDOW_S`] window whose mean normalised innovation squared is at most
+    /// [`SETTLED_NIS_RATIO`] times 5 (the states explain the data again), or after
+    /// [`Rbpf::max_resume_settle_s`] (3 time constants of that mode) at the latest.
     pub fn step(&mut self, sample: &BogieSample) -> Result<&DamperEstimate, DamperError> {
         let y = sample.validate()?;
         let speed_m_s = sample.speed_m_s;
         if let Some(reason) = self.speed.pause_reason(speed_m_s) {
             self.steps += 1;
-            self.pause = PauseState {
-                reason: Some(reason),
-                settle_steps_left: (self
-                    .speed
-                    .resume_settle_s
-                    .max(self.rbpf.min_resume_settle_s())
-                    / self.dt_s)
-                    .round() as u64,
-                speed_m_s,
-            };
+            // A pause that interrupts a settling continues the pause before it.
+            let p = &mut self.pause;
+            if p.settle_steps > 0 {
+                p.paused_steps = 0;
+            }
+            p.reason = Some(reason);
+            p.paused_steps += 1;
+            p.settle_steps = 0;
+            p.settle_nis_sums.clear();
+            // No settling at all when none is asked for.
+            p.settled = self.settling.max_steps == 0;
+            p.speed_m_s = speed_m_s;
             self.estimate.time_s = self.steps as f64 * self.dt_s;
             self.estimate.paused = Some(reason);
             self.estimate.speed_m_s = speed_m_s;
             return Ok(&self.estimate);
         }
         self.rbpf.set_speed(speed_m_s)?;
-        if self.pause.settle_steps_left > 0 {
-            self.rbpf.step_states(&y)?;
-            self.pause.settle_steps_left -= 1;
-        } else {
+        if self.pause.settled {
             self.rbpf.step(&y)?;
             self.pause.reason = None;
+        } else {
+            self.settle(&y)?;
         }
         self.pause.speed_m_s = speed_m_s;
         self.steps += 1;
@@ -213,6 +278,36 @@ impl DamperMonitor {
         Ok(&self.estimate)
     }
 
+    /// One sample of the settling after a pause (`step`).
+    fn settle(&mut self, y: &crate::model::Vector5) -> Result<(), DamperError> {
+        let st = self.settling;
+        let p = &mut self.pause;
+        if p.settle_steps == 0 && p.paused_steps >= st.reset_after_steps {
+            self.rbpf.reset_states();
+        }
+        self.rbpf.step_states(y)?;
+        p.settle_steps += 1;
+        let sums = &mut p.settle_nis_sums;
+        if sums.is_empty() {
+            sums.extend(self.rbpf.hypothesis_nis());
+        } else {
+            for (sum, q) in sums.iter_mut().zip(self.rbpf.hypothesis_nis()) {
+                *sum += q;
+            }
+        }
+        let window_end = p.settle_steps.is_multiple_of(st.window_steps);
+        // Some hypothesis (a particle, or a sentinel: a damper that failed during the pause)
+        // explains the data again; the weighted mean would not, after such a failure.
+        let in_band = window_end
+            && sums.iter().copied().fold(f64::INFINITY, f64::min) / st.window_steps as f64
+                <= SETTLED_NIS_RATIO * crate::model::N_OUTPUTS as f64;
+        if window_end {
+            sums.fill(0.0);
+        }
+        p.settled = p.settle_steps >= st.max_steps || (p.settle_steps >= st.min_steps && in_band);
+        Ok(())
+    }
+
     pub fn state(&self) -> DamperMonitorState {
         DamperMonitorState {
             rbpf: self.rbpf.state(),
@@ -220,7 +315,7 @@ impl DamperMonitor {
             ekf_diverged_at_s: self.ekf_diverged_at_s,
             steps: self.steps,
             consistency: self.consistency,
-            pause: self.pause,
+            pause: self.pause.clone(),
         }
     }
 
@@ -245,6 +340,7 @@ impl DamperMonitor {
             _ => None,
         };
         let r = rbpf.estimate();
+        let settling = Settling::of(config, &rbpf);
         let consistency = state.consistency;
         Ok(DamperMonitor {
             estimate: DamperEstimate {
@@ -266,6 +362,7 @@ impl DamperMonitor {
             steps: state.steps,
             consistency,
             speed: config.speed,
+            settling,
             pause,
         })
     }

@@ -31,9 +31,10 @@ pub struct SpeedConfig {
     /// vehicle's configured speed).
     #[schemars(range(min = *GRID_RATIO.start(), max = *GRID_RATIO.end()))]
     pub grid_ratio: f64,
-    /// After a pause the per-particle state estimates are those of the last valid sample:
-    /// for this long they are run (predict and update) without weighting the particles, so
-    /// that the transient of stale states does not move the posterior (s).
+    /// After a pause the per-particle state estimates are those of the last valid sample (or,
+    /// with the jump search after a long pause, at rest): for at least this long they are run
+    /// (predict and update) without weighting the particles, so that the transient of stale
+    /// states does not move the posterior (s).
     #[schemars(range(min = 0.0))]
     pub resume_settle_s: f64,
 }

@@ -323,6 +323,20 @@ impl Bank {
         }
     }
 
+    /// Every filter back at its start (`Bank::new`): the state at rest, and (exact) the
+    /// start's covariance.
+    pub(super) fn reset_states(&mut self) {
+        match self {
+            Bank::Exact(b) => {
+                for e in &mut b.est {
+                    e.x = Vector17::zeros();
+                    e.p = initial_covariance();
+                }
+            }
+            Bank::Steady(b) => b.x.fill(Row::ZERO),
+        }
+    }
+
     /// Gives particle `dst` the filter state of particle `src` of `from` (a bank of the same
     /// propagation: the sentinels of `super::jump`).
     pub(super) fn copy_particle(&mut self, dst: usize, from: &Bank, src: usize) {

@@ -94,15 +94,16 @@ pub struct JumpSearchConfig {
     #[schemars(range(min = 0.0))]
     pub newcomer_ln_std: f64,
     /// After a pause (low or high speed) the filter settles (its states run, its weights and
-    /// the sentinels' odds do not move) for at least this many time constants of the
-    /// slowest mode of the vehicle model ([`slowest_time_constant_s`]: 2.07 s for the
-    /// paper's vehicle over 5-55 m/s), or `speed.resume_settle_s` if longer; the odds then
-    /// start again from nothing. The states kept through a pause are those of its start:
-    /// their error decays with that mode, and until it has, the innovations favour whichever
-    /// hypothesis forgets them fastest, not the true dampers (after the 1 s settling alone,
-    /// a cascade of newcomers at 25-35 % of nominal within a second, then a false
-    /// `damper_degraded`, on the speed profile with stops; docs/damper.md "Low speed: the
-    /// jump search"). The filter without the search keeps `speed.resume_settle_s` alone.
+    /// the sentinels' odds do not move) for at most this many time constants of the slowest
+    /// mode of the vehicle model ([`slowest_time_constant_s`]: 2.07 s for the paper's vehicle
+    /// over 5-55 m/s), or `speed.resume_settle_s` if longer; sooner when some hypothesis
+    /// explains the data again (`railmon_damper::monitor`: after a stop the states restart at
+    /// rest and it takes the 1 s minimum). The odds then start again from nothing. Stale
+    /// states favour whichever hypothesis forgets them fastest, not the true dampers (after
+    /// the 1 s settling alone on the held states, a cascade of newcomers at 25-35 % of
+    /// nominal within a second, then a false `damper_degraded`, on the speed profile with
+    /// stops; docs/damper.md "Low speed: the jump search"). The filter without the search
+    /// keeps `speed.resume_settle_s` alone.
     #[schemars(range(min = 0.0))]
     pub resume_hold_time_constants: f64,
 }
@@ -121,7 +122,8 @@ impl Default for JumpSearchConfig {
             materialise_odds: 0.01,
             min_newcomer_fraction: 0.01,
             newcomer_ln_std: 0.15,
-            // e^-3: 5 % of the stale states' error is left when the search judges again.
+            // e^-3: 5 % of the stale states' error is left when the search judges again at
+            // the latest.
             resume_hold_time_constants: 3.0,
         }
     }
@@ -265,6 +267,15 @@ impl Sentinels {
 
     pub(super) fn set_speed(&mut self, speed_m_s: f64) -> Result<(), DamperError> {
         self.bank.set_speed(speed_m_s)
+    }
+
+    pub(super) fn reset_states(&mut self) {
+        self.bank.reset_states();
+    }
+
+    /// Each sentinel's normalised innovation squared of the last step.
+    pub(super) fn nis(&self) -> &[f64] {
+        &self.nis
     }
 
     /// `ln` of the total posterior odds of a jump (any sentinel's), if it crossed

@@ -97,9 +97,12 @@ pub struct Rbpf {
     sorted: SortedParticles,
     /// The jump search's sentinels (`jump_search.enabled`).
     sentinels: Option<Sentinels>,
-    /// The shortest settling after a pause (s): `jump_search.resume_hold_time_constants`
+    /// The time constant of the model's slowest mode (s; [`slowest_time_constant_s`]), with
+    /// the jump search (the only part that needs it).
+    slowest_time_constant_s: Option<f64>,
+    /// The longest settling after a pause (s): `jump_search.resume_hold_time_constants`
     /// time constants of the model's slowest mode with the search, 0 without it.
-    min_resume_settle_s: f64,
+    max_resume_settle_s: f64,
 }
 
 impl Rbpf {
@@ -162,12 +165,13 @@ impl Rbpf {
         Self::validate(filter_model, config, speed)?;
         let cfg = *config;
         let n = cfg.particles;
-        let min_resume_settle_s = if cfg.jump_search.enabled {
-            cfg.jump_search.resume_hold_time_constants
-                * jump::slowest_time_constant_s(filter_model, speed)?
+        let slowest_time_constant_s = if cfg.jump_search.enabled {
+            Some(jump::slowest_time_constant_s(filter_model, speed)?)
         } else {
-            0.0
+            None
         };
+        let max_resume_settle_s = slowest_time_constant_s
+            .map_or(0.0, |tau| cfg.jump_search.resume_hold_time_constants * tau);
         // Built here when not given: once, for the particles and the sentinels alike (the
         // same model, grid and speeds).
         let table = match (cfg.propagation, table) {
@@ -239,7 +243,8 @@ impl Rbpf {
                 ..SortedParticles::default()
             },
             sentinels,
-            min_resume_settle_s,
+            slowest_time_constant_s,
+            max_resume_settle_s,
         })
     }
 
@@ -510,11 +515,35 @@ impl Rbpf {
         self.bank.set_speed(speed_m_s)
     }
 
-    /// The shortest settling after a pause this filter needs (s; `speed.resume_settle_s` may
-    /// ask for more): with the jump search, `jump_search.resume_hold_time_constants` time
-    /// constants of the vehicle model's slowest mode; 0 without it.
-    pub fn min_resume_settle_s(&self) -> f64 {
-        self.min_resume_settle_s
+    /// The longest settling after a pause this filter may need (s; `speed.resume_settle_s`
+    /// may ask for more): with the jump search, `jump_search.resume_hold_time_constants` time
+    /// constants of the vehicle model's slowest mode; 0 without it. The monitor ends the
+    /// settling sooner when the innovations allow (`DamperMonitor::step`).
+    pub fn max_resume_settle_s(&self) -> f64 {
+        self.max_resume_settle_s
+    }
+
+    /// The time constant of the vehicle model's slowest mode over the speed range (s;
+    /// [`slowest_time_constant_s`]): how long the plant takes to forget a state. With the
+    /// jump search only (`None` without it).
+    pub fn slowest_time_constant_s(&self) -> Option<f64> {
+        self.slowest_time_constant_s
+    }
+
+    /// Every particle's and sentinel's Kalman state back at rest, as at the start; the
+    /// parameter posterior untouched.
+    pub fn reset_states(&mut self) {
+        self.bank.reset_states();
+        if let Some(s) = &mut self.sentinels {
+            s.reset_states();
+        }
+    }
+
+    /// Each hypothesis's normalised innovation squared `e' S^-1 e` of the last step: the
+    /// particles', then (with the jump search) the sentinels'.
+    pub fn hypothesis_nis(&self) -> impl Iterator<Item = f64> + '_ {
+        let sentinels = self.sentinels.iter().flat_map(|s| s.nis().iter().copied());
+        self.nis.iter().copied().chain(sentinels)
     }
 
     /// Runs every particle's Kalman filter on `y` without weighting, resampling or moving the
