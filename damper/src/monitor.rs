@@ -152,6 +152,10 @@ impl DamperMonitor {
     /// `paused`) before the posterior learns again.
     pub fn step(&mut self, sample: &BogieSample) -> Result<&DamperEstimate, DamperError> {
         let y = sample.validate()?;
+        // The measured body mass (or the design one): checked before anything changes.
+        let mass_kg = self
+            .rbpf
+            .checked_half_body_mass_kg(sample.half_body_mass_kg)?;
         let speed_m_s = sample.speed_m_s;
         if let Some(reason) = self.speed.pause_reason(speed_m_s) {
             self.steps += 1;
@@ -171,6 +175,7 @@ impl DamperMonitor {
             return Ok(&self.estimate);
         }
         self.rbpf.set_speed(speed_m_s)?;
+        self.rbpf.set_half_body_mass_kg(Some(mass_kg))?;
         if self.pause.settle_steps_left > 0 {
             self.rbpf.step_states(&y)?;
             self.pause.settle_steps_left -= 1;
@@ -181,7 +186,11 @@ impl DamperMonitor {
         self.pause.speed_m_s = speed_m_s;
         self.steps += 1;
         let time_s = self.steps as f64 * self.dt_s;
-        let ekf_step = |e: &mut AugmentedEkf| e.set_speed(speed_m_s).and_then(|_| e.step(&y));
+        let ekf_step = |e: &mut AugmentedEkf| {
+            e.set_speed(speed_m_s)
+                .and_then(|_| e.set_half_body_mass_kg(mass_kg))
+                .and_then(|_| e.step(&y))
+        };
         let ekf = match self.ekf.as_mut().map(ekf_step) {
             Some(Ok(e)) => Some(e),
             Some(Err(_)) => {

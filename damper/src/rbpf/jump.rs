@@ -263,8 +263,12 @@ impl Sentinels {
         Ok(())
     }
 
-    pub(super) fn set_speed(&mut self, speed_m_s: f64) -> Result<(), DamperError> {
-        self.bank.set_speed(speed_m_s)
+    pub(super) fn set_schedule(
+        &mut self,
+        speed_m_s: f64,
+        half_body_mass_kg: f64,
+    ) -> Result<(), DamperError> {
+        self.bank.set_schedule(speed_m_s, half_body_mass_kg)
     }
 
     /// `ln` of the total posterior odds of a jump (any sentinel's), if it crossed

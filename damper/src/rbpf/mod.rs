@@ -30,7 +30,7 @@ use crate::filter_model::FilterModel;
 use crate::gain_table::GainTable;
 use crate::model::{Matrix17, Vector17, Vector5, N_OUTPUTS};
 use crate::noise_scale::NoiseScale;
-use crate::params::Dampers;
+use crate::params::{checked_half_body_mass_kg, Dampers};
 use crate::speed::SpeedConfig;
 use crate::DamperError;
 use railmon_filter::logspace::{effective_sample_size, normalize_log_weights};
@@ -100,6 +100,9 @@ pub struct Rbpf {
     /// The shortest settling after a pause (s): `jump_search.resume_hold_time_constants`
     /// time constants of the model's slowest mode with the search, 0 without it.
     min_resume_settle_s: f64,
+    /// The configured (design) body mass above the bogie (kg): what a sample without a
+    /// measured mass means, and what a measured one is checked against.
+    design_half_body_mass_kg: f64,
 }
 
 impl Rbpf {
@@ -240,6 +243,7 @@ impl Rbpf {
             },
             sentinels,
             min_resume_settle_s,
+            design_half_body_mass_kg: filter_model.vehicle.half_body_mass_kg,
         })
     }
 
@@ -504,10 +508,45 @@ impl Rbpf {
     /// `speed`'s range: outside it the filter is paused, not stepped). Until the first call
     /// the filter assumes the configured vehicle speed.
     pub fn set_speed(&mut self, speed_m_s: f64) -> Result<(), DamperError> {
+        let (_, mass_kg) = self.bank.schedule();
+        self.set_schedule(speed_m_s, mass_kg)
+    }
+
+    /// The measured body mass above the bogie for the next steps
+    /// (`BogieSample::half_body_mass_kg`, kg; `None`: the design mass,
+    /// `BogieParams::half_body_mass_kg`), scheduled as the speed: the model and `H` at exactly
+    /// this mass, the gains of the nearest mass node of the gain table. A mass outside
+    /// `params::HALF_BODY_MASS_RATIO` of the design value is refused (the error names the
+    /// field and value) and nothing changes. Costs a comparison when the mass is unchanged.
+    pub fn set_half_body_mass_kg(
+        &mut self,
+        half_body_mass_kg: Option<f64>,
+    ) -> Result<(), DamperError> {
+        let mass_kg = self.checked_half_body_mass_kg(half_body_mass_kg)?;
+        let (speed_m_s, _) = self.bank.schedule();
+        self.set_schedule(speed_m_s, mass_kg)
+    }
+
+    /// The body mass the filter would run at for a sample's `half_body_mass_kg` (kg), or the
+    /// error that refuses it (`params::checked_half_body_mass_kg`): for a caller that checks
+    /// a sample before changing anything.
+    pub fn checked_half_body_mass_kg(
+        &self,
+        half_body_mass_kg: Option<f64>,
+    ) -> Result<f64, DamperError> {
+        checked_half_body_mass_kg(self.design_half_body_mass_kg, half_body_mass_kg)
+    }
+
+    /// The speed (m/s) and body mass (kg) the filter runs at.
+    pub fn schedule(&self) -> (f64, f64) {
+        self.bank.schedule()
+    }
+
+    fn set_schedule(&mut self, speed_m_s: f64, half_body_mass_kg: f64) -> Result<(), DamperError> {
         if let Some(s) = &mut self.sentinels {
-            s.set_speed(speed_m_s)?;
+            s.set_schedule(speed_m_s, half_body_mass_kg)?;
         }
-        self.bank.set_speed(speed_m_s)
+        self.bank.set_schedule(speed_m_s, half_body_mass_kg)
     }
 
     /// The shortest settling after a pause this filter needs (s; `speed.resume_settle_s` may
