@@ -27,7 +27,7 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::filter_model::FilterModel;
-use crate::gain_table::GainTable;
+use crate::gain_table::{GainTable, MASS_GRID_RATIO};
 use crate::model::{Matrix17, Vector17, Vector5, N_OUTPUTS};
 use crate::noise_scale::NoiseScale;
 use crate::params::{checked_half_body_mass_kg, Dampers};
@@ -103,6 +103,12 @@ pub struct Rbpf {
     /// The configured (design) body mass above the bogie (kg): what a sample without a
     /// measured mass means, and what a measured one is checked against.
     design_half_body_mass_kg: f64,
+    /// The mass node (`gain_table::MASS_GRID_RATIO^j` times the design mass) that
+    /// `min_resume_settle_s` was computed at: the body's mode slows as `m_bd` grows, so the
+    /// hold follows the mass, recomputed (~50 eigenvalue problems) only when the node changes.
+    settle_mass_node: i32,
+    filter_model: FilterModel,
+    speed: SpeedConfig,
 }
 
 impl Rbpf {
@@ -244,6 +250,9 @@ impl Rbpf {
             sentinels,
             min_resume_settle_s,
             design_half_body_mass_kg: filter_model.vehicle.half_body_mass_kg,
+            settle_mass_node: 0,
+            filter_model: *filter_model,
+            speed: *speed,
         })
     }
 
@@ -524,7 +533,20 @@ impl Rbpf {
     ) -> Result<(), DamperError> {
         let mass_kg = self.checked_half_body_mass_kg(half_body_mass_kg)?;
         let (speed_m_s, _) = self.bank.schedule();
-        self.set_schedule(speed_m_s, mass_kg)
+        self.set_schedule(speed_m_s, mass_kg)?;
+        if self.config.jump_search.enabled {
+            let ln_ratio = MASS_GRID_RATIO.ln();
+            let node = ((mass_kg / self.design_half_body_mass_kg).ln() / ln_ratio).round() as i32;
+            if node != self.settle_mass_node {
+                let mut model = self.filter_model;
+                model.vehicle.half_body_mass_kg =
+                    self.design_half_body_mass_kg * (ln_ratio * node as f64).exp();
+                self.min_resume_settle_s = self.config.jump_search.resume_hold_time_constants
+                    * jump::slowest_time_constant_s(&model, &self.speed)?;
+                self.settle_mass_node = node;
+            }
+        }
+        Ok(())
     }
 
     /// The body mass the filter would run at for a sample's `half_body_mass_kg` (kg), or the
@@ -551,7 +573,8 @@ impl Rbpf {
 
     /// The shortest settling after a pause this filter needs (s; `speed.resume_settle_s` may
     /// ask for more): with the jump search, `jump_search.resume_hold_time_constants` time
-    /// constants of the vehicle model's slowest mode; 0 without it.
+    /// constants of the vehicle model's slowest mode at the body mass's node (the design mass
+    /// until [`Rbpf::set_half_body_mass_kg`] says otherwise); 0 without it.
     pub fn min_resume_settle_s(&self) -> f64 {
         self.min_resume_settle_s
     }
