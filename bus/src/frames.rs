@@ -418,6 +418,8 @@ impl BogieFrame {
             bogie_yaw_rate_rad_s: self.bogie_yaw_rate_rad_s,
             body_accel_m_s2: self.body_accel_m_s2,
             speed_m_s: self.speed_m_s,
+            // The frame carries no load signal yet (issue 24 item 1): the design mass.
+            half_body_mass_kg: None,
         })
     }
 }
@@ -606,6 +608,7 @@ mod tests {
             bogie_yaw_rate_rad_s: -0.004,
             body_accel_m_s2: 0.05,
             speed_m_s: 31.5,
+            half_body_mass_kg: None,
         };
         let frame = BogieFrame::from_sample(3, &sample);
         assert_eq!(std::mem::size_of::<BogieFrame>(), 56);

@@ -1,8 +1,10 @@
 //! The damper's condition matrix (issue 24 item 5): scenarios drawn from the whole operating
 //! envelope by `railmon_damper::sampler` (speed profiles with stops, track, sensor noise,
 //! conicity, body mass, faults), each run through `DamperMonitor` + `DamperAlarm` with the
-//! filter's defaults (it assumes the design vehicle: only the plant varies). The quick check
-//! stays `robustness_matrix` (one factor at a time).
+//! filter's defaults (it assumes the design vehicle: only the plant varies), given the
+//! plant's body mass as the measured load (`BogieSample::half_body_mass_kg`; `--withhold-mass`:
+//! not given, the filter assumes the design mass). The quick check stays `robustness_matrix`
+//! (one factor at a time).
 //!
 //! Per draw one row: the conditions; false `damper_degraded` events (on a damper whose fault
 //! has not started); the lowest published health ratio (posterior mean / nominal) of each
@@ -72,6 +74,7 @@ struct Args {
     shape: Option<FaultShape>,
     /// Only draws with a stop (`--with-stops`).
     with_stops: bool,
+    withhold_mass: bool,
     config: DamperMonitorConfig,
 }
 
@@ -92,6 +95,7 @@ fn usage() -> String {
          \u{20}                  until N such draws\n\
          --with-stops       only draws whose speed profile has a stop\n\
          --verbose          print each damper_degraded event\n\
+         --withhold-mass    the samples carry no body mass (the filter assumes the design one)\n\
          --help             this text",
         particles = DamperMonitorConfig::default().rbpf.particles,
         min = sampler::MIN_MAX_DURATION_S,
@@ -109,6 +113,7 @@ fn parse_args() -> Result<Args, String> {
         verbose: false,
         shape: None,
         with_stops: false,
+        withhold_mass: false,
         config: DamperMonitorConfig::default(),
     };
     let mut it = std::env::args().skip(1);
@@ -145,6 +150,7 @@ fn parse_args() -> Result<Args, String> {
                 })
             }
             "--with-stops" => args.with_stops = true,
+            "--withhold-mass" => args.withhold_mass = true,
             other => return Err(format!("unknown flag {other}")),
         }
     }
@@ -284,12 +290,20 @@ impl Outcome {
 
 const HEADER: &str = "| seed | conditions | false degraded | lowest healthy ratio csy / csay | both within 5 % [%] | 90 % coverage csy / csay [%] | model_mismatch [%] | mean error csy / csay [%] | detection delay | wall s |\n|---|---|---|---|---|---|---|---|---|---|";
 
-fn run(draw: Draw, config: &DamperMonitorConfig, table: &Arc<GainTable>, verbose: bool) -> Outcome {
+fn run(
+    draw: Draw,
+    config: &DamperMonitorConfig,
+    table: &Arc<GainTable>,
+    verbose: bool,
+    withhold_mass: bool,
+) -> Outcome {
     let started = Instant::now();
     let threshold = config.alarm.degraded_below_ratio;
     let mut monitor = DamperMonitor::for_bogie(config, 1, Some(table.clone())).unwrap();
     let mut alarms = DamperAlarm::pair(&config.alarm, &config.filter_model(), [false; 2]);
-    let mut sim = BogieSimulator::new(&draw.scenario).unwrap();
+    let mut sim = BogieSimulator::new(&draw.scenario)
+        .unwrap()
+        .with_mass_input(!withhold_mass);
     let nominal = config.filter_model().nominal;
     let nominal = [nominal.csy_ns_per_m, nominal.csay_ns_per_m];
     let initial = draw.scenario.dampers;
@@ -446,6 +460,7 @@ fn main() -> ExitCode {
                     &config,
                     &table,
                     args.verbose,
+                    args.withhold_mass,
                 );
                 eprintln!(
                     "[{:.0} s] seed {seed} done ({:.0} s)",
@@ -549,10 +564,17 @@ fn report(args: &Args, outcomes: &[Outcome], threshold: f64, wall_s: f64) {
         count(&|o| o.diverged_at_s.is_some())
     );
     println!();
-    println!("By body mass (the filter assumes the design mass):");
+    println!(
+        "By body mass ({}):",
+        if args.withhold_mass {
+            "withheld: the filter assumes the design mass"
+        } else {
+            "given to the filter as the measured load"
+        }
+    );
     println!();
-    println!("| mass x | draws | false degraded draws | healthy ratio below {threshold} | median both within 5 % [%] | median mean error csy / csay [%] |");
-    println!("|---|---|---|---|---|---|");
+    println!("| mass x | draws | false degraded draws | healthy ratio below {threshold} | median both within 5 % [%] | median mean error csy / csay [%] | mean error csy / csay [%] | 90 % coverage csy / csay [%] |");
+    println!("|---|---|---|---|---|---|---|---|");
     for (lo, hi) in [(0.0, 0.95), (0.95, 1.05), (1.05, 1.2), (1.2, 2.0)] {
         let group: Vec<&Outcome> = outcomes
             .iter()
@@ -566,8 +588,13 @@ fn report(args: &Args, outcomes: &[Outcome], threshold: f64, wall_s: f64) {
             v.sort_by(f64::total_cmp);
             v[v.len() / 2]
         };
+        // Pooled over the group's judged samples (each draw weighs by its length).
+        let judged: usize = group.iter().map(|o| o.judged).sum::<usize>().max(1);
+        let pooled = |f: &dyn Fn(&Outcome) -> f64| {
+            100.0 * group.iter().map(|o| f(o)).sum::<f64>() / judged as f64
+        };
         println!(
-            "| {lo:.2}-{hi:.2} | {} | {} | {} | {:.1} | {:+.1} / {:+.1} |",
+            "| {lo:.2}-{hi:.2} | {} | {} | {} | {:.1} | {:+.1} / {:+.1} | {:+.2} / {:+.2} | {:.1} / {:.1} |",
             group.len(),
             group.iter().filter(|o| o.false_degraded > 0).count(),
             group
@@ -577,6 +604,10 @@ fn report(args: &Args, outcomes: &[Outcome], threshold: f64, wall_s: f64) {
             100.0 * median(&|o| o.within_share()),
             100.0 * median(&|o| o.mean_error(0)),
             100.0 * median(&|o| o.mean_error(1)),
+            pooled(&|o| o.error_sum[0]),
+            pooled(&|o| o.error_sum[1]),
+            pooled(&|o| o.covered[0] as f64),
+            pooled(&|o| o.covered[1] as f64),
         );
     }
     println!();

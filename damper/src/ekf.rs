@@ -139,6 +139,18 @@ impl AugmentedEkf {
         Ok(())
     }
 
+    /// The body mass above the bogie for the next steps (kg, checked by the caller:
+    /// `Rbpf::checked_half_body_mass_kg`), as the RBPF's model takes it.
+    pub fn set_half_body_mass_kg(&mut self, mass_kg: f64) -> Result<(), DamperError> {
+        if self.model.params().half_body_mass_kg != mass_kg {
+            self.model.set_half_body_mass_kg(mass_kg)?;
+            self.h
+                .fixed_view_mut::<N_OUTPUTS, N_STATES>(0, 0)
+                .copy_from(&self.model.h_matrix());
+        }
+        Ok(())
+    }
+
     fn dampers(&self, xi: &Vector19) -> Dampers {
         Dampers {
             csy_ns_per_m: xi[N_STATES] * self.nominal.csy_ns_per_m,

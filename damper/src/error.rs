@@ -44,6 +44,10 @@ impl DamperError {
                 field: "speed_m_s",
                 value,
             } if value.is_finite() => Some("speed_out_of_range"),
+            DamperError::InvalidSample {
+                field: "half_body_mass_kg",
+                value,
+            } if value.is_finite() => Some("mass_out_of_range"),
             DamperError::InvalidSample { .. } => Some("not_finite"),
             DamperError::SampleOutOfRange { .. } => Some("out_of_range"),
             _ => None,

@@ -16,7 +16,7 @@ use crate::filter_model::FilterModel;
 use crate::fingerprint::Fnv128;
 use crate::kalman::{steady_state, NoiseCovariances};
 use crate::model::{BogieModel, N_OUTPUTS, N_STATES};
-use crate::params::{positive, Dampers};
+use crate::params::{positive, Dampers, HALF_BODY_MASS_RATIO};
 use crate::speed::SpeedConfig;
 use crate::DamperError;
 
@@ -221,8 +221,14 @@ fn solve_point(
 /// node is also checked against a fresh solution of one of its points on import.)
 pub const GAIN_SOLUTION_VERSION: u32 = 1;
 
-/// The gain grids of one vehicle over its speed range, built on first use and shared by
-/// every filter of that vehicle (`Arc`, thread-safe).
+/// Ratio of neighbouring body-mass nodes of the gain table (geometric grid about the design
+/// mass over [`HALF_BODY_MASS_RATIO`]): a filter's gains are those of a mass within
+/// `sqrt(1.05) - 1 = 2.5 %` of the measured one (its propagation and `H` use the measured
+/// mass exactly). Not a setting: the load signal's own error is of that order.
+pub const MASS_GRID_RATIO: f64 = 1.05;
+
+/// The gain grids of one vehicle over its speed range and body-mass range, built on first
+/// use and shared by every filter of that vehicle (`Arc`, thread-safe).
 ///
 /// The creep forces make the model depend on `1 / v` (`model::SPEED_ENTRIES`), so the speed
 /// nodes are geometric, `v_k = v_0 r^k` about the configured speed `v_0`
@@ -232,6 +238,14 @@ pub const GAIN_SOLUTION_VERSION: u32 = 1;
 /// speed itself it is that speed's own grid. The propagation and `H` always use the exact
 /// measured speed; only the gain, `S^-1` and `ln det S` come from the node (their error in
 /// likelihood is measured in `docs/damper.md`).
+///
+/// The body mass above the bogie (`m_bd`, measured: `BogieSample::half_body_mass_kg`) is
+/// scheduled the same way, on a second axis: mass nodes `m_j = m_0 MASS_GRID_RATIO^j` about
+/// the design mass `m_0` over [`HALF_BODY_MASS_RATIO`], the node nearest in `ln m`. A node
+/// index names a (speed, mass) pair: `layer * n_nodes() + speed node`, where layer 0 is the
+/// design mass, so that the nodes `0..n_nodes()` are the design-mass speed nodes they always
+/// were (what a service without a load signal warms and caches); the other layers
+/// (`n_mass_nodes()` in all) are solved when a filter first reaches their mass.
 #[derive(Debug)]
 pub struct GainTable {
     model: BogieModel,
@@ -242,6 +256,11 @@ pub struct GainTable {
     ln_ratio: f64,
     /// `k` of the first node (`v_0 r^k_min`).
     k_min: i32,
+    /// Speed nodes per mass layer.
+    n_speed: usize,
+    /// `j` of the lightest and heaviest mass nodes (`m_0 MASS_GRID_RATIO^j`, `j_min <= 0 <=
+    /// j_max`).
+    j_range: (i32, i32),
     /// Each speed node's grid once solved. One lock per node, held while the node is being
     /// solved: a second filter (or a warming thread, [`GainTable::missing_near`]) asking for
     /// the same node waits for that solution instead of solving it again.
@@ -276,12 +295,33 @@ impl GainTable {
         speed: &SpeedConfig,
         dt_s: f64,
     ) -> Result<Arc<Self>, DamperError> {
+        let table = GainTable::unsolved(model, noise, nominal, grid, speed, dt_s);
+        table.grid_at(table.configured_node())?;
+        Ok(Arc::new(table))
+    }
+
+    /// The table with no node solved.
+    fn unsolved(
+        model: &BogieModel,
+        noise: &NoiseCovariances,
+        nominal: &Dampers,
+        grid: &GainGridConfig,
+        speed: &SpeedConfig,
+        dt_s: f64,
+    ) -> GainTable {
         let v0 = model.params().speed_m_s;
         let ln_ratio = speed.grid_ratio.ln();
         let k_of = |v: f64| ((v / v0).ln() / ln_ratio).round() as i32;
         let k_min = k_of(speed.min_m_s).min(0);
         let k_max = k_of(speed.max_m_s).max(0);
-        let table = GainTable {
+        let n_speed = (k_max - k_min + 1) as usize;
+        let j_of = |ratio: f64| (ratio.ln() / MASS_GRID_RATIO.ln()).round() as i32;
+        let j_range = (
+            j_of(*HALF_BODY_MASS_RATIO.start()).min(0),
+            j_of(*HALF_BODY_MASS_RATIO.end()).max(0),
+        );
+        let n_mass = (j_range.1 - j_range.0 + 1) as usize;
+        GainTable {
             model: model.clone(),
             noise: *noise,
             nominal: *nominal,
@@ -289,10 +329,10 @@ impl GainTable {
             dt_s,
             ln_ratio,
             k_min,
-            nodes: (k_min..=k_max).map(|_| Mutex::new(None)).collect(),
-        };
-        table.grid_at(table.node_of(v0))?;
-        Ok(Arc::new(table))
+            n_speed,
+            j_range,
+            nodes: (0..n_speed * n_mass).map(|_| Mutex::new(None)).collect(),
+        }
     }
 
     /// As [`GainTable::for_model`] without solving any node yet: for a caller that first
@@ -302,22 +342,14 @@ impl GainTable {
         grid: &GainGridConfig,
         speed: &SpeedConfig,
     ) -> Result<Arc<Self>, DamperError> {
-        let bogie = model.bogie_model()?;
-        let v0 = bogie.params().speed_m_s;
-        let ln_ratio = speed.grid_ratio.ln();
-        let k_of = |v: f64| ((v / v0).ln() / ln_ratio).round() as i32;
-        let k_min = k_of(speed.min_m_s).min(0);
-        let k_max = k_of(speed.max_m_s).max(0);
-        Ok(Arc::new(GainTable {
-            model: bogie,
-            noise: model.noise(),
-            nominal: model.nominal,
-            grid: *grid,
-            dt_s: model.dt_s,
-            ln_ratio,
-            k_min,
-            nodes: (k_min..=k_max).map(|_| Mutex::new(None)).collect(),
-        }))
+        Ok(Arc::new(GainTable::unsolved(
+            &model.bogie_model()?,
+            &model.noise(),
+            &model.nominal,
+            grid,
+            speed,
+            model.dt_s,
+        )))
     }
 
     /// How many values a node's grid holds ([`GainGrid::values`]).
@@ -330,15 +362,19 @@ impl GainTable {
         self.node_of(self.model.params().speed_m_s)
     }
 
-    /// The model at node `node`'s speed.
+    /// The model at node `node`'s speed and body mass (the design mass's layer: the model
+    /// as configured, bit for bit).
     fn model_at(&self, node: usize) -> Result<BogieModel, DamperError> {
         let mut model = self.model.clone();
         model.set_speed(self.node_speed_m_s(node))?;
+        if node >= self.n_speed {
+            model.set_half_body_mass_kg(self.node_half_body_mass_kg(node))?;
+        }
         Ok(model)
     }
 
     /// A stable hash of everything node `node`'s solution is computed from (the model's
-    /// matrices at the node's speed, the noise, the grid, the sample period) and of
+    /// matrices at the node's speed and body mass, the noise, the grid, the sample period) and of
     /// [`GAIN_SOLUTION_VERSION`]: the same on every platform and build, different (but for
     /// a 2^-128 chance) whenever the solution would be. The key of a stored node.
     pub fn fingerprint(&self, node: usize) -> Result<u128, DamperError> {
@@ -423,22 +459,65 @@ impl GainTable {
             .clone()
     }
 
-    /// The node whose cell holds `speed_m_s` (clamped to the table).
+    /// The design-mass node whose cell holds `speed_m_s` (clamped to the table).
     pub fn node_of(&self, speed_m_s: f64) -> usize {
         let v0 = self.model.params().speed_m_s;
         let k = ((speed_m_s / v0).ln() / self.ln_ratio).round();
-        let last = (self.nodes.len() - 1) as f64;
+        let last = (self.n_speed - 1) as f64;
         (k - self.k_min as f64).clamp(0.0, last) as usize
+    }
+
+    /// The node whose cell holds `speed_m_s` and `half_body_mass_kg` (each clamped to the
+    /// table): [`GainTable::node_of`] itself at the design mass.
+    pub fn node_at(&self, speed_m_s: f64, half_body_mass_kg: f64) -> usize {
+        let m0 = self.model.params().half_body_mass_kg;
+        let j = ((half_body_mass_kg / m0).ln() / MASS_GRID_RATIO.ln()).round();
+        let j = j.clamp(self.j_range.0 as f64, self.j_range.1 as f64) as i32;
+        self.layer_of(j) * self.n_speed + self.node_of(speed_m_s)
+    }
+
+    /// The layer of mass node `j`: 0 for the design mass, then the lighter nodes from the
+    /// lightest, then the heavier ones.
+    fn layer_of(&self, j: i32) -> usize {
+        let below = -self.j_range.0;
+        match j {
+            0 => 0,
+            j if j < 0 => (j + below + 1) as usize,
+            j => (j + below) as usize,
+        }
+    }
+
+    /// `j` of layer `layer` (inverse of `layer_of`).
+    fn j_of_layer(&self, layer: usize) -> i32 {
+        let below = -self.j_range.0;
+        match layer as i32 {
+            0 => 0,
+            l if l <= below => l - below - 1,
+            l => l - below,
+        }
     }
 
     /// The speed of node `node` (m/s).
     pub fn node_speed_m_s(&self, node: usize) -> f64 {
-        let k = node as i32 + self.k_min;
+        let k = (node % self.n_speed) as i32 + self.k_min;
         self.model.params().speed_m_s * (self.ln_ratio * k as f64).exp()
     }
 
+    /// The body mass above the bogie of node `node` (kg).
+    pub fn node_half_body_mass_kg(&self, node: usize) -> f64 {
+        let j = self.j_of_layer(node / self.n_speed);
+        self.model.params().half_body_mass_kg * (MASS_GRID_RATIO.ln() * j as f64).exp()
+    }
+
+    /// The design-mass speed nodes: `0..n_nodes()` (the layer a service without a load
+    /// signal uses, warms and caches).
     pub fn n_nodes(&self) -> usize {
-        self.nodes.len()
+        self.n_speed
+    }
+
+    /// The mass nodes (layers of `n_nodes()` speed nodes each).
+    pub fn n_mass_nodes(&self) -> usize {
+        self.nodes.len() / self.n_speed
     }
 
     /// The grid of node `node`, solved on first use (about 0.3 s for 33 x 33 in a release
@@ -458,7 +537,7 @@ impl GainTable {
         Ok(built)
     }
 
-    /// The node nearest to `speed_m_s`'s own within `reach` nodes either side that is neither
+    /// The design-mass node nearest to `speed_m_s`'s own within `reach` nodes either side that is neither
     /// solved nor being solved (nearest first, the slower side first on a tie), if any. For a
     /// caller that solves nodes ahead of the filters ([`GainTable::grid_at`] on another
     /// thread), so that a filter reaching a new speed does not stall for the solution.
@@ -474,7 +553,7 @@ impl GainTable {
             [centre.checked_sub(d), Some(centre + d)]
                 .into_iter()
                 .flatten()
-                .filter(|&node| node < self.nodes.len())
+                .filter(|&node| node < self.n_speed)
                 .find(|&node| unsolved(node))
         })
     }
@@ -531,6 +610,52 @@ mod tests {
         }
         // Once solved a node stays as it is.
         assert!(!loaded.import(node, values).unwrap());
+    }
+
+    /// The mass axis: the design mass's nodes are the speed nodes as they were (index and
+    /// fingerprint), every other mass node is its own solution with its own key, nearest in
+    /// `ln m`, clamped to the range.
+    #[test]
+    fn mass_nodes_are_scheduled_like_the_speed_nodes() {
+        let c = small();
+        let t = Rbpf::unsolved_gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
+        let (v0, m0) = (c.vehicle.speed_m_s, c.vehicle.half_body_mass_kg);
+        let k = t.configured_node();
+        assert_eq!(t.node_at(v0, m0), k);
+        assert_eq!(t.node_at(v0, m0 * 1.02), k);
+        assert_eq!(t.n_mass_nodes(), 18, "0.71-1.63 x design in steps of 5 %");
+        let mut seen = std::collections::HashSet::new();
+        for ratio in [0.7, 0.85, 1.0, 1.3, 1.6] {
+            let node = t.node_at(v0, m0 * ratio);
+            let m = t.node_half_body_mass_kg(node);
+            assert!((m / (m0 * ratio)).ln().abs() <= 0.5 * MASS_GRID_RATIO.ln() + 1e-12);
+            assert_eq!(t.node_speed_m_s(node), t.node_speed_m_s(k));
+            assert!(seen.insert(t.fingerprint(node).unwrap()), "{ratio}");
+        }
+        let all = t.n_nodes() * t.n_mass_nodes();
+        let nodes: std::collections::HashSet<_> = (0..all)
+            .map(|n| {
+                (
+                    n % t.n_nodes(),
+                    t.node_at(t.node_speed_m_s(n), t.node_half_body_mass_kg(n)),
+                )
+            })
+            .map(|(_, n)| n)
+            .collect();
+        assert_eq!(
+            nodes.len(),
+            all,
+            "every node is reached by its own speed and mass"
+        );
+        let lightest = t.node_at(v0, m0 * 0.1);
+        assert_eq!(lightest, t.node_at(v0, m0 * 0.7));
+        // The heavy node's grid differs from the design one.
+        let table = Rbpf::gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
+        let heavy = table.node_at(v0, m0 * 1.3);
+        assert_ne!(
+            table.grid_at(heavy).unwrap().values(),
+            table.grid_at(k).unwrap().values()
+        );
     }
 
     /// Wrong length, non-finite values and values of another solution are refused, and the

@@ -130,11 +130,7 @@ impl BogieModel {
         let (f11, f22) = (p.longitudinal_creep_n, p.lateral_creep_n);
         let (a, l, r0) = (p.semi_wheelbase_m, p.half_gauge_m, p.wheel_radius_m);
         let lambda = p.conicity;
-        let (mb, ib, mbd) = (
-            p.bogie_mass_kg,
-            p.bogie_yaw_inertia_kg_m2,
-            p.half_body_mass_kg,
-        );
+        let (mb, ib) = (p.bogie_mass_kg, p.bogie_yaw_inertia_kg_m2);
         use state::*;
         let mut m = Matrix17::zeros();
         // Kinematic rows: position' = velocity.
@@ -180,9 +176,9 @@ impl BogieModel {
         m[(PSIB_DOT, PSIW2)] = kx * l * l / ib;
         m[(PSIB_DOT, PSIB)] = -(2.0 * a * a * ky + 2.0 * kx * l * l) / ib;
         // Body, line 8 with line 7 substituted: C_sy (y_sr' - y_bd') = K_sry (y_b - y_sr).
-        m[(YBD_DOT, YB)] = (ksy + ksry) / mbd;
-        m[(YBD_DOT, YBD)] = -ksy / mbd;
-        m[(YBD_DOT, YSR)] = -ksry / mbd;
+        for (r, c, value) in mass_entries(p) {
+            m[(r, c)] = value;
+        }
         // Series node, line 7: y_sr' = y_bd' + K_sry / C_sy (y_b - y_sr).
         m[(YSR, YBD_DOT)] = 1.0;
         // The creep damping of the wheelsets, the only place the speed enters.
@@ -221,6 +217,24 @@ impl BogieModel {
         positive("speed_m_s", speed_m_s)?;
         self.params.speed_m_s = speed_m_s;
         for (r, c, value) in speed_entries(&self.params) {
+            self.base[(r, c)] = value;
+            if let Some(row) = OUTPUT_ROWS.iter().position(|&o| o == r) {
+                self.h[(row, c)] = value;
+            }
+        }
+        Ok(())
+    }
+
+    /// The same vehicle with another body mass above the bogie (`m_bd`, kg: the measured
+    /// load, [`crate::BogieSample::half_body_mass_kg`]): only the body's acceleration row
+    /// ([`MASS_ENTRIES`], `(K_sy + K_sry) / m_bd`, `-K_sy / m_bd`, `-K_sry / m_bd`) and its
+    /// copy in `H` (the body accelerometer) change. `V` does not: `A V = 0` holds row by row,
+    /// and scaling a row keeps its null space; the leak `eps V W` has no term in a velocity
+    /// row's mass columns. Cheap (no factorisation), as [`BogieModel::set_speed`].
+    pub fn set_half_body_mass_kg(&mut self, half_body_mass_kg: f64) -> Result<(), DamperError> {
+        positive("half_body_mass_kg", half_body_mass_kg)?;
+        self.params.half_body_mass_kg = half_body_mass_kg;
+        for (r, c, value) in mass_entries(&self.params) {
             self.base[(r, c)] = value;
             if let Some(row) = OUTPUT_ROWS.iter().position(|&o| o == r) {
                 self.h[(row, c)] = value;
@@ -318,6 +332,26 @@ fn speed_entries(p: &BogieParams) -> [(usize, usize, f64); 4] {
     let yaw = -2.0 * p.longitudinal_creep_n * l * l / (p.wheelset_yaw_inertia_kg_m2 * v);
     let value = [lateral, yaw, lateral, yaw];
     std::array::from_fn(|k| (SPEED_ENTRIES[k].0, SPEED_ENTRIES[k].1, value[k]))
+}
+
+/// The entries of `A` that depend on the body mass `m_bd`, as `(row, column)`: the body's
+/// lateral acceleration (line 8 of (1) with line 7 substituted), all `~ 1 / m_bd`.
+pub const MASS_ENTRIES: [(usize, usize); 3] = [
+    (state::YBD_DOT, state::YB),
+    (state::YBD_DOT, state::YBD),
+    (state::YBD_DOT, state::YSR),
+];
+
+/// [`MASS_ENTRIES`] with their values at `p.half_body_mass_kg`.
+fn mass_entries(p: &BogieParams) -> [(usize, usize, f64); 3] {
+    let mbd = p.half_body_mass_kg;
+    let (ksy, ksry) = (
+        p.secondary_lateral_stiffness_n_per_m,
+        p.secondary_end_stiffness_n_per_m,
+    );
+    // The expressions the model was always built with (the default path stays bit for bit).
+    let value = [(ksy + ksry) / mbd, -ksy / mbd, -ksry / mbd];
+    std::array::from_fn(|k| (MASS_ENTRIES[k].0, MASS_ENTRIES[k].1, value[k]))
 }
 
 /// The right null space of `a` (without damper terms: they vanish on static states, so the
@@ -490,6 +524,28 @@ mod tests {
             // Stable at 45.3 m/s with lambda = 0.15.
             assert!(c.re < 0.0);
         }
+    }
+
+    /// A model moved to another body mass is the model built with it (the mass enters only
+    /// the body row of `A` and `H`), and moved back it is the design model to the bit.
+    #[test]
+    fn set_half_body_mass_is_the_model_built_with_that_mass() {
+        let design = nominal(0.05);
+        let heavy_params = BogieParams {
+            half_body_mass_kg: 1.3 * 13000.0,
+            ..BogieParams::default()
+        };
+        let built = BogieModel::new(&heavy_params, 0.05).unwrap();
+        let mut moved = design.clone();
+        moved.set_half_body_mass_kg(1.3 * 13000.0).unwrap();
+        let d = Dampers::NOMINAL;
+        assert!((moved.a_matrix(&d) - built.a_matrix(&d)).amax() < 1e-9);
+        assert_eq!(moved.h_matrix(), built.h_matrix());
+        assert_ne!(moved.h_matrix(), design.h_matrix());
+        assert!((moved.drift_basis() - built.drift_basis()).amax() < 1e-9);
+        moved.set_half_body_mass_kg(13000.0).unwrap();
+        assert_eq!(moved, design);
+        assert!(moved.set_half_body_mass_kg(-1.0).is_err());
     }
 
     /// `Phi`, `Gamma` against a fine-step (RK4, 1 us) integration of `x' = A x + G beta` over

@@ -101,15 +101,15 @@ pub struct DamperMonitor {
     steps: u64,
     consistency: ConsistencyCheck,
     speed: SpeedConfig,
-    settling: Settling,
     pause: PauseState,
     estimate: DamperEstimate,
 }
 
 impl Settling {
-    fn of(config: &DamperMonitorConfig, rbpf: &Rbpf) -> Self {
-        let steps = |s: f64| (s / config.dt_s).round() as u64;
-        let min_steps = steps(config.speed.resume_settle_s);
+    /// From the filter's current model (its slowest mode follows the body mass).
+    fn of(dt_s: f64, speed: &SpeedConfig, rbpf: &Rbpf) -> Self {
+        let steps = |s: f64| (s / dt_s).round() as u64;
+        let min_steps = steps(speed.resume_settle_s);
         Settling {
             min_steps,
             max_steps: min_steps.max(steps(rbpf.max_resume_settle_s())),
@@ -176,7 +176,6 @@ impl DamperMonitor {
             None
         };
         let r = rbpf.estimate();
-        let settling = Settling::of(config, &rbpf);
         Ok(DamperMonitor {
             estimate: DamperEstimate {
                 time_s: 0.0,
@@ -197,7 +196,6 @@ impl DamperMonitor {
             dt_s: config.dt_s,
             steps: 0,
             speed: config.speed,
-            settling,
             pause: PauseState::running(config.vehicle.speed_m_s),
         })
     }
@@ -216,6 +214,10 @@ impl DamperMonitor {
     /// [`Rbpf::max_resume_settle_s`] (3 time constants of that mode) at the latest.
     pub fn step(&mut self, sample: &BogieSample) -> Result<&DamperEstimate, DamperError> {
         let y = sample.validate()?;
+        // The measured body mass (or the design one): checked before anything changes.
+        let mass_kg = self
+            .rbpf
+            .checked_half_body_mass_kg(sample.half_body_mass_kg)?;
         let speed_m_s = sample.speed_m_s;
         if let Some(reason) = self.speed.pause_reason(speed_m_s) {
             self.steps += 1;
@@ -229,7 +231,7 @@ impl DamperMonitor {
             p.settle_steps = 0;
             p.settle_nis_sums.clear();
             // No settling at all when none is asked for.
-            p.settled = self.settling.max_steps == 0;
+            p.settled = Settling::of(self.dt_s, &self.speed, &self.rbpf).max_steps == 0;
             p.speed_m_s = speed_m_s;
             self.estimate.time_s = self.steps as f64 * self.dt_s;
             self.estimate.paused = Some(reason);
@@ -237,6 +239,7 @@ impl DamperMonitor {
             return Ok(&self.estimate);
         }
         self.rbpf.set_speed(speed_m_s)?;
+        self.rbpf.set_half_body_mass_kg(Some(mass_kg))?;
         if self.pause.settled {
             self.rbpf.step(&y)?;
             self.pause.reason = None;
@@ -246,7 +249,11 @@ impl DamperMonitor {
         self.pause.speed_m_s = speed_m_s;
         self.steps += 1;
         let time_s = self.steps as f64 * self.dt_s;
-        let ekf_step = |e: &mut AugmentedEkf| e.set_speed(speed_m_s).and_then(|_| e.step(&y));
+        let ekf_step = |e: &mut AugmentedEkf| {
+            e.set_speed(speed_m_s)
+                .and_then(|_| e.set_half_body_mass_kg(mass_kg))
+                .and_then(|_| e.step(&y))
+        };
         let ekf = match self.ekf.as_mut().map(ekf_step) {
             Some(Ok(e)) => Some(e),
             Some(Err(_)) => {
@@ -280,7 +287,7 @@ impl DamperMonitor {
 
     /// One sample of the settling after a pause (`step`).
     fn settle(&mut self, y: &crate::model::Vector5) -> Result<(), DamperError> {
-        let st = self.settling;
+        let st = Settling::of(self.dt_s, &self.speed, &self.rbpf);
         let p = &mut self.pause;
         if p.settle_steps == 0 && p.paused_steps >= st.reset_after_steps {
             self.rbpf.reset_states();
@@ -340,7 +347,6 @@ impl DamperMonitor {
             _ => None,
         };
         let r = rbpf.estimate();
-        let settling = Settling::of(config, &rbpf);
         let consistency = state.consistency;
         Ok(DamperMonitor {
             estimate: DamperEstimate {
@@ -362,7 +368,6 @@ impl DamperMonitor {
             steps: state.steps,
             consistency,
             speed: config.speed,
-            settling,
             pause,
         })
     }

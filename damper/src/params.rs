@@ -54,6 +54,29 @@ impl Default for Dampers {
 /// says otherwise (a scenario without `[speed]`, a recording without a `speed_m_s` column).
 pub const DEFAULT_SPEED_M_S: f64 = 45.3;
 
+/// The measured body mass above a bogie ([`crate::BogieSample::half_body_mass_kg`]) a filter
+/// takes, as a ratio of the design value ([`BogieParams::half_body_mass_kg`]): tare is about
+/// 0.8-0.9 of a design (half-laden) mass and crush load 1.2-1.4, so a reading outside
+/// 0.7-1.6 is a broken load signal (a failed air-spring pressure sensor reads 0 or full
+/// scale), refused with the field and value rather than read as a damper fault.
+pub const HALF_BODY_MASS_RATIO: std::ops::RangeInclusive<f64> = 0.7..=1.6;
+
+/// The measured body mass `measured_kg`, if any, checked against the design mass
+/// `design_kg` ([`HALF_BODY_MASS_RATIO`]); without one, the design mass.
+pub fn checked_half_body_mass_kg(
+    design_kg: f64,
+    measured_kg: Option<f64>,
+) -> Result<f64, DamperError> {
+    match measured_kg {
+        None => Ok(design_kg),
+        Some(m) if HALF_BODY_MASS_RATIO.contains(&(m / design_kg)) => Ok(m),
+        Some(value) => Err(DamperError::InvalidSample {
+            field: "half_body_mass_kg",
+            value,
+        }),
+    }
+}
+
 /// Everything in equations (1) except the two dampers. Defaults are the paper's appendix;
 /// the conicity, which the paper does not print, defaults to 0.15 (seed notes).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -71,7 +94,9 @@ pub struct BogieParams {
     /// `I_b` (kg m^2).
     #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub bogie_yaw_inertia_kg_m2: f64,
-    /// `m_bd`, half of the body mass (kg).
+    /// `m_bd`, half of the body mass (kg): the design (configured) load of the body above
+    /// one bogie. A sample's measured load ([`crate::BogieSample::half_body_mass_kg`])
+    /// replaces it in the filters.
     #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub half_body_mass_kg: f64,
     /// `K_y`, primary lateral stiffness per wheelset (N/m).

@@ -27,6 +27,14 @@ pub struct BogieSample {
     pub body_accel_m_s2: f64,
     /// Forward speed of the vehicle `v` (m/s), in `0..=MAX_SPEED_M_S`.
     pub speed_m_s: f64,
+    /// The measured mass of the body above this bogie `m_bd` (kg): the load its secondary
+    /// suspension carries (air-spring pressure times area over `g`), half the body of a
+    /// two-bogie car, the quantity of [`crate::BogieParams::half_body_mass_kg`]. Passengers
+    /// move it from tare to crush load (0.85-1.4 times the design value); the filters'
+    /// model, gains and settling follow it. Within
+    /// [`crate::params::HALF_BODY_MASS_RATIO`] of the design value (else the sample is
+    /// refused, `mass_out_of_range`). `None`: the design value is assumed.
+    pub half_body_mass_kg: Option<f64>,
 }
 
 impl Default for BogieSample {
@@ -56,16 +64,27 @@ impl BogieSample {
             bogie_yaw_rate_rad_s: y[3],
             body_accel_m_s2: y[4],
             speed_m_s,
+            half_body_mass_kg: None,
         }
     }
 
-    /// Every sensor finite and the speed in `0..=MAX_SPEED_M_S`, else an error naming the
-    /// first bad field.
+    /// Every sensor finite, the speed in `0..=MAX_SPEED_M_S` and the body mass, if given,
+    /// finite and positive (its range about the design value is the filter's check,
+    /// `params::checked_half_body_mass_kg`), else an error naming the first bad field.
     pub fn validate(&self) -> Result<Vector5, DamperError> {
         if !(0.0..=MAX_SPEED_M_S).contains(&self.speed_m_s) {
             return Err(DamperError::InvalidSample {
                 field: "speed_m_s",
                 value: self.speed_m_s,
+            });
+        }
+        if let Some(m) = self
+            .half_body_mass_kg
+            .filter(|m| !(m.is_finite() && *m > 0.0))
+        {
+            return Err(DamperError::InvalidSample {
+                field: "half_body_mass_kg",
+                value: m,
             });
         }
         let y = self.to_vector();
@@ -104,8 +123,9 @@ impl Default for SampleRanges {
 
 impl SampleRanges {
     /// The checks the service refuses a bogie sample by, in its order: every value finite
-    /// (`not_finite`), the speed in `0..=MAX_SPEED_M_S` (`speed_out_of_range`), every sensor
-    /// within its magnitude (`out_of_range`); [`DamperError::reason`] names which.
+    /// (`not_finite`), the speed in `0..=MAX_SPEED_M_S` (`speed_out_of_range`), a given body
+    /// mass positive (`mass_out_of_range`), every sensor within its magnitude
+    /// (`out_of_range`); [`DamperError::reason`] names which.
     pub fn check(&self, s: &BogieSample) -> Result<(), DamperError> {
         let (max_a, max_r) = (self.max_abs_accel_m_s2, self.max_abs_yaw_rate_rad_s);
         let (accel, yaw) = ("max_abs_accel_m_s2", "max_abs_yaw_rate_rad_s");
@@ -117,7 +137,12 @@ impl SampleRanges {
             ("body_accel_m_s2", s.body_accel_m_s2, max_a, accel),
         ];
         let speed = ("speed_m_s", s.speed_m_s);
-        let all = channels.iter().map(|c| (c.0, c.1)).chain([speed]);
+        let mass = s.half_body_mass_kg.map(|m| ("half_body_mass_kg", m));
+        let all = channels
+            .iter()
+            .map(|c| (c.0, c.1))
+            .chain([speed])
+            .chain(mass);
         if let Some((field, value)) = all.into_iter().find(|(_, v)| !v.is_finite()) {
             return Err(DamperError::InvalidSample { field, value });
         }
@@ -200,6 +225,13 @@ mod tests {
             ..ok
         };
         assert_eq!(reason(mm), Some("out_of_range"));
+        for (m, want) in [(f64::NAN, "not_finite"), (-13e3, "mass_out_of_range")] {
+            let s = BogieSample {
+                half_body_mass_kg: Some(m),
+                ..ok
+            };
+            assert_eq!(reason(s), Some(want), "{m}");
+        }
         let msg = ranges.check(&mm).unwrap_err().to_string();
         assert!(
             msg.contains("bogie_yaw_rate_rad_s") && msg.contains("max_abs_yaw_rate_rad_s"),

@@ -6,9 +6,10 @@
 //! seed). Pure: no I/O.
 //!
 //! **Only the plant varies.** The scenario's monitor is `DamperMonitorConfig::default()` with
-//! `[monitor.vehicle]` given as the design vehicle: the filter assumes the design body mass,
-//! conicity 0.15 and the configured sensor noise whatever the plant is. What it cannot see
-//! (the mass is not yet an input, issue 24 item 1) must show in the results.
+//! `[monitor.vehicle]` given as the design vehicle: the filter assumes conicity 0.15 and the
+//! configured sensor noise whatever the plant is, and the design body mass unless the
+//! simulator gives the plant's as the measured load (`BogieSimulator::with_mass_input`, issue
+//! 24 item 1). What it cannot see must show in the results.
 //!
 //! **The envelope** (each draw independent, ranges inclusive):
 //! - duration: 0.5-1 times the longest run asked for (whole seconds);

@@ -45,6 +45,8 @@ pub struct BogieSimulator {
     step: usize,
     n_steps: usize,
     last: Option<(BogieSample, BogieTruth)>,
+    /// Whether the samples carry the plant's body mass (`BogieSample::half_body_mass_kg`).
+    gives_mass: bool,
 }
 
 impl BogieSimulator {
@@ -79,7 +81,18 @@ impl BogieSimulator {
             n_steps: scenario.n_steps(),
             scenario: scenario.clone(),
             last: None,
+            gives_mass: true,
         })
+    }
+
+    /// Whether the samples carry the plant's body mass above the bogie as the measured load
+    /// (`BogieSample::half_body_mass_kg`; from the start, as a real train's air-spring
+    /// pressure does). `false` withholds it (`None`: the filter assumes its design mass), to
+    /// measure what the input is worth. Draws no random number: the samples are otherwise
+    /// the same.
+    pub fn with_mass_input(mut self, gives_mass: bool) -> Self {
+        self.gives_mass = gives_mass;
+        self
     }
 
     pub fn n_steps(&self) -> usize {
@@ -119,7 +132,12 @@ impl BogieSimulator {
         let y = self.h * self.x + noise;
         self.step += 1;
         self.last = Some((
-            BogieSample::from_vector(&y, speed_m_s),
+            BogieSample {
+                half_body_mass_kg: self
+                    .gives_mass
+                    .then_some(self.plant.params().half_body_mass_kg),
+                ..BogieSample::from_vector(&y, speed_m_s)
+            },
             BogieTruth {
                 time_s: self.step as f64 * dt,
                 dampers: d,

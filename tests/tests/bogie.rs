@@ -214,6 +214,7 @@ fn bad_bogie_frames_are_rejected_counted_and_leave_the_estimate_alone() {
         bogie_yaw_rate_rad_s: 0.001,
         body_accel_m_s2: -0.02,
         speed_m_s: 40.0,
+        half_body_mass_kg: None,
     };
     let mut reference = monitor(1);
     for k in 0..10 {

@@ -12,7 +12,7 @@ use crate::gain_table::{
 };
 use crate::kalman::{self, initial_covariance, NoiseCovariances, StateEstimate};
 use crate::model::{BogieModel, Matrix17, Matrix5x17, Vector17, Vector5, N_OUTPUTS, N_STATES};
-use crate::params::Dampers;
+use crate::params::{positive, Dampers};
 use crate::DamperError;
 use railmon_filter::kalman::LN_2PI;
 
@@ -178,7 +178,7 @@ pub(super) struct SteadyBank {
     /// The filter model at the current speed.
     model: BogieModel,
     table: Arc<GainTable>,
-    /// The gain grid of the current speed's node, and that node.
+    /// The gain grid of the current speed's and mass's node, and that node.
     grid: Arc<GainGrid>,
     grid_node: usize,
     csay_gain: f64,
@@ -267,25 +267,40 @@ impl Bank {
         }
     }
 
-    /// The forward speed of the next steps (m/s, positive): the model, `H` and the Taylor
-    /// order at exactly this speed; the steady-state gains of the nearest speed node (every
-    /// particle's gain is looked up again when the node changes).
-    pub(super) fn set_speed(&mut self, speed_m_s: f64) -> Result<(), DamperError> {
+    /// The forward speed (m/s, positive) and body mass above the bogie (kg, positive) of
+    /// the next steps: the model, `H` and the Taylor order at exactly these; the steady-state
+    /// gains of the nearest (speed, mass) node (every particle's gain is looked up again when
+    /// the node changes). Nothing is done when neither changed.
+    pub(super) fn set_schedule(
+        &mut self,
+        speed_m_s: f64,
+        half_body_mass_kg: f64,
+    ) -> Result<(), DamperError> {
+        let model = match self {
+            Bank::Exact(b) => &mut b.model,
+            Bank::Steady(b) => &mut b.model,
+        };
+        let p = model.params();
+        if p.speed_m_s == speed_m_s && p.half_body_mass_kg == half_body_mass_kg {
+            return Ok(());
+        }
+        // Both checked before either changes.
+        positive("speed_m_s", speed_m_s)?;
+        positive("half_body_mass_kg", half_body_mass_kg)?;
+        if p.speed_m_s != speed_m_s {
+            model.set_speed(speed_m_s)?;
+        }
+        if model.params().half_body_mass_kg != half_body_mass_kg {
+            model.set_half_body_mass_kg(half_body_mass_kg)?;
+        }
         match self {
             Bank::Exact(b) => {
-                if b.model.params().speed_m_s != speed_m_s {
-                    b.model.set_speed(speed_m_s)?;
-                    b.h = b.model.h_matrix();
-                }
+                b.h = b.model.h_matrix();
                 Ok(())
             }
             Bank::Steady(b) => {
-                if b.model.params().speed_m_s == speed_m_s {
-                    return Ok(());
-                }
-                b.model.set_speed(speed_m_s)?;
                 b.prop.set_speed(&b.model);
-                let node = b.table.node_of(speed_m_s);
+                let node = b.table.node_at(speed_m_s, half_body_mass_kg);
                 if node != b.grid_node {
                     b.grid = b.table.grid_at(node)?;
                     b.grid_node = node;
@@ -294,6 +309,15 @@ impl Bank {
                 Ok(())
             }
         }
+    }
+
+    /// The speed (m/s) and body mass (kg) the bank runs at ([`Bank::set_schedule`]).
+    pub(super) fn schedule(&self) -> (f64, f64) {
+        let p = match self {
+            Bank::Exact(b) => b.model.params(),
+            Bank::Steady(b) => b.model.params(),
+        };
+        (p.speed_m_s, p.half_body_mass_kg)
     }
 
     pub(super) fn commit(&mut self) {

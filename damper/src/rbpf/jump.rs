@@ -265,8 +265,12 @@ impl Sentinels {
         Ok(())
     }
 
-    pub(super) fn set_speed(&mut self, speed_m_s: f64) -> Result<(), DamperError> {
-        self.bank.set_speed(speed_m_s)
+    pub(super) fn set_schedule(
+        &mut self,
+        speed_m_s: f64,
+        half_body_mass_kg: f64,
+    ) -> Result<(), DamperError> {
+        self.bank.set_schedule(speed_m_s, half_body_mass_kg)
     }
 
     pub(super) fn reset_states(&mut self) {
@@ -449,6 +453,32 @@ mod tests {
         assert!(tau > body && tau < 1.3 * body, "{tau} against {body}");
         // Free response from a body displacement at 5 m/s: after 3 tau what is left is at
         // most e^-3 of it, give or take the oscillation's phase (envelope).
+        // A crowded car's body sways slower: the hold scales with the body mass (scheduled
+        // on it, `Rbpf::set_half_body_mass_kg`).
+        let mut heavy = c.filter_model();
+        heavy.vehicle.half_body_mass_kg *= 1.4;
+        let tau_heavy = slowest_time_constant_s(&heavy, &c.speed).unwrap();
+        assert!(tau_heavy > 1.25 * tau, "{tau_heavy} against {tau}");
+        let mut f = crate::Rbpf::new(
+            &c.filter_model(),
+            &crate::RbpfConfig {
+                particles: 4,
+                propagation: crate::Propagation::Exact,
+                ..c.rbpf
+            },
+            &c.speed,
+        )
+        .unwrap();
+        let hold = f.max_resume_settle_s();
+        let heavy_kg = 1.4 * c.vehicle.half_body_mass_kg;
+        f.set_half_body_mass_kg(Some(heavy_kg)).unwrap();
+        assert!(
+            f.max_resume_settle_s() > 1.25 * hold,
+            "{}",
+            f.max_resume_settle_s()
+        );
+        f.set_half_body_mass_kg(None).unwrap();
+        assert_eq!(f.max_resume_settle_s(), hold);
         let mut m = BogieModel::new(&c.vehicle, 0.0).unwrap();
         m.set_speed(c.speed.min_m_s).unwrap();
         let phi = crate::expm::expm(&(m.a_matrix(&c.nominal) * 0.01)).unwrap();

@@ -27,10 +27,10 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::filter_model::FilterModel;
-use crate::gain_table::GainTable;
+use crate::gain_table::{GainTable, MASS_GRID_RATIO};
 use crate::model::{Matrix17, Vector17, Vector5, N_OUTPUTS};
 use crate::noise_scale::NoiseScale;
-use crate::params::Dampers;
+use crate::params::{checked_half_body_mass_kg, Dampers};
 use crate::speed::SpeedConfig;
 use crate::DamperError;
 use railmon_filter::logspace::{effective_sample_size, normalize_log_weights};
@@ -103,6 +103,16 @@ pub struct Rbpf {
     /// The longest settling after a pause (s): `jump_search.resume_hold_time_constants`
     /// time constants of the model's slowest mode with the search, 0 without it.
     max_resume_settle_s: f64,
+    /// The configured (design) body mass above the bogie (kg): what a sample without a
+    /// measured mass means, and what a measured one is checked against.
+    design_half_body_mass_kg: f64,
+    /// The mass node (`gain_table::MASS_GRID_RATIO^j` times the design mass) that
+    /// `slowest_time_constant_s` was computed at: the body's mode slows as `m_bd` grows, so
+    /// the settling follows the mass, recomputed (~50 eigenvalue problems) only when the node
+    /// changes.
+    settle_mass_node: i32,
+    filter_model: FilterModel,
+    speed: SpeedConfig,
 }
 
 impl Rbpf {
@@ -245,6 +255,10 @@ impl Rbpf {
             sentinels,
             slowest_time_constant_s,
             max_resume_settle_s,
+            design_half_body_mass_kg: filter_model.vehicle.half_body_mass_kg,
+            settle_mass_node: 0,
+            filter_model: *filter_model,
+            speed: *speed,
         })
     }
 
@@ -509,22 +523,72 @@ impl Rbpf {
     /// `speed`'s range: outside it the filter is paused, not stepped). Until the first call
     /// the filter assumes the configured vehicle speed.
     pub fn set_speed(&mut self, speed_m_s: f64) -> Result<(), DamperError> {
-        if let Some(s) = &mut self.sentinels {
-            s.set_speed(speed_m_s)?;
+        let (_, mass_kg) = self.bank.schedule();
+        self.set_schedule(speed_m_s, mass_kg)
+    }
+
+    /// The measured body mass above the bogie for the next steps
+    /// (`BogieSample::half_body_mass_kg`, kg; `None`: the design mass,
+    /// `BogieParams::half_body_mass_kg`), scheduled as the speed: the model and `H` at exactly
+    /// this mass, the gains of the nearest mass node of the gain table. A mass outside
+    /// `params::HALF_BODY_MASS_RATIO` of the design value is refused (the error names the
+    /// field and value) and nothing changes. Costs a comparison when the mass is unchanged.
+    pub fn set_half_body_mass_kg(
+        &mut self,
+        half_body_mass_kg: Option<f64>,
+    ) -> Result<(), DamperError> {
+        let mass_kg = self.checked_half_body_mass_kg(half_body_mass_kg)?;
+        let (speed_m_s, _) = self.bank.schedule();
+        self.set_schedule(speed_m_s, mass_kg)?;
+        if self.config.jump_search.enabled {
+            let ln_ratio = MASS_GRID_RATIO.ln();
+            let node = ((mass_kg / self.design_half_body_mass_kg).ln() / ln_ratio).round() as i32;
+            if node != self.settle_mass_node {
+                let mut model = self.filter_model;
+                model.vehicle.half_body_mass_kg =
+                    self.design_half_body_mass_kg * (ln_ratio * node as f64).exp();
+                let tau = jump::slowest_time_constant_s(&model, &self.speed)?;
+                self.slowest_time_constant_s = Some(tau);
+                self.max_resume_settle_s = self.config.jump_search.resume_hold_time_constants * tau;
+                self.settle_mass_node = node;
+            }
         }
-        self.bank.set_speed(speed_m_s)
+        Ok(())
+    }
+
+    /// The body mass the filter would run at for a sample's `half_body_mass_kg` (kg), or the
+    /// error that refuses it (`params::checked_half_body_mass_kg`): for a caller that checks
+    /// a sample before changing anything.
+    pub fn checked_half_body_mass_kg(
+        &self,
+        half_body_mass_kg: Option<f64>,
+    ) -> Result<f64, DamperError> {
+        checked_half_body_mass_kg(self.design_half_body_mass_kg, half_body_mass_kg)
+    }
+
+    /// The speed (m/s) and body mass (kg) the filter runs at.
+    pub fn schedule(&self) -> (f64, f64) {
+        self.bank.schedule()
+    }
+
+    fn set_schedule(&mut self, speed_m_s: f64, half_body_mass_kg: f64) -> Result<(), DamperError> {
+        if let Some(s) = &mut self.sentinels {
+            s.set_schedule(speed_m_s, half_body_mass_kg)?;
+        }
+        self.bank.set_schedule(speed_m_s, half_body_mass_kg)
     }
 
     /// The longest settling after a pause this filter may need (s; `speed.resume_settle_s`
     /// may ask for more): with the jump search, `jump_search.resume_hold_time_constants` time
-    /// constants of the vehicle model's slowest mode; 0 without it. The monitor ends the
+    /// constants of the vehicle model's slowest mode at the body mass's node (the design mass
+    /// until [`Rbpf::set_half_body_mass_kg`] says otherwise); 0 without it. The monitor ends the
     /// settling sooner when the innovations allow (`DamperMonitor::step`).
     pub fn max_resume_settle_s(&self) -> f64 {
         self.max_resume_settle_s
     }
 
     /// The time constant of the vehicle model's slowest mode over the speed range (s;
-    /// [`slowest_time_constant_s`]): how long the plant takes to forget a state. With the
+    /// [`slowest_time_constant_s`]) at the body mass's node: how long the plant takes to forget a state. With the
     /// jump search only (`None` without it).
     pub fn slowest_time_constant_s(&self) -> Option<f64> {
         self.slowest_time_constant_s

@@ -2,7 +2,8 @@
 //! structure-of-arrays in blocks that the compiler vectorises.
 
 use crate::model::{
-    state, BogieModel, Matrix17x2, Vector5, N_OUTPUTS, N_STATES, OUTPUT_ROWS, SPEED_ENTRIES,
+    state, BogieModel, Matrix17x2, Vector5, MASS_ENTRIES, N_OUTPUTS, N_STATES, OUTPUT_ROWS,
+    SPEED_ENTRIES,
 };
 use crate::params::Dampers;
 use crate::DamperError;
@@ -21,8 +22,9 @@ pub struct SparsePropagator {
     drift_basis: Matrix17x2,
     /// Rows where the drift basis is non-zero.
     drift_rows: Vec<usize>,
-    /// Where the speed-dependent entries (`model::SPEED_ENTRIES`) sit in `entries` and
-    /// `h_entries`, so that [`SparsePropagator::set_speed`] rewrites them in place.
+    /// Where the speed- and mass-dependent entries (`model::SPEED_ENTRIES`,
+    /// `model::MASS_ENTRIES`) sit in `entries` and `h_entries`, so that
+    /// [`SparsePropagator::set_speed`] rewrites them in place.
     speed_slots: Vec<usize>,
     h_speed_slots: Vec<usize>,
     /// The configured Taylor order: the least used at any speed.
@@ -61,16 +63,18 @@ impl SparsePropagator {
         let drift_basis = *model.drift_basis();
         let entries = sparse(&all, &|r, c| a[(r, c)]);
         let h_entries = sparse(&h_all, &|r, c| h[(r, c)]);
+        let scheduled =
+            |rc: (usize, usize)| SPEED_ENTRIES.contains(&rc) || MASS_ENTRIES.contains(&rc);
         let speed_slots = entries
             .iter()
             .enumerate()
-            .filter(|(_, e)| SPEED_ENTRIES.contains(&(e.0, e.1)))
+            .filter(|(_, e)| scheduled((e.0, e.1)))
             .map(|(k, _)| k)
             .collect();
         let h_speed_slots = h_entries
             .iter()
             .enumerate()
-            .filter(|(_, e)| SPEED_ENTRIES.contains(&(OUTPUT_ROWS[e.0], e.1)))
+            .filter(|(_, e)| scheduled((OUTPUT_ROWS[e.0], e.1)))
             .map(|(k, _)| k)
             .collect();
         let mut prop = SparsePropagator {
@@ -93,8 +97,9 @@ impl SparsePropagator {
         Ok(prop)
     }
 
-    /// Takes the speed-dependent entries of `A` and `H` from `model` (the filter's model at
-    /// the measured speed, `BogieModel::set_speed`), and the Taylor order that keeps the
+    /// Takes the speed- and mass-dependent entries of `A` and `H` from `model` (the filter's
+    /// model at the measured speed and body mass, `BogieModel::set_speed`,
+    /// `BogieModel::set_half_body_mass_kg`), and the Taylor order that keeps the
     /// truncation of the stiffest creep term below `TAYLOR_TERM_BOUND` (at least the
     /// configured one): the creep damping grows as `1 / v`, so low speeds need more terms.
     pub fn set_speed(&mut self, model: &BogieModel) {

@@ -1,0 +1,98 @@
+//! The measured body mass as the filters' input (issue 24 item 1): with it the estimate of a
+//! loaded car is the truth's, without it biased; a reading out of range is refused.
+
+use railmon_damper::*;
+
+/// The seed scenario on a plant whose body is `mass_ratio` times the design mass, the
+/// filter configured with the design vehicle.
+fn loaded(mass_ratio: f64, duration_s: f64) -> DamperScenario {
+    let text = std::fs::read_to_string(format!(
+        "{}/../config/scenarios/damper-seed.toml",
+        env!("CARGO_MANIFEST_DIR")
+    ))
+    .unwrap();
+    let mut s = DamperScenario::from_toml_str(&text).unwrap();
+    s.duration_s = duration_s;
+    s.monitor.vehicle = s.vehicle;
+    s.monitor_vehicle_given = true;
+    s.vehicle.half_body_mass_kg *= mass_ratio;
+    s
+}
+
+/// The final `C_sy` and `C_say` posterior means over the truth, minus 1.
+fn final_errors(s: &DamperScenario, gives_mass: bool) -> [f64; 2] {
+    let mut c = s.monitor_config();
+    c.rbpf.particles = 300;
+    c.ekf.enabled = false;
+    let mut m = DamperMonitor::new(&c, 21).unwrap();
+    let mut sim = BogieSimulator::new(s).unwrap().with_mass_input(gives_mass);
+    while let Some((y, _)) = sim.step() {
+        assert_eq!(y.half_body_mass_kg.is_some(), gives_mass);
+        m.step(y).unwrap();
+    }
+    let e = m.estimate();
+    [
+        e.csy.mean_ns_per_m / s.dampers.csy_ns_per_m - 1.0,
+        e.csay.mean_ns_per_m / s.dampers.csay_ns_per_m - 1.0,
+    ]
+}
+
+/// The body 30 % heavier than designed (a crowded car), 20 s at 45.3 m/s. Measured
+/// (`cargo test -p railmon-damper --test mass -- --nocapture`): given the mass, `C_sy` reads
+/// +0.9 % and `C_say` -1.4 %; withheld, `C_sy` reads -56.8 % (still wandering: -15.2 % after
+/// 60 s; with the body 15 % heavier -5.7 % after 20 s, the issue's 5.3-5.6 %): the filter
+/// explains the heavier body's slower sway by a weaker lateral damper. Bounds: `C_sy` 2 %
+/// given (+0.2 % after 60 s), `C_say` 4 % (the seed scenario's own wander: -5.7 % after 60 s
+/// at the design mass, mass or not); withheld below -5 % (the test fails if the input stops
+/// mattering).
+#[test]
+fn a_loaded_car_reads_its_dampers_right_given_its_mass() {
+    let s = loaded(1.3, 20.0);
+    let given = final_errors(&s, true);
+    let withheld = final_errors(&s, false);
+    eprintln!("given {given:?}, withheld {withheld:?}");
+    assert!(given[0].abs() < 0.02, "C_sy given the mass: {given:?}");
+    assert!(given[1].abs() < 0.04, "C_say given the mass: {given:?}");
+    assert!(withheld[0] < -0.05, "C_sy without the mass: {withheld:?}");
+}
+
+/// A mass outside 0.7-1.6 times the design value (a broken load signal) is refused by name
+/// and value, the monitor unchanged; a sample without a mass is the design mass's, bit for
+/// bit.
+#[test]
+fn a_mass_out_of_range_is_refused_and_none_is_the_design_mass() {
+    let s = loaded(1.0, 0.3);
+    let mut c = s.monitor_config();
+    c.rbpf.particles = 20;
+    let design = c.vehicle.half_body_mass_kg;
+    let data: Vec<BogieSample> = {
+        let mut sim = BogieSimulator::new(&s).unwrap().with_mass_input(false);
+        std::iter::from_fn(|| sim.step().map(|(y, _)| *y)).collect()
+    };
+    let mut none = DamperMonitor::new(&c, 3).unwrap();
+    let mut hit = none.clone();
+    for (k, y) in data.iter().enumerate() {
+        if k == 100 {
+            for bad in [0.5 * design, 1.7 * design, 0.0, f64::NAN] {
+                let sample = BogieSample {
+                    half_body_mass_kg: Some(bad),
+                    ..*y
+                };
+                match hit.step(&sample) {
+                    Err(e @ DamperError::InvalidSample { field, .. }) => {
+                        assert_eq!(field, "half_body_mass_kg");
+                        assert!(e.to_string().contains("half_body_mass_kg"), "{e}");
+                    }
+                    other => panic!("{bad}: {other:?}"),
+                }
+            }
+        }
+        let with_design = BogieSample {
+            half_body_mass_kg: Some(design),
+            ..*y
+        };
+        let a = *none.step(y).unwrap();
+        let b = *hit.step(&with_design).unwrap();
+        assert_eq!(a, b, "step {k}");
+    }
+}
