@@ -45,7 +45,7 @@ pub use estimate::DamperEstimate;
 pub use faults::{DamperFault, DamperId, FaultKind};
 pub use filter_model::FilterModel;
 pub use gain_table::GainGridConfig;
-pub use monitor::{DamperMonitor, DamperMonitorState};
+pub use monitor::{DamperMonitor, DamperMonitorState, MAX_STEPPED_OVER_SAMPLES};
 pub use noise_scale::{NoiseScale, NoiseScaleConfig};
 pub use params::{BogieParams, Dampers, DEFAULT_SPEED_M_S};
 pub use rbpf::{

@@ -92,6 +92,12 @@ pub const SETTLE_WINDOW_S: f64 = 0.5;
 /// a stop still dominate (docs/notes/damper-log.md, 27 Nov).
 pub const SETTLED_NIS_RATIO: f64 = 1.2;
 
+/// The longest gap of missing samples [`DamperMonitor::bridge`] steps over: one or two lost
+/// 1 kHz samples shift the states by 1-2 ms of a model whose fastest lateral modes take tens of
+/// ms; settling for at least `speed.resume_settle_s` after each would stop the learning of a
+/// source that loses a sample now and then.
+pub const MAX_STEPPED_OVER_SAMPLES: u64 = 2;
+
 #[derive(Debug, Clone)]
 pub struct DamperMonitor {
     rbpf: Rbpf,
@@ -283,6 +289,33 @@ impl DamperMonitor {
             speed_m_s,
         };
         Ok(&self.estimate)
+    }
+
+    /// Carries the monitor over `missing_steps` samples that no frame covered (lost at the
+    /// source, or the time across a restart of the service), before the next sample is
+    /// stepped. Up to [`MAX_STEPPED_OVER_SAMPLES`] the next sample is stepped as if it followed
+    /// the last. A longer gap leaves the states stale, so they settle on the data again as
+    /// after a pause (`paused` = `gap` meanwhile; after a gap of at least the slowest mode's
+    /// time constant they restart at rest); the posterior is kept.
+    pub fn bridge(&mut self, missing_steps: u64) {
+        if missing_steps <= MAX_STEPPED_OVER_SAMPLES {
+            return;
+        }
+        let settling = Settling::of(self.dt_s, &self.speed, &self.rbpf);
+        let p = &mut self.pause;
+        // A gap within a pause or its settling lengthens that pause.
+        if p.reason.is_none() || p.settle_steps > 0 {
+            p.paused_steps = 0;
+        }
+        if p.reason.is_none() {
+            p.reason = Some(PauseReason::Gap);
+        }
+        p.paused_steps = p.paused_steps.saturating_add(missing_steps);
+        p.settle_steps = 0;
+        p.settle_nis_sums.clear();
+        p.settled = settling.max_steps == 0;
+        self.steps += missing_steps;
+        self.estimate.paused = p.reason;
     }
 
     /// One sample of the settling after a pause (`step`).

@@ -93,15 +93,24 @@ pub enum PauseReason {
     LowSpeed,
     /// Above `speed.max_m_s`.
     HighSpeed,
+    /// Samples were missing (lost at the source, or the time across a restart of the
+    /// service): the states settle on the data again before the posterior learns
+    /// (`DamperMonitor::bridge`).
+    Gap,
 }
 
 impl PauseReason {
-    pub const ALL: [PauseReason; 2] = [PauseReason::LowSpeed, PauseReason::HighSpeed];
+    pub const ALL: [PauseReason; 3] = [
+        PauseReason::LowSpeed,
+        PauseReason::HighSpeed,
+        PauseReason::Gap,
+    ];
 
     pub fn as_str(self) -> &'static str {
         match self {
             PauseReason::LowSpeed => "low_speed",
             PauseReason::HighSpeed => "high_speed",
+            PauseReason::Gap => "gap",
         }
     }
 }

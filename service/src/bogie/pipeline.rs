@@ -54,7 +54,7 @@ struct BogieSlot {
     dampers: [DamperGauges; 2],
     ess: EstimateGauge,
     /// `paused` gauges, one per reason (`PauseReason::ALL` order), and the speed.
-    paused: [EstimateIntGauge; 2],
+    paused: [EstimateIntGauge; 3],
     speed: EstimateGauge,
 }
 
@@ -586,6 +586,18 @@ impl Pipeline for BogiePipeline {
             self.flush();
         }
         Ok(())
+    }
+
+    /// Every bogie's monitor settles its states again before it learns (`DamperMonitor::bridge`).
+    /// The frames waiting for the rest of their sample time belong before the gap: stepped
+    /// first.
+    fn bridge(&mut self, skipped_periods: u64) {
+        self.flush();
+        for slot in &mut self.slots {
+            if let Some(m) = &mut slot.monitor {
+                m.bridge(skipped_periods);
+            }
+        }
     }
 
     fn take_rejections(&mut self) -> Vec<(FrameHeader, Rejection)> {
