@@ -40,8 +40,21 @@ use railmon_slip::{
     SpeedReference, SpeedReferenceConfig,
 };
 
-use crate::report::AnalysisError;
 use crate::report::{create_out_dir, progress_bar, ReportError, RunArgs, RunSize};
+use crate::report::{AnalysisError, Refusals, Timeline};
+use railmon_records::sample_clock::{Rejection, TimeJudge, DRIVE_STALE_AFTER_MS};
+
+/// The reasons a drive frame of a recording or scenario is refused for, the labels of the
+/// service's drive stream: its sample clock's (`railmon_records::sample_clock`) and its
+/// frame check's (`not_finite`, `railmon_bus::FrameError::reason`).
+pub const REFUSAL_REASONS: [&str; 6] = [
+    "time_backwards",
+    "time_repeated",
+    "time_jump",
+    "period_mismatch",
+    "rate_mismatch",
+    "not_finite",
+];
 
 /// Run the drive EKFs and every adhesion-loss method (VB, VMP, k-means, median, temporal) over
 /// a scenario or a recorded drive CSV; write estimates, Table 1, detection scores and plots.
@@ -66,6 +79,10 @@ enum Source {
 
 /// One frame: samples of every drive and, when known, the truth and the train's speed.
 struct Frame {
+    /// The sample time the file gives (`time_s`), if it has one.
+    time_s: Option<f64>,
+    /// The line of the step's first row (recordings).
+    line: Option<u64>,
     samples: Vec<DriveSample>,
     truth: Option<Vec<DriveTruth>>,
     train_speed_m_s: Option<f64>,
@@ -78,12 +95,16 @@ impl Source {
                 Ok(sim
                     .step_with_train_speed()
                     .map(|(samples, truth, train_speed_m_s)| Frame {
+                        time_s: None,
+                        line: None,
                         samples: samples.to_vec(),
                         truth: Some(truth.to_vec()),
                         train_speed_m_s,
                     }))
             }
             Source::Recording(reader) => Ok(reader.next_frame()?.map(|f| Frame {
+                time_s: f.time_s,
+                line: Some(f.line),
                 samples: f
                     .drives
                     .iter()
@@ -119,6 +140,9 @@ pub struct AdhesionRun {
     pub events: Vec<EventRow>,
     /// The alarm rule, as `detection.csv` names it.
     pub alarm_rule: String,
+    /// Frames refused (the service's checks, its reasons) and skipped.
+    pub refused: Refusals,
+    pub timeline: Timeline,
 }
 
 /// An alarm event at a step.
@@ -173,6 +197,10 @@ pub struct AdhesionReport {
     pub table1: Vec<Table1Row>,
     pub detection: Vec<DetectionRow>,
     pub n_steps: usize,
+    /// Frames refused (the service's checks, its reasons) and skipped (`refused.csv`).
+    pub refused: Refusals,
+    /// Periods bridged and new timelines, as the service's sample clock judges the times.
+    pub timeline: Timeline,
     /// Table 1 and the detection scores as the terminal shows them (`railmon analyze` prints
     /// them; the library writes nothing to stdout).
     pub tables_text: String,
@@ -203,7 +231,7 @@ pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
     let (name, mut config, speed_reference, source, n_drives, n_steps_hint, record) =
         match (&args.run.input, &args.run.scenario) {
             (Some(path), _) => {
-                let reader = DriveCsvReader::open(path, None)?;
+                let reader = DriveCsvReader::open(path, None)?.as_recorded();
                 let name = path.display().to_string();
                 (
                     name,
@@ -263,7 +291,9 @@ pub fn run(args: &Args) -> Result<AdhesionReport, AdhesionAnalysisError> {
         n_steps_hint,
         record,
         &args.run.out,
+        args.run.strict,
     )?;
+    run.refused.write_csv(&args.run.out.join("refused.csv"))?;
     let mut report = write_tables(&run, args.table1_skip_steps, &args.run.out)?;
     write_events(&run, &args.run.out)?;
     if !args.run.no_plots {
@@ -285,6 +315,7 @@ fn analyse(
     n_steps_hint: usize,
     mut record: Option<DriveCsvWriter<railmon_records::AtomicFile>>,
     out: &Path,
+    strict: bool,
 ) -> Result<AdhesionRun, AdhesionAnalysisError> {
     let est_path = out.join("estimates.csv");
     let mut est = create_csv(&est_path)?;
@@ -302,45 +333,99 @@ fn analyse(
         method: config.method,
         events: Vec::new(),
         alarm_rule: config.alarm.describe(),
+        refused: Refusals::new(&REFUSAL_REASONS),
+        timeline: Timeline::default(),
     };
+    // The service's drive stream clock: the estimator's period, one frame per time, at most
+    // the stream's default `stale_after_ms` between frames. A file without times is stepped
+    // as consecutive samples (as `sensors-replay` stamps it: frame k at k periods).
+    let period_ns = (config.dt_s * 1e9).round() as u64;
+    let mut clock = TimeJudge::new(period_ns, false, DRIVE_STALE_AFTER_MS);
+    let mut first_refusal: Option<AdhesionAnalysisError> = None;
+    let mut read = 0u64;
     let mut step = 0usize;
     while let Some(frame) = source.next()? {
+        let time_ns = match frame.time_s {
+            Some(t) => TimeJudge::ns_of(t).ok_or_else(|| {
+                let r = Rejection::new("time_backwards", "not a time a frame can carry");
+                time_error(&label, frame.line, t, &r)
+            })?,
+            None => read * period_ns,
+        };
+        read += 1;
+        let time_s = frame.time_s.unwrap_or(time_ns as f64 / 1e9);
+        // The service's order: the frame's time first (refused, or a confirmed jump that
+        // restarts the estimator), then its content.
+        let refusal = match clock.time(time_ns) {
+            Ok(new_timeline) => {
+                if new_timeline && pipeline.take().is_some() {
+                    run.timeline.new_timelines_s.push(time_s);
+                    eprintln!(
+                        "railmon analyze adhesion: {label}: the sample clock jumped to {time_s} s \
+                         (line {}): estimator restarted",
+                        frame.line.map_or("-".to_owned(), |l| l.to_string())
+                    );
+                }
+                not_finite(&label, frame.line, &frame.samples)
+            }
+            Err(r) => Some((r.reason, time_error(&label, frame.line, time_s, &r))),
+        };
+        if let Some((reason, error)) = refusal {
+            if strict {
+                return Err(error);
+            }
+            run.refused.add(reason);
+            first_refusal.get_or_insert(error);
+            continue;
+        }
+        if pipeline.is_none() && step == 0 {
+            // First frame: now the drive count and the presence of truth are known.
+            let n = frame.samples.len();
+            run.n_drives = n;
+            run.ekf_torque_nm = vec![Vec::with_capacity(n_steps_hint); n];
+            run.truth = frame
+                .truth
+                .as_ref()
+                .map(|_| vec![Vec::with_capacity(n_steps_hint); n]);
+            run.methods = AdhesionMethod::ALL
+                .iter()
+                .map(|&method| MethodTrace {
+                    method,
+                    global_torque_nm: Vec::with_capacity(n_steps_hint),
+                    slip_probability: vec![Vec::with_capacity(n_steps_hint); n],
+                    alarm_slipping: vec![Vec::with_capacity(n_steps_hint); n],
+                    reference: SpeedReference::Group,
+                })
+                .collect();
+            est.write_record(estimates_header(run.truth.is_some()))
+                .map_err(write_err)?;
+        }
         let pipe = match &mut pipeline {
             Some(p) => p,
             None => {
-                // First frame: now the drive count and the presence of truth are known.
-                let n = frame.samples.len();
-                run.n_drives = n;
-                run.ekf_torque_nm = vec![Vec::with_capacity(n_steps_hint); n];
-                run.truth = frame
-                    .truth
-                    .as_ref()
-                    .map(|_| vec![Vec::with_capacity(n_steps_hint); n]);
-                run.methods = AdhesionMethod::ALL
-                    .iter()
-                    .map(|&method| MethodTrace {
-                        method,
-                        global_torque_nm: Vec::with_capacity(n_steps_hint),
-                        slip_probability: vec![Vec::with_capacity(n_steps_hint); n],
-                        alarm_slipping: vec![Vec::with_capacity(n_steps_hint); n],
-                        reference: SpeedReference::Group,
-                    })
-                    .collect();
-                est.write_record(estimates_header(run.truth.is_some()))
-                    .map_err(write_err)?;
+                // The first frame, or the first of a new timeline: a fresh estimator (the
+                // traces go on).
                 let estimator_error = |source| AdhesionAnalysisError::Estimator {
                     file: label.clone(),
                     source,
                 };
-                let mut p = MultiMethodPipeline::new(config, n).map_err(estimator_error)?;
+                let mut p =
+                    MultiMethodPipeline::new(config, run.n_drives).map_err(estimator_error)?;
                 p.set_speed_reference(speed_reference)
                     .map_err(estimator_error)?;
                 pipeline.insert(p)
             }
         };
+        // Periods no frame covered: the EKFs are carried over them, as the service does.
+        let skipped = clock.skipped_periods(time_ns);
+        if skipped > 0 {
+            pipe.bridge(skipped);
+            run.timeline.skipped_periods += skipped;
+        }
         if let Some(w) = record.as_mut() {
             w.write_frame(
                 step as u64,
+                time_ns as f64 / 1e9,
                 &frame.samples,
                 frame.truth.as_deref(),
                 frame.train_speed_m_s,
@@ -351,6 +436,7 @@ fn analyse(
                 file: format!("{label}: step {step}"),
                 source,
             })?;
+        clock.used(time_ns);
         for (k, f) in pipe.bank().filters().iter().enumerate() {
             run.ekf_torque_nm[k].push(f.torque_nm());
             let mut fields = vec![
@@ -395,6 +481,20 @@ fn analyse(
         bar.inc(1);
     }
     bar.finish_and_clear();
+    if let Some(mut error) = first_refusal.filter(|_| run.refused.total() > step as u64) {
+        // Mostly refused: not glitches but another rate, other units or a broken file.
+        let counts = format!(
+            "{} of {read} frames refused, {}; the first",
+            run.refused.total(),
+            run.refused.line()
+        );
+        match &mut error {
+            AdhesionAnalysisError::Record(r) => r.reason = format!("{counts}: {}", r.reason),
+            AdhesionAnalysisError::Input { reason, .. } => *reason = format!("{counts}: {reason}"),
+            _ => {}
+        }
+        return Err(error);
+    }
     if step == 0 {
         return Err(AdhesionAnalysisError::Input {
             file: label,
@@ -406,6 +506,57 @@ fn analyse(
         w.finish()?;
     }
     Ok(run)
+}
+
+/// A frame refused for its time as an error: `file:line: field "time_s" = "value": reason`
+/// for a recording with times, the clock's words (with the time) otherwise.
+fn time_error(label: &str, line: Option<u64>, time_s: f64, r: &Rejection) -> AdhesionAnalysisError {
+    match line {
+        Some(line) => AdhesionAnalysisError::Record(RecordError {
+            file: label.to_owned(),
+            line: Some(line),
+            field: Some(railmon_records::drive::DRIVE_TIME_COLUMN.to_owned()),
+            value: Some(time_s.to_string()),
+            reason: format!("{} ({})", r.message, r.reason),
+        }),
+        None => input_error(
+            Path::new(label),
+            format!("frame at {time_s} s: {} ({})", r.message, r.reason),
+        ),
+    }
+}
+
+/// The service's frame check (`railmon_bus::DriveFrame::checked_drives`): a NaN or infinite
+/// voltage or current refuses the frame (`not_finite`); the error names the step's line (the
+/// drive's row) and field.
+fn not_finite(
+    label: &str,
+    line: Option<u64>,
+    samples: &[DriveSample],
+) -> Option<(&'static str, AdhesionAnalysisError)> {
+    samples.iter().enumerate().find_map(|(k, d)| {
+        let (field, value) = [
+            ("u_alpha_v", d.u_alpha_v),
+            ("u_beta_v", d.u_beta_v),
+            ("i_alpha_a", d.i_alpha_a),
+            ("i_beta_a", d.i_beta_a),
+        ]
+        .into_iter()
+        .find(|(_, v)| !v.is_finite())?;
+        let reason = format!("drive {}: not a finite number (not_finite)", k + 1);
+        let error = match line {
+            Some(line) => AdhesionAnalysisError::Record(RecordError {
+                file: label.to_owned(),
+                // Rows of a step are consecutive, drive 1 first.
+                line: Some(line + k as u64),
+                field: Some(field.to_owned()),
+                value: Some(value.to_string()),
+                reason,
+            }),
+            None => input_error(Path::new(label), format!("{field} = {value}: {reason}")),
+        };
+        Some(("not_finite", error))
+    })
 }
 
 fn write_error(path: &Path, e: impl std::fmt::Display) -> ReportError {
@@ -475,6 +626,8 @@ pub fn tables(run: &AdhesionRun, skip: usize) -> AdhesionReport {
         table1,
         detection,
         n_steps: run.ekf_torque_nm.first().map_or(0, Vec::len),
+        refused: run.refused.clone(),
+        timeline: run.timeline.clone(),
         tables_text: String::new(),
     }
 }
@@ -829,20 +982,14 @@ mod tests {
         }
     }
 
-    /// Runs `--input` on `text` and returns the error message.
+    /// Runs `--input` (`--strict`) on `text` and returns the error message.
     fn input_error_of(tag: &str, text: &str) -> String {
         let tmp = TempDir::new(tag);
         let path = tmp.0.join("drives.csv");
         std::fs::write(&path, text).unwrap();
-        let err = run(&args(
-            Some(path.clone()),
-            None,
-            None,
-            tmp.0.join("out"),
-            true,
-        ))
-        .unwrap_err()
-        .to_string();
+        let mut a = args(Some(path.clone()), None, None, tmp.0.join("out"), true);
+        a.run.strict = true;
+        let err = run(&a).unwrap_err().to_string();
         assert!(!err.contains('\n'), "one line: {err}");
         assert!(
             err.contains(&path.display().to_string()),
@@ -882,5 +1029,84 @@ mod tests {
         assert_eq!(report.n_steps, 2);
         assert!(report.detection.is_empty());
         assert!(out.join("table1.csv").is_file() && !out.join("detection.csv").exists());
+    }
+
+    #[test]
+    fn a_non_finite_sample_is_counted_and_skipped_and_strict_names_it() {
+        let tmp = TempDir::new("nan-skip");
+        let path = tmp.0.join("drives.csv");
+        let text = format!("{GOOD}2,1,10,20,1,2\n2,2,10,20,1,2\n")
+            .replace("1,2,10,20,1,2", "1,2,10,20,NaN,2");
+        std::fs::write(&path, text).unwrap();
+        let out = tmp.0.join("out");
+        let report = run(&args(Some(path), None, None, out.clone(), true)).unwrap();
+        assert_eq!(report.refused.count("not_finite"), 1);
+        assert_eq!(report.refused.total(), 1);
+        assert_eq!(report.n_steps, 2);
+        let refused = std::fs::read_to_string(out.join("refused.csv")).unwrap();
+        assert!(refused.contains("not_finite,1\n"), "{refused}");
+        // `--strict`: the second drive's row of step 1 (line 5) is the error.
+        let err = input_error_of(
+            "nan-strict",
+            &GOOD.replace("1,2,10,20,1,2", "1,2,10,20,NaN,2"),
+        );
+        assert!(err.contains(":5: field \"i_alpha_a\" = \"NaN\""), "{err}");
+    }
+
+    #[test]
+    fn a_lost_sample_in_a_recording_with_times_is_bridged() {
+        let tmp = TempDir::new("bridge");
+        let scenario_path = tmp.0.join("short.toml");
+        std::fs::write(
+            &scenario_path,
+            SEED.replace("n_steps = 20000", "n_steps = 3000"),
+        )
+        .unwrap();
+        let full_out = tmp.0.join("full");
+        let full = run(&args(
+            None,
+            Some(scenario_path),
+            None,
+            full_out.clone(),
+            true,
+        ))
+        .unwrap();
+        assert_eq!(
+            (full.timeline.skipped_periods, full.refused.total()),
+            (0, 0)
+        );
+        // The record has the times; leave step 2000 out (a sample lost at the source).
+        let record = std::fs::read_to_string(full_out.join("drives.csv")).unwrap();
+        assert!(
+            record.starts_with("step,time_s,drive,"),
+            "{}",
+            &record[..60]
+        );
+        let lost: String = record
+            .lines()
+            .filter(|l| !l.starts_with("2000,"))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        assert_eq!(lost.lines().count(), record.lines().count() - 3);
+        let path = tmp.0.join("lost.csv");
+        std::fs::write(&path, lost).unwrap();
+        let out = tmp.0.join("lost");
+        let report = run(&args(Some(path), None, None, out.clone(), true)).unwrap();
+        assert_eq!(report.timeline.skipped_periods, 1);
+        assert_eq!(report.refused.total(), 0);
+        assert_eq!(report.n_steps, 2999);
+        // Bridged, the EKFs end where the full run's do.
+        let last_torques = |dir: &Path| -> Vec<f64> {
+            let text = std::fs::read_to_string(dir.join("estimates.csv")).unwrap();
+            let lines: Vec<&str> = text.lines().collect();
+            lines[lines.len() - 3..]
+                .iter()
+                .map(|l| l.split(',').nth(3).unwrap().parse().unwrap())
+                .collect()
+        };
+        let (a, b) = (last_torques(&full_out), last_torques(&out));
+        for (x, y) in a.iter().zip(&b) {
+            assert!((x - y).abs() < 0.05 * x.abs().max(1.0), "{a:?} {b:?}");
+        }
     }
 }

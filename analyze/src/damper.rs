@@ -45,7 +45,8 @@ use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord};
 use railmon_records::{write_csv_table, RecordError};
 
 use crate::report::{create_out_dir, line_plot, progress_bar, Axes, RunArgs, Series};
-use crate::report::{AnalysisError, Refusals, RunSize};
+use crate::report::{AnalysisError, Refusals, RunSize, Timeline};
+use railmon_records::sample_clock::{Rejection, TimeJudge, BOGIE_STALE_AFTER_MS};
 
 /// Arguments of `railmon analyze damper`.
 #[derive(clap::Args, Debug, Clone)]
@@ -147,13 +148,26 @@ pub struct DamperReport {
     /// Mean wall time of one monitor step (RBPF + EKF + posterior summary).
     pub mean_step_us: f64,
     pub ekf_diverged_at_s: Option<f64>,
-    /// The samples refused by the service's checks (`SampleRanges`) and skipped.
+    /// The samples refused by the service's checks (the sample clock's, `SampleRanges`) and
+    /// skipped.
     pub refused: Refusals,
+    /// Periods bridged and new timelines, as the service's sample clock judges the times.
+    pub timeline: Timeline,
 }
 
-/// The reasons a bogie sample is refused for, the labels of the service's bogie stream
+/// The reasons a bogie sample is refused for, the labels of the service's bogie stream: its
+/// sample clock's (`railmon_records::sample_clock`) and the estimator's
 /// (`railmon_damper::DamperError::reason`; `unknown_bogie` is the service's configuration).
-pub const REFUSAL_REASONS: [&str; 3] = ["not_finite", "speed_out_of_range", "out_of_range"];
+pub const REFUSAL_REASONS: [&str; 8] = [
+    "time_backwards",
+    "time_repeated",
+    "time_jump",
+    "period_mismatch",
+    "rate_mismatch",
+    "not_finite",
+    "speed_out_of_range",
+    "out_of_range",
+];
 
 /// One point of the estimate trace.
 #[derive(Debug, Clone, Copy)]
@@ -316,6 +330,7 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
         elapsed,
         ekf_diverged_at_s,
         refused,
+        timeline,
     } = run;
     refused.write_csv(&args.run.out.join("refused.csv"))?;
     write_estimates(&args.run.out.join("estimates.csv"), &trace)?;
@@ -367,6 +382,7 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
         mean_step_us,
         ekf_diverged_at_s,
         refused,
+        timeline,
     })
 }
 
@@ -419,6 +435,25 @@ struct MonitorRun {
     elapsed: Duration,
     ekf_diverged_at_s: Option<f64>,
     refused: Refusals,
+    timeline: Timeline,
+}
+
+/// A sample refused for its time as an error: `file:line: field "time_s" = "value": reason`
+/// for a recording, the clock's words (with the time) for the simulator.
+fn time_error(name: &str, line: Option<u64>, time_s: f64, r: &Rejection) -> DamperAnalysisError {
+    match line {
+        Some(line) => DamperAnalysisError::Record(RecordError {
+            file: name.to_owned(),
+            line: Some(line),
+            field: Some(railmon_records::bogie::BOGIE_COLUMNS[0].to_owned()),
+            value: Some(time_s.to_string()),
+            reason: format!("{} ({})", r.message, r.reason),
+        }),
+        None => input_error(
+            Path::new(name),
+            format!("sample at {time_s} s: {} ({})", r.message, r.reason),
+        ),
+    }
 }
 
 /// A refused sample as an error: `file:line: field "column" = "value": reason` for a
@@ -452,12 +487,21 @@ fn run_monitor(
 ) -> Result<MonitorRun, DamperAnalysisError> {
     let ranges = SampleRanges::default();
     let mut refused = Refusals::new(&REFUSAL_REASONS);
-    let mut first_refusal = None;
+    let mut first_refusal: Option<DamperAnalysisError> = None;
     let mut read = 0u64;
-    let mut monitor =
-        DamperMonitor::for_bogie(config, bogie, table).map_err(estimator_error(name))?;
+    let new_monitor =
+        || DamperMonitor::for_bogie(config, bogie, table.clone()).map_err(estimator_error(name));
+    let mut monitor = new_monitor()?;
     let mut alarms = DamperAlarm::pair(&config.alarm, &config.filter_model(), [false; 2]);
     let mut status = BogieStatusWatch::new();
+    // The service's bogie stream clock: the estimator's period, the bogies of one step share
+    // a time, at most the stream's default `stale_after_ms` between samples.
+    let mut clock = TimeJudge::new(
+        (config.dt_s * 1e9).round() as u64,
+        true,
+        BOGIE_STALE_AFTER_MS,
+    );
+    let mut timeline = Timeline::default();
     let mut events = vec![];
     let bar = progress_bar(max_steps.unwrap_or(0), "damper");
     let mut trace = vec![];
@@ -468,20 +512,52 @@ fn run_monitor(
             break;
         };
         read += 1;
-        // The service's checks, its reasons: a refused sample is counted and skipped (no
-        // estimate, no record), or with `--strict` the error.
-        if let Err(e) = ranges.check(&sample) {
-            let reason = e.reason().unwrap_or("estimator");
+        let time_ns = TimeJudge::ns_of(time_s).ok_or_else(|| {
+            let r = Rejection::new(
+                "time_backwards",
+                "a negative time, which no frame can carry",
+            );
+            time_error(name, source.line(), time_s, &r)
+        })?;
+        // The service's order: the sample's time first (refused, or a confirmed jump that
+        // restarts the estimator), then its content. A refused sample is counted and skipped
+        // (no estimate, no record), or with `--strict` the error.
+        let refusal = match clock.time(time_ns) {
+            Ok(new_timeline) => {
+                if new_timeline {
+                    // As the service restarts its bogie pipeline: a new filter; the health
+                    // flags carry over until the new filter's estimates clear them.
+                    monitor = new_monitor()?;
+                    alarms.iter_mut().for_each(DamperAlarm::restart);
+                    timeline.new_timelines_s.push(time_s);
+                    eprintln!(
+                        "railmon analyze damper: {name}: the sample clock jumped to {time_s} s \
+                         (line {}): estimator restarted",
+                        source.line().map_or("-".to_owned(), |l| l.to_string())
+                    );
+                }
+                ranges.check(&sample).err().map(|e| {
+                    let reason = e.reason().unwrap_or("estimator");
+                    (reason, refusal_error(name, source.line(), e))
+                })
+            }
+            Err(r) => Some((r.reason, time_error(name, source.line(), time_s, &r))),
+        };
+        if let Some((reason, error)) = refusal {
             if strict {
-                return Err(refusal_error(name, source.line(), e));
+                return Err(error);
             }
             refused.add(reason);
-            first_refusal.get_or_insert((source.line(), e));
+            first_refusal.get_or_insert(error);
             continue;
         }
+        // The bogie filter has no bridge (the service's neither): a lost sample's period is
+        // counted, and the next sample is stepped as if it followed the last one.
+        timeline.skipped_periods += clock.skipped_periods(time_ns);
         let started = Instant::now();
         let estimate = *monitor.step(&sample).map_err(estimator_error(name))?;
         elapsed += started.elapsed();
+        clock.used(time_ns);
         steps += 1;
         // Stamped with the sample's own time, as the service stamps its events; health
         // before status, as the service stores them.
@@ -515,16 +591,17 @@ fn run_monitor(
         }
     }
     bar.finish_and_clear();
-    if let Some((line, e)) = first_refusal.filter(|_| refused.total() > steps) {
-        // Mostly refused: not glitches but other units or a broken file.
-        let mut error = refusal_error(name, line, e);
+    if let Some(mut error) = first_refusal.filter(|_| refused.total() > steps) {
+        // Mostly refused: not glitches but another rate, other units or a broken file.
         let counts = format!(
             "{} of {read} samples refused, {}; the first",
             refused.total(),
             refused.line()
         );
-        if let DamperAnalysisError::Record(r) = &mut error {
-            r.reason = format!("{counts}: {}", r.reason);
+        match &mut error {
+            DamperAnalysisError::Record(r) => r.reason = format!("{counts}: {}", r.reason),
+            DamperAnalysisError::Input { reason, .. } => *reason = format!("{counts}: {reason}"),
+            _ => {}
         }
         return Err(error);
     }
@@ -538,6 +615,7 @@ fn run_monitor(
         elapsed,
         ekf_diverged_at_s: monitor.ekf_diverged_at_s(),
         refused,
+        timeline,
     })
 }
 

@@ -27,7 +27,8 @@ use railmon_records::{write_csv_table, RecordError};
 use crate::report::AnalysisError;
 use crate::report::{create_out_dir, progress_bar, RunArgs};
 pub use evaluate::{
-    evaluate, Evaluation, NamedRegimeScore, PredictionRow, RegimeEvent, RegimeScore, ScoreRow,
+    evaluate, Evaluation, NamedRegimeScore, PredictionRow, Refused, RegimeEvent, RegimeScore,
+    ScoreRow,
 };
 
 /// Arguments of `railmon analyze fuel`.
@@ -176,7 +177,12 @@ pub fn analyse(
         // A file most of whose samples are refused is not glitches but another unit, rate
         // or layout: no answer on what is left of it.
         if strict || 2 * refused > evaluation.samples {
-            let error = refusal(input, Some(*index), first.clone());
+            let error = match first {
+                Refused::Sample(e) => refusal(input, Some(*index), e.clone()),
+                Refused::Time { time_s, rejection } => {
+                    time_refusal(input, *index, *time_s, rejection)
+                }
+            };
             return Err(match strict {
                 true => error,
                 false => mostly_refused(error, &evaluation),
@@ -241,6 +247,33 @@ fn refusal(input: &FuelInput, index: Option<usize>, source: FuelError) -> FuelAn
         _ => FuelAnalysisError::Estimator {
             file: input.name.clone(),
             source,
+        },
+    }
+}
+
+/// A sample refused for its time (the service's sample clock) as
+/// `file:line: field "time_s" = "value": reason`, or with the time when not from a file.
+fn time_refusal(
+    input: &FuelInput,
+    index: usize,
+    time_s: f64,
+    rejection: &railmon_records::sample_clock::Rejection,
+) -> FuelAnalysisError {
+    let reason = format!(
+        "sample at t = {time_s} s: {} ({})",
+        rejection.message, rejection.reason
+    );
+    match input.lines.get(index) {
+        Some(&line) => FuelAnalysisError::Record(RecordError {
+            file: input.name.clone(),
+            line: Some(line),
+            field: Some("time_s".to_owned()),
+            value: Some(time_s.to_string()),
+            reason,
+        }),
+        None => FuelAnalysisError::Input {
+            file: input.name.clone(),
+            reason,
         },
     }
 }

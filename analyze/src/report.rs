@@ -140,6 +140,46 @@ impl Refusals {
     }
 }
 
+/// What the samples' own clock did in a run (judged as the service's ingest judges it,
+/// `railmon_records::sample_clock::TimeJudge`): the sample periods no sample covered, which
+/// the estimator bridged (the service's `railmon_stream_skipped_periods_total`), and the
+/// sample times at which a confirmed jump of the source's clock restarted the estimator (the
+/// service counts them as new sources).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Timeline {
+    pub skipped_periods: u64,
+    /// Sample time (s) of the first sample of each new timeline.
+    pub new_timelines_s: Vec<f64>,
+}
+
+impl Timeline {
+    /// One line for the terminal: `skipped periods: 2; new timelines: 1 (at 3600.001 s)`.
+    pub fn line(&self) -> String {
+        let at: Vec<String> = self
+            .new_timelines_s
+            .iter()
+            .take(5)
+            .map(|t| format!("{t:.6} s"))
+            .collect();
+        let more = match self.new_timelines_s.len() > at.len() {
+            true => ", ...",
+            false => "",
+        };
+        match at.is_empty() {
+            true => format!(
+                "skipped periods (bridged): {}; new timelines: 0",
+                self.skipped_periods
+            ),
+            false => format!(
+                "skipped periods (bridged): {}; new timelines (estimator restarted): {} (at {}{more})",
+                self.skipped_periods,
+                self.new_timelines_s.len(),
+                at.join(", ")
+            ),
+        }
+    }
+}
+
 /// What a run needs, estimated from its size before any work starts.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RunSize {

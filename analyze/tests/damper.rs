@@ -170,3 +170,109 @@ fn a_bad_recording_is_an_error_naming_file_line_and_field() {
     );
     std::fs::remove_dir_all(&out).unwrap();
 }
+
+/// A bogie recording of bogie 1 at the given times (s), every sample the same plausible one.
+fn recording_at(out: &Path, name: &str, times_s: impl IntoIterator<Item = f64>) -> PathBuf {
+    std::fs::create_dir_all(out).unwrap();
+    let mut text = String::from(
+        "time_s,wheelset1_accel_m_s2,wheelset2_accel_m_s2,bogie_accel_m_s2,bogie_yaw_rate_rad_s,body_accel_m_s2\n",
+    );
+    for t in times_s {
+        text.push_str(&format!("{t},0.1,-0.1,0.05,0.01,0.01\n"));
+    }
+    let path = out.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn input_args(out: &Path, input: PathBuf) -> Args {
+    let mut a = args(out);
+    a.run.input = Some(input);
+    a.run.no_plots = true;
+    a.duration_s = None;
+    a
+}
+
+#[test]
+fn samples_at_another_rate_are_refused_as_the_service_refuses_them() {
+    let out = out_dir("rate");
+    // 1 s at 1 kHz, then 0.2 s of 100 Hz stamps: the third 100 Hz sample in a row and every
+    // one after it is refused (`rate_mismatch`), counted, the run goes on.
+    let times = (1..=1000)
+        .map(|k| k as f64 * 1e-3)
+        .chain((1..=20).map(|k| 1.0 + k as f64 * 1e-2));
+    let input = recording_at(&out, "mixed.csv", times);
+    let report = run(&input_args(&out.join("a"), input)).unwrap();
+    assert_eq!(
+        report.refused.count("rate_mismatch"),
+        18,
+        "{:?}",
+        report.refused
+    );
+    assert_eq!(report.refused.total(), 18);
+    assert_eq!(report.steps, 1002);
+    // The two 100 Hz samples used each skipped 9 periods.
+    assert_eq!(report.timeline.skipped_periods, 18);
+    let refused = std::fs::read_to_string(out.join("a/refused.csv")).unwrap();
+    assert!(refused.contains("rate_mismatch,18\n"), "{refused}");
+    // A file all at 100 Hz is mostly refused: an error naming the first refused sample.
+    let input = recording_at(&out, "100hz.csv", (1..=50).map(|k| k as f64 * 1e-2));
+    let msg = run(&input_args(&out.join("b"), input.clone()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        msg.contains("47 of 50 samples refused")
+            && msg.contains("100hz.csv:5: field \"time_s\" = \"0.04\"")
+            && msg.contains("rate_mismatch"),
+        "{msg}"
+    );
+    // `--strict`: the first refused sample is the error.
+    let mut a = input_args(&out.join("c"), input);
+    a.run.strict = true;
+    let msg = run(&a).unwrap_err().to_string();
+    assert!(
+        msg.starts_with("100hz.csv:5: field \"time_s\" = \"0.04\"")
+            || msg.contains("100hz.csv:5: field \"time_s\" = \"0.04\""),
+        "{msg}"
+    );
+    // Time in ms read as s: every sample after the first jumps a second ahead.
+    let input = recording_at(&out, "ms.csv", (1..=20).map(f64::from));
+    let msg = run(&input_args(&out.join("d"), input))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        msg.contains("19 of 20 samples refused") && msg.contains("time_jump"),
+        "{msg}"
+    );
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
+fn a_jump_of_an_hour_starts_a_new_timeline_and_restarts_the_estimator() {
+    let out = out_dir("jump");
+    let before = (1..=1000).map(|k| k as f64 * 1e-3);
+    let after = (1..=1000).map(|k| 3600.0 + k as f64 * 1e-3);
+    let input = recording_at(&out, "jump.csv", before.chain(after));
+    let report = run(&input_args(&out.join("a"), input)).unwrap();
+    // The first sample after the jump is refused (an outlier, until the next confirms it),
+    // the next starts the new timeline: the estimator restarts there.
+    assert_eq!(report.refused.count("time_jump"), 1, "{:?}", report.refused);
+    assert_eq!(report.refused.total(), 1);
+    assert_eq!(report.timeline.new_timelines_s, [3600.002]);
+    assert_eq!(report.steps, 1999);
+    // The restarted filter's last estimate is that of a fresh run over the same 999 samples.
+    let fresh = recording_at(
+        &out,
+        "fresh.csv",
+        (2..=1000).map(|k| 3600.0 + k as f64 * 1e-3),
+    );
+    run(&input_args(&out.join("b"), fresh)).unwrap();
+    let last = |dir: &str| {
+        let text = std::fs::read_to_string(out.join(dir).join("estimates.csv")).unwrap();
+        let line = text.lines().last().unwrap().to_owned();
+        // Everything but the time column (the monitor counts its own steps).
+        line.split_once(',').unwrap().1.to_owned()
+    };
+    assert_eq!(last("a"), last("b"));
+    std::fs::remove_dir_all(&out).unwrap();
+}

@@ -4,13 +4,19 @@
 //! Long layout, one row per time step and drive, drives numbered from 1 (as in the paper):
 //!
 //! ```text
-//! step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a[,true_speed_rad_s,true_angle_rad,true_torque_nm,true_slipping][,train_speed_m_s]
-//! 0,1,12.5,-40.1,3.2,7.9,200.0,-0.9,10.0,0,5.75
-//! 0,2,...
+//! step[,time_s],drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a[,true_speed_rad_s,true_angle_rad,true_torque_nm,true_slipping][,train_speed_m_s]
+//! 0,0,1,12.5,-40.1,3.2,7.9,200.0,-0.9,10.0,0,5.75
+//! 0,0,2,...
 //! ```
 //!
 //! - `step`: sample index (0, 1, 2, ... at the monitor's sampling period); every step lists
-//!   drives `1..=N` in order, and steps increase by one.
+//!   drives `1..=N` in order. Without a `time_s` column steps increase by one (the samples are
+//!   consecutive); with it they increase (a sample lost at the source leaves a step out).
+//! - `time_s` (optional on reading, always written): the sample time of the step (s), the
+//!   time the bus carried (whole nanoseconds); the same on every drive's row of a step.
+//!   `railmon analyze adhesion` judges it as the service judges a frame's sample time
+//!   (`crate::sample_clock`): a lost sample is bridged, data at another rate refused. Files
+//!   without it are stepped as consecutive samples.
 //! - `u_alpha_v, u_beta_v`: stator voltage applied over the step starting now (alpha-beta
 //!   frame); `i_alpha_a, i_beta_a`: stator currents measured now.
 //! - Optional truth (simulated data): electrical speed and angle, load torque, and the slip
@@ -53,11 +59,17 @@ pub const DRIVE_TRUTH_COLUMNS: [&str; 4] = [
 
 /// The optional train-speed column (m/s).
 pub const DRIVE_TRAIN_SPEED_COLUMN: &str = "train_speed_m_s";
+/// The sample-time column (s): optional on reading, always written (after `step`).
+pub const DRIVE_TIME_COLUMN: &str = "time_s";
 
 /// All drives at one step.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DriveFrame {
     pub step: u64,
+    /// The step's sample time (s), when the file has the `time_s` column.
+    pub time_s: Option<f64>,
+    /// The 1-based line of the step's first row.
+    pub line: u64,
     pub drives: Vec<DriveSample>,
     /// Present when the file has the truth columns.
     pub truth: Option<Vec<DriveTruth>>,
@@ -68,6 +80,7 @@ pub struct DriveFrame {
 
 struct Columns {
     step: Column,
+    time: Option<Column>,
     drive: Column,
     u_alpha: Column,
     u_beta: Column,
@@ -81,6 +94,7 @@ struct Columns {
 struct ParsedRow {
     line: u64,
     step: u64,
+    time_s: Option<f64>,
     drive: u64,
     measurement: DriveSample,
     truth: Option<DriveTruth>,
@@ -98,6 +112,10 @@ pub struct DriveCsvReader<R: Read> {
     /// before a bad row is still handed out (a replay sends every good frame).
     pending_error: Option<RecordError>,
     next_step: Option<u64>,
+    /// The last step read (a file with times: steps increase, by one or more).
+    last_step: Option<u64>,
+    /// Voltages and currents as recorded ([`Self::as_recorded`]).
+    as_recorded: bool,
 }
 
 impl DriveCsvReader<File> {
@@ -132,6 +150,7 @@ impl<R: Read> DriveCsvReader<R> {
         };
         let columns = Columns {
             step: table.column("step")?,
+            time: table.optional_column(DRIVE_TIME_COLUMN),
             drive: table.column("drive")?,
             u_alpha: table.column("u_alpha_v")?,
             u_beta: table.column("u_beta_v")?,
@@ -153,7 +172,22 @@ impl<R: Read> DriveCsvReader<R> {
             pending: None,
             pending_error: None,
             next_step: None,
+            last_step: None,
+            as_recorded: false,
         })
+    }
+
+    /// Keeps the voltages and currents as recorded (NaN, infinities) for the caller to refuse
+    /// and count, as the service refuses such a frame (`railmon analyze adhesion`); the
+    /// format, the steps and the times are checked as without.
+    pub fn as_recorded(mut self) -> Self {
+        self.as_recorded = true;
+        self
+    }
+
+    /// Whether the file has the `time_s` column.
+    pub fn has_time(&self) -> bool {
+        self.columns.time.is_some()
     }
 
     /// Whether the file has the truth columns.
@@ -192,15 +226,24 @@ impl<R: Read> DriveCsvReader<R> {
             }
             _ => None,
         };
+        let time_s = match &c.time {
+            Some(column) => Some(row.f64_in(column, 0.0, f64::MAX, "s")?),
+            None => None,
+        };
+        let value = |column: &Column| match self.as_recorded {
+            true => row.f64_as_recorded(column),
+            false => row.f64(column),
+        };
         Ok(Some(ParsedRow {
             line: row.line(),
             step: row.u64(&c.step)?,
+            time_s,
             drive: checked_drive(&row, &c.drive, self.n_drives)?,
             measurement: DriveSample {
-                u_alpha_v: row.f64(&c.u_alpha)?,
-                u_beta_v: row.f64(&c.u_beta)?,
-                i_alpha_a: row.f64(&c.i_alpha)?,
-                i_beta_a: row.f64(&c.i_beta)?,
+                u_alpha_v: value(&c.u_alpha)?,
+                u_beta_v: value(&c.u_beta)?,
+                i_alpha_a: value(&c.i_alpha)?,
+                i_beta_a: value(&c.i_beta)?,
             },
             truth,
             train_speed_m_s,
@@ -235,17 +278,23 @@ impl<R: Read> DriveCsvReader<R> {
                 None => return Ok(None),
             },
         };
-        if let Some(expected) = self.next_step {
-            if first.step != expected {
+        match (self.next_step, self.last_step) {
+            (Some(expected), _) if self.columns.time.is_none() && first.step != expected => {
                 let reason = format!("expected step {expected}: steps must increase by one");
                 return Err(self.row_error(first.line, &self.columns.step, first.step, reason));
             }
+            (_, Some(last)) if first.step <= last => {
+                let reason = format!("step {last} before: steps must increase");
+                return Err(self.row_error(first.line, &self.columns.step, first.step, reason));
+            }
+            _ => {}
         }
         if first.drive != 1 {
             let reason = format!("step {} must start with drive 1", first.step);
             return Err(self.row_error(first.line, &self.columns.drive, first.drive, reason));
         }
         let step = first.step;
+        let (time_s, line) = (first.time_s, first.line);
         let train_speed_m_s = first.train_speed_m_s;
         let mut drives = vec![first.measurement];
         let mut truth = first.truth.map(|t| vec![t]);
@@ -268,6 +317,15 @@ impl<R: Read> DriveCsvReader<R> {
             if row.drive != expected {
                 let reason = format!("expected drive {expected} of step {step}: drives must be listed 1..=N in order");
                 return Err(self.row_error(row.line, &self.columns.drive, row.drive, reason));
+            }
+            if row.time_s.map(f64::to_bits) != time_s.map(f64::to_bits) {
+                let column = self.columns.time.as_ref().expect("a value came from it");
+                let value = row.time_s.map_or(String::new(), |v| v.to_string());
+                let reason = format!(
+                    "step {step}: drive 1 has {}: the time is one per step, the same on every drive's row",
+                    time_s.map_or(String::new(), |v| v.to_string())
+                );
+                return Err(self.row_error(row.line, column, value, reason));
             }
             if row.train_speed_m_s.map(f64::to_bits) != train_speed_m_s.map(f64::to_bits) {
                 let column = self
@@ -304,8 +362,11 @@ impl<R: Read> DriveCsvReader<R> {
             None => self.n_drives = Some(drives.len()),
         }
         self.next_step = Some(step + 1);
+        self.last_step = Some(step);
         Ok(Some(DriveFrame {
             step,
+            time_s,
+            line,
             drives,
             truth,
             train_speed_m_s,
@@ -381,6 +442,7 @@ impl<W: Write> DriveCsvWriter<W> {
         with_train_speed: bool,
     ) -> Result<Self, RecordError> {
         let mut header: Vec<&str> = DRIVE_COLUMNS.to_vec();
+        header.insert(1, DRIVE_TIME_COLUMN);
         if with_truth {
             header.extend(DRIVE_TRUTH_COLUMNS);
         }
@@ -398,11 +460,13 @@ impl<W: Write> DriveCsvWriter<W> {
         })
     }
 
-    /// Writes all drives of one step (`truth` is required when the writer has truth columns;
-    /// a train speed needs the `train_speed_m_s` column, which is left empty without one).
+    /// Writes all drives of one step at its sample time `time_s` (`truth` is required when
+    /// the writer has truth columns; a train speed needs the `train_speed_m_s` column, which
+    /// is left empty without one).
     pub fn write_frame(
         &mut self,
         step: u64,
+        time_s: f64,
         drives: &[DriveSample],
         truth: Option<&[DriveTruth]>,
         train_speed_m_s: Option<f64>,
@@ -422,6 +486,7 @@ impl<W: Write> DriveCsvWriter<W> {
         for (k, d) in drives.iter().enumerate() {
             let mut fields = vec![
                 step.to_string(),
+                time_s.to_string(),
                 (k + 1).to_string(),
                 d.u_alpha_v.to_string(),
                 d.u_beta_v.to_string(),
@@ -534,8 +599,9 @@ mod tests {
         ];
         let mut buf = Vec::new();
         let mut w = DriveCsvWriter::from_writer("mem", &mut buf, true, false).unwrap();
-        w.write_frame(0, &drives, Some(&truth), None).unwrap();
-        w.write_frame(1, &drives, Some(&truth), None).unwrap();
+        w.write_frame(0, 0.0, &drives, Some(&truth), None).unwrap();
+        w.write_frame(1, 1.25e-4, &drives, Some(&truth), None)
+            .unwrap();
         w.into_inner().unwrap();
         let text = String::from_utf8(buf).unwrap();
         let frames = read_all(&text, Some(2)).unwrap();
@@ -618,14 +684,15 @@ mod tests {
         let drives = [DriveSample::default(); 2];
         let mut buf = Vec::new();
         let mut w = DriveCsvWriter::from_writer("mem", &mut buf, false, true).unwrap();
-        w.write_frame(0, &drives, None, Some(5.75)).unwrap();
-        w.write_frame(1, &drives, None, None).unwrap();
-        w.write_frame(2, &drives, None, Some(0.1 + 0.2)).unwrap();
+        w.write_frame(0, 0.0, &drives, None, Some(5.75)).unwrap();
+        w.write_frame(1, 1e-3, &drives, None, None).unwrap();
+        w.write_frame(2, 2e-3, &drives, None, Some(0.1 + 0.2))
+            .unwrap();
         w.into_inner().unwrap();
         let text = String::from_utf8(buf).unwrap();
-        assert!(
-            text.starts_with("step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a,train_speed_m_s\n")
-        );
+        assert!(text.starts_with(
+            "step,time_s,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a,train_speed_m_s\n"
+        ));
         let mut r = DriveCsvReader::from_reader("d.csv", text.as_bytes(), None).unwrap();
         assert!(r.has_train_speed());
         let speeds: Vec<Option<f64>> = std::iter::from_fn(|| r.next_frame().unwrap())
@@ -635,7 +702,7 @@ mod tests {
         // Without the column: none, and the writer refuses to drop one.
         assert_eq!(read_all(GOOD, None).unwrap()[0].train_speed_m_s, None);
         let mut w = DriveCsvWriter::from_writer("mem", Vec::new(), false, false).unwrap();
-        assert!(w.write_frame(0, &drives, None, Some(1.0)).is_err());
+        assert!(w.write_frame(0, 0.0, &drives, None, Some(1.0)).is_err());
 
         let with = |a: &str, b: &str| {
             format!(
@@ -669,5 +736,46 @@ mod tests {
                 .contains("field \"true_speed_rad_s\": missing column"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn the_time_column_is_optional_one_per_step_and_lets_a_step_be_lost() {
+        let drives = [DriveSample::default(); 2];
+        let mut buf = Vec::new();
+        let mut w = DriveCsvWriter::from_writer("mem", &mut buf, false, false).unwrap();
+        w.write_frame(0, 0.0, &drives, None, None).unwrap();
+        w.write_frame(1, 1.25e-4, &drives, None, None).unwrap();
+        w.into_inner().unwrap();
+        let text = String::from_utf8(buf).unwrap();
+        let frames = read_all(&text, None).unwrap();
+        let times: Vec<_> = frames.iter().map(|f| (f.step, f.time_s, f.line)).collect();
+        assert_eq!(times, [(0, Some(0.0), 2), (1, Some(1.25e-4), 4)]);
+        assert_eq!(read_all(GOOD, None).unwrap()[1].time_s, None);
+        // With times, a lost step is the clock's business; without, an error (see above).
+        let h = "step,time_s,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a\n";
+        let lost = format!("{h}0,0,1,1,2,3,4\n2,0.00025,1,1,2,3,4\n");
+        assert_eq!(read_all(&lost, None).unwrap()[1].step, 2);
+        let back = format!("{h}1,0,1,1,2,3,4\n0,0.000125,1,1,2,3,4\n");
+        assert_eq!(
+            read_all(&back, None).unwrap_err().to_string(),
+            "d.csv:3: field \"step\" = \"0\": step 1 before: steps must increase"
+        );
+        let two = format!("{h}0,0,1,1,2,3,4\n0,0.1,2,1,2,3,4\n");
+        let e = read_all(&two, None).unwrap_err().to_string();
+        assert!(
+            e.starts_with("d.csv:3: field \"time_s\" = \"0.1\": step 0"),
+            "{e}"
+        );
+        let nan_time = format!("{h}0,NaN,1,1,2,3,4\n");
+        let e = read_all(&nan_time, None).unwrap_err().to_string();
+        assert!(e.contains("field \"time_s\" = \"NaN\""), "{e}");
+        // As recorded: a NaN current is handed out for the caller to refuse and count.
+        let nan = format!("{h}0,0,1,1,2,NaN,4\n");
+        let mut r = DriveCsvReader::from_reader("d.csv", nan.as_bytes(), None)
+            .unwrap()
+            .as_recorded();
+        assert!(r.next_frame().unwrap().unwrap().drives[0]
+            .i_alpha_a
+            .is_nan());
     }
 }

@@ -123,6 +123,16 @@ pub fn resume_rule(
 /// How far a time difference may be from a whole number of periods, as a share of a period.
 pub const PERIOD_TOLERANCE: f64 = 0.01;
 
+/// The default `stale_after_ms` of the service's drive stream (`[drive]`): also its clock's
+/// largest advance between two samples, which `railmon analyze adhesion` judges by.
+pub const DRIVE_STALE_AFTER_MS: u64 = 500;
+/// The default `stale_after_ms` of the service's bogie stream (`[bogie]`), as
+/// [`DRIVE_STALE_AFTER_MS`] for `railmon analyze damper`.
+pub const BOGIE_STALE_AFTER_MS: u64 = 500;
+/// The default `stale_after_ms` of the service's vehicle stream (`[vehicle]`), as
+/// [`DRIVE_STALE_AFTER_MS`] for `railmon analyze fuel`.
+pub const VEHICLE_STALE_AFTER_MS: u64 = 3000;
+
 impl SampleClock {
     pub fn new(period_ns: u64, repeats_allowed: bool, max_advance_ns: u64) -> Self {
         Self {
@@ -309,6 +319,74 @@ impl SampleClock {
         if matches!(rejection.reason, "time_jump" | "time_backwards") {
             self.jumped_to_ns = Some(sample_time_ns);
         }
+    }
+}
+
+/// The service's handling of one source's sample times (`handle_frame` in the service's
+/// ingest), for a recording read offline, so the same times get the same verdicts: judge the
+/// time first ([`TimeJudge::time`]: refuse it, or restart the estimator on a confirmed new
+/// timeline), then the sample's content (the caller's checks), then carry the estimator over
+/// the periods no sample covered ([`TimeJudge::skipped_periods`]), step, [`TimeJudge::used`].
+#[derive(Clone, Debug)]
+pub struct TimeJudge {
+    clock: SampleClock,
+    period_ns: u64,
+}
+
+impl TimeJudge {
+    /// A source sampled every `period_ns`, repeats allowed or not, at most `max_advance_ms`
+    /// between samples (the stream's `stale_after_ms`).
+    pub fn new(period_ns: u64, repeats_allowed: bool, max_advance_ms: u64) -> Self {
+        Self {
+            clock: SampleClock::new(
+                period_ns,
+                repeats_allowed,
+                max_advance_ms.saturating_mul(1_000_000),
+            ),
+            period_ns: period_ns.max(1),
+        }
+    }
+
+    /// A sample time in seconds as the bus carries it (ns, rounded, as `sensors-replay`
+    /// stamps it); `None` for a negative or non-finite time, which no frame can carry.
+    pub fn ns_of(time_s: f64) -> Option<u64> {
+        (time_s.is_finite() && time_s >= 0.0 && time_s * 1e9 < u64::MAX as f64)
+            .then(|| (time_s * 1e9).round() as u64)
+    }
+
+    /// Judges a sample's time: `Ok(true)` when it starts a new timeline (the source's clock
+    /// jumped and this sample confirms it: restart the estimator), `Ok(false)` when it goes
+    /// on, or why it is refused.
+    pub fn time(&mut self, time_ns: u64) -> Result<bool, Rejection> {
+        let check = self.clock.check(time_ns);
+        self.clock.observe(time_ns);
+        match check {
+            ClockCheck::Ok => Ok(false),
+            ClockCheck::NewTimeline => {
+                self.clock.restart();
+                Ok(true)
+            }
+            ClockCheck::Reject(rejection) => {
+                self.clock.refused(time_ns, &rejection);
+                Err(rejection)
+            }
+        }
+    }
+
+    /// The periods before a sample at `time_ns` (time and content judged good) that no sample
+    /// covered: the estimator bridges them before it steps this sample, which it then stands
+    /// one period before, whether its step succeeds or not.
+    pub fn skipped_periods(&mut self, time_ns: u64) -> u64 {
+        let skipped = self.clock.skipped_periods(time_ns);
+        if skipped > 0 {
+            self.clock.accept(time_ns.saturating_sub(self.period_ns));
+        }
+        skipped
+    }
+
+    /// The sample at `time_ns` was stepped.
+    pub fn used(&mut self, time_ns: u64) {
+        self.clock.accept(time_ns);
     }
 }
 
@@ -527,5 +605,45 @@ mod tests {
         );
         small.restart();
         assert!(!small.resume_pending());
+    }
+
+    #[test]
+    fn the_offline_judge_refuses_other_rates_restarts_on_a_jump_and_bridges_a_gap() {
+        // 100 Hz stamps on a 1 kHz stream: all but the first three refused as rate_mismatch.
+        let mut j = TimeJudge::new(MS, true, BOGIE_STALE_AFTER_MS);
+        let reasons: Vec<_> = (0..10u64)
+            .map(|k| match j.time(10 * k * MS) {
+                Ok(_) => {
+                    j.skipped_periods(10 * k * MS);
+                    j.used(10 * k * MS);
+                    "used"
+                }
+                Err(r) => r.reason,
+            })
+            .collect();
+        assert_eq!(reasons[..3], ["used"; 3]);
+        assert!(
+            reasons[3..].iter().all(|r| *r == "rate_mismatch"),
+            "{reasons:?}"
+        );
+        // An hour's jump: the first sample after it refused, the next starts a new timeline.
+        let mut j = TimeJudge::new(MS, false, DRIVE_STALE_AFTER_MS);
+        for t in [0, MS, 2 * MS] {
+            assert_eq!(j.time(t), Ok(false));
+            j.used(t);
+        }
+        let hour = 3_600_000 * MS;
+        assert_eq!(j.time(hour).map_err(|r| r.reason), Err("time_jump"));
+        assert_eq!(j.time(hour + MS), Ok(true));
+        assert_eq!(j.skipped_periods(hour + MS), 0);
+        j.used(hour + MS);
+        // One sample lost: one period bridged, and the clock goes on from the sample.
+        assert_eq!(j.time(hour + 3 * MS), Ok(false));
+        assert_eq!(j.skipped_periods(hour + 3 * MS), 1);
+        j.used(hour + 3 * MS);
+        assert_eq!(j.time(hour + 4 * MS), Ok(false));
+        assert_eq!(j.skipped_periods(hour + 4 * MS), 0);
+        assert_eq!(TimeJudge::ns_of(-0.001), None);
+        assert_eq!(TimeJudge::ns_of(0.001), Some(MS));
     }
 }

@@ -18,8 +18,10 @@ pub struct DriveArgs {
     /// Adhesion scenario (e.g. config/scenarios/adhesion-seed.toml): simulated drives.
     #[arg(long, conflicts_with = "csv", required_unless_present = "csv")]
     scenario: Option<PathBuf>,
-    /// Recorded drive CSV (`step,drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a[,truth...]
-    /// [,train_speed_m_s]`); the train speed, when the file has it, goes out with each frame.
+    /// Recorded drive CSV (`step[,time_s],drive,u_alpha_v,u_beta_v,i_alpha_a,i_beta_a
+    /// [,truth...][,train_speed_m_s]`); the train speed, when the file has it, goes out with
+    /// each frame; with `time_s` each frame carries the file's time (a lost sample stays lost),
+    /// without it frame k of a run is stamped k control steps after the run's start.
     #[arg(long)]
     csv: Option<PathBuf>,
     /// Control step of the CSV recording, s, in [1e-6, 1] (scenarios carry their own); by
@@ -34,6 +36,8 @@ pub struct DriveArgs {
 /// has them.
 #[derive(Default)]
 struct Step {
+    /// The recording's sample time (s), when it has a `time_s` column.
+    time_s: Option<f64>,
     drives: Vec<DriveSample>,
     truth: Option<Vec<DriveTruth>>,
     train_speed_m_s: Option<f64>,
@@ -116,6 +120,7 @@ impl DriveData {
                 else {
                     return Ok(false);
                 };
+                step.time_s = None;
                 step.drives.clear();
                 step.drives.extend_from_slice(samples);
                 step.truth = Some(truth.to_vec());
@@ -131,6 +136,10 @@ impl DriveData {
                             frame.drives.len()
                         );
                     }
+                    if frame.time_s.is_some_and(|t| t * 1e9 >= u64::MAX as f64) {
+                        bail!("step {}: time_s beyond what a frame can carry", frame.step);
+                    }
+                    step.time_s = frame.time_s;
                     step.drives = frame.drives;
                     step.truth = frame.truth;
                     step.train_speed_m_s = frame.train_speed_m_s;
@@ -160,6 +169,8 @@ struct DriveSource {
     dt_ns: u64,
     step: Step,
     run_step: u64,
+    /// The sample time of the frame `next` returned last (ns from the run's start).
+    sample_time_ns: u64,
     drives: Vec<DriveChannels>,
     recorder: Option<DriveCsvWriter<AtomicFile>>,
 }
@@ -180,7 +191,11 @@ impl Source for DriveSource {
             .extend(self.step.drives.iter().map(DriveChannels::from));
         let frame =
             DriveFrame::new(self.dt_ns, &self.drives)?.with_train_speed(self.step.train_speed_m_s);
-        let sample_time_ns = self.run_step * self.dt_ns;
+        let sample_time_ns = match self.step.time_s {
+            Some(t) => (t * 1e9).round() as u64,
+            None => self.run_step * self.dt_ns,
+        };
+        self.sample_time_ns = sample_time_ns;
         self.run_step += 1;
         Ok(Some((frame, sample_time_ns)))
     }
@@ -190,11 +205,13 @@ impl Source for DriveSource {
         self.source.rewind()
     }
 
-    /// The drive layout numbers steps rather than timing them: `sent` continues across runs.
-    fn record(&mut self, sent: u64, _run_offset_s: f64) -> anyhow::Result<()> {
+    /// Steps are numbered by `sent`, which continues across runs; `time_s` is the time the
+    /// frame carried, from the first run's start (as the bogie and vehicle streams record).
+    fn record(&mut self, sent: u64, run_offset_s: f64) -> anyhow::Result<()> {
         if let Some(recorder) = self.recorder.as_mut() {
             recorder.write_frame(
                 sent,
+                ((run_offset_s * 1e9).round() as u64 + self.sample_time_ns) as f64 / 1e9,
                 &self.step.drives,
                 self.step.truth.as_deref(),
                 self.step.train_speed_m_s,
@@ -232,6 +249,7 @@ pub fn run(args: DriveArgs) -> anyhow::Result<Outcome> {
         source,
         step: Step::default(),
         run_step: 0,
+        sample_time_ns: 0,
         drives: Vec::new(),
         recorder,
     };

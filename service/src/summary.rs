@@ -49,6 +49,8 @@ pub fn adhesion(report: &AdhesionReport) -> String {
         }
         let _ = write!(out, " drive {} {}", row.drive, opt(row.score.f1, 3));
     }
+    let _ = write!(out, "\n  {}", report.refused.line());
+    let _ = write!(out, "\n  {}", report.timeline.line());
     out
 }
 
@@ -73,6 +75,7 @@ pub fn damper(report: &DamperReport) -> String {
         );
     }
     let _ = write!(out, "\n  {}", report.refused.line());
+    let _ = write!(out, "\n  {}", report.timeline.line());
     out
 }
 
@@ -108,5 +111,6 @@ pub fn fuel(report: &Evaluation) -> String {
         );
     }
     let _ = write!(out, "\n  {}", report.refused.line());
+    let _ = write!(out, "\n  {}", report.timeline.line());
     out
 }

@@ -14,11 +14,17 @@ use railmon_fuel::{
 };
 
 use super::rls::RlsPeer;
-use crate::report::Refusals;
+use crate::report::{Refusals, Timeline};
+use railmon_records::sample_clock::{Rejection, TimeJudge, VEHICLE_STALE_AFTER_MS};
 
-/// The reasons a vehicle sample is refused for, the labels of the service's vehicle stream
+/// The reasons a vehicle sample is refused for, the labels of the service's vehicle stream:
+/// its sample clock's (`railmon_records::sample_clock`) and the estimator's
 /// (`railmon_fuel::FuelError::reason`; `unknown_channels` is the bus frame's own).
-pub const REFUSAL_REASONS: [&str; 7] = [
+pub const REFUSAL_REASONS: [&str; 11] = [
+    "time_backwards",
+    "time_repeated",
+    "time_jump",
+    "rate_mismatch",
     "not_finite",
     "missing_channel",
     "out_of_range",
@@ -203,6 +209,27 @@ pub struct RegimeEvent {
     pub change: RegimeChange,
 }
 
+/// Why a sample was refused: the estimator's checks, or the service's sample clock (the
+/// sample's time `time_s`).
+#[derive(Clone, Debug)]
+pub enum Refused {
+    Sample(FuelError),
+    Time { time_s: f64, rejection: Rejection },
+}
+
+impl std::fmt::Display for Refused {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Refused::Sample(e) => e.fmt(f),
+            Refused::Time { time_s, rejection } => write!(
+                f,
+                "sample at t = {time_s} s: {} ({})",
+                rejection.message, rejection.reason
+            ),
+        }
+    }
+}
+
 /// Everything a run produces.
 #[derive(Clone, Debug)]
 pub struct Evaluation {
@@ -221,7 +248,10 @@ pub struct Evaluation {
     /// service counts them) and skipped: no estimator saw them.
     pub refused: Refusals,
     /// The first refused sample: its index in the samples, and why.
-    pub first_refusal: Option<(usize, FuelError)>,
+    pub first_refusal: Option<(usize, Refused)>,
+    /// Periods no sample covered and new timelines, as the service's sample clock judges
+    /// the times.
+    pub timeline: Timeline,
 }
 
 impl Evaluation {
@@ -291,7 +321,11 @@ impl Path {
 /// `n_labels`) enables the regime score. `on_step` is called after every sample (progress).
 /// A sample the mixture refuses (`FuelMonitor::check`: the service's checks, with its
 /// reasons) is counted in [`Evaluation::refused`] and skipped by every estimator, as the
-/// service skips it; an error that is not about one sample ends the run.
+/// service skips it; an error that is not about one sample ends the run. Sample times are
+/// judged first, as the service's vehicle stream judges them (its sample clock at the
+/// mixture's `sample_period_s`, at most the stream's default `stale_after_ms` between
+/// samples): a longer gap is refused (`time_jump`) and, once the next sample confirms it, a
+/// new timeline on which every estimator starts afresh.
 pub fn evaluate(
     config: &FuelMonitorConfig,
     samples: &[VehicleSample],
@@ -300,6 +334,12 @@ pub fn evaluate(
 ) -> Result<Evaluation, FuelError> {
     let mut mixture = FuelMonitor::new(config)?;
     let mut single = FuelMonitor::new(&config.single_regression())?;
+    let mut clock = TimeJudge::new(
+        (config.sample_period_s * 1e9).round() as u64,
+        false,
+        VEHICLE_STALE_AFTER_MS,
+    );
+    let mut timeline = Timeline::default();
     let horizon = config.forecast_horizon_steps;
     let mut rls = RlsPeer::new(RLS_FORGETTING, RLS_PRIOR_COVARIANCE);
     let mut rls_sum = ErrorSum::default();
@@ -319,17 +359,51 @@ pub fn evaluate(
     let mut refused = Refusals::new(&REFUSAL_REASONS);
     let mut first_refusal = None;
     for (t, sample) in samples.iter().enumerate() {
+        // A time no frame can carry (NaN, negative) is left to the mixture's own check.
+        let time_ns = TimeJudge::ns_of(sample.time_s);
+        match time_ns.map(|ns| clock.time(ns)) {
+            Some(Err(rejection)) => {
+                refused.add(rejection.reason);
+                first_refusal.get_or_insert((
+                    t,
+                    Refused::Time {
+                        time_s: sample.time_s,
+                        rejection,
+                    },
+                ));
+                on_step();
+                continue;
+            }
+            Some(Ok(true)) => {
+                // A new timeline: as the service restarts its vehicle pipeline, every
+                // estimator starts afresh; forecasts made before the jump are not scored.
+                mixture = FuelMonitor::new(config)?;
+                single = FuelMonitor::new(&config.single_regression())?;
+                rls = RlsPeer::new(RLS_FORGETTING, RLS_PRIOR_COVARIANCE);
+                paths.clear();
+                previous_fuel = None;
+                timeline.new_timelines_s.push(sample.time_s);
+            }
+            _ => {}
+        }
         // The single regression checks the same channels and ranges (its config differs in
         // the number of components only): a sample is refused by both or by neither.
         if let Err(e) = mixture.check(sample).and_then(|()| single.check(sample)) {
             let reason = e.reason().ok_or_else(|| e.clone())?;
             refused.add(reason);
-            first_refusal.get_or_insert((t, e));
+            first_refusal.get_or_insert((t, Refused::Sample(e)));
             on_step();
             continue;
         }
+        // The mixture bridges a gap from the samples' times itself (no `bridge`).
+        if let Some(ns) = time_ns {
+            timeline.skipped_periods += clock.skipped_periods(ns);
+        }
         let a = mixture.update(sample)?.mixture.clone();
         let b = single.update(sample)?.mixture.clone();
+        if let Some(ns) = time_ns {
+            clock.used(ns);
+        }
         let fuel = sample.fuel_cm3_s.unwrap_or(f64::NAN);
         // The peer needs speed; without it (a fuel-only source) it is not scored.
         let rls_estimate = sample.speed_m_s.map(|v| {
@@ -432,6 +506,7 @@ pub fn evaluate(
         samples: samples.len(),
         refused,
         first_refusal,
+        timeline,
     })
 }
 

@@ -59,7 +59,7 @@ impl Default for BogieConfig {
         Self {
             enabled: false,
             bogies: vec![1, 2],
-            stale_after_ms: 500,
+            stale_after_ms: railmon_records::sample_clock::BOGIE_STALE_AFTER_MS,
             max_abs_accel_m_s2: 50.0,
             max_abs_yaw_rate_rad_s: 5.0,
             history_interval_ms: 100,

@@ -56,7 +56,7 @@ impl Default for DriveConfig {
     fn default() -> Self {
         Self {
             enabled: true,
-            stale_after_ms: 500,
+            stale_after_ms: railmon_records::sample_clock::DRIVE_STALE_AFTER_MS,
             max_drives: MAX_DRIVES,
             max_abs_current_a: 1_000.0,
             max_abs_voltage_v: 5_000.0,

@@ -34,7 +34,7 @@ impl Default for VehicleConfig {
     fn default() -> Self {
         Self {
             enabled: false,
-            stale_after_ms: 3000,
+            stale_after_ms: railmon_records::sample_clock::VEHICLE_STALE_AFTER_MS,
             history_interval_ms: 1000,
             history_capacity: 86_400,
             estimator: FuelMonitorConfig::default(),
