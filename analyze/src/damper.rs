@@ -551,9 +551,12 @@ fn run_monitor(
             first_refusal.get_or_insert(error);
             continue;
         }
-        // The bogie filter has no bridge (the service's neither): a lost sample's period is
-        // counted, and the next sample is stepped as if it followed the last one.
-        timeline.skipped_periods += clock.skipped_periods(time_ns);
+        // Lost samples are bridged as the service bridges them (`DamperMonitor::bridge`).
+        let skipped = clock.skipped_periods(time_ns);
+        if skipped > 0 {
+            monitor.bridge(skipped);
+            timeline.skipped_periods += skipped;
+        }
         let started = Instant::now();
         let estimate = *monitor.step(&sample).map_err(estimator_error(name))?;
         elapsed += started.elapsed();
