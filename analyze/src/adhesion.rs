@@ -35,7 +35,7 @@ use railmon_filter::stats::Summary;
 use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveTruth};
 use railmon_records::{create_csv, finish_csv, RecordError};
 use railmon_slip::{
-    AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveSample,
+    AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveRanges, DriveSample,
     DriveSimulator, MultiMethodPipeline, SlipAlarmEvent, SlipError, SlipMonitorConfig,
     SpeedReference, SpeedReferenceConfig,
 };
@@ -366,7 +366,7 @@ fn analyse(
                         frame.line.map_or("-".to_owned(), |l| l.to_string())
                     );
                 }
-                not_finite(&label, frame.line, &frame.samples)
+                refusal_of(&label, frame.line, &frame.samples)
             }
             Err(r) => Some((r.reason, time_error(&label, frame.line, time_s, &r))),
         };
@@ -526,37 +526,44 @@ fn time_error(label: &str, line: Option<u64>, time_s: f64, r: &Rejection) -> Adh
     }
 }
 
-/// The service's frame check (`railmon_bus::DriveFrame::checked_drives`): a NaN or infinite
-/// voltage or current refuses the frame (`not_finite`); the error names the step's line (the
-/// drive's row) and field.
-fn not_finite(
+/// The service's frame checks: a NaN or infinite voltage or current refuses the frame
+/// (`not_finite`, `railmon_bus::DriveFrame::checked_drives`), so does a value beyond the
+/// default plausible magnitudes (`out_of_range`, [`DriveRanges`]: currents in mA); the error
+/// names the step's line (the drive's row), field and value.
+fn refusal_of(
     label: &str,
     line: Option<u64>,
     samples: &[DriveSample],
 ) -> Option<(&'static str, AdhesionAnalysisError)> {
-    samples.iter().enumerate().find_map(|(k, d)| {
-        let (field, value) = [
-            ("u_alpha_v", d.u_alpha_v),
-            ("u_beta_v", d.u_beta_v),
-            ("i_alpha_a", d.i_alpha_a),
-            ("i_beta_a", d.i_beta_a),
-        ]
-        .into_iter()
-        .find(|(_, v)| !v.is_finite())?;
-        let reason = format!("drive {}: not a finite number (not_finite)", k + 1);
-        let error = match line {
-            Some(line) => AdhesionAnalysisError::Record(RecordError {
-                file: label.to_owned(),
-                // Rows of a step are consecutive, drive 1 first.
-                line: Some(line + k as u64),
-                field: Some(field.to_owned()),
-                value: Some(value.to_string()),
-                reason,
-            }),
-            None => input_error(Path::new(label), format!("{field} = {value}: {reason}")),
-        };
-        Some(("not_finite", error))
-    })
+    let non_finite = samples.iter().enumerate().find_map(|(k, d)| {
+        let (field, value) = d.first_non_finite()?;
+        let why = format!("drive {}: not a finite number (not_finite)", k + 1);
+        Some(("not_finite", k, field, value, why))
+    });
+    let beyond = || {
+        DriveRanges::default().first_beyond(samples).map(|r| {
+            let why = format!(
+                "drive {}: beyond +-{} (the service's drive.{}; wrong units?) (out_of_range)",
+                r.drive + 1,
+                r.max,
+                r.key
+            );
+            ("out_of_range", r.drive, r.field, r.value, why)
+        })
+    };
+    let (reason, k, field, value, why) = non_finite.or_else(beyond)?;
+    let error = match line {
+        Some(line) => AdhesionAnalysisError::Record(RecordError {
+            file: label.to_owned(),
+            // Rows of a step are consecutive, drive 1 first.
+            line: Some(line + k as u64),
+            field: Some(field.to_owned()),
+            value: Some(value.to_string()),
+            reason: why,
+        }),
+        None => input_error(Path::new(label), format!("{field} = {value}: {why}")),
+    };
+    Some((reason, error))
 }
 
 fn write_error(path: &Path, e: impl std::fmt::Display) -> ReportError {
@@ -1051,6 +1058,29 @@ mod tests {
             &GOOD.replace("1,2,10,20,1,2", "1,2,10,20,NaN,2"),
         );
         assert!(err.contains(":5: field \"i_alpha_a\" = \"NaN\""), "{err}");
+    }
+
+    #[test]
+    fn currents_in_milliamperes_are_refused_as_the_service_refuses_them() {
+        // Issue 26 item 4: the service refuses such a frame (`out_of_range`); analyze read
+        // 8,570 N m and raised 251 slip events from a file in mA.
+        let tmp = TempDir::new("ma-skip");
+        let path = tmp.0.join("drives.csv");
+        let text = format!("{GOOD}2,1,10,20,1,2\n2,2,10,20,1,2\n")
+            .replace("1,2,10,20,1,2", "1,2,10,20,1500,2");
+        std::fs::write(&path, text).unwrap();
+        let out = tmp.0.join("out");
+        let report = run(&args(Some(path), None, None, out.clone(), true)).unwrap();
+        assert_eq!(report.refused.count("out_of_range"), 1);
+        assert_eq!((report.refused.total(), report.n_steps), (1, 2));
+        let err = input_error_of(
+            "ma-strict",
+            &GOOD.replace("1,2,10,20,1,2", "1,2,10,20,1500,2"),
+        );
+        assert!(
+            err.contains(":5: field \"i_alpha_a\" = \"1500\"") && err.contains("out_of_range"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -34,7 +34,10 @@ pub use error::SlipError;
 pub use model::{DriveModel, MotorParams};
 pub use monitor::{DriveEstimate, SlipEstimate, SlipMonitor, SlipMonitorConfig};
 pub use pipeline::MultiMethodPipeline;
-pub use sample::{is_slipping, DriveSample, DriveTruth, SLIP_RULE_FLOOR_NM, SLIP_RULE_FRACTION};
+pub use sample::{
+    is_slipping, DriveRanges, DriveSample, DriveTruth, OutOfRange, SLIP_RULE_FLOOR_NM,
+    SLIP_RULE_FRACTION,
+};
 pub use scenario::{AdhesionScenario, SlipEvent};
 pub use score::{DetectionCounter, DetectionScore};
 pub use simulator::DriveSimulator;

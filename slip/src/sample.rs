@@ -26,6 +26,65 @@ impl DriveSample {
     }
 }
 
+/// Plausible magnitudes of a drive's measured values: beyond them a value is in another unit
+/// (currents in mA once gave a load torque of 13,320 N m with no complaint) or from a broken
+/// sensor, and the frame is refused as `out_of_range`, not estimated. The service's
+/// `drive.max_abs_current_a` / `max_abs_voltage_v` (these defaults); `railmon analyze
+/// adhesion` applies the defaults.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DriveRanges {
+    /// Stator currents, A.
+    pub max_abs_current_a: f64,
+    /// Stator voltages, V.
+    pub max_abs_voltage_v: f64,
+}
+
+impl Default for DriveRanges {
+    fn default() -> Self {
+        DriveRanges {
+            max_abs_current_a: 1_000.0,
+            max_abs_voltage_v: 5_000.0,
+        }
+    }
+}
+
+/// A value beyond its plausible magnitude ([`DriveRanges::first_beyond`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OutOfRange {
+    /// The drive, 0-based.
+    pub drive: usize,
+    pub field: &'static str,
+    pub value: f64,
+    /// The magnitude it exceeds, and the name of its setting.
+    pub max: f64,
+    pub key: &'static str,
+}
+
+impl DriveRanges {
+    /// The first value of the frame beyond its magnitude, drive by drive in the CSV's column
+    /// order.
+    pub fn first_beyond(&self, samples: &[DriveSample]) -> Option<OutOfRange> {
+        let (max_i, max_u) = (self.max_abs_current_a, self.max_abs_voltage_v);
+        samples.iter().enumerate().find_map(|(drive, d)| {
+            [
+                ("u_alpha_v", d.u_alpha_v, max_u, "max_abs_voltage_v"),
+                ("u_beta_v", d.u_beta_v, max_u, "max_abs_voltage_v"),
+                ("i_alpha_a", d.i_alpha_a, max_i, "max_abs_current_a"),
+                ("i_beta_a", d.i_beta_a, max_i, "max_abs_current_a"),
+            ]
+            .into_iter()
+            .find(|c| c.1.abs() > c.2)
+            .map(|(field, value, max, key)| OutOfRange {
+                drive,
+                field,
+                value,
+                max,
+                key,
+            })
+        })
+    }
+}
+
 /// Ground truth of one drive at one step (simulator only). `speed_rad_s` and `angle_rad` are
 /// electrical; `torque_nm` is the true load torque.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -2,7 +2,7 @@
 //! `railmon_slip::SlipMonitor`.
 
 use railmon_bus::MAX_DRIVES;
-use railmon_slip::{SlipMonitorConfig, SpeedReferenceConfig};
+use railmon_slip::{DriveRanges, SlipMonitorConfig, SpeedReferenceConfig};
 use serde::{Deserialize, Serialize};
 
 use railmon_settings::SettingsError;
@@ -26,8 +26,8 @@ pub struct DriveConfig {
     #[schemars(range(min = *MAX_DRIVES_RANGE.start(), max = *MAX_DRIVES_RANGE.end()))]
     pub max_drives: usize,
     /// Plausible magnitudes of the stator currents and voltages: a frame beyond them is
-    /// refused (`out_of_range`), not estimated. Currents in mA instead of A once gave a load
-    /// torque of 13,320 N m with no complaint.
+    /// refused (`out_of_range`), not estimated (`railmon_slip::DriveRanges`). Currents in mA
+    /// instead of A once gave a load torque of 13,320 N m with no complaint.
     #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_ABS_SAMPLE))]
     pub max_abs_current_a: f64,
     /// Plausible magnitude of the stator voltages (V), as `max_abs_current_a` for currents.
@@ -58,8 +58,8 @@ impl Default for DriveConfig {
             enabled: true,
             stale_after_ms: railmon_records::sample_clock::DRIVE_STALE_AFTER_MS,
             max_drives: MAX_DRIVES,
-            max_abs_current_a: 1_000.0,
-            max_abs_voltage_v: 5_000.0,
+            max_abs_current_a: DriveRanges::default().max_abs_current_a,
+            max_abs_voltage_v: DriveRanges::default().max_abs_voltage_v,
             history_interval_ms: 10,
             history_capacity: 60_000,
             estimator: SlipMonitorConfig::default(),

@@ -4,7 +4,9 @@
 use std::sync::Arc;
 
 use railmon_bus::{DriveFrame, FrameHeader};
-use railmon_slip::{DriveSample, SlipAlarm, SlipAlarmEvent, SlipAlarmKind, SlipMonitor};
+use railmon_slip::{
+    DriveRanges, DriveSample, SlipAlarm, SlipAlarmEvent, SlipAlarmKind, SlipMonitor,
+};
 
 use railmon_bus::StreamKind;
 
@@ -247,23 +249,23 @@ impl Pipeline for DrivePipeline {
                 ),
             ));
         }
-        let (max_i, max_u) = (self.config.max_abs_current_a, self.config.max_abs_voltage_v);
-        for (k, d) in drives.iter().enumerate() {
-            let channels = [
-                ("i_alpha_a", d.i_alpha_a, max_i, "drive.max_abs_current_a"),
-                ("i_beta_a", d.i_beta_a, max_i, "drive.max_abs_current_a"),
-                ("u_alpha_v", d.u_alpha_v, max_u, "drive.max_abs_voltage_v"),
-                ("u_beta_v", d.u_beta_v, max_u, "drive.max_abs_voltage_v"),
-            ];
-            if let Some((name, value, max, key)) = channels.into_iter().find(|c| c.1.abs() > c.2) {
-                return Err(Rejection::new(
-                    "out_of_range",
-                    format!(
-                        "drive {}: {name} = {value:.4e} is beyond +-{max} ({key}; wrong units?)",
-                        k + 1
-                    ),
-                ));
-            }
+        let ranges = DriveRanges {
+            max_abs_current_a: self.config.max_abs_current_a,
+            max_abs_voltage_v: self.config.max_abs_voltage_v,
+        };
+        let samples: Vec<DriveSample> = drives.iter().map(DriveSample::from).collect();
+        if let Some(r) = ranges.first_beyond(&samples) {
+            return Err(Rejection::new(
+                "out_of_range",
+                format!(
+                    "drive {}: {} = {:.4e} is beyond +-{} (drive.{}; wrong units?)",
+                    r.drive + 1,
+                    r.field,
+                    r.value,
+                    r.max,
+                    r.key
+                ),
+            ));
         }
         if let Some(m) = &self.monitor {
             if m.n_drives() != drives.len() {
@@ -277,10 +279,7 @@ impl Pipeline for DrivePipeline {
                 ));
             }
         }
-        Ok((
-            drives.iter().map(DriveSample::from).collect(),
-            train_speed_m_s,
-        ))
+        Ok((samples, train_speed_m_s))
     }
 
     fn restart(&mut self) {
