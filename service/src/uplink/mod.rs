@@ -29,6 +29,7 @@
 pub mod config;
 mod pace;
 
+use std::future::IntoFuture;
 use std::sync::atomic::{AtomicI64, AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -237,6 +238,8 @@ pub async fn run(store: Arc<EventStore>, config: UplinkConfig, counters: Arc<Upl
     };
     counters.cursor.store(cursor, Relaxed);
     refresh_backlog(&store, cursor, &counters).await;
+    // The backlog is counted apart from the forwarding, which may wait on a dead link.
+    tokio::spawn(count_backlog(store.clone(), counters.clone()));
     let client = loop {
         match connect(&config, &counters, &log).await {
             Ok(client) => break client,
@@ -284,8 +287,6 @@ pub async fn run(store: Arc<EventStore>, config: UplinkConfig, counters: Arc<Upl
         let connected = client.connection_state() == async_nats::connection::State::Connected;
         counters.link_up.store(i64::from(connected), Relaxed);
         log.warn(kind, &message);
-        // Events keep being stored while the link is down: the backlog shows them.
-        refresh_backlog(&store, cursor, &counters).await;
         tokio::time::sleep(backoff.next_delay()).await;
     }
 }
@@ -303,8 +304,25 @@ async fn blocking<T: Send + 'static>(
 }
 
 async fn refresh_backlog(store: &Arc<EventStore>, cursor: u64, counters: &UplinkCounters) {
-    if let Ok(n) = blocking(store, move |s| s.count_after(cursor)).await {
-        counters.backlog.store(n, Relaxed);
+    match blocking(store, move |s| s.count_after(cursor)).await {
+        Ok(n) => counters.backlog.store(n, Relaxed),
+        Err(e) => tracing::warn!("uplink: cannot count the backlog: {e}"),
+    }
+}
+
+/// Counts the backlog every second while the store or the cursor moved.
+async fn count_backlog(store: Arc<EventStore>, counters: Arc<UplinkCounters>) {
+    let mut counted = (u64::MAX, u64::MAX);
+    loop {
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        let now = (
+            store.counters.last_id.load(Relaxed),
+            counters.cursor.load(Relaxed),
+        );
+        if now != counted {
+            refresh_backlog(&store, now.1, &counters).await;
+            counted = now;
+        }
     }
 }
 
@@ -490,21 +508,24 @@ async fn forward(
             }
             let payload = payload(event, store.identity())
                 .map_err(|e| Failure("publish", format!("event {}: {e}", event.id)))?;
-            let ack = js
-                .send_publish(
-                    subjects.events(&event.stream),
-                    jetstream::message::PublishMessage::build()
-                        .message_id(subjects.message_id(event.id))
-                        .payload(payload.into()),
-                )
+            let publish = js.send_publish(
+                subjects.events(&event.stream),
+                jetstream::message::PublishMessage::build()
+                    .message_id(subjects.message_id(event.id))
+                    .payload(payload.into()),
+            );
+            // Bounded also while the client's buffer is full on a dead link.
+            let ack = tokio::time::timeout(ACK_TIMEOUT, publish)
                 .await
+                .map_err(|_| Failure("publish", format!("event {}: timed out", event.id)))?
                 .map_err(|e| Failure("publish", format!("event {}: {e}", event.id)))?;
             counters.sent.fetch_add(1, Relaxed);
             in_flight.push((event.id, ack));
         }
         for (id, ack) in in_flight {
-            let ack = ack
+            let ack = tokio::time::timeout(ACK_TIMEOUT, ack.into_future())
                 .await
+                .map_err(|_| Failure("ack", format!("event {id}: timed out")))?
                 .map_err(|e| Failure("ack", format!("event {id}: {e}")))?;
             counters.acknowledged.fetch_add(1, Relaxed);
             if ack.duplicate {
