@@ -31,6 +31,7 @@ use crate::AppState;
         crate::store::EventView,
         crate::store::ActiveAlarm,
         crate::store::StoreStatus,
+        crate::uplink::UplinkStatus,
         system::StatusView,
         crate::ingest::StreamStatusView,
         crate::ingest::RejectionRecord,

@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 // the stream modules (which use the event store, which uses this module).
 pub use crate::bogie::config::{BogieConfig, MAX_BOGIES};
 pub use crate::drive::config::DriveConfig;
+pub use crate::uplink::config::UplinkConfig;
 pub use crate::vehicle::config::VehicleConfig;
 
 /// A configuration that cannot be used: a file that cannot be read, or a key and why.
@@ -55,6 +56,7 @@ pub struct ServiceConfig {
     pub drive: DriveConfig,
     pub bogie: BogieConfig,
     pub vehicle: VehicleConfig,
+    pub uplink: UplinkConfig,
 }
 
 /// `[storage]`: where events and active alarms are kept, and for how long.
@@ -368,6 +370,23 @@ impl ServiceConfig {
         self.drive.validate()?;
         self.vehicle.validate()?;
         self.bogie.validate()?;
+        self.uplink.validate()?;
+        if self.uplink.enabled() {
+            for (key, value) in [
+                ("vehicle_id", &self.identity.vehicle_id),
+                ("fleet", &self.identity.fleet),
+            ] {
+                if value.contains('.') {
+                    return Err(invalid(
+                        &format!("identity.{key}"),
+                        format!(
+                            "`{value}` contains `.`, which would split the uplink's NATS \
+                             subject tokens (uplink.url is set)"
+                        ),
+                    ));
+                }
+            }
+        }
         Ok(())
     }
 
@@ -425,6 +444,7 @@ pub const SITE_SETTINGS: &[&str] = &[
     "vehicle.estimator.sample_period_s",
     "vehicle.estimator.speed_noise_m_s",
     "vehicle.estimator.regime_confirm_samples",
+    "uplink",
 ];
 
 /// Whether the dotted `key` is a site setting ([`SITE_SETTINGS`]).
@@ -907,6 +927,27 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("/nonexistent/railmon.toml"), "{err}");
+    }
+
+    #[test]
+    fn uplink_settings_are_checked_naming_the_key() {
+        let url = ("RAILMON_UPLINK__URL", "nats://127.0.0.1:4222");
+        assert!(load_with(&[url]).unwrap().uplink.enabled());
+        assert!(!ServiceConfig::default().uplink.enabled());
+        assert!(error_of(&[("RAILMON_UPLINK__URL", "nats://host:notaport")]).contains("uplink.url"));
+        assert!(error_of(&[("RAILMON_UPLINK__SUBJECT_PREFIX", "rail.*")])
+            .contains("uplink.subject_prefix"));
+        assert!(error_of(&[("RAILMON_UPLINK__STREAM", "A.B")]).contains("uplink.stream"));
+        assert!(error_of(&[("RAILMON_UPLINK__USER", "u")]).contains("uplink.password"));
+        assert!(error_of(&[
+            ("RAILMON_UPLINK__TOKEN", "t"),
+            ("RAILMON_UPLINK__CREDS_FILE", "/x.creds")
+        ])
+        .contains("uplink.token"));
+        // A dotted vehicle id splits a subject token: refused only with the uplink on.
+        let dotted = ("RAILMON_IDENTITY__VEHICLE_ID", "unit.7");
+        assert!(load_with(&[dotted]).is_ok());
+        assert!(error_of(&[dotted, url]).contains("identity.vehicle_id"));
     }
 
     #[test]

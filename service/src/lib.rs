@@ -22,6 +22,7 @@ pub mod ring;
 pub mod snapshot;
 pub mod store;
 mod stream_keys;
+pub mod uplink;
 pub mod vehicle;
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -58,6 +59,8 @@ pub struct AppInner {
     /// Events of every stream and the active alarms (SQLite under `storage.data_dir`).
     pub store: Arc<store::EventStore>,
     store_writer: std::sync::Mutex<Option<JoinHandle<()>>>,
+    /// The event uplink's counters (all 0 while `uplink.url` is empty).
+    pub uplink: Arc<uplink::UplinkCounters>,
     pub started: Instant,
 }
 
@@ -127,6 +130,7 @@ impl AppState {
             http: Arc::default(),
             store,
             store_writer: std::sync::Mutex::new(Some(store_writer)),
+            uplink: Arc::default(),
             started: Instant::now(),
         })))
     }

@@ -153,6 +153,15 @@ impl Families<'_> {
             .with_label_values(&[]))
     }
 
+    pub fn gauge_vec(
+        &self,
+        name: &str,
+        help: &str,
+        labels: &[&str],
+    ) -> Result<prometheus::GaugeVec, prometheus::Error> {
+        self.add(prometheus::GaugeVec::new(Self::opts(name, help), labels))
+    }
+
     pub fn int_gauge(&self, name: &str, help: &str) -> Result<IntGauge, prometheus::Error> {
         self.add(IntGauge::with_opts(Self::opts(name, help)))
     }
@@ -328,6 +337,69 @@ pub struct Metrics {
     http_connections_refused: IntCounter,
     http_connections_evicted: IntCounter,
     store: StoreMetrics,
+    uplink: UplinkMetrics,
+}
+
+/// The event uplink's counters (synchronised from `uplink::UplinkCounters` at each scrape:
+/// [`Metrics::count_uplink`]). Families without labels whose one series appears at the first
+/// scrape with the uplink on: a service without an uplink exports none (no `link_up 0` to alert
+/// on).
+struct UplinkMetrics {
+    sent: IntCounterVec,
+    acknowledged: IntCounterVec,
+    duplicates: IntCounterVec,
+    backlog: IntGaugeVec,
+    acknowledged_id: IntGaugeVec,
+    last_ack: prometheus::GaugeVec,
+    link_up: IntGaugeVec,
+    failures: IntCounterVec,
+}
+
+impl UplinkMetrics {
+    fn new(f: &Families) -> Result<Self, prometheus::Error> {
+        Ok(Self {
+            sent: f.int_counter_vec(
+                "uplink_events_sent_total",
+                "Events published to the ground's JetStream stream (re-sends included).",
+                &[],
+            )?,
+            acknowledged: f.int_counter_vec(
+                "uplink_events_acknowledged_total",
+                "Events the ground's stream acknowledged (duplicates included).",
+                &[],
+            )?,
+            duplicates: f.int_counter_vec(
+                "uplink_events_duplicate_total",
+                "Acknowledged as already stored: a re-send the stream's duplicate window dropped.",
+                &[],
+            )?,
+            backlog: f.int_gauge_vec(
+                "uplink_backlog_events",
+                "Stored events the ground has not acknowledged yet.",
+                &[],
+            )?,
+            acknowledged_id: f.int_gauge_vec(
+                "uplink_acknowledged_event_id",
+                "The cursor: every event up to this id is on the ground.",
+                &[],
+            )?,
+            last_ack: f.gauge_vec(
+                "uplink_last_ack_timestamp_seconds",
+                "Unix time of the last acknowledgement from the ground (0: none yet).",
+                &[],
+            )?,
+            link_up: f.int_gauge_vec(
+                "uplink_link_up",
+                "1 while connected to a NATS server.",
+                &[],
+            )?,
+            failures: f.int_counter_vec(
+                "uplink_failures_total",
+                "Uplink failures by kind: link lost (disconnected), stream lookup or creation, publish, acknowledgement (timed out or refused), event store, connection setup.",
+                &["kind"],
+            )?,
+        })
+    }
 }
 
 /// The event store's counters (synchronised from `store::StoreCounters` at each scrape:
@@ -426,11 +498,13 @@ impl Metrics {
              were open.",
         )?;
         let store = StoreMetrics::new(&f)?;
+        let uplink = UplinkMetrics::new(&f)?;
         let family_names = f.names.into_inner();
         Ok(Metrics {
             http_connections_refused,
             http_connections_evicted,
             store,
+            uplink,
             registry,
             family_names,
             stream,
@@ -484,6 +558,43 @@ impl Metrics {
         );
         s.pending
             .set(i64::try_from(status.events_pending).unwrap_or(i64::MAX));
+    }
+
+    /// Brings the uplink's series to its counters (counters only rise).
+    pub fn count_uplink(&self, counters: &crate::uplink::UplinkCounters) {
+        use std::sync::atomic::Ordering::Relaxed;
+        let rise = |counter: &IntCounter, total: u64| {
+            counter.inc_by(total.saturating_sub(counter.get()));
+        };
+        let u = &self.uplink;
+        rise(
+            &u.sent.with_label_values(&[] as &[&str]),
+            counters.sent.load(Relaxed),
+        );
+        rise(
+            &u.acknowledged.with_label_values(&[] as &[&str]),
+            counters.acknowledged.load(Relaxed),
+        );
+        rise(
+            &u.duplicates.with_label_values(&[] as &[&str]),
+            counters.duplicates.load(Relaxed),
+        );
+        for (kind, n) in crate::uplink::FAILURE_KINDS.iter().zip(&counters.failures) {
+            rise(&u.failures.with_label_values(&[kind]), n.load(Relaxed));
+        }
+        let as_i64 = |n: u64| i64::try_from(n).unwrap_or(i64::MAX);
+        u.backlog
+            .with_label_values(&[] as &[&str])
+            .set(as_i64(counters.backlog.load(Relaxed)));
+        u.acknowledged_id
+            .with_label_values(&[] as &[&str])
+            .set(as_i64(counters.cursor.load(Relaxed)));
+        u.link_up
+            .with_label_values(&[] as &[&str])
+            .set(counters.link_up.load(Relaxed));
+        u.last_ack
+            .with_label_values(&[] as &[&str])
+            .set(counters.last_ack_unix_ms.load(Relaxed) as f64 / 1000.0);
     }
 
     /// The text exposition format.

@@ -78,6 +78,11 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     railmon_bus::root_path::resolve_root_path(&config.bus.root_path, xdg_runtime_dir.as_deref())
         .context("invalid configuration")?;
     let state = AppState::new(config).context("starting the service")?;
+    if state.config.uplink.enabled() {
+        railmon_service::uplink::check_identity(&state.identity)
+            .map_err(anyhow::Error::msg)
+            .context("invalid configuration")?;
+    }
     let state_for_close = state.clone();
     let shutdown = Arc::new(AtomicBool::new(false));
     let threads = start_ingest(&state, shutdown.clone()).context("starting ingest threads")?;
@@ -98,6 +103,15 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
             std::io::Write::write_all(&mut out, bound.to_string().as_bytes())
                 .with_context(|| format!("writing {}", file.display()))?;
             out.commit()?;
+        }
+        if state.config.uplink.enabled() {
+            // Its own task: a slow or lost link never holds up the estimators or the store's
+            // writer; it stops with the runtime (its cursor is committed after every page).
+            tokio::spawn(railmon_service::uplink::run(
+                state.store.clone(),
+                state.config.uplink.clone(),
+                state.uplink.clone(),
+            ));
         }
         let http = state.config.http.clone();
         let counters = state.http.clone();

@@ -25,6 +25,8 @@ pub struct StatusView {
     pub http_connections_evicted: u64,
     /// The event store.
     pub events: crate::store::StoreStatus,
+    /// The event uplink to the ground (absent when `uplink.url` is empty).
+    pub uplink: Option<crate::uplink::UplinkStatus>,
 }
 
 /// Every enabled stream: freshness, counters, rejections, timings, whether it keeps up.
@@ -49,6 +51,7 @@ pub async fn status(State(state): State<AppState>) -> Json<StatusView> {
         http_connections_refused: state.http.connections_refused.load(Relaxed),
         http_connections_evicted: state.http.connections_evicted.load(Relaxed),
         events: state.store.status(),
+        uplink: state.config.uplink.enabled().then(|| state.uplink.status()),
     })
 }
 
@@ -125,6 +128,9 @@ pub async fn metrics(State(state): State<AppState>) -> Result<Response, AppError
         state.http.connections_evicted.load(Relaxed),
     );
     state.metrics.count_store(&state.store.status());
+    if state.config.uplink.enabled() {
+        state.metrics.count_uplink(&state.uplink);
+    }
     let text = state.metrics.render().map_err(|e| {
         tracing::error!("rendering metrics: {e}");
         AppError::Internal

@@ -208,6 +208,10 @@ pub struct EventStore {
 
 const MAX_UNREADABLE_IDS: usize = 10_000;
 
+/// The uplink's cursor's row in the `counters` table: no schema change, so a build without the
+/// uplink opens the same database unchanged (a vehicle's software can be rolled back).
+const UPLINK_CURSOR: &str = "uplink_acked_id";
+
 #[derive(Clone, Debug)]
 enum Location {
     File(PathBuf),
@@ -689,6 +693,44 @@ impl EventStore {
         }
     }
 
+    /// The uplink's cursor: the last event id the ground acknowledged (0: none yet).
+    pub fn uplink_cursor(&self) -> Result<u64, StoreError> {
+        self.with_connection(|c| {
+            let value: Option<i64> = c
+                .query_row(
+                    "SELECT value FROM counters WHERE name = ?1",
+                    [UPLINK_CURSOR],
+                    |r| r.get(0),
+                )
+                .optional()?;
+            Ok(value.unwrap_or(0).max(0) as u64)
+        })
+    }
+
+    /// Moves the uplink's cursor forward to `acked_id` (never back). One statement in its own
+    /// transaction with a durable commit: after a crash the cursor is the old or the new id,
+    /// never torn, and never ahead of what the ground acknowledged.
+    pub fn save_uplink_cursor(&self, acked_id: u64) -> Result<(), StoreError> {
+        self.with_connection(|c| {
+            c.prepare_cached(
+                "INSERT INTO counters (name, value) VALUES (?1, ?2)
+                 ON CONFLICT (name) DO UPDATE SET value = max(value, excluded.value)",
+            )?
+            .execute(params![UPLINK_CURSOR, acked_id as i64])?;
+            Ok(())
+        })
+    }
+
+    /// How many stored events have an id above `id` (the uplink's backlog).
+    pub fn count_after(&self, id: u64) -> Result<u64, StoreError> {
+        self.with_connection(|c| {
+            let n: i64 = c
+                .prepare_cached("SELECT count(*) FROM events WHERE id > ?1")?
+                .query_row([id as i64], |r| r.get(0))?;
+            Ok(n.max(0) as u64)
+        })
+    }
+
     pub fn identity(&self) -> &Identity {
         &self.identity
     }
@@ -944,6 +986,32 @@ mod tests {
         assert_eq!(ids, vec![1, 2, 3, 4]);
         assert!(store.active_alarms().unwrap().is_empty());
         assert_eq!(store.status().last_event_id, 4);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn uplink_cursor_survives_a_reopen_and_never_moves_back() {
+        let dir = temp_dir("uplink-cursor");
+        let now = railmon_bus::utc_now_ns();
+        {
+            let (store, thread) = EventStore::open(&config(&dir), &identity()).unwrap();
+            assert_eq!(store.uplink_cursor().unwrap(), 0);
+            store.append(
+                (0..5)
+                    .map(|_| event("slip_started", "1", now, None))
+                    .collect(),
+            );
+            store.flush();
+            assert_eq!(store.count_after(0).unwrap(), 5);
+            store.save_uplink_cursor(3).unwrap();
+            store.save_uplink_cursor(2).unwrap();
+            assert_eq!(store.uplink_cursor().unwrap(), 3);
+            assert_eq!(store.count_after(3).unwrap(), 2);
+            store.close();
+            thread.join().unwrap();
+        }
+        let (store, _thread) = EventStore::open(&config(&dir), &identity()).unwrap();
+        assert_eq!(store.uplink_cursor().unwrap(), 3);
         let _ = std::fs::remove_dir_all(&dir);
     }
 
