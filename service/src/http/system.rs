@@ -26,6 +26,7 @@ pub struct StatusView {
     /// The event store.
     pub events: crate::store::StoreStatus,
     /// The event uplink to the ground (absent when `uplink.url` is empty).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub uplink: Option<crate::uplink::UplinkStatus>,
 }
 
