@@ -493,14 +493,23 @@ impl TemporalEstimator {
                 let level = &mut self.slip_level_nm[k];
                 *level += p / *level_seen * (d - *level);
             } else if d.abs() <= relative_limit.max(c.significance_sigmas * s2.sqrt()) {
-                *level_seen = 0.0;
+                // Back within the tolerance: the level is forgotten one step of its weight at
+                // a time, so a drive stays *recovering* for up to `slip_level_memory_steps`
+                // after its estimate came back (see `recovering`).
+                *level_seen = (*level_seen - 1.0).max(0.0);
             }
             let w = (-0.5 * d * d / (h2 * *s2)).exp() * (1.0 - p);
             *seen = (*seen + w).min(memory);
             let rate = w / seen.max(1.0);
             // The offset is the weighted mean of the departure: the kernel is centred on the
             // offset, so it does not bias that mean (it only shrinks the second moment).
-            self.offset_nm[k] += rate * d;
+            // A healthy offset is a load share or an EKF bias, a few per cent; one as large
+            // as the slip tolerance is what the slip rule calls a loss, and no comparison can
+            // tell it from one. Learnt without a bound it let a healthy drive take a long loss
+            // of the others' as its own level (condition sampler draw 1028: -1.7 N m after
+            // 5.8 s of six of seven drives sliding), and be flagged when they came back.
+            self.offset_nm[k] =
+                (self.offset_nm[k] + rate * d).clamp(-relative_limit, relative_limit);
             *s2 = ((1.0 - rate) * *s2 + rate * unshrink * d * d).max(min_var);
             // The lag-1 covariance learns from the same steps with the same weights; the
             // kernel weighs by d_t only and E[d_(t-1) | d_t] = rho d_t for a stationary
@@ -518,6 +527,18 @@ impl TemporalEstimator {
         Ok(&self.out)
     }
 
+    /// Whether drive `k` has been let go but still remembers its slip level: its estimate is
+    /// climbing back, or came back less than `slip_level_memory_steps` ago. After a loss the
+    /// EKF's torque estimate swings past the drive's healthy level for some tens of steps
+    /// (condition sampler draw 1046: 2-3 N m past for ~30 steps after six of seven drives
+    /// re-adhered together); a recovering drive therefore never restarts the reference
+    /// (`excess_effort`), is never the top of a group, and has the memory floor's weight in the
+    /// reference while past its level, or a majority coming back would carry the reference past
+    /// the drives that held and flag them.
+    fn recovering(&self, k: usize) -> bool {
+        self.slip_level_weight[k] > 0.0 && self.probability[k] < 0.5
+    }
+
     /// Whether a drive that adheres carries more than the reference `m` in the direction of
     /// the effort `dir` by more than its loss tolerance plus `significance_sigmas` of its
     /// spread: a level no healthy drive reaches by noise (the margin: without it noise
@@ -530,6 +551,7 @@ impl TemporalEstimator {
             let s = self.spread_var_nm2[k].sqrt();
             let above = dir * (xk - self.offset_nm[k] - m);
             self.probability[k] < 0.5
+                && !self.recovering(k)
                 && above > relative.max(c.significance_sigmas * s) + c.significance_sigmas * s
         })
     }
@@ -550,10 +572,10 @@ impl TemporalEstimator {
     fn top_group(&self, x: &[f64], dir: f64) -> (f64, f64) {
         let mut top = f64::NEG_INFINITY;
         let mut top_any = f64::NEG_INFINITY;
-        for (&xk, &p) in x.iter().zip(&self.probability) {
+        for (k, (&xk, &p)) in x.iter().zip(&self.probability).enumerate() {
             let effort = dir * xk;
             top_any = top_any.max(effort);
-            if p < 0.5 {
+            if p < 0.5 && !self.recovering(k) {
                 top = top.max(effort);
             }
         }
@@ -590,11 +612,12 @@ impl TemporalEstimator {
         let h2 = width_sigmas * width_sigmas;
         let flat = (c.relative_tolerance * start.abs()).max(c.min_tolerance_nm);
         let (mut sw, mut swx, mut mass, mut sw2s2) = (0.0, 0.0, 0.0, 0.0);
-        for (((&xk, &s2), &p), &b) in x
+        for (k, (((&xk, &s2), &p), &b)) in x
             .iter()
             .zip(&self.spread_var_nm2)
             .zip(&self.probability)
             .zip(&self.offset_nm)
+            .enumerate()
         {
             let d = xk - start;
             let above = dir * (d - b);
@@ -604,7 +627,16 @@ impl TemporalEstimator {
                 d
             };
             let kernel = (-0.5 * e * e / (h2 * s2)).exp();
-            let w = kernel * (1.0 - p).max(c.memory_floor);
+            // A recovering drive past its level in the effort's direction is swinging, not
+            // carrying more: the memory floor's weight (see `recovering`). One still climbing
+            // back keeps its weight: holding the reference away from it as well let gradual
+            // returns go later than the truth (sampler draw 1343 drive 6: F1 0.909 -> 0.897).
+            let w = kernel
+                * if self.recovering(k) && above > 0.0 {
+                    c.memory_floor
+                } else {
+                    (1.0 - p).max(c.memory_floor)
+                };
             sw += w;
             swx += w * xk;
             mass += kernel;
@@ -694,6 +726,84 @@ mod tests {
                 out.global_torque_nm
             );
         }
+    }
+
+    /// The EKF torque estimate of a drive that re-adheres after a loss (traced on condition
+    /// sampler draw 1046, braking, six of seven drives): it climbs back over some 60 steps,
+    /// swings past its healthy level by ~2 N m for some 30 steps, then settles.
+    fn readhering_estimate(healthy: f64, slipping: f64, t: usize) -> f64 {
+        let swing = 2.2 * healthy.signum();
+        match t {
+            0..60 => slipping + (healthy - slipping) * t as f64 / 60.0,
+            60..80 => healthy + swing * (t - 60) as f64 / 20.0,
+            80..90 => healthy + swing,
+            90..110 => healthy + swing * (110 - t) as f64 / 20.0,
+            _ => healthy,
+        }
+    }
+
+    #[test]
+    fn a_majority_re_adhering_with_a_swing_does_not_flag_the_drive_that_held() {
+        // Six of seven drives lose adhesion while braking and regain it together; while their
+        // estimates swing past their level they carry the memory floor's weight in the
+        // reference, and none of them may restart it: the one drive that held is not flagged.
+        let mut e = TemporalEstimator::new(TemporalConfig::default(), 7);
+        let noise = |t: usize, k: usize| 0.7 * (((t * 7 + k * 13) % 11) as f64 / 5.0 - 1.0);
+        let healthy = -18.0;
+        let slipping = -7.0;
+        for t in 0..2000 {
+            let x: Vec<f64> = (0..7).map(|k| healthy + noise(t, k)).collect();
+            e.estimate(&x).unwrap();
+        }
+        for t in 0..3000 {
+            let x: Vec<f64> = (0..7)
+                .map(|k| if k < 6 { slipping } else { healthy } + noise(t, k))
+                .collect();
+            e.estimate(&x).unwrap();
+        }
+        assert!(e.output().slip_probability[..6].iter().all(|&p| p > 0.99));
+        for t in 0..2000 {
+            let x: Vec<f64> = (0..7)
+                .map(|k| {
+                    let level = if k < 6 {
+                        readhering_estimate(healthy, slipping, t)
+                    } else {
+                        healthy
+                    };
+                    level + noise(t, k)
+                })
+                .collect();
+            e.estimate(&x).unwrap();
+            let out = e.output();
+            assert!(
+                out.slip_probability[6] < 0.5,
+                "step {t}: {:?}",
+                out.slip_probability
+            );
+        }
+        assert!(e.output().slip_probability.iter().all(|&p| p < 0.01));
+    }
+
+    #[test]
+    fn a_learnt_offset_stays_within_the_slip_tolerance() {
+        // A drive held 3 N m above the others (30 % of the 10 N m load) for longer than the
+        // offset's memory: a difference that large is what the slip rule calls a loss, so it
+        // cannot become the drive's healthy level (it would then hide a loss of the others
+        // and flag this drive once they return: condition sampler draw 1028).
+        let mut e = TemporalEstimator::new(TemporalConfig::default(), 7);
+        let noise = |t: usize, k: usize| 0.7 * (((t * 7 + k * 13) % 11) as f64 / 5.0 - 1.0);
+        for t in 0..60_000 {
+            let x: Vec<f64> = (0..7)
+                .map(|k| if k == 6 { 13.0 } else { 10.0 } + noise(t, k))
+                .collect();
+            e.estimate(&x).unwrap();
+        }
+        let tolerance = 0.1 * e.output().global_torque_nm.abs();
+        assert!(
+            e.offset_nm().iter().all(|b| b.abs() <= tolerance + 1e-12),
+            "{:?}, tolerance {tolerance}",
+            e.offset_nm()
+        );
     }
 
     #[test]
@@ -820,11 +930,13 @@ mod tests {
     }
 
     #[test]
-    fn a_departure_the_ekf_cannot_resolve_is_rarely_flagged() {
+    fn a_departure_within_the_ekf_resolution_is_flagged_far_less_than_without_the_floor() {
         // 1.5 N m off at 5 N m is 30 %, far beyond the 10 % rule, but within 3 of drive 1's
-        // learnt standard deviations (0.6 N m): with the significance floor it is flagged on a
-        // few runs of noise only, without it on most steps; on a quiet drive the same departure
-        // is a slip at every step after the first few.
+        // learnt standard deviations (0.6 N m): with the significance floor it is flagged on
+        // runs of noise (a fifth of the steps), without it on nearly every step; on a quiet
+        // drive the same departure is a slip at every step after the first few. (Before the
+        // offset was bounded by the slip tolerance the noisy drive learnt most of the
+        // departure as its healthy level and was flagged on 103 steps: a 30 % loss hidden.)
         let without = TemporalConfig {
             significance_sigmas: 0.0,
             ..TemporalConfig::default()
@@ -832,7 +944,7 @@ mod tests {
         let floor = flagged_steps(TemporalConfig::default(), 0, 0.6);
         let no_floor = flagged_steps(without, 0, 0.6);
         assert!(
-            10 * floor < no_floor,
+            4 * floor < no_floor && 4 * floor < 2000,
             "{floor} with the floor, {no_floor} without"
         );
         assert!(flagged_steps(TemporalConfig::default(), 1, 0.6) > 1990);
@@ -1078,8 +1190,10 @@ mod tests {
             "{release} with, {release_off} without"
         );
         // Near the tolerance the noise flips the chain a few times either way (0.006 N m per
-        // step against 0.1 N m of noise); judging against the level adds no flip.
-        assert_eq!(again, again_off);
+        // step against 0.1 N m of noise); judging against the level adds no flip (it removes
+        // some: the level is remembered for `slip_level_memory_steps` after the estimate is
+        // back within the tolerance).
+        assert!(again <= again_off, "{again} with, {again_off} without");
     }
 
     #[test]
