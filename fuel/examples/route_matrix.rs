@@ -5,6 +5,7 @@
 //!
 //!   cargo run --release -p railmon-fuel --example route_matrix -- --lines 30 --first-seed 100 --split held-out
 //!   cargo run --release -p railmon-fuel --example route_matrix -- --seed 101 --write line-101.toml
+//!   cargo run --release -p railmon-fuel --example route_matrix -- --scenario config/scenarios/fuel-railcar.toml
 //!
 //! `--split tuning|held-out|all` takes the first `--lines` seeds from `--first-seed` on that fall
 //! in the split (`railmon_fuel::Split::of`: even seeds tune, odd are held out). `--monitor FILE`
@@ -32,6 +33,7 @@ struct Args {
     write: Option<String>,
     monitor: Option<String>,
     ignore_sensor_noise: bool,
+    scenario: Option<String>,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -43,6 +45,7 @@ fn parse_args() -> Result<Args, String> {
         write: None,
         monitor: None,
         ignore_sensor_noise: false,
+        scenario: None,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -62,6 +65,7 @@ fn parse_args() -> Result<Args, String> {
             "--write" => args.write = Some(value()?),
             "--monitor" => args.monitor = Some(value()?),
             "--ignore-sensor-noise" => args.ignore_sensor_noise = true,
+            "--scenario" => args.scenario = Some(value()?),
             other => return Err(format!("unknown flag {other}")),
         }
     }
@@ -95,6 +99,8 @@ struct LineScore {
     speed_noise: f64,
     /// Right and total per label (`RAILCAR_REGIMES` order).
     per_label: [(usize, usize); 5],
+    /// Seconds per label (rows, `RAILCAR_REGIMES` order) and name (columns, `RegimeName::ALL`).
+    confusion: [[usize; 6]; 5],
     rmse_mixture: f64,
     rmse_single: f64,
     dm: f64,
@@ -182,6 +188,7 @@ fn score_line(scenario: &RailcarScenario) -> Result<LineScore, String> {
     let mut paths: VecDeque<Vec<Interval>> = VecDeque::with_capacity(horizon + 1);
     let mut cover = vec![Cover::default(); horizon + 1];
     let mut per_label = [(0usize, 0usize); 5];
+    let mut confusion = [[0usize; 6]; 5];
     let (mut sq_mix, mut sq_single, mut d) = (0.0, 0.0, Vec::new());
     let (mut seconds, mut refused) = (0, 0);
     while let Some((sample, truth)) = sim.step() {
@@ -216,6 +223,8 @@ fn score_line(scenario: &RailcarScenario) -> Result<LineScore, String> {
         let slot = &mut per_label[truth.regime];
         slot.0 += usize::from(name == labels[truth.regime]);
         slot.1 += 1;
+        let column = RegimeName::ALL.iter().position(|&n| n == name).unwrap_or(5);
+        confusion[truth.regime][column] += 1;
     }
     let n = d.len().max(1) as f64;
     let shares: Vec<f64> = cover.iter().filter(|c| c.n > 0).map(Cover::share).collect();
@@ -227,6 +236,7 @@ fn score_line(scenario: &RailcarScenario) -> Result<LineScore, String> {
         refused,
         speed_noise: scenario.railcar.speed_noise_m_s,
         per_label,
+        confusion,
         rmse_mixture: (sq_mix / n).sqrt(),
         rmse_single: (sq_single / n).sqrt(),
         dm: diebold_mariano(&d),
@@ -293,9 +303,26 @@ fn main() -> ExitCode {
         }
         return ExitCode::SUCCESS;
     }
-    let seeds: Vec<u64> = match args.seed {
-        Some(s) => vec![s],
-        None => (args.first_seed..)
+    // A route file (the shipped `config/scenarios/fuel-railcar*.toml`), scored as a line.
+    let scenario = match args.scenario.as_deref().map(|path| {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{path}: {e}"))?;
+        let mut s = RailcarScenario::from_toml_str(&text).map_err(|e| format!("{path}: {e}"))?;
+        if args.monitor.is_some() {
+            s.monitor = config.clone();
+        }
+        Ok::<_, String>(s)
+    }) {
+        None => None,
+        Some(Ok(s)) => Some(s),
+        Some(Err(e)) => {
+            eprintln!("route_matrix: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let seeds: Vec<u64> = match (args.seed, &scenario) {
+        (_, Some(s)) => vec![s.seed],
+        (Some(s), None) => vec![s],
+        (None, None) => (args.first_seed..)
             .filter(|&s| args.split.is_none_or(|split| Split::of(s) == split))
             .take(args.lines)
             .collect(),
@@ -307,7 +334,11 @@ fn main() -> ExitCode {
     );
     let mut scores = Vec::new();
     for seed in seeds {
-        let s = match score_line(&line(seed, &config, args.ignore_sensor_noise)) {
+        let scored = match &scenario {
+            Some(s) => score_line(s),
+            None => score_line(&line(seed, &config, args.ignore_sensor_noise)),
+        };
+        let s = match scored {
             Ok(s) => s,
             Err(e) => {
                 eprintln!("route_matrix: seed {seed}: {e}");
@@ -348,6 +379,23 @@ fn main() -> ExitCode {
             "  {name}, %: {}",
             quantiles(scores.iter().filter_map(|s| s.label(l)).collect())
         );
+    }
+    println!("seconds by label (rows) and name (columns), all lines:");
+    println!(
+        "  label \\ name, {}",
+        RegimeName::ALL.map(RegimeName::as_str).join(", ")
+    );
+    for (l, label) in RAILCAR_REGIMES.iter().enumerate() {
+        let row: Vec<String> = (0..6)
+            .map(|c| {
+                scores
+                    .iter()
+                    .map(|s| s.confusion[l][c])
+                    .sum::<usize>()
+                    .to_string()
+            })
+            .collect();
+        println!("  {label}, {}", row.join(", "));
     }
     let better = scores.iter().filter(|s| s.dm < -1.645).count();
     let worse = scores.iter().filter(|s| s.dm > 1.645).count();

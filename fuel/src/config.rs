@@ -149,6 +149,19 @@ pub struct FuelMonitorConfig {
     /// Component 0 is named `idle` (`crate::regime`). Needs `pointer_levels` with a channel
     /// measured at standstill, `speed` and at least 2 components. On in the railcar preset.
     pub pointer_standing: bool,
+    /// Every regime is given, not learned: each sample's regime is read from physics (the
+    /// notch, the acceleration, the grade-corrected acceleration and standstill;
+    /// `RegimeNaming::physical_regime`) and only that regime's components may hold it, so
+    /// components are named by their regime, the same on any line.
+    /// Component 0 is `idle`, then `(components - 1) / 4` components for each of accelerating,
+    /// cruising, coasting and braking, in that order (`regime::given_regime`); within a regime
+    /// the mixture learns which holds what (fuel regression, levels, switching), and names
+    /// them by power tier. Learned components named by their means held several regimes on
+    /// lines they were not tuned on (issue 25 item 1, docs/fuel.md "Generated lines"). Needs
+    /// `pointer_standing`, `components` = 1 + 4 k, the notch as `categorical` and
+    /// `specific_force` in `derived_channels`. On in the railcar preset (9 components).
+    #[serde(default)]
+    pub pointer_regimes: bool,
     /// Standard deviation of the speed sensor's noise while moving, m/s (a tachometer reads 0
     /// standing). Above 0 the speed feeds a kinematic Kalman filter of speed and acceleration
     /// (`crate::kinematic`, white jerk): the derived channels take its speed and acceleration
@@ -275,6 +288,7 @@ impl Default for FuelMonitorConfig {
             pointer_level_min_variance: 1e-6,
             speed_noise_m_s: 0.0,
             pointer_standing: false,
+            pointer_regimes: false,
             forecast_blend: true,
             blend_forgetting: 0.999,
             categorical: None,
@@ -384,13 +398,16 @@ impl FuelMonitorConfig {
             fuel_bins_cm3_s: vec![3.0, 20.0],
             acceleration_bins_m_s2: vec![-0.1, 0.1],
             forgetting: 0.99,
-            // One per labelled regime of the simulator (idle the standing component).
-            components: 5,
+            // Idle, then two per moving regime (`pointer_regimes`): one per regime named every
+            // second right but fitted one fuel regression over all of a regime's notches, and
+            // the virtual sensor lost its lead on the shipped route (docs/notes/fuel-log.md).
+            components: 9,
             pointer_levels: ["fuel", "speed", "specific_force"]
                 .map(String::from)
                 .to_vec(),
             pointer_level_min_variance: 3e-2,
             pointer_standing: true,
+            pointer_regimes: true,
             ranges: ChannelRanges::railcar(),
             naming: RegimeNaming::railcar(),
             ..Default::default()
@@ -437,6 +454,7 @@ impl FuelMonitorConfig {
         FuelMonitorConfig {
             components: 1,
             pointer_standing: false,
+            pointer_regimes: false,
             ..self.clone()
         }
     }
@@ -621,6 +639,22 @@ impl FuelMonitorConfig {
                 "pointer_standing",
                 true,
                 "needs `pointer_levels`, `speed` in `channels` and at least 2 `components`",
+            ));
+        }
+        if self.pointer_regimes
+            && !(self.pointer_standing
+                && self.components >= crate::regime::GIVEN_REGIMES.len()
+                && (self.components - 1).is_multiple_of(crate::regime::GIVEN_REGIMES.len() - 1)
+                && self.categorical.is_some()
+                && self
+                    .derived_channels
+                    .contains(&DerivedChannel::SpecificForce))
+        {
+            return Err(FuelError::invalid(
+                "pointer_regimes",
+                true,
+                "needs `pointer_standing`, `components` 1 + 4 k (idle, k per moving regime), the notch as \
+                 `categorical` and `specific_force` in `derived_channels`",
             ));
         }
         check_positive("prior_information", self.prior_information)?;

@@ -24,6 +24,9 @@ pub(crate) struct Prepared {
     /// Speed below the standstill threshold (only with `pointer_standing`; false otherwise).
     #[serde(default)]
     pub(crate) standing: bool,
+    /// `ln P` of each physical regime, component order (only with `pointer_regimes`).
+    #[serde(default)]
+    pub(crate) given: Option<Vec<f64>>,
     pub(crate) speed_level: usize,
     pub(crate) fuel_level: usize,
     /// Discretised `v_t - v_{t-1}` (0 when acceleration bins are off or on the first sample).

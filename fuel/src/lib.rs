@@ -48,7 +48,10 @@ pub use mixture::{Mixture, MixtureInput, MixtureSpec};
 pub use monitor::FuelMonitor;
 pub use predictive::{central_interval, Interval, StudentT};
 pub use railcar::{RailcarParameters, RailcarScenario, RailcarSimulator, RailcarTruth};
-pub use regime::{ComponentName, OperatingPoint, PowerTier, RegimeName, RegimeNaming};
+pub use regime::{
+    given_regime, ComponentName, Motion, OperatingPoint, PowerTier, RegimeName, RegimeNaming,
+    GIVEN_REGIMES,
+};
 pub use regression::RegressionStats;
 pub use routes::{generated_line, scenario_toml, LineEnvelope, Split};
 pub use sample::{bin_index, Channel, ChannelRanges, DerivedChannel, VehicleSample};

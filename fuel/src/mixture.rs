@@ -81,6 +81,16 @@ pub struct MixtureInput<'a> {
     pub switching_row: usize,
     /// The vehicle stands (only read with [`MixtureSpec::standing_level_channels`]).
     pub standing: bool,
+    /// `ln P(c_t = i | what was measured besides y)`, one per component: the physical
+    /// regime's probability (the monitor's `pointer_regimes`), 0 or minus infinity where it is
+    /// certain, as for standstill. Added to each component's evidence. `None`: the components
+    /// are learned alone.
+    pub given: Option<&'a [f64]>,
+}
+
+/// Component `i`'s term of [`MixtureInput::given`] (0 without one).
+pub(crate) fn log_given(given: Option<&[f64]>, i: usize) -> f64 {
+    given.map_or(0.0, |g| g[i])
 }
 
 /// The estimator state: component statistics, categorical counts, switching counts, pointer.
@@ -394,6 +404,9 @@ impl Mixture {
             || input.psi.len() != self.spec.k_psi
             || input.switching_row >= self.spec.switching_rows
             || input
+                .given
+                .is_some_and(|g| g.len() != self.spec.components || g.iter().any(|v| v.is_nan()))
+            || input
                 .y
                 .iter()
                 .chain(input.psi.iter())
@@ -474,7 +487,8 @@ impl Mixture {
                     None => f64::NEG_INFINITY,
                 },
                 None => self.components[i].log_proximity_at(input.y, &predictions[i]),
-            } + self.log_category(i, input.category);
+            } + self.log_category(i, input.category)
+                + log_given(input.given, i);
             for j in 0..m {
                 log_joint[i * m + j] = evidence + log_alpha[j * m + i] + self.log_w[j];
             }
@@ -646,6 +660,7 @@ impl Mixture {
                 let mut l: Vec<f64> = (0..m)
                     .map(|i| {
                         log_pi[i]
+                            + log_given(input.given, i)
                             + match x {
                                 Some(x) => {
                                     match level_stats(&levels, standing_level.as_ref(), i, x) {

@@ -87,7 +87,9 @@ impl FuelMonitor {
     /// `measured_channels`, `level_regressors` and `level_scales`.
     /// 12: the config gained `speed_noise_m_s`, the monitor and its kept samples the kinematic
     /// filter's state (issue 25 item 4).
-    pub const STATE_FORMAT_VERSION: u32 = 12;
+    /// 13: the config gained `pointer_regimes`, the kept samples their given regime (issue 25
+    /// item 1).
+    pub const STATE_FORMAT_VERSION: u32 = 13;
 
     /// A monitor with validated `config`; it collects `init_samples` before estimating.
     pub fn new(config: &FuelMonitorConfig) -> Result<Self, FuelError> {
@@ -281,6 +283,7 @@ impl FuelMonitor {
                 }
                 (None, _) => (None, 0.0, 0.0),
             };
+        let mut given = None;
         let acceleration_level = match (needs_speed, speed_m_s) {
             (true, Some(v)) => {
                 let a = acceleration_m_s2;
@@ -295,6 +298,35 @@ impl FuelMonitor {
                     0.0
                 };
                 y.extend(self.derived.iter().map(|d| d.value(v_derived, a, gradient)));
+                // The regime given (`pointer_regimes`): standstill as `standing` reads it (the
+                // reading), the rest from the notch and the specific force the derived channel
+                // has; validation guarantees the notch and `specific_force`.
+                if let (true, Some(cat)) = (self.config.pointer_regimes, &self.config.categorical) {
+                    let motion = crate::regime::Motion {
+                        speed_m_s: if standing {
+                            0.0
+                        } else {
+                            v_derived.max(self.config.naming.standstill_speed_m_s)
+                        },
+                        acceleration_m_s2: a,
+                        specific_force_m_s2: DerivedChannel::SpecificForce
+                            .value(v_derived, a, gradient),
+                        notch: sample.gear.unwrap_or(0),
+                        full_notch: cat.gear_groups.iter().flatten().copied().max().unwrap_or(0),
+                    };
+                    // Certain, as standstill is: ln P 0 for the regime's component, minus
+                    // infinity for the others.
+                    let regime = self.config.naming.physical_regime(&motion);
+                    let m = self.config.components;
+                    given = Some(
+                        (0..m)
+                            .map(|i| match crate::regime::given_regime(i, m) == regime {
+                                true => 0.0,
+                                false => f64::NEG_INFINITY,
+                            })
+                            .collect(),
+                    );
+                }
                 bin_index(&self.config.acceleration_bins_m_s2, a)
             }
             _ => 0,
@@ -308,6 +340,7 @@ impl FuelMonitor {
             y,
             category,
             standing,
+            given,
             speed_level,
         })
     }
@@ -366,10 +399,12 @@ impl FuelMonitor {
         let mut cells = Vec::new();
         let mut rows = Vec::new();
         let mut standing = Vec::new();
+        let mut given_regimes = Vec::new();
         for (t, p) in self.initial.iter().enumerate() {
             let y = st.apply(&p.y);
             if t >= start {
                 standing.push(p.standing);
+                given_regimes.push(p.given.clone());
                 psis.push(layout.regressor(&past));
                 cells.push(layout.category_cell(&past, p));
                 rows.push(layout.switching_row(&past));
@@ -384,6 +419,7 @@ impl FuelMonitor {
                 category: cells[t],
                 switching_row: rows[t],
                 standing: standing[t],
+                given: given_regimes[t].as_deref(),
             })
             .collect();
         let m = self.config.components;
@@ -399,6 +435,23 @@ impl FuelMonitor {
         let mut labels = vec![crate::mixture::STANDING_COMPONENT; ys.len()];
         for (rank, &t) in order.iter().enumerate() {
             labels[t] = given + rank * (m - given) / order.len();
+        }
+        // With every regime given, each sample starts in one of its regime's components: the
+        // regime's samples by fuel rank (as above) over them.
+        if self.config.pointer_regimes {
+            for regime in crate::regime::GIVEN_REGIMES {
+                let own: Vec<usize> = (0..m)
+                    .filter(|&i| crate::regime::given_regime(i, m) == regime)
+                    .collect();
+                let members: Vec<usize> = (0..ys.len())
+                    .filter(|&t| inputs[t].given.is_some_and(|g| own.contains(&argmax(g))))
+                    .collect();
+                let mut members = members;
+                members.sort_by(|&a, &b| ys[a][0].total_cmp(&ys[b][0]));
+                for (rank, &t) in members.iter().enumerate() {
+                    labels[t] = own[rank * own.len() / members.len()];
+                }
+            }
         }
         let mixture = Mixture::from_batch(
             self.spec.clone(),
@@ -416,6 +469,13 @@ impl FuelMonitor {
                 ..self.spec.clone()
             };
             let zeros = vec![0; labels.len()];
+            // One component holds every regime: none is given to it.
+            let inputs: Vec<MixtureInput> = (inputs.iter())
+                .map(|x| MixtureInput {
+                    given: None,
+                    ..x.clone()
+                })
+                .collect();
             Some(Mixture::from_batch(
                 spec,
                 &inputs,
@@ -467,7 +527,8 @@ impl FuelMonitor {
             let c = comp.condition_first_on_rest_at(&predictions[i], &y_other);
             log_v[i] = log_pred[i]
                 + mixture.log_evidence_without_fuel(i, &y, p.standing, &c)
-                + mixture.log_category(i, category);
+                + mixture.log_category(i, category)
+                + crate::mixture::log_given(p.given.as_deref(), i);
             cond.push(c);
         }
         normalize_log_weights(&mut log_v)?;
@@ -504,13 +565,17 @@ impl FuelMonitor {
             category,
             switching_row: k,
             standing: p.standing,
+            given: p.given.as_deref(),
         };
         // Mixture::step changes nothing when it fails; the baseline is stepped on a copy first
         // so that a failure of either leaves the monitor as it was.
         let baseline = match &self.baseline {
             Some(b) => {
                 let mut b = b.clone();
-                b.step(&input)?;
+                b.step(&MixtureInput {
+                    given: None,
+                    ..input.clone()
+                })?;
                 Some(b)
             }
             None => None,
@@ -667,6 +732,16 @@ impl FuelMonitor {
     /// What each component means (`crate::regime`), from the operating points: a name unique
     /// per component. Empty before initialisation.
     pub fn regime_names(&self) -> Vec<ComponentName> {
+        if self.config.pointer_regimes && self.mixture.is_some() {
+            // Each component holds its regime's samples only: its name is that regime (with a
+            // power tier where a regime has several components).
+            let m = self.config.components;
+            let regimes: Vec<_> = (0..m).map(|i| crate::regime::given_regime(i, m)).collect();
+            return self
+                .config
+                .naming
+                .qualified(&regimes, &self.operating_points());
+        }
         self.config.naming.names(&self.operating_points())
     }
 

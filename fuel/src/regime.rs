@@ -89,6 +89,42 @@ impl std::fmt::Display for RegimeName {
     }
 }
 
+/// The regimes given per sample with `pointer_regimes`, component `i` holding regime `i`
+/// (component 0 the standing one, as with `pointer_standing`); the railcar simulator's labels
+/// in its order.
+pub const GIVEN_REGIMES: [RegimeName; 5] = [
+    RegimeName::Idle,
+    RegimeName::Accelerating,
+    RegimeName::Cruising,
+    RegimeName::Coasting,
+    RegimeName::Braking,
+];
+
+/// The regime component `i` of `components` holds when every regime is given
+/// (`pointer_regimes`): component 0 `idle`, then `(components - 1) / 4` components for each
+/// moving regime in [`GIVEN_REGIMES`] order (within a regime the mixture learns which holds
+/// what, as it learned every component before).
+pub fn given_regime(i: usize, components: usize) -> RegimeName {
+    let per_regime = ((components.max(5) - 1) / 4).max(1);
+    match i {
+        0 => RegimeName::Idle,
+        _ => GIVEN_REGIMES[(1 + (i - 1) / per_regime).min(GIVEN_REGIMES.len() - 1)],
+    }
+}
+
+/// What one sample says the vehicle does ([`RegimeNaming::physical_regime`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Motion {
+    pub speed_m_s: f64,
+    pub acceleration_m_s2: f64,
+    /// `a + g i / 1000`, the acceleration net of the grade.
+    pub specific_force_m_s2: f64,
+    /// The throttle notch (0: no traction).
+    pub notch: i32,
+    /// The full-power notch.
+    pub full_notch: i32,
+}
+
 /// Thresholds of the naming rule (module documentation). A property of the vehicle (what
 /// "standing" and "no traction power" look like), so two sets: `Default` is a road car's
 /// ([`RegimeNaming::road_car`]), [`RegimeNaming::railcar`] a diesel railcar's.
@@ -152,6 +188,16 @@ impl RegimeNaming {
     /// share that regime.
     pub fn names(&self, points: &[OperatingPoint]) -> Vec<ComponentName> {
         let regimes: Vec<RegimeName> = points.iter().map(|p| self.name(p)).collect();
+        self.qualified(&regimes, points)
+    }
+
+    /// The unique names of components whose regimes are `regimes` (by the rule or given):
+    /// qualified by power tier and ordinal where several share one (module documentation).
+    pub fn qualified(
+        &self,
+        regimes: &[RegimeName],
+        points: &[OperatingPoint],
+    ) -> Vec<ComponentName> {
         let mut names: Vec<ComponentName> =
             regimes.iter().map(|&r| ComponentName::bare(r)).collect();
         for regime in RegimeName::ALL {
@@ -227,6 +273,47 @@ impl RegimeNaming {
             RegimeName::Coasting
         } else {
             RegimeName::Cruising
+        }
+    }
+
+    /// The regime of one sample from what the vehicle does, not from a component's
+    /// statistics (`pointer_regimes`, issue 25 item 1), and without its fuel (the virtual
+    /// sensor weighs it):
+    ///
+    /// 1. speed below `standstill_speed_m_s`: `idle` (as `pointer_standing`);
+    /// 2. traction (the notch above 0): `accelerating` if the vehicle gains speed, by at least
+    ///    `acceleration_m_s2` below the full-power notch (`full_notch`; a part notch that
+    ///    holds the speed gives it up to one notch's surplus, ~0.05 m/s^2 for the railcar at
+    ///    40 km/h), by any amount at it; else `cruising` (holding speed under power: at full
+    ///    notch up a climb, balance speed is holding);
+    /// 3. no traction: `braking` if the grade-corrected acceleration (specific force,
+    ///    `a + g i / 1000`) is at most `-acceleration_m_s2`, else `coasting`. A coasting
+    ///    vehicle's specific force is its running resistance per mass: for a train below
+    ///    0.07 m/s^2 up to 160 km/h (Davis `A + B v + C v^2 / m` of `railcar.rs`, 190 t:
+    ///    0.012 + 0.0044 + 0.045), well inside the 0.15 m/s^2 a deliberate brake application
+    ///    exceeds. Under traction the specific force is no help: up a climb at balance speed it
+    ///    is `g i`, the traction spent on the grade.
+    ///
+    /// No threshold here depends on a route: the notch, the standstill speed and the
+    /// acceleration bound are the vehicle's. A decision, not a probability: weighing the rule
+    /// softly (`ln Phi` of the margin over the speed filter's spread) let the fuel regressions
+    /// pull the components back into fuel clusters (docs/notes/fuel-log.md).
+    pub fn physical_regime(&self, m: &Motion) -> RegimeName {
+        if m.speed_m_s < self.standstill_speed_m_s {
+            RegimeName::Idle
+        } else if m.notch > 0 {
+            let bound = match m.notch >= m.full_notch {
+                true => 0.0,
+                false => self.acceleration_m_s2,
+            };
+            match m.acceleration_m_s2 > bound || m.acceleration_m_s2 >= self.acceleration_m_s2 {
+                true => RegimeName::Accelerating,
+                false => RegimeName::Cruising,
+            }
+        } else if m.specific_force_m_s2 <= -self.acceleration_m_s2 {
+            RegimeName::Braking
+        } else {
+            RegimeName::Coasting
         }
     }
 
@@ -572,6 +659,36 @@ mod tests {
         ] {
             assert_eq!(ComponentName::parse(bad), None, "{bad}");
         }
+    }
+
+    /// The physical rule of each given regime, at the boundaries.
+    #[test]
+    fn the_physical_regime_reads_notch_acceleration_grade_and_standstill() {
+        let n = RegimeNaming::railcar();
+        let r = |v: f64, a: f64, f: f64, notch: i32| {
+            n.physical_regime(&Motion {
+                speed_m_s: v,
+                acceleration_m_s2: a,
+                specific_force_m_s2: f,
+                notch,
+                full_notch: 8,
+            })
+        };
+        assert_eq!(r(0.2, 0.0, 0.0, 3), RegimeName::Idle);
+        assert_eq!(r(5.0, 0.4, 0.4, 3), RegimeName::Accelerating);
+        // Full notch: gaining speed beyond the noise is notching up, holding it is cruising
+        // (up a 20 per mille climb the specific force is the grade's 0.2 either way).
+        assert_eq!(r(30.0, 0.03, 0.03, 8), RegimeName::Accelerating);
+        assert_eq!(r(15.0, -0.01, 0.2, 8), RegimeName::Cruising);
+        assert_eq!(r(25.0, 0.1, 0.1, 4), RegimeName::Cruising);
+        assert_eq!(r(25.0, 0.0, 0.2, 4), RegimeName::Cruising);
+        // Coasting at 160 km/h decelerates by the running resistance only; down a grade the
+        // train may gain speed and still coast.
+        assert_eq!(r(44.0, -0.07, -0.07, 0), RegimeName::Coasting);
+        assert_eq!(r(20.0, 0.1, -0.05, 0), RegimeName::Coasting);
+        assert_eq!(r(44.0, -0.16, -0.16, 0), RegimeName::Braking);
+        // Braking down a grade holds the speed: the grade-corrected acceleration tells.
+        assert_eq!(r(20.0, 0.0, -0.3, 0), RegimeName::Braking);
     }
 
     #[test]

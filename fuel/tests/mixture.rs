@@ -101,6 +101,7 @@ fn single_component_mixture_is_recursive_least_squares() {
             category: None,
             switching_row: 0,
             standing: false,
+            given: None,
         })
         .unwrap();
         assert_eq!(mix.weights(), vec![1.0]);
@@ -149,6 +150,7 @@ fn one_component_counts_are_the_hand_counted_transitions() {
             category: Some((q, l)),
             switching_row: k,
             standing: false,
+            given: None,
         })
         .unwrap();
     }
@@ -181,6 +183,7 @@ fn two_component_counts_add_the_joint_posterior() {
             category: Some((q, l)),
             switching_row: k,
             standing: false,
+            given: None,
         })
         .unwrap();
         // Brute force in probabilities (not logs): W_ij ∝ prox_i beta_i(l|q) alpha_{i|j,k} w_j.
@@ -276,6 +279,7 @@ fn pointer_weights_sum_to_one_over_a_million_extreme_steps() {
             category: Some((rng.random_range(0..20), rng.random_range(0..5))),
             switching_row: rng.random_range(0..9),
             standing: false,
+            given: None,
         })
         .unwrap();
         let w = mix.weights();
@@ -313,6 +317,7 @@ fn kept_switching_probabilities_are_the_tables_to_the_bit() {
             category: None,
             switching_row: t % 3,
             standing: false,
+            given: None,
         })
         .collect();
     let labels: Vec<usize> = (0..100).map(|t| t % 3).collect();
@@ -359,6 +364,7 @@ fn a_failed_step_changes_nothing_and_the_next_steps_are_unaffected() {
             category: None,
             switching_row: 0,
             standing: false,
+            given: None,
         })
         .collect();
     let labels: Vec<usize> = (0..50).map(|t| t % 2).collect();
@@ -433,6 +439,7 @@ fn inputs(data: &[(DVector<f64>, DVector<f64>, usize)]) -> Vec<MixtureInput<'_>>
             category: None,
             switching_row: 0,
             standing: false,
+            given: None,
         })
         .collect()
 }
