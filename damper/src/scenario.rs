@@ -167,7 +167,10 @@ impl DamperScenario {
         let bad = |key: String, value: f64, why: &str| {
             Err(DamperError::Config(format!("{key} = {value}: {why}")))
         };
-        if let Some(m) = load.half_body_mass_kg.filter(|m| !(m.is_finite() && *m > 0.0)) {
+        if let Some(m) = load
+            .half_body_mass_kg
+            .filter(|m| !(m.is_finite() && *m > 0.0))
+        {
             return bad("load.half_body_mass_kg".into(), m, "must be positive (kg)");
         }
         let speed = self.speed_profile();
@@ -263,6 +266,10 @@ mod tests {
                 "damper-speed-profile",
                 include_str!("../../config/scenarios/damper-speed-profile.toml"),
             ),
+            (
+                "damper-load",
+                include_str!("../../config/scenarios/damper-load.toml"),
+            ),
         ] {
             let s = DamperScenario::from_toml_str(text).unwrap();
             assert_eq!(s.name, name);
@@ -313,8 +320,14 @@ mod tests {
             .into();
         assert_eq!(at, [12000.0, 15000.0, 15000.0, 14000.0, 14000.0]);
         for (load, want) in [
-            ("changes_kg = [[0.1, 15000.0]]", "load.changes_kg[0] = [0.1, 15000]"),
-            ("changes_kg = [[0.3, 1.0], [0.3, 2.0]]", "load.changes_kg[1] = 0.3"),
+            (
+                "changes_kg = [[0.1, 15000.0]]",
+                "load.changes_kg[0] = [0.1, 15000]",
+            ),
+            (
+                "changes_kg = [[0.3, 1.0], [0.3, 2.0]]",
+                "load.changes_kg[1] = 0.3",
+            ),
             ("changes_kg = [[0.3, 0.0]]", "load.changes_kg[0] = 0"),
             ("changes_kg = [[2.0, 1.0]]", "load.changes_kg[0] = 2"),
             ("half_body_mass_kg = -1.0", "load.half_body_mass_kg = -1"),

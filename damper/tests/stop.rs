@@ -68,7 +68,12 @@ fn run_to_end(s: &DamperScenario) -> (f64, f64, Vec<(f64, DamperId)>, DamperEsti
         }
     }
     let estimate = *monitor.estimate();
-    (moving_off_s.unwrap(), learning_s.unwrap(), degraded, estimate)
+    (
+        moving_off_s.unwrap(),
+        learning_s.unwrap(),
+        degraded,
+        estimate,
+    )
 }
 
 #[test]
@@ -114,7 +119,10 @@ fn a_load_change_at_a_stop_is_followed_when_measured() {
     while let Some((y, truth)) = sim.step() {
         assert_eq!(y.half_body_mass_kg, Some(truth.half_body_mass_kg));
         if masses.last() != Some(&y.half_body_mass_kg) {
-            assert!(masses.is_empty() || y.speed_m_s == 0.0, "a change while running");
+            assert!(
+                masses.is_empty() || y.speed_m_s == 0.0,
+                "a change while running"
+            );
             masses.push(y.half_body_mass_kg);
         }
     }
@@ -122,7 +130,11 @@ fn a_load_change_at_a_stop_is_followed_when_measured() {
     let truth = s.dampers;
     let (_, _, degraded, e) = run_to_end(&s);
     let error = |e: &DamperEstimate| e.csy.mean_ns_per_m / truth.csy_ns_per_m - 1.0;
-    eprintln!("measured: C_sy {:+.2} %, C_say {:+.2} %", 100.0 * error(&e), 100.0 * (e.csay.mean_ns_per_m / truth.csay_ns_per_m - 1.0));
+    eprintln!(
+        "measured: C_sy {:+.2} %, C_say {:+.2} %",
+        100.0 * error(&e),
+        100.0 * (e.csay.mean_ns_per_m / truth.csay_ns_per_m - 1.0)
+    );
     assert!(degraded.is_empty(), "{degraded:?}");
     assert_eq!(e.measured_half_body_mass_kg, Some(16900.0));
     assert!(error(&e).abs() < 0.03, "C_sy measured: {:+.3}", error(&e));
@@ -130,5 +142,9 @@ fn a_load_change_at_a_stop_is_followed_when_measured() {
     let (_, _, _, withheld) = run_to_end(&s);
     eprintln!("withheld: C_sy {:+.2} %", 100.0 * error(&withheld));
     assert_eq!(withheld.measured_half_body_mass_kg, None);
-    assert!(error(&withheld).abs() > 0.03, "C_sy withheld: {:+.3}", error(&withheld));
+    assert!(
+        error(&withheld).abs() > 0.03,
+        "C_sy withheld: {:+.3}",
+        error(&withheld)
+    );
 }
