@@ -34,6 +34,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use railmon_damper::gain_table::GainTable;
+use railmon_damper::params::checked_half_body_mass_kg;
 use railmon_records::gain_cache::GainCache;
 
 use railmon_damper::{
@@ -158,7 +159,7 @@ pub struct DamperReport {
 /// The reasons a bogie sample is refused for, the labels of the service's bogie stream: its
 /// sample clock's (`railmon_records::sample_clock`) and the estimator's
 /// (`railmon_damper::DamperError::reason`; `unknown_bogie` is the service's configuration).
-pub const REFUSAL_REASONS: [&str; 8] = [
+pub const REFUSAL_REASONS: [&str; 9] = [
     "time_backwards",
     "time_repeated",
     "time_jump",
@@ -167,6 +168,7 @@ pub const REFUSAL_REASONS: [&str; 8] = [
     "not_finite",
     "speed_out_of_range",
     "out_of_range",
+    "mass_out_of_range",
 ];
 
 /// One point of the estimate trace.
@@ -209,10 +211,13 @@ impl Source {
             })),
             Source::Recording(r, assumed_speed_m_s) => Ok(r.next_record()?.map(|rec| {
                 (
-                    BogieSample::from_vector(
-                        &rec.sensors.into(),
-                        rec.speed_m_s.unwrap_or(*assumed_speed_m_s),
-                    ),
+                    BogieSample {
+                        half_body_mass_kg: rec.half_body_mass_kg,
+                        ..BogieSample::from_vector(
+                            &rec.sensors.into(),
+                            rec.speed_m_s.unwrap_or(*assumed_speed_m_s),
+                        )
+                    },
                     rec.time_s,
                     rec.truth_ns_per_m,
                 )
@@ -536,7 +541,13 @@ fn run_monitor(
                         source.line().map_or("-".to_owned(), |l| l.to_string())
                     );
                 }
-                ranges.check(&sample).err().map(|e| {
+                // The service's checks: the magnitudes, then a measured mass within its ratio
+                // of the design mass.
+                let design_kg = config.vehicle.half_body_mass_kg;
+                let checked = ranges.check(&sample).and_then(|_| {
+                    checked_half_body_mass_kg(design_kg, sample.half_body_mass_kg).map(|_| ())
+                });
+                checked.err().map(|e| {
                     let reason = e.reason().unwrap_or("estimator");
                     (reason, refusal_error(name, source.line(), e))
                 })
@@ -579,6 +590,7 @@ fn run_monitor(
                 time_s: estimate.time_s,
                 sensors: sample_array(&sample),
                 speed_m_s: Some(sample.speed_m_s),
+                half_body_mass_kg: sample.half_body_mass_kg,
                 truth_ns_per_m: truth,
             })?;
         }

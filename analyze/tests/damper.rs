@@ -62,6 +62,63 @@ fn a_run_with_the_gain_cache_cold_or_warm_estimates_as_one_without() {
     std::fs::remove_dir_all(&cache).unwrap();
 }
 
+/// A measured body mass travels with the samples (issue 24 item 1): the scenario run of
+/// damper-load (0.85 x the design mass, 1.3 x after a stop at 2-3 s) and its recording, read
+/// back, give the same estimates; its `half_body_mass_kg` column holds the plant's mass. The
+/// same recording with the column's cells empty (not measured) gives other estimates: the
+/// column is read, not ignored.
+#[test]
+fn a_measured_mass_gives_the_same_estimates_from_the_scenario_and_its_recording() {
+    let out = out_dir("load");
+    let mut a = args(&out);
+    a.run.scenario = Some(scenario("damper-load"));
+    a.run.no_plots = true;
+    a.duration_s = Some(4.5);
+    run(&a).unwrap();
+    let estimates = std::fs::read_to_string(out.join("estimates.csv")).unwrap();
+    let mut reader = BogieCsvReader::open(&out.join("bogie.csv")).unwrap();
+    let mut masses = vec![];
+    let mut records = vec![];
+    while let Some(r) = reader.next_record().unwrap() {
+        if masses.last() != Some(&r.half_body_mass_kg) {
+            masses.push(r.half_body_mass_kg);
+        }
+        records.push(r);
+    }
+    assert_eq!(masses, [Some(11050.0), Some(16900.0)]);
+
+    let replay = out_dir("load-replay");
+    std::fs::create_dir_all(&replay).unwrap();
+    let config = replay.join("monitor.toml");
+    std::fs::write(&config, "track_velocity_std_m_s = 0.1\n[rbpf]\nseed = 13\n").unwrap();
+    let mut b = args(&replay);
+    b.run.input = Some(out.join("bogie.csv"));
+    b.run.config = Some(config);
+    b.run.no_plots = true;
+    b.duration_s = None;
+    let report = run(&b).unwrap();
+    assert_eq!(report.refused.total(), 0);
+    let replayed = std::fs::read_to_string(replay.join("estimates.csv")).unwrap();
+    assert_eq!(replayed, estimates);
+
+    let unmeasured = replay.join("unmeasured.csv");
+    let mut writer = BogieCsvWriter::create(&unmeasured, true).unwrap();
+    for r in &records {
+        let r = railmon_records::bogie::BogieRecord {
+            half_body_mass_kg: None,
+            ..*r
+        };
+        writer.write(&r).unwrap();
+    }
+    writer.finish().unwrap();
+    b.run.input = Some(unmeasured);
+    run(&b).unwrap();
+    let design = std::fs::read_to_string(replay.join("estimates.csv")).unwrap();
+    assert_ne!(design, estimates);
+    std::fs::remove_dir_all(&out).unwrap();
+    std::fs::remove_dir_all(&replay).unwrap();
+}
+
 #[test]
 fn scenario_run_writes_reports_and_its_recording_replays_identically() {
     let out = out_dir("scenario");

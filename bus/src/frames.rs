@@ -7,7 +7,7 @@ use iceoryx2::prelude::ZeroCopySend;
 use crate::StreamKind;
 
 /// Bumped whenever a payload layout changes (also part of every type name).
-pub const FRAME_LAYOUT_VERSION: u32 = 4;
+pub const FRAME_LAYOUT_VERSION: u32 = 5;
 
 /// Capacity of a [`DriveFrame`]: the most drives one vehicle publishes in one frame.
 pub const MAX_DRIVES: usize = 32;
@@ -15,7 +15,7 @@ pub const MAX_DRIVES: usize = 32;
 /// User header of every frame. iceoryx2's own sample header has no sequence number, so the
 /// publisher numbers its frames here; the subscriber counts gaps per `publisher_instance`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ZeroCopySend)]
-#[type_name("railmon::FrameHeader.v4")]
+#[type_name("railmon::FrameHeader.v5")]
 #[repr(C)]
 pub struct FrameHeader {
     /// [`FRAME_LAYOUT_VERSION`] of the publisher.
@@ -352,17 +352,23 @@ impl VehicleFrame {
 }
 
 /// One 1 kHz sample of one bogie's five inertial sensors (damper monitoring), in the order of
-/// the damper paper's eq. (4), and the vehicle's forward speed (layout 3; the model depends on
-/// it). A vehicle has several bogies: each publishes its own frames on the one `bogie`
-/// stream, told apart by `bogie_id`; the sample time is the header's.
+/// the damper paper's eq. (4), the vehicle's forward speed (layout 3; the model depends on
+/// it) and, when measured, the body mass above the bogie (layout 5, issue 24 item 1). A
+/// vehicle has several bogies: each publishes its own frames on the one `bogie` stream, told
+/// apart by `bogie_id`; the sample time is the header's.
+///
+/// The mass's presence is a bit in `present` ([`BogieFrame::HALF_BODY_MASS`]), as the drive
+/// frame's train speed: a NaN from a faulty load sensor is refused (`not_finite`), not read as
+/// "not measured".
 #[derive(Clone, Copy, Debug, Default, PartialEq, ZeroCopySend)]
-#[type_name("railmon::BogieFrame.v2")]
+#[type_name("railmon::BogieFrame.v3")]
 #[repr(C)]
 pub struct BogieFrame {
     /// Which bogie of the vehicle (the ids the service is configured with, `[bogie] bogies`).
     pub bogie_id: u32,
-    /// Keeps the layout explicit (`#[repr(C)]` would pad here anyway); always 0.
-    pub reserved: u32,
+    /// Bit set of the optional channels present: [`BogieFrame::HALF_BODY_MASS`] (v2:
+    /// `reserved`, always 0, so "no mass"; the type name keeps them apart).
+    pub present: u32,
     pub wheelset1_accel_m_s2: f64,
     pub wheelset2_accel_m_s2: f64,
     pub bogie_accel_m_s2: f64,
@@ -370,6 +376,11 @@ pub struct BogieFrame {
     pub body_accel_m_s2: f64,
     /// Forward speed of the vehicle (m/s), in `0..=railmon_damper::sample::MAX_SPEED_M_S`.
     pub speed_m_s: f64,
+    /// The measured body mass above this bogie (kg; its air springs' load,
+    /// `railmon_damper::BogieSample::half_body_mass_kg`); valid with
+    /// [`BogieFrame::HALF_BODY_MASS`], else 0 and ignored. Finite and positive here; its range
+    /// about the design mass is the monitor's check (`mass_out_of_range`).
+    pub half_body_mass_kg: f64,
 }
 
 impl Frame for BogieFrame {
@@ -377,22 +388,42 @@ impl Frame for BogieFrame {
 }
 
 impl BogieFrame {
+    /// `present` bit: the frame carries the measured body mass.
+    pub const HALF_BODY_MASS: u32 = 1 << 0;
+    const ALL: u32 = Self::HALF_BODY_MASS;
+
     pub fn from_sample(bogie_id: u32, s: &railmon_damper::BogieSample) -> Self {
         BogieFrame {
             bogie_id,
-            reserved: 0,
+            present: if s.half_body_mass_kg.is_some() {
+                Self::HALF_BODY_MASS
+            } else {
+                0
+            },
             wheelset1_accel_m_s2: s.wheelset1_accel_m_s2,
             wheelset2_accel_m_s2: s.wheelset2_accel_m_s2,
             bogie_accel_m_s2: s.bogie_accel_m_s2,
             bogie_yaw_rate_rad_s: s.bogie_yaw_rate_rad_s,
             body_accel_m_s2: s.body_accel_m_s2,
             speed_m_s: s.speed_m_s,
+            half_body_mass_kg: s.half_body_mass_kg.unwrap_or(0.0),
         }
     }
 
-    /// The sample, after checking that every value is finite and the speed in
-    /// `0..=MAX_SPEED_M_S` (which bogie ids are known is the service's configuration).
+    /// The sample, after checking that `present` names only known channels, every value
+    /// (a present mass too) is finite and the speed in `0..=MAX_SPEED_M_S` (which bogie ids
+    /// are known is the service's configuration; whether the mass is within its range about
+    /// the design mass, the monitor's: `mass_out_of_range`).
     pub fn checked_sample(&self) -> Result<railmon_damper::BogieSample, FrameError> {
+        if self.present & !Self::ALL != 0 {
+            return Err(FrameError::UnknownChannels { bits: self.present });
+        }
+        let half_body_mass_kg =
+            (self.present & Self::HALF_BODY_MASS != 0).then_some(self.half_body_mass_kg);
+        check_finite(
+            || format!("bogie {}", self.bogie_id),
+            [("half_body_mass_kg", half_body_mass_kg.unwrap_or(0.0))],
+        )?;
         check_finite(
             || format!("bogie {}", self.bogie_id),
             [
@@ -418,8 +449,7 @@ impl BogieFrame {
             bogie_yaw_rate_rad_s: self.bogie_yaw_rate_rad_s,
             body_accel_m_s2: self.body_accel_m_s2,
             speed_m_s: self.speed_m_s,
-            // The frame carries no load signal yet (issue 24 item 1): the design mass.
-            half_body_mass_kg: None,
+            half_body_mass_kg,
         })
     }
 }
@@ -611,7 +641,7 @@ mod tests {
             half_body_mass_kg: None,
         };
         let frame = BogieFrame::from_sample(3, &sample);
-        assert_eq!(std::mem::size_of::<BogieFrame>(), 56);
+        assert_eq!(std::mem::size_of::<BogieFrame>(), 64);
         assert_eq!(frame.checked_sample().unwrap(), sample);
         for (speed_m_s, reason) in [
             (f64::NAN, "not_finite"),
@@ -637,6 +667,56 @@ mod tests {
             err.to_string()
                 .contains("bogie 3 bogie_yaw_rate_rad_s is NaN"),
             "{err}"
+        );
+    }
+
+    /// The measured mass travels with its bit; absent, the value is ignored; a NaN or
+    /// infinite mass is refused by name (a non-positive one is left to the monitor, which
+    /// refuses it as `mass_out_of_range`), as are unknown bits.
+    #[test]
+    fn bogie_frame_carries_an_optional_measured_mass() {
+        let sample = railmon_damper::BogieSample {
+            half_body_mass_kg: Some(15600.0),
+            ..Default::default()
+        };
+        let frame = BogieFrame::from_sample(2, &sample);
+        assert_eq!(frame.present, BogieFrame::HALF_BODY_MASS);
+        assert_eq!(frame.checked_sample().unwrap(), sample);
+        let without = BogieFrame::from_sample(2, &railmon_damper::BogieSample::default());
+        assert_eq!((without.present, without.half_body_mass_kg), (0, 0.0));
+        let ignored = BogieFrame {
+            half_body_mass_kg: f64::NAN,
+            ..without
+        };
+        assert_eq!(ignored.checked_sample().unwrap().half_body_mass_kg, None);
+        for bad in [f64::NAN, f64::INFINITY] {
+            let err = BogieFrame {
+                half_body_mass_kg: bad,
+                ..frame
+            }
+            .checked_sample()
+            .unwrap_err();
+            assert_eq!(err.reason(), "not_finite");
+            assert!(
+                err.to_string().contains("bogie 2 half_body_mass_kg is"),
+                "{err}"
+            );
+        }
+        let unknown = BogieFrame {
+            present: 1 << 3,
+            ..frame
+        };
+        assert_eq!(
+            unknown.checked_sample().unwrap_err().reason(),
+            "unknown_channels"
+        );
+        let negative = BogieFrame {
+            half_body_mass_kg: -1.0,
+            ..frame
+        };
+        assert_eq!(
+            negative.checked_sample().unwrap().half_body_mass_kg,
+            Some(-1.0)
         );
     }
 }

@@ -239,6 +239,7 @@ mod tests {
             noise_std_ratio: [1.0; 5],
             paused: None,
             speed_m_s: 45.3,
+            measured_half_body_mass_kg: None,
         }
     }
 

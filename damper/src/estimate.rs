@@ -33,4 +33,8 @@ pub struct DamperEstimate {
     pub paused: Option<PauseReason>,
     /// The last sample's speed (m/s).
     pub speed_m_s: f64,
+    /// The last sample's measured body mass above the bogie (kg,
+    /// `BogieSample::half_body_mass_kg`), which the filters take; `None`: the sample had none
+    /// and they assume the design mass (`vehicle.half_body_mass_kg`).
+    pub measured_half_body_mass_kg: Option<f64>,
 }

@@ -194,6 +194,7 @@ impl DamperMonitor {
                 noise_std_ratio: rbpf.noise_std_ratio(),
                 paused: None,
                 speed_m_s: config.vehicle.speed_m_s,
+                measured_half_body_mass_kg: None,
             },
             consistency: ConsistencyCheck::new(&config.consistency, config.dt_s),
             rbpf,
@@ -242,6 +243,7 @@ impl DamperMonitor {
             self.estimate.time_s = self.steps as f64 * self.dt_s;
             self.estimate.paused = Some(reason);
             self.estimate.speed_m_s = speed_m_s;
+            self.estimate.measured_half_body_mass_kg = sample.half_body_mass_kg;
             return Ok(&self.estimate);
         }
         self.rbpf.set_speed(speed_m_s)?;
@@ -287,6 +289,7 @@ impl DamperMonitor {
             noise_std_ratio: self.rbpf.noise_std_ratio(),
             paused: self.pause.reason,
             speed_m_s,
+            measured_half_body_mass_kg: sample.half_body_mass_kg,
         };
         Ok(&self.estimate)
     }
@@ -393,6 +396,8 @@ impl DamperMonitor {
                 noise_std_ratio: rbpf.noise_std_ratio(),
                 paused: pause.reason,
                 speed_m_s: pause.speed_m_s,
+                // Not in the state: the next sample says (the filters take it before they step).
+                measured_half_body_mass_kg: None,
             },
             rbpf,
             ekf,

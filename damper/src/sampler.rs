@@ -502,6 +502,8 @@ pub fn draw(seed: u64, max_duration_s: f64) -> Draw {
         sensors,
         faults,
         speed,
+        // The plant's mass is `vehicle`'s, constant (no changes at stops), measured.
+        load: crate::scenario::LoadSpec::default(),
         monitor: DamperMonitorConfig::default(),
         // The filter assumes the design vehicle, whatever the plant's.
         monitor_vehicle_given: true,

@@ -36,6 +36,11 @@ pub struct DamperScenario {
     /// `speed_m_s`, constant. Giving both is refused.
     #[serde(default)]
     pub speed: Option<SpeedProfile>,
+    /// The body's load above the bogie (`[load]`): its mass, whether the samples carry it,
+    /// and how it changes at stops. Without it the plant carries the design mass
+    /// (`vehicle.half_body_mass_kg`), measured.
+    #[serde(default)]
+    pub load: LoadSpec,
     /// The estimator settings to run on it (`DamperMonitorConfig::default()` with the keys
     /// given; `preset = "paper"` starts from `DamperMonitorConfig::paper()` instead). Its
     /// `dt_s` is the scenario's (a different one is refused). Its vehicle is
@@ -51,6 +56,33 @@ pub struct DamperScenario {
 
 fn default_dt_s() -> f64 {
     1e-3
+}
+
+/// The plant's body mass above the bogie over a run (`[load]`): passengers board and alight
+/// while the train stands at a station, so the mass changes only at a stop.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LoadSpec {
+    /// The body mass above the bogie at the start (kg); default: the design value,
+    /// `vehicle.half_body_mass_kg` (the filter's design stays the vehicle's).
+    pub half_body_mass_kg: Option<f64>,
+    /// Whether the samples carry the plant's body mass as the measured load
+    /// (`BogieSample::half_body_mass_kg`, the air springs' pressure); `false`: they carry none
+    /// and the filter assumes the design mass.
+    pub measured: bool,
+    /// `[[time_s, half_body_mass_kg], ...]`: at each time the body mass becomes the value (kg).
+    /// Times increasing, within the run, each at a stop (the `[speed]` profile at 0 m/s).
+    pub changes_kg: Vec<[f64; 2]>,
+}
+
+impl Default for LoadSpec {
+    fn default() -> Self {
+        LoadSpec {
+            half_body_mass_kg: None,
+            measured: true,
+            changes_kg: Vec::new(),
+        }
+    }
 }
 
 impl DamperScenario {
@@ -124,7 +156,61 @@ impl DamperScenario {
                 ));
             }
         }
+        self.validate_load()?;
         self.monitor_config().validate()
+    }
+
+    /// `[load]`: masses finite and positive, changes in time order within the run and each
+    /// at a stop; errors name the key.
+    fn validate_load(&self) -> Result<(), DamperError> {
+        let load = &self.load;
+        let bad = |key: String, value: f64, why: &str| {
+            Err(DamperError::Config(format!("{key} = {value}: {why}")))
+        };
+        if let Some(m) = load
+            .half_body_mass_kg
+            .filter(|m| !(m.is_finite() && *m > 0.0))
+        {
+            return bad("load.half_body_mass_kg".into(), m, "must be positive (kg)");
+        }
+        let speed = self.speed_profile();
+        let mut previous_s = None;
+        for (i, &[t_s, m]) in load.changes_kg.iter().enumerate() {
+            let key = format!("load.changes_kg[{i}]");
+            if !(m.is_finite() && m > 0.0) {
+                return bad(key, m, "the mass must be positive (kg)");
+            }
+            if !(0.0..=self.duration_s).contains(&t_s) {
+                return bad(key, t_s, "the time must be within the run (0..=duration_s)");
+            }
+            if previous_s.is_some_and(|p| t_s <= p) {
+                return bad(key, t_s, "the times must increase");
+            }
+            if speed.at(t_s) != 0.0 {
+                return Err(DamperError::Config(format!(
+                    "{key} = [{t_s}, {m}]: the train runs at {} m/s then; the load changes \
+                     only at a stop (a time where the [speed] profile_m_s is 0)",
+                    speed.at(t_s)
+                )));
+            }
+            previous_s = Some(t_s);
+        }
+        Ok(())
+    }
+
+    /// The plant's body mass above the bogie at time `t_s` (kg): the last of
+    /// `load.changes_kg` at or before it, else the start's.
+    pub fn half_body_mass_kg_at(&self, t_s: f64) -> f64 {
+        let start = self
+            .load
+            .half_body_mass_kg
+            .unwrap_or(self.vehicle.half_body_mass_kg);
+        self.load
+            .changes_kg
+            .iter()
+            .take_while(|[at_s, _]| *at_s <= t_s)
+            .last()
+            .map_or(start, |[_, m]| *m)
     }
 
     /// The plant's speed over time: `[speed]`, else the vehicle's constant speed.
@@ -180,6 +266,10 @@ mod tests {
                 "damper-speed-profile",
                 include_str!("../../config/scenarios/damper-speed-profile.toml"),
             ),
+            (
+                "damper-load",
+                include_str!("../../config/scenarios/damper-load.toml"),
+            ),
         ] {
             let s = DamperScenario::from_toml_str(text).unwrap();
             assert_eq!(s.name, name);
@@ -209,6 +299,45 @@ mod tests {
                     level = \"low\"\n[speed]\nprofile_m_s = [[0, 10], [1, 20]]\n";
         let err = DamperScenario::from_toml_str(erri).unwrap_err().to_string();
         assert!(err.contains("white track"), "{err}");
+    }
+
+    /// `[load]`: the start's mass and its changes at stops; a change while the train runs, out
+    /// of order or out of the run, or a mass that is not positive, is refused naming the key.
+    #[test]
+    fn load_changes_only_at_a_stop_and_names_the_key() {
+        let s = DamperScenario::from_toml_str(MINIMAL).unwrap();
+        assert!(s.load.measured);
+        assert_eq!(s.half_body_mass_kg_at(0.5), s.vehicle.half_body_mass_kg);
+        let stop = "[speed]\nprofile_m_s = [[0, 10], [0.2, 0], [0.6, 0], [0.8, 10]]\n";
+        let with = |load: &str| format!("{MINIMAL}{stop}[load]\n{load}\n");
+        let s = DamperScenario::from_toml_str(&with(
+            "half_body_mass_kg = 12000.0\nmeasured = false\nchanges_kg = [[0.3, 15000.0], [0.5, 14000.0]]",
+        ))
+        .unwrap();
+        assert!(!s.load.measured);
+        let at: Vec<f64> = [0.0, 0.3, 0.4, 0.5, 0.9]
+            .map(|t| s.half_body_mass_kg_at(t))
+            .into();
+        assert_eq!(at, [12000.0, 15000.0, 15000.0, 14000.0, 14000.0]);
+        for (load, want) in [
+            (
+                "changes_kg = [[0.1, 15000.0]]",
+                "load.changes_kg[0] = [0.1, 15000]",
+            ),
+            (
+                "changes_kg = [[0.3, 1.0], [0.3, 2.0]]",
+                "load.changes_kg[1] = 0.3",
+            ),
+            ("changes_kg = [[0.3, 0.0]]", "load.changes_kg[0] = 0"),
+            ("changes_kg = [[2.0, 1.0]]", "load.changes_kg[0] = 2"),
+            ("half_body_mass_kg = -1.0", "load.half_body_mass_kg = -1"),
+            ("mesured = true", "mesured"),
+        ] {
+            let err = DamperScenario::from_toml_str(&with(load))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(want), "{load}: {err}");
+        }
     }
 
     const MINIMAL: &str = "name = \"x\"\nseed = 1\nduration_s = 1.0\n[track]\nkind = \"white\"\nvelocity_std_m_s = 0.05\n";

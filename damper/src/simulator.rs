@@ -25,6 +25,8 @@ pub struct BogieTruth {
     pub state: Vector17,
     /// The track velocities held over the step (m/s).
     pub track_velocity_m_s: Vector2<f64>,
+    /// The plant's body mass above the bogie over the step (kg; `[load]`).
+    pub half_body_mass_kg: f64,
 }
 
 /// Simulates a scenario: `x_{k+1} = Phi(theta_k) x_k + Gamma(theta_k) beta_k`,
@@ -36,6 +38,7 @@ pub struct BogieSimulator {
     disc: Discrete,
     disc_dampers: Dampers,
     disc_speed_m_s: f64,
+    disc_mass_kg: f64,
     speed: SpeedProfile,
     x: Vector17,
     track: TrackGenerator,
@@ -55,6 +58,7 @@ impl BogieSimulator {
         let speed = scenario.speed_profile();
         let mut vehicle = scenario.vehicle;
         vehicle.speed_m_s = plant_speed(speed.at(0.0));
+        vehicle.half_body_mass_kg = scenario.half_body_mass_kg_at(0.0);
         let plant = BogieModel::new(&vehicle, 0.0)?;
         let mut rng = ChaCha8Rng::seed_from_u64(scenario.seed);
         let track = TrackGenerator::new(
@@ -72,6 +76,7 @@ impl BogieSimulator {
             disc,
             disc_dampers: d0,
             disc_speed_m_s: vehicle.speed_m_s,
+            disc_mass_kg: vehicle.half_body_mass_kg,
             speed,
             x: Vector17::zeros(),
             track,
@@ -81,13 +86,13 @@ impl BogieSimulator {
             n_steps: scenario.n_steps(),
             scenario: scenario.clone(),
             last: None,
-            gives_mass: true,
+            gives_mass: scenario.load.measured,
         })
     }
 
     /// Whether the samples carry the plant's body mass above the bogie as the measured load
     /// (`BogieSample::half_body_mass_kg`; from the start, as a real train's air-spring
-    /// pressure does). `false` withholds it (`None`: the filter assumes its design mass), to
+    /// pressure does; default: the scenario's `load.measured`). `false` withholds it (`None`: the filter assumes its design mass), to
     /// measure what the input is worth. Draws no random number: the samples are otherwise
     /// the same.
     pub fn with_mass_input(mut self, gives_mass: bool) -> Self {
@@ -110,17 +115,21 @@ impl BogieSimulator {
         // The speed over the step is the profile's at its start (held, as the track input).
         let speed_m_s = self.speed.at(t_start);
         let v = plant_speed(speed_m_s);
-        if d != self.disc_dampers || v != self.disc_speed_m_s {
-            // Only during faults and speed changes; the exponential of a valid model (positive
-            // speed, positive dampers) cannot fail.
+        // The load changes only at a stop (`[load] changes_kg`, checked by the scenario).
+        let mass_kg = self.scenario.half_body_mass_kg_at(t_start);
+        if d != self.disc_dampers || v != self.disc_speed_m_s || mass_kg != self.disc_mass_kg {
+            // Only during faults, speed and load changes; the exponential of a valid model
+            // (positive speed, mass and dampers) cannot fail.
             let rediscretised = self
                 .plant
                 .set_speed(v)
+                .and_then(|_| self.plant.set_half_body_mass_kg(mass_kg))
                 .and_then(|_| discretize(&self.plant.a_matrix(&d), &self.plant.g_matrix(), dt));
             if let Ok(disc) = rediscretised {
                 self.disc = disc;
                 self.disc_dampers = d;
                 self.disc_speed_m_s = v;
+                self.disc_mass_kg = mass_kg;
                 self.h = self.plant.h_matrix();
             }
         }
@@ -143,6 +152,7 @@ impl BogieSimulator {
                 dampers: d,
                 state: self.x,
                 track_velocity_m_s: beta,
+                half_body_mass_kg: self.plant.params().half_body_mass_kg,
             },
         ));
         self.last.as_ref().map(|(s, t)| (s, t))

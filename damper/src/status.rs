@@ -159,6 +159,7 @@ mod tests {
             noise_std_ratio: [1.0; 5],
             paused,
             speed_m_s: if paused.is_some() { 2.0 } else { 30.0 },
+            measured_half_body_mass_kg: None,
         }
     }
 

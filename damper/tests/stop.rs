@@ -5,7 +5,8 @@
 //! below was not flagged by the end of the run, 10.7 s after moving off.
 
 use railmon_damper::{
-    BogieSimulator, DamperAlarm, DamperEventKind, DamperId, DamperMonitor, DamperScenario,
+    BogieSimulator, DamperAlarm, DamperEstimate, DamperEventKind, DamperId, DamperMonitor,
+    DamperScenario,
 };
 
 /// 11 s at 30 m/s (the alarm's 10 s warm-up), braking to a stop at 13 s, standing 2 s,
@@ -37,6 +38,12 @@ track_velocity_std_m_s = 0.1
 /// `speed.min_m_s` after the stop, when the filter learnt again after it, and the
 /// `damper_degraded` events `(time, damper)`.
 fn run(s: &DamperScenario) -> (f64, f64, Vec<(f64, DamperId)>) {
+    let (moving_off_s, learning_s, degraded, _) = run_to_end(s);
+    (moving_off_s, learning_s, degraded)
+}
+
+/// [`run`], and the final estimate.
+fn run_to_end(s: &DamperScenario) -> (f64, f64, Vec<(f64, DamperId)>, DamperEstimate) {
     let mut config = s.monitor_config();
     config.rbpf.particles = 100;
     let mut monitor = DamperMonitor::for_bogie(&config, 1, None).unwrap();
@@ -60,7 +67,13 @@ fn run(s: &DamperScenario) -> (f64, f64, Vec<(f64, DamperId)>) {
             }
         }
     }
-    (moving_off_s.unwrap(), learning_s.unwrap(), degraded)
+    let estimate = *monitor.estimate();
+    (
+        moving_off_s.unwrap(),
+        learning_s.unwrap(),
+        degraded,
+        estimate,
+    )
 }
 
 #[test]
@@ -89,5 +102,49 @@ fn a_healthy_bogie_comes_through_a_stop_without_an_alarm() {
         learning_s - moving_off_s < 1.6,
         "learnt again {:.3} s after moving off",
         learning_s - moving_off_s
+    );
+}
+
+/// Passengers board at the stop (issue 24 item 1): the body above the bogie goes from the
+/// design 13 t to 16.9 t (1.3 x) at 14 s, the train standing. With the mass measured the
+/// filter follows it: no alarm, and `C_sy` within 3 % of the truth at the end, 11 s after
+/// moving off. Withheld (the filter keeps the design mass) the heavier body's slower sway
+/// reads as a weaker `C_sy`: more than 3 % off, so the test fails if the input stops
+/// mattering.
+#[test]
+fn a_load_change_at_a_stop_is_followed_when_measured() {
+    let mut s = scenario("[load]\nchanges_kg = [[14.0, 16900.0]]");
+    let mut sim = BogieSimulator::new(&s).unwrap();
+    let mut masses = vec![];
+    while let Some((y, truth)) = sim.step() {
+        assert_eq!(y.half_body_mass_kg, Some(truth.half_body_mass_kg));
+        if masses.last() != Some(&y.half_body_mass_kg) {
+            assert!(
+                masses.is_empty() || y.speed_m_s == 0.0,
+                "a change while running"
+            );
+            masses.push(y.half_body_mass_kg);
+        }
+    }
+    assert_eq!(masses, [Some(13000.0), Some(16900.0)]);
+    let truth = s.dampers;
+    let (_, _, degraded, e) = run_to_end(&s);
+    let error = |e: &DamperEstimate| e.csy.mean_ns_per_m / truth.csy_ns_per_m - 1.0;
+    eprintln!(
+        "measured: C_sy {:+.2} %, C_say {:+.2} %",
+        100.0 * error(&e),
+        100.0 * (e.csay.mean_ns_per_m / truth.csay_ns_per_m - 1.0)
+    );
+    assert!(degraded.is_empty(), "{degraded:?}");
+    assert_eq!(e.measured_half_body_mass_kg, Some(16900.0));
+    assert!(error(&e).abs() < 0.03, "C_sy measured: {:+.3}", error(&e));
+    s.load.measured = false;
+    let (_, _, _, withheld) = run_to_end(&s);
+    eprintln!("withheld: C_sy {:+.2} %", 100.0 * error(&withheld));
+    assert_eq!(withheld.measured_half_body_mass_kg, None);
+    assert!(
+        error(&withheld).abs() > 0.03,
+        "C_sy withheld: {:+.3}",
+        error(&withheld)
     );
 }

@@ -5,9 +5,9 @@
 //! One row per sample of one bogie, in time order:
 //!
 //! ```text
-//! time_s[,bogie],wheelset1_accel_m_s2,wheelset2_accel_m_s2,bogie_accel_m_s2,bogie_yaw_rate_rad_s,body_accel_m_s2[,speed_m_s][,true_csy_ns_per_m,true_csay_ns_per_m]
-//! 0.001,1,0.213,-0.112,0.051,0.0031,0.0127,45.3,16000,160000
-//! 0.001,2,0.198,-0.087,0.047,0.0029,0.0131,45.3,16000,160000
+//! time_s[,bogie],wheelset1_accel_m_s2,wheelset2_accel_m_s2,bogie_accel_m_s2,bogie_yaw_rate_rad_s,body_accel_m_s2[,speed_m_s][,half_body_mass_kg][,true_csy_ns_per_m,true_csay_ns_per_m]
+//! 0.001,1,0.213,-0.112,0.051,0.0031,0.0127,45.3,13000,16000,160000
+//! 0.001,2,0.198,-0.087,0.047,0.0029,0.0131,45.3,,16000,160000
 //! ```
 //!
 //! - `time_s`: time of the sample (s); never decreases from one row to the next, and strictly
@@ -22,6 +22,11 @@
 //!   damper model depends on. Files written before it existed have none: their reader
 //!   ([`BogieRecord::speed_m_s`] `None`) assumes the configured constant speed, with a warning.
 //!   Written on every new file, after the sensors.
+//! - `half_body_mass_kg` (optional): the measured mass of the body above the bogie (kg, its air
+//!   springs' load, `railmon_damper::BogieSample::half_body_mass_kg`), after the speed. An
+//!   absent column or an empty cell: not measured (the filter assumes the design mass). A
+//!   value must be a finite positive number (its range about the design mass is the
+//!   monitor's check, `mass_out_of_range`).
 //! - Optional truth (simulated data): both damper coefficients (N s/m), both or neither.
 //!
 //! A NaN, an infinity, an empty field, a missing column, a bogie id that is not a positive
@@ -54,6 +59,8 @@ pub const BOGIE_COLUMNS: [&str; 6] = [
 pub const BOGIE_TRUTH_COLUMNS: [&str; 2] = ["true_csy_ns_per_m", "true_csay_ns_per_m"];
 /// The vehicle's speed (m/s), optional when reading, written after the sensors.
 pub const BOGIE_SPEED_COLUMN: &str = "speed_m_s";
+/// The measured body mass above the bogie (kg), optional (column and cell), after the speed.
+pub const BOGIE_MASS_COLUMN: &str = "half_body_mass_kg";
 /// The optional bogie id column (written after `time_s`).
 pub const BOGIE_ID_COLUMN: &str = "bogie";
 /// The bogie a file without a [`BOGIE_ID_COLUMN`] holds.
@@ -67,6 +74,9 @@ pub struct BogieRecord {
     pub sensors: [f64; 5],
     /// Forward speed (m/s); `None` when the file has no [`BOGIE_SPEED_COLUMN`].
     pub speed_m_s: Option<f64>,
+    /// The measured body mass above the bogie (kg); `None`: no [`BOGIE_MASS_COLUMN`] or an
+    /// empty cell (not measured).
+    pub half_body_mass_kg: Option<f64>,
     /// `[C_sy, C_say]` (N s/m) when the file has truth.
     pub truth_ns_per_m: Option<[f64; 2]>,
 }
@@ -78,6 +88,7 @@ pub struct BogieCsvReader<R: Read> {
     bogie: Option<Column>,
     sensors: [Column; 5],
     speed: Option<Column>,
+    mass: Option<Column>,
     truth: Option<[Column; 2]>,
     /// Time of the previous row, whichever bogie it was.
     previous_time_s: Option<f64>,
@@ -115,6 +126,7 @@ impl<R: Read> BogieCsvReader<R> {
             time: table.column(BOGIE_COLUMNS[0])?,
             bogie: table.optional_column(BOGIE_ID_COLUMN),
             speed: table.optional_column(BOGIE_SPEED_COLUMN),
+            mass: table.optional_column(BOGIE_MASS_COLUMN),
             sensors: [
                 table.column(BOGIE_COLUMNS[1])?,
                 table.column(BOGIE_COLUMNS[2])?,
@@ -276,6 +288,18 @@ impl<R: Read> BogieCsvReader<R> {
             (Some(c), false) => Some(row.f64_in(c, 0.0, MAX_SPEED_M_S, "m/s")?),
             (None, _) => None,
         };
+        let half_body_mass_kg = match &self.mass {
+            Some(c) if row.text(c).is_empty() => None,
+            Some(c) if self.as_recorded => Some(row.f64_as_recorded(c)?),
+            Some(c) => {
+                let m = row.f64(c)?;
+                if m <= 0.0 {
+                    return Err(row.error(c, "must be positive (kg)"));
+                }
+                Some(m)
+            }
+            None => None,
+        };
         let truth_ns_per_m = match &self.truth {
             Some([csy, csay]) => Some([
                 row.f64_in(csy, 0.0, f64::MAX, "N s/m")?,
@@ -295,6 +319,7 @@ impl<R: Read> BogieCsvReader<R> {
                 time_s,
                 sensors,
                 speed_m_s,
+                half_body_mass_kg,
                 truth_ns_per_m,
             },
         )))
@@ -333,6 +358,7 @@ impl BogieCsvWriter {
             header.insert(1, BOGIE_ID_COLUMN);
         }
         header.push(BOGIE_SPEED_COLUMN);
+        header.push(BOGIE_MASS_COLUMN);
         if with_truth {
             header.extend(BOGIE_TRUTH_COLUMNS);
         }
@@ -354,7 +380,7 @@ impl BogieCsvWriter {
 
     /// A row of bogie `id` (any id with [`Self::create_with_bogie_ids`], else only bogie 1).
     pub fn write_bogie(&mut self, id: u32, record: &BogieRecord) -> Result<(), RecordError> {
-        let mut fields: Vec<String> = Vec::with_capacity(9);
+        let mut fields: Vec<String> = Vec::with_capacity(11);
         fields.push(record.time_s.to_string());
         match self.bogie_column {
             true => fields.push(id.to_string()),
@@ -371,6 +397,11 @@ impl BogieCsvWriter {
             RecordError::file(&self.file, "a row without speed_m_s (every row needs it)")
         })?;
         fields.push(speed.to_string());
+        fields.push(
+            record
+                .half_body_mass_kg
+                .map_or(String::new(), |m| m.to_string()),
+        );
         if self.with_truth {
             let t = record.truth_ns_per_m.ok_or_else(|| {
                 RecordError::file(
@@ -416,12 +447,14 @@ mod tests {
                 time_s: 0.001,
                 sensors: [0.1, -0.2, 0.3, 0.004, 0.05],
                 speed_m_s: Some(45.3),
+                half_body_mass_kg: Some(13000.0),
                 truth_ns_per_m: Some([16e3, 160e3]),
             },
             BogieRecord {
                 time_s: 0.002,
                 sensors: [1e-17, 2.5, -3.0, 0.0, 1.0 / 3.0],
                 speed_m_s: Some(0.0),
+                half_body_mass_kg: None,
                 truth_ns_per_m: Some([9.6e3, 64e3]),
             },
         ];
@@ -502,11 +535,49 @@ mod tests {
         }
     }
 
+    /// Without a `half_body_mass_kg` column, or with an empty cell, no mass; a value must be
+    /// a finite positive number, else file, line, field and value (as recorded: kept for the
+    /// monitor to refuse and count).
+    #[test]
+    fn mass_column_is_optional_per_column_and_cell_and_checked() {
+        let rows = read_all(&format!("{HEADER},speed_m_s\n0.001,1,2,3,4,5,1\n")).unwrap();
+        assert_eq!(rows[0].half_body_mass_kg, None);
+        let with = format!(
+            "{HEADER},speed_m_s,half_body_mass_kg\n0.001,1,2,3,4,5,1,15600.5\n0.002,1,2,3,4,5,1,\n"
+        );
+        let rows = read_all(&with).unwrap();
+        assert_eq!(
+            rows.iter().map(|r| r.half_body_mass_kg).collect::<Vec<_>>(),
+            [Some(15600.5), None]
+        );
+        for bad in ["NaN", "-1", "0", "x", "inf"] {
+            let err = read_all(&format!(
+                "{HEADER},half_body_mass_kg\n0.001,1,2,3,4,5,13000\n0.002,1,2,3,4,5,{bad}\n"
+            ))
+            .unwrap_err();
+            assert_eq!(
+                (err.line, err.field.as_deref(), err.value.as_deref()),
+                (Some(3), Some("half_body_mass_kg"), Some(bad)),
+                "{bad}: {err}"
+            );
+            assert!(err.to_string().starts_with("bogie.csv:3:"), "{err}");
+        }
+        let text = format!("{HEADER},half_body_mass_kg\n0.001,1,2,3,4,5,-1\n");
+        let mut r = BogieCsvReader::from_reader("b.csv", text.as_bytes())
+            .unwrap()
+            .as_recorded();
+        assert_eq!(
+            r.next_record().unwrap().unwrap().half_body_mass_kg,
+            Some(-1.0)
+        );
+    }
+
     fn record(time_s: f64, k: f64) -> BogieRecord {
         BogieRecord {
             time_s,
             sensors: [0.1 * k, -0.2 * k, 1e-17 * k, 0.004, 1.0 / (3.0 + k)],
             speed_m_s: Some(30.0 + k),
+            half_body_mass_kg: (k > 1.0).then_some(13000.0 + k),
             truth_ns_per_m: Some([16e3, 160e3 * (1.0 - 0.01 * k)]),
         }
     }

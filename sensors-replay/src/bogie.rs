@@ -20,7 +20,7 @@ pub struct BogieArgs {
     /// Damper scenario (e.g. config/scenarios/damper-fault.toml): simulated bogies with truth.
     #[arg(long, conflicts_with = "csv", required_unless_present = "csv")]
     scenario: Option<PathBuf>,
-    /// Bogie CSV: `time_s[,bogie],wheelset1_accel_m_s2,...,body_accel_m_s2[,speed_m_s][,true_csy_ns_per_m,true_csay_ns_per_m]`
+    /// Bogie CSV: `time_s[,bogie],wheelset1_accel_m_s2,...,body_accel_m_s2[,speed_m_s][,half_body_mass_kg][,true_csy_ns_per_m,true_csay_ns_per_m]`
     /// (every bogie of its `bogie` column; without one, one bogie).
     #[arg(long)]
     csv: Option<PathBuf>,
@@ -188,6 +188,8 @@ impl BogieSource {
                             time_s: truth.time_s,
                             sensors: y.to_vector().into(),
                             speed_m_s: Some(y.speed_m_s),
+                            // The scenario's `[load] measured`: the plant's mass, or none.
+                            half_body_mass_kg: y.half_body_mass_kg,
                             truth_ns_per_m: Some([
                                 truth.dampers.csy_ns_per_m,
                                 truth.dampers.csay_ns_per_m,
@@ -232,7 +234,10 @@ impl Source for BogieSource {
             self.ids_sent.push(id);
         }
         let speed_m_s = record.speed_m_s.unwrap_or(self.assumed_speed_m_s);
-        let sample = BogieSample::from_vector(&record.sensors.into(), speed_m_s);
+        let sample = BogieSample {
+            half_body_mass_kg: record.half_body_mass_kg,
+            ..BogieSample::from_vector(&record.sensors.into(), speed_m_s)
+        };
         // Recorded as sent: with the speed the frame carried.
         let record = BogieRecord {
             speed_m_s: Some(speed_m_s),

@@ -9,6 +9,7 @@ use std::sync::Arc;
 use prometheus::IntCounter;
 use railmon_bus::{BogieFrame, FrameHeader};
 use railmon_damper::gain_table::GainTable;
+use railmon_damper::params::checked_half_body_mass_kg;
 use railmon_damper::{
     BogieSample, BogieStatusWatch, DamperAlarm, DamperError, DamperEventKind, DamperMonitor,
     DamperMonitorConfig, DamperMonitorState, DamperPosterior, PauseReason, Propagation, Rbpf,
@@ -451,6 +452,17 @@ impl BogiePipeline {
                     .into(),
                     paused: estimate.and_then(|e| e.paused).map(|r| r.as_str().into()),
                     speed_m_s: estimate.map(|e| e.speed_m_s),
+                    mass_source: estimate.map(|e| {
+                        match e.measured_half_body_mass_kg {
+                            Some(_) => "measured",
+                            None => "design",
+                        }
+                        .into()
+                    }),
+                    half_body_mass_kg: estimate.map(|e| {
+                        e.measured_half_body_mass_kg
+                            .unwrap_or(self.config.estimator.vehicle.half_body_mass_kg)
+                    }),
                     noise_std_ratio: estimate.map(|e| e.noise_std_ratio.into()),
                 }
             })
@@ -523,6 +535,8 @@ impl Pipeline for BogiePipeline {
         "unknown_bogie",
         "out_of_range",
         "speed_out_of_range",
+        "mass_out_of_range",
+        "unknown_channels",
     ];
     /// The bogies of one step share its time.
     const REPEATED_TIMES: bool = true;
@@ -547,10 +561,18 @@ impl Pipeline for BogiePipeline {
             max_abs_accel_m_s2: self.config.max_abs_accel_m_s2,
             max_abs_yaw_rate_rad_s: self.config.max_abs_yaw_rate_rad_s,
         };
-        ranges.check(&sample).map_err(|e| {
-            let reason = e.reason().unwrap_or("estimator");
-            Rejection::new(reason, format!("bogie {}: {e}", frame.bogie_id))
-        })?;
+        // A measured mass within its ratio of the design mass, here rather than at the
+        // deferred step, so the refusal is counted with the frame's own checks.
+        let design_kg = self.config.estimator.vehicle.half_body_mass_kg;
+        ranges
+            .check(&sample)
+            .and_then(|_| {
+                checked_half_body_mass_kg(design_kg, sample.half_body_mass_kg).map(|_| ())
+            })
+            .map_err(|e| {
+                let reason = e.reason().unwrap_or("estimator");
+                Rejection::new(reason, format!("bogie {}: {e}", frame.bogie_id))
+            })?;
         Ok(CheckedBogieSample { slot, sample })
     }
 

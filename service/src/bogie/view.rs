@@ -61,6 +61,13 @@ pub struct BogieView {
     pub paused: Option<String>,
     /// Vehicle speed of the last sample, m/s; null before the first.
     pub speed_m_s: Option<f64>,
+    /// Which body mass above the bogie the filter takes: `measured` (the last frame's
+    /// `half_body_mass_kg`, its air springs' load) or `design` (the frame had none:
+    /// `estimator.vehicle.half_body_mass_kg`, also right after a restore from a snapshot,
+    /// until the next frame); null before the first sample.
+    pub mass_source: Option<String>,
+    /// That mass, kg; null when `mass_source` is.
+    pub half_body_mass_kg: Option<f64>,
     /// The sensors' noise as the filter estimates it online; null before the monitor exists
     /// (its first frame).
     pub noise_std_ratio: Option<SensorNoiseView>,
