@@ -28,7 +28,11 @@ fn a_resumed_monitor_goes_on_exactly_and_inside_the_pre_restart_interval() {
     let bytes = bincode::serialize(&running.state()).unwrap();
     let state = bincode::deserialize(&bytes).unwrap();
     let mut resumed = DamperMonitor::resume(&config, Some(table.clone()), state).unwrap();
-    assert_eq!(*resumed.estimate(), pre);
+    // The measured mass is the last sample's, not state: the resumed monitor reports it from
+    // its first sample on; the estimate itself is the same to the bit.
+    let mut pre_without_mass = pre;
+    pre_without_mass.measured_half_body_mass_kg = None;
+    assert_eq!(*resumed.estimate(), pre_without_mass);
     let inside = |e: &railmon_damper::DamperEstimate| {
         [(e.csy, pre.csy), (e.csay, pre.csay)]
             .iter()

@@ -357,7 +357,10 @@ mod tests {
         assert!(reader.has_bogie_column() && reader.has_truth());
         for (frame, time_ns) in &sent {
             let (id, r) = reader.next_bogie_record().unwrap().unwrap();
-            let sample = BogieSample::from_vector(&r.sensors.into(), r.speed_m_s.unwrap());
+            let sample = BogieSample {
+                half_body_mass_kg: r.half_body_mass_kg,
+                ..BogieSample::from_vector(&r.sensors.into(), r.speed_m_s.unwrap())
+            };
             assert_eq!(BogieFrame::from_sample(id, &sample), *frame);
             assert_eq!((r.time_s * 1e9).round() as u64, *time_ns);
         }
