@@ -42,6 +42,19 @@ fn analyze(args: &[&str], out: &Path) -> Vec<Event> {
         .collect()
 }
 
+/// The events are one pause of bogie 1 and its resumption, nothing else.
+fn assert_paused_then_resumed(events: &[Event]) {
+    let kinds: Vec<(&str, &str)> = events
+        .iter()
+        .map(|e| (e.0.as_str(), e.1.as_str()))
+        .collect();
+    assert_eq!(
+        kinds,
+        [("damper_paused", "1"), ("damper_resumed", "1")],
+        "{events:?}"
+    );
+}
+
 fn temp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!(
         "railmon-damper-paths-{}-{name}",
@@ -152,15 +165,7 @@ fn same_on_every_path(name: &str, scenario: &str, seconds: &str, seed: u64) -> (
 #[test]
 fn service_and_both_analyze_paths_follow_a_measured_load_alike() {
     let (events, bogies) = same_on_every_path("load", "config/scenarios/damper-load.toml", "8", 13);
-    let kinds: Vec<(&str, &str)> = events
-        .iter()
-        .map(|e| (e.0.as_str(), e.1.as_str()))
-        .collect();
-    assert_eq!(
-        kinds,
-        [("damper_paused", "1"), ("damper_resumed", "1")],
-        "{events:?}"
-    );
+    assert_paused_then_resumed(&events);
     let bogie = &bogies["bogies"][0];
     assert_eq!(bogie["mass_source"], "measured", "{bogie}");
     assert_eq!(bogie["half_body_mass_kg"], 16900.0, "{bogie}");
@@ -192,15 +197,7 @@ fn service_and_both_analyze_paths_raise_the_same_pause_events() {
         "12",
         11,
     );
-    let kinds: Vec<(&str, &str)> = events
-        .iter()
-        .map(|e| (e.0.as_str(), e.1.as_str()))
-        .collect();
-    assert_eq!(
-        kinds,
-        [("damper_paused", "1"), ("damper_resumed", "1")],
-        "{events:?}"
-    );
+    assert_paused_then_resumed(&events);
     assert_eq!(events[0].3["reason"], "low_speed");
     assert!(events[0].2 < 0.01, "{events:?}");
     // 5 m/s at 5 s, then the shortest settling the scenario's monitor configuration allows
