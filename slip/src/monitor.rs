@@ -146,8 +146,9 @@ impl SlipMonitor {
     /// without it. 3: the EKF bank lost the load-jump test's state (the rejected
     /// `[ekf.jump]`, issue 27). 4: the train-speed reference (its settings and per-drive
     /// filters, the estimate's `reference`, issue 23 item 2). 5: the EKF bank keeps its
-    /// initial filter, to relock after a gap (issue 26 item 3).
-    pub const STATE_FORMAT_VERSION: u32 = 5;
+    /// initial filter, to relock after a gap (issue 26 item 3). 6: the temporal method's
+    /// excess evidence per drive (a majority dragging the reference, issue 23 item 1).
+    pub const STATE_FORMAT_VERSION: u32 = 6;
 
     pub fn new(config: &SlipMonitorConfig, n_drives: usize) -> Result<Self, SlipError> {
         config.validate()?;
