@@ -68,19 +68,7 @@ pub struct Args {
     pub table1_skip_steps: usize,
 }
 
-impl crate::many::Analysis for Args {
-    type Report = AdhesionReport;
-    type Error = AdhesionAnalysisError;
-    fn run_args(&self) -> &RunArgs {
-        &self.run
-    }
-    fn run_args_mut(&mut self) -> &mut RunArgs {
-        &mut self.run
-    }
-    fn analyse(&self) -> Result<AdhesionReport, AdhesionAnalysisError> {
-        run(self)
-    }
-}
+crate::many::analysis!(AdhesionReport, AdhesionAnalysisError);
 
 /// Why `railmon analyze adhesion` failed.
 pub type AdhesionAnalysisError = AnalysisError<SlipError>;

@@ -79,19 +79,7 @@ pub struct Args {
     pub gain_cache: Option<std::path::PathBuf>,
 }
 
-impl crate::many::Analysis for Args {
-    type Report = DamperReport;
-    type Error = DamperAnalysisError;
-    fn run_args(&self) -> &RunArgs {
-        &self.run
-    }
-    fn run_args_mut(&mut self) -> &mut RunArgs {
-        &mut self.run
-    }
-    fn analyse(&self) -> Result<DamperReport, DamperAnalysisError> {
-        run(self)
-    }
-}
+crate::many::analysis!(DamperReport, DamperAnalysisError);
 
 fn parse_propagation(s: &str) -> Result<Propagation, String> {
     match s {

@@ -38,19 +38,7 @@ pub struct Args {
     pub run: RunArgs,
 }
 
-impl crate::many::Analysis for Args {
-    type Report = Evaluation;
-    type Error = FuelAnalysisError;
-    fn run_args(&self) -> &RunArgs {
-        &self.run
-    }
-    fn run_args_mut(&mut self) -> &mut RunArgs {
-        &mut self.run
-    }
-    fn analyse(&self) -> Result<Evaluation, FuelAnalysisError> {
-        run(self)
-    }
-}
+crate::many::analysis!(Evaluation, FuelAnalysisError);
 
 /// Why `railmon analyze fuel` failed.
 pub type FuelAnalysisError = AnalysisError<FuelError>;

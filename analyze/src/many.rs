@@ -28,6 +28,27 @@ pub trait Analysis: Clone + Send + Sync {
     fn analyse(&self) -> Result<Self::Report, Self::Error>;
 }
 
+/// [`Analysis`] for the domain module's `Args` (its `RunArgs` in the field `run`) and its
+/// `run`: `analysis!(Report, Error);` in each domain.
+macro_rules! analysis {
+    ($report:ty, $error:ty) => {
+        impl $crate::many::Analysis for Args {
+            type Report = $report;
+            type Error = $error;
+            fn run_args(&self) -> &RunArgs {
+                &self.run
+            }
+            fn run_args_mut(&mut self) -> &mut RunArgs {
+                &mut self.run
+            }
+            fn analyse(&self) -> Result<$report, $error> {
+                run(self)
+            }
+        }
+    };
+}
+pub(crate) use analysis;
+
 /// What `--input` and `--jobs` of every `railmon analyze <domain>` read.
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct Inputs {
