@@ -68,6 +68,8 @@ pub struct Args {
     pub table1_skip_steps: usize,
 }
 
+crate::many::analysis!(AdhesionReport, AdhesionAnalysisError);
+
 /// Why `railmon analyze adhesion` failed.
 pub type AdhesionAnalysisError = AnalysisError<SlipError>;
 

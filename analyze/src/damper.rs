@@ -79,6 +79,8 @@ pub struct Args {
     pub gain_cache: Option<std::path::PathBuf>,
 }
 
+crate::many::analysis!(DamperReport, DamperAnalysisError);
+
 fn parse_propagation(s: &str) -> Result<Propagation, String> {
     match s {
         "exact" => Ok(Propagation::Exact),

@@ -38,6 +38,8 @@ pub struct Args {
     pub run: RunArgs,
 }
 
+crate::many::analysis!(Evaluation, FuelAnalysisError);
+
 /// Why `railmon analyze fuel` failed.
 pub type FuelAnalysisError = AnalysisError<FuelError>;
 

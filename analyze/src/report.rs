@@ -46,13 +46,9 @@ pub enum AnalysisError<E: std::error::Error + 'static> {
 /// `Args` flattens this and adds its own options.
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct RunArgs {
-    /// A recorded CSV (layouts: docs/adhesion.md, docs/damper.md, docs/fuel.md; for fuel also an
-    /// ANL Camry dynamometer file as shipped).
-    #[arg(
-        long,
-        required_unless_present = "scenario",
-        conflicts_with = "scenario"
-    )]
+    /// The recorded CSV analysed. The command line's `--input` (one file, several, or a
+    /// directory) is `crate::many::Inputs`, which sets this field for each file it runs.
+    #[arg(skip)]
     pub input: Option<PathBuf>,
     /// A simulator scenario (`config/scenarios/<domain>-*.toml`).
     #[arg(long)]
@@ -264,14 +260,35 @@ pub fn create_out_dir(dir: &Path) -> Result<(), ReportError> {
         .map_err(|e| ReportError::new(dir, format!("cannot create directory: {e}")))
 }
 
+std::thread_local! {
+    /// Whether this thread's runs draw their step bars: not on the workers of a many-input run
+    /// (`crate::many`), whose one bar counts the inputs.
+    static STEP_BARS_SHOWN: std::cell::Cell<bool> = const { std::cell::Cell::new(true) };
+}
+
+/// No step bars from the runs of this thread (a worker of a many-input run).
+pub(crate) fn hide_step_bars() {
+    STEP_BARS_SHOWN.with(|shown| shown.set(false));
+}
+
 /// A progress bar over `len` steps, labelled `what`. It draws to stderr only when stderr is a
 /// terminal, and only after the first second, so short runs and logs stay clean.
 pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
+    match STEP_BARS_SHOWN.with(|shown| shown.get()) {
+        true => bar_of(len, what, "steps"),
+        false => ProgressBar::hidden(),
+    }
+}
+
+/// A progress bar over `len` `unit`s, as [`progress_bar`] draws it.
+pub(crate) fn bar_of(len: u64, what: &str, unit: &str) -> ProgressBar {
     let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::hidden());
     bar.set_style(
-        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} steps, {per_sec}, eta {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
+        ProgressStyle::with_template(&format!(
+            "{{msg}} [{{bar:40}}] {{pos}}/{{len}} {unit}, {{per_sec}}, eta {{eta}}"
+        ))
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
     );
     bar.set_message(what.to_owned());
     if std::io::IsTerminal::is_terminal(&std::io::stderr()) {

@@ -1,5 +1,7 @@
 //! `railmon`: the onboard condition-monitoring service (`serve`) and offline analysis (`analyze`).
 
+#[cfg(feature = "analyze")]
+mod analyze_cmd;
 mod config_cmd;
 mod damper_cmd;
 mod serve;
@@ -41,25 +43,28 @@ enum Command {
     Analyze(Analyze),
 }
 
-/// One line per domain: `Name(railmon_analyze::name::Args)` here and its arm in `main`.
+#[cfg(feature = "analyze")]
+use railmon_analyze::many::Many;
+
+/// One line per domain: `Name(Many<railmon_analyze::name::Args>)` here and its arm in `run`.
 #[cfg(feature = "analyze")]
 #[derive(Subcommand)]
 enum Analyze {
     /// Wheel slip of traction drives: EKF per drive, then VB, VMP, k-means, median and temporal.
     #[command(long_about = None)]
-    Adhesion(railmon_analyze::adhesion::Args),
+    Adhesion(Many<railmon_analyze::adhesion::Args>),
     /// Damper health of a bogie: Rao-Blackwellised particle filter against an augmented EKF.
     #[command(long_about = None)]
-    Damper(railmon_analyze::damper::Args),
+    Damper(Many<railmon_analyze::damper::Args>),
     /// Fuel use and driving regime: recursive mixture with data-dependent switching.
     #[command(long_about = None)]
-    Fuel(railmon_analyze::fuel::Args),
+    Fuel(Many<railmon_analyze::fuel::Args>),
 }
 
 /// An error and its causes on one line, each cause once: an error whose message already
 /// includes its source's (the usual `"{file}: {source}"`) is not followed by it again.
 /// Runs of white space (line breaks) become one space.
-fn one_line(error: &anyhow::Error) -> String {
+pub(crate) fn one_line(error: &anyhow::Error) -> String {
     let mut line = error.to_string();
     for cause in error.chain().skip(1) {
         let cause = cause.to_string();
@@ -93,29 +98,29 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Config(command) => config_cmd::run(command),
         Command::Damper(command) => damper_cmd::run(command),
         #[cfg(feature = "analyze")]
-        Command::Analyze(analyze) => {
-            // Whole seconds: a file system may store coarser times than the clock reads.
-            let started = std::time::SystemTime::now() - std::time::Duration::from_secs(1);
-            let (out, headline) = match analyze {
-                Analyze::Adhesion(args) => {
-                    let report = railmon_analyze::adhesion::run(&args)?;
-                    print_out(&report.tables_text)?;
-                    (args.run.out.clone(), summary::adhesion(&report))
-                }
-                Analyze::Damper(args) => (
-                    args.run.out.clone(),
-                    summary::damper(&railmon_analyze::damper::run(&args)?),
-                ),
-                Analyze::Fuel(args) => (
-                    args.run.out.clone(),
-                    summary::fuel(&railmon_analyze::fuel::run(&args)?),
-                ),
-            };
-            print_out(&format!(
-                "{}\n{headline}\n",
-                summary::written(&out, started)
-            ))
-        }
+        Command::Analyze(analyze) => match analyze {
+            Analyze::Adhesion(many) => analyze_cmd::run(
+                many,
+                analyze_cmd::Shown {
+                    tables: |r| Some(&r.tables_text),
+                    headline: summary::adhesion,
+                },
+            ),
+            Analyze::Damper(many) => analyze_cmd::run(
+                many,
+                analyze_cmd::Shown {
+                    tables: |_| None,
+                    headline: summary::damper,
+                },
+            ),
+            Analyze::Fuel(many) => analyze_cmd::run(
+                many,
+                analyze_cmd::Shown {
+                    tables: |_| None,
+                    headline: summary::fuel,
+                },
+            ),
+        },
     }
 }
 

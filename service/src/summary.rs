@@ -11,6 +11,29 @@ use railmon_analyze::fuel::Evaluation;
 
 /// The files of `out` written since `started` (name and size), sorted by name.
 pub fn written(out: &Path, started: SystemTime) -> String {
+    let files = fresh_files(out, started);
+    let (n, mb) = count_and_mb(&files);
+    let names: Vec<&str> = files.iter().map(|(n, _)| n.as_str()).collect();
+    format!(
+        "wrote {n} files ({mb:.1} MB) to {}: {}",
+        out.display(),
+        names.join(", ")
+    )
+}
+
+/// `wrote N files (X MB) to OUT`, without the names: a many-input run's line per input.
+pub fn written_briefly(out: &Path, started: SystemTime) -> String {
+    let (n, mb) = count_and_mb(&fresh_files(out, started));
+    format!("wrote {n} files ({mb:.1} MB) to {}", out.display())
+}
+
+fn count_and_mb(files: &[(String, u64)]) -> (usize, f64) {
+    let total: u64 = files.iter().map(|(_, n)| n).sum();
+    (files.len(), total as f64 / 1e6)
+}
+
+/// The files of `out` modified since `started`: name and size, sorted by name.
+fn fresh_files(out: &Path, started: SystemTime) -> Vec<(String, u64)> {
     let mut files: Vec<(String, u64)> = std::fs::read_dir(out)
         .into_iter()
         .flatten()
@@ -22,15 +45,20 @@ pub fn written(out: &Path, started: SystemTime) -> String {
         })
         .collect();
     files.sort();
-    let total: u64 = files.iter().map(|(_, n)| n).sum();
-    let names: Vec<&str> = files.iter().map(|(n, _)| n.as_str()).collect();
-    format!(
-        "wrote {} files ({:.1} MB) to {}: {}",
-        files.len(),
-        total as f64 / 1e6,
-        out.display(),
-        names.join(", ")
-    )
+    files
+}
+
+/// A headline of several lines on one: its lines trimmed and joined by `; ` (by a space after
+/// a line that ends in `:`).
+pub fn as_one_line(text: &str) -> String {
+    let mut line = String::new();
+    for part in text.lines().map(str::trim).filter(|l| !l.is_empty()) {
+        if !line.is_empty() {
+            line.push_str(if line.ends_with(':') { " " } else { "; " });
+        }
+        line.push_str(part);
+    }
+    line
 }
 
 fn opt(v: Option<f64>, digits: usize) -> String {
