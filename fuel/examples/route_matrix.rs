@@ -1,7 +1,9 @@
 //! The railcar estimator on generated lines (issue 25 item 2): per line the named-regime
 //! accuracy (overall and per label), the virtual sensor against the single regression (RMSE and
 //! Diebold-Mariano statistic of the squared-error difference), the coverage of the 90 %
-//! intervals, then the distribution over the lines and the worst lines with their seeds.
+//! intervals, then the distribution over the lines, the named regime's published probability
+//! against being right (reliability bins and Brier score, all lines) and the worst lines with
+//! their seeds.
 //!
 //!   cargo run --release -p railmon-fuel --example route_matrix -- --lines 30 --first-seed 100 --split held-out
 //!   cargo run --release -p railmon-fuel --example route_matrix -- --seed 101 --write line-101.toml
@@ -107,7 +109,16 @@ struct LineScore {
     coverage_virtual: f64,
     /// Lowest and highest coverage over the virtual sensor and every forecast horizon.
     coverage_range: (f64, f64),
+    /// The published probability of the named regime (its components' sum): per bin of
+    /// [`RELIABILITY_BINS`], seconds right and seconds; and the sum of its squared error
+    /// against being right (Brier).
+    reliability: [(usize, usize); 5],
+    brier_sum: f64,
+    soft_right: usize,
 }
+
+/// Lower ends of the reliability bins of the named regime's probability.
+const RELIABILITY_BINS: [f64; 5] = [0.0, 0.5, 0.7, 0.9, 0.99];
 
 impl LineScore {
     fn named(&self) -> f64 {
@@ -189,6 +200,9 @@ fn score_line(scenario: &RailcarScenario) -> Result<LineScore, String> {
     let mut cover = vec![Cover::default(); horizon + 1];
     let mut per_label = [(0usize, 0usize); 5];
     let mut confusion = [[0usize; 6]; 5];
+    let mut reliability = [(0usize, 0usize); 5];
+    let mut brier_sum = 0.0;
+    let mut soft_right = 0usize;
     let (mut sq_mix, mut sq_single, mut d) = (0.0, 0.0, Vec::new());
     let (mut seconds, mut refused) = (0, 0);
     while let Some((sample, truth)) = sim.step() {
@@ -220,9 +234,33 @@ fn score_line(scenario: &RailcarScenario) -> Result<LineScore, String> {
         sq_single += e_single * e_single;
         d.push(e_mix * e_mix - e_single * e_single);
         let name = a.regime_names[a.active_regime].regime;
+        let right = name == labels[truth.regime];
         let slot = &mut per_label[truth.regime];
-        slot.0 += usize::from(name == labels[truth.regime]);
+        slot.0 += usize::from(right);
         slot.1 += 1;
+        let p_named: f64 = a
+            .regime_names
+            .iter()
+            .zip(&a.regime_probabilities)
+            .filter(|(n, _)| n.regime == name)
+            .map(|(_, p)| p)
+            .sum();
+        let bin = RELIABILITY_BINS
+            .iter()
+            .rposition(|&lo| p_named >= lo)
+            .unwrap_or(0);
+        reliability[bin].0 += usize::from(right);
+        reliability[bin].1 += 1;
+        brier_sum += (p_named - f64::from(u8::from(right))).powi(2);
+        let mut by_regime = [0.0; 6];
+        for (n, p) in a.regime_names.iter().zip(&a.regime_probabilities) {
+            by_regime[RegimeName::ALL
+                .iter()
+                .position(|&r| r == n.regime)
+                .unwrap_or(5)] += p;
+        }
+        let soft = (0..6).fold(0, |b, i| if by_regime[i] > by_regime[b] { i } else { b });
+        soft_right += usize::from(RegimeName::ALL.get(soft) == Some(&labels[truth.regime]));
         let column = RegimeName::ALL.iter().position(|&n| n == name).unwrap_or(5);
         confusion[truth.regime][column] += 1;
     }
@@ -245,6 +283,9 @@ fn score_line(scenario: &RailcarScenario) -> Result<LineScore, String> {
             shares.iter().copied().fold(f64::INFINITY, f64::min),
             shares.iter().copied().fold(f64::NEG_INFINITY, f64::max),
         ),
+        reliability,
+        brier_sum,
+        soft_right,
     })
 }
 
@@ -396,6 +437,34 @@ fn main() -> ExitCode {
             })
             .collect();
         println!("  {label}, {}", row.join(", "));
+    }
+    // Is the named regime's published probability what it is worth?
+    let seconds: usize = scores
+        .iter()
+        .map(|s| s.reliability.iter().map(|r| r.1).sum::<usize>())
+        .sum();
+    let brier: f64 = scores.iter().map(|s| s.brier_sum).sum::<f64>() / seconds.max(1) as f64;
+    println!(
+        "named regime's published probability against being right (all lines), Brier {brier:.4}:"
+    );
+    println!(
+        "  (the regime of the highest published probability right: {:.1} %)",
+        100.0 * scores.iter().map(|s| s.soft_right).sum::<usize>() as f64 / seconds.max(1) as f64
+    );
+    for (b, lo) in RELIABILITY_BINS.iter().enumerate() {
+        let (right, n) = scores.iter().fold((0, 0), |acc, s| {
+            (acc.0 + s.reliability[b].0, acc.1 + s.reliability[b].1)
+        });
+        let hi = RELIABILITY_BINS.get(b + 1).copied().unwrap_or(1.0);
+        println!(
+            "  p in [{lo:.2}, {hi:.2}{}: {n} s, right {}",
+            if b + 1 == RELIABILITY_BINS.len() {
+                "]"
+            } else {
+                ")"
+            },
+            percent((n > 0).then(|| right as f64 / n as f64))
+        );
     }
     let better = scores.iter().filter(|s| s.dm < -1.645).count();
     let worse = scores.iter().filter(|s| s.dm > 1.645).count();

@@ -27,6 +27,11 @@ pub(crate) struct Prepared {
     /// `ln P` of each physical regime, component order (only with `pointer_regimes`).
     #[serde(default)]
     pub(crate) given: Option<Vec<f64>>,
+    /// `ln P` of each component's regime as the rule is sure of it (the speed filter's
+    /// spread of the acceleration), for the published probabilities only (not kept: the
+    /// mixture learns from `given`).
+    #[serde(skip)]
+    pub(crate) reported_given: Option<Vec<f64>>,
     pub(crate) speed_level: usize,
     pub(crate) fuel_level: usize,
     /// Discretised `v_t - v_{t-1}` (0 when acceleration bins are off or on the first sample).

@@ -123,6 +123,12 @@ pub struct Mixture {
     /// after a restore).
     #[serde(skip)]
     spare: Vec<RegressionStats>,
+    /// Of the last step, per component `ln` of the pointer's posterior without the regime
+    /// given, unnormalised: its evidence plus `ln sum_j alpha_(i|j) w_(j;t-1)`. What
+    /// [`Mixture::weights_given`] weighs with another regime prior. Not in snapshots: empty
+    /// after a restore until the next step.
+    #[serde(skip)]
+    log_ungiven: Vec<f64>,
 }
 
 /// `ln alpha_{i|j,k}` of every cell of the switching table, computed as
@@ -228,6 +234,7 @@ impl Mixture {
             joint: vec![1.0 / (m * m) as f64; m * m],
             alpha: AlphaCache::default(),
             spare: Vec::new(),
+            log_ungiven: Vec::new(),
             v0,
             spec,
         }
@@ -293,6 +300,26 @@ impl Mixture {
     }
 
     /// `w_{i;t}`, summing to 1.
+    /// The pointer's posterior after the last step had the regime prior `log_given` (`ln P`
+    /// per component) stood for the step's given one: the step's evidence and predicted
+    /// pointer, another prior on which regime the sample is. Before the first step (and
+    /// after a restore until the next), or if no component is possible, [`Mixture::weights`].
+    pub fn weights_given(&self, log_given: &[f64]) -> Vec<f64> {
+        if self.log_ungiven.len() != log_given.len() {
+            return self.weights();
+        }
+        let mut log_w: Vec<f64> = self
+            .log_ungiven
+            .iter()
+            .zip(log_given)
+            .map(|(u, g)| u + g)
+            .collect();
+        match normalize_log_weights(&mut log_w) {
+            Ok(_) => log_w.iter().map(|l| l.exp()).collect(),
+            Err(_) => self.weights(),
+        }
+    }
+
     pub fn weights(&self) -> Vec<f64> {
         self.log_w.iter().map(|l| l.exp()).collect()
     }
@@ -469,12 +496,14 @@ impl Mixture {
         let k = input.switching_row;
         let d = concat(input.y, input.psi);
         // Steps 2-4: proximities of y_t, probabilities of z_t, alpha_k and w_{t-1}, in logs.
+        let mut log_ungiven = std::mem::take(&mut self.log_ungiven);
+        log_ungiven.resize(m, f64::NEG_INFINITY);
         let log_alpha = self.log_alpha_block(k);
         let mut log_joint = vec![0.0; m * m];
         let x = LevelData::of(&self.spec, input.y, input.standing);
         for i in 0..m {
             // The kept predictions serve the paper's proximity (same bits).
-            let evidence = match &x {
+            let ungiven = match &x {
                 Some(x) => match level_stats(&self.levels, self.standing_level.as_ref(), i, x) {
                     Some(level) => level_evidence(
                         &self.components[i],
@@ -487,12 +516,20 @@ impl Mixture {
                     None => f64::NEG_INFINITY,
                 },
                 None => self.components[i].log_proximity_at(input.y, &predictions[i]),
-            } + self.log_category(i, input.category)
-                + log_given(input.given, i);
+            } + self.log_category(i, input.category);
+            let evidence = ungiven + log_given(input.given, i);
             for j in 0..m {
                 log_joint[i * m + j] = evidence + log_alpha[j * m + i] + self.log_w[j];
             }
+            let term = |j: usize| log_alpha[j * m + i] + self.log_w[j];
+            let top = (0..m).map(term).fold(f64::NEG_INFINITY, f64::max);
+            let prior = match top.is_finite() {
+                true => top + (0..m).map(|j| (term(j) - top).exp()).sum::<f64>().ln(),
+                false => top,
+            };
+            log_ungiven[i] = ungiven + prior;
         }
+        self.log_ungiven = log_ungiven;
         // Step 5: normalise W_{i,j;t}. Step 6: w_{i;t} = sum_j W_{i,j;t} (eq. 9).
         normalize_log_weights(&mut log_joint)?;
         let mut log_w: Vec<f64> = log_joint.chunks(m).map(log_sum_exp).collect();
