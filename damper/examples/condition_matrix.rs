@@ -11,8 +11,9 @@
 //! damper while it is healthy, after the alarm's warm-up (`!` when below the alarm's
 //! `degraded_below_ratio`), and how long and in how many stretches it was below (how many
 //! began within 2 s of a jump hypothesis becoming particles); the jump hypotheses that became
-//! particles while both dampers were healthy (`Rbpf::jump_count`) and how many of them moved
-//! a published ratio down by more than 0.05 within 2 s; after 30 s, every 10 ms: the share of time with both means within
+//! particles while both dampers were healthy (`Rbpf::jump_count`), how many were adopted
+//! into the published posterior (`Rbpf::jump_adoptions`) and how many moved a published
+//! ratio down by more than 0.05 within 2 s; after 30 s, every 10 ms: the share of time with both means within
 //! 5 % of the truth, the 90 % interval's coverage of each damper, the share of time the
 //! filter reports `model_mismatch`, and the mean error `mean / truth - 1` of each damper; per
 //! faulty damper the detection delay, from the first sample with the truth below the alarm's
@@ -221,6 +222,9 @@ struct Outcome {
     /// healthy, and how many of them moved a healthy published ratio down by `JUMP_MOVE`.
     healthy_jumps: usize,
     moving_jumps: usize,
+    /// Jump hypotheses adopted into the published posterior (`Rbpf::jump_adoptions`) while
+    /// both dampers were healthy.
+    healthy_adoptions: usize,
     judged: usize,
     within: usize,
     covered: [usize; 2],
@@ -282,7 +286,7 @@ impl Outcome {
         let pct = |x: f64| format!("{:.1}", 100.0 * x);
         let detections: Vec<String> = self.detections.iter().map(Detection::text).collect();
         format!(
-            "| {} | {}{} | {} | {} / {} | {:.2} s, {} ({} after a jump) | {} / {} | {} | {} / {} | {} | {:+.1} / {:+.1} | {} | {:.0} |",
+            "| {} | {}{} | {} | {} / {} | {:.2} s, {} ({} after a jump) | {} / {} / {} | {} | {} / {} | {} | {:+.1} / {:+.1} | {} | {:.0} |",
             self.draw.seed,
             self.draw.short(),
             self.diverged_at_s
@@ -294,6 +298,7 @@ impl Outcome {
             self.below_stretches,
             self.below_after_jump,
             self.healthy_jumps,
+            self.healthy_adoptions,
             self.moving_jumps,
             pct(self.within_share()),
             pct(self.share(self.covered[0])),
@@ -311,7 +316,7 @@ impl Outcome {
     }
 }
 
-const HEADER: &str = "| seed | conditions | false degraded | lowest healthy ratio csy / csay | healthy below threshold: time, stretches | healthy jumps / moving the mean | both within 5 % [%] | 90 % coverage csy / csay [%] | model_mismatch [%] | mean error csy / csay [%] | detection delay | wall s |\n|---|---|---|---|---|---|---|---|---|---|---|---|";
+const HEADER: &str = "| seed | conditions | false degraded | lowest healthy ratio csy / csay | healthy below threshold: time, stretches | healthy jumps / adopted / moving the mean | both within 5 % [%] | 90 % coverage csy / csay [%] | model_mismatch [%] | mean error csy / csay [%] | detection delay | wall s |\n|---|---|---|---|---|---|---|---|---|---|---|---|";
 
 fn run(
     draw: Draw,
@@ -350,6 +355,7 @@ fn run(
         below_after_jump: 0,
         healthy_jumps: 0,
         moving_jumps: 0,
+        healthy_adoptions: 0,
         judged: 0,
         within: 0,
         covered: [0; 2],
@@ -365,6 +371,7 @@ fn run(
     // Jump instrumentation: the materialisations seen, each (time, healthy ratios before it,
     // the lowest since) until its window closes; whether each damper is below threshold.
     let mut jumps_seen = 0u64;
+    let mut adoptions_seen = 0u64;
     let mut open_jumps: Vec<(f64, [f64; 2], [f64; 2])> = vec![];
     let mut last_jump_s = f64::NEG_INFINITY;
     let mut below = [false; 2];
@@ -413,6 +420,11 @@ fn run(
         }
         let ratios = [0, 1].map(|k| posts[k].mean_ns_per_m / nominal[k]);
         let jumps = monitor.rbpf().jump_count();
+        let adoptions = monitor.rbpf().jump_adoptions();
+        if adoptions > adoptions_seen {
+            adoptions_seen = adoptions;
+            o.healthy_adoptions += usize::from(healthy[0] && healthy[1]);
+        }
         if jumps > jumps_seen {
             jumps_seen = jumps;
             last_jump_s = time;
@@ -602,8 +614,9 @@ fn report(args: &Args, outcomes: &[Outcome], threshold: f64, wall_s: f64) {
         outcomes.iter().map(|o| o.below_after_jump).sum::<usize>(),
     );
     println!(
-        "| jumps materialised while healthy / moving a published ratio down by {JUMP_MOVE} within {JUMP_WINDOW_S} s | {} / {} |",
+        "| jumps materialised while healthy / adopted (published) / moving a published ratio down by {JUMP_MOVE} within {JUMP_WINDOW_S} s | {} / {} / {} |",
         outcomes.iter().map(|o| o.healthy_jumps).sum::<usize>(),
+        outcomes.iter().map(|o| o.healthy_adoptions).sum::<usize>(),
         outcomes.iter().map(|o| o.moving_jumps).sum::<usize>(),
     );
     println!(
