@@ -943,11 +943,9 @@ mod tests {
     use super::*;
     use crate::{BogieSimulator, DamperScenario};
 
-    /// A hypothesis becomes as many particles as its share of the posterior,
-    /// `odds / (1 + odds)`, holding exactly that mass, each with the sentinel's Kalman state and coefficient (the
-    /// other its own); the other particles keep their relative weights; every odds restarts.
-    #[test]
-    fn a_materialised_hypothesis_holds_its_posterior_mass() {
+    /// N = 64 with the jump search, 0.2 s into `damper-seed`; no hypothesis becomes particles
+    /// by itself (`materialise_odds` out of reach): the tests put them in.
+    fn seed_filter_with_a_silent_search() -> Rbpf {
         let text = std::fs::read_to_string(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/../config/scenarios/damper-seed.toml"
@@ -964,6 +962,15 @@ mod tests {
         while let Some((y, _)) = sim.step() {
             f.step(&y.to_vector()).unwrap();
         }
+        f
+    }
+
+    /// A hypothesis becomes as many particles as its share of the posterior,
+    /// `odds / (1 + odds)`, holding exactly that mass, each with the sentinel's Kalman state and coefficient (the
+    /// other its own); the other particles keep their relative weights; every odds restarts.
+    #[test]
+    fn a_materialised_hypothesis_holds_its_posterior_mass() {
+        let mut f = seed_filter_with_a_silent_search();
         let (before_theta, before_w) = (f.ln_theta.clone(), f.log_w.clone());
         // All the odds on one sentinel (C_say, offset -0.8): every newcomer stands for it.
         let j = 6;
@@ -1019,21 +1026,7 @@ mod tests {
     /// the newcomers at once (here to about 0.45 x nominal: the alarm's threshold is 0.7).
     #[test]
     fn a_jump_is_published_only_once_its_mass_was_decisive_for_a_time_constant() {
-        let text = std::fs::read_to_string(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../config/scenarios/damper-seed.toml"
-        ))
-        .unwrap();
-        let mut s = DamperScenario::from_toml_str(&text).unwrap();
-        s.duration_s = 0.2;
-        let mut c = s.monitor_config();
-        c.rbpf.particles = 64;
-        c.rbpf.jump_search.materialise_odds = 1e300;
-        let mut f = Rbpf::new(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
-        let mut sim = BogieSimulator::new(&s).unwrap();
-        while let Some((y, _)) = sim.step() {
-            f.step(&y.to_vector()).unwrap();
-        }
+        let mut f = seed_filter_with_a_silent_search();
         let nominal = f.nominal.csay_ns_per_m;
         let before = f.estimate().csay.mean_ns_per_m / nominal;
         // A C_say hypothesis (sentinel 6, -0.8 in ln C) becomes particles.
