@@ -9,7 +9,11 @@
 //! Per draw one row: the conditions; false `damper_degraded` events (on a damper whose fault
 //! has not started); the lowest published health ratio (posterior mean / nominal) of each
 //! damper while it is healthy, after the alarm's warm-up (`!` when below the alarm's
-//! `degraded_below_ratio`); after 30 s, every 10 ms: the share of time with both means within
+//! `degraded_below_ratio`), and how long and in how many stretches it was below (how many
+//! began within 2 s of a jump hypothesis becoming particles); the jump hypotheses that became
+//! particles while both dampers were healthy (`Rbpf::jump_count`), how many were adopted
+//! into the published posterior (`Rbpf::jump_adoptions`) and how many moved a published
+//! ratio down by more than 0.05 within 2 s; after 30 s, every 10 ms: the share of time with both means within
 //! 5 % of the truth, the 90 % interval's coverage of each damper, the share of time the
 //! filter reports `model_mismatch`, and the mean error `mean / truth - 1` of each damper; per
 //! faulty damper the detection delay, from the first sample with the truth below the alarm's
@@ -45,6 +49,11 @@ use flags::parsed;
 const JUDGE_FROM_S: f64 = 30.0;
 /// "Within" means both posterior means within this of the truth.
 const WITHIN: f64 = 0.05;
+/// A jump hypothesis that became particles "moved" a healthy damper's published ratio when
+/// it fell by more than this within `JUMP_WINDOW_S` after it (of nominal).
+const JUMP_MOVE: f64 = 0.05;
+/// How long after a materialisation its effect on the published ratio is looked for (s).
+const JUMP_WINDOW_S: f64 = 2.0;
 
 #[derive(Clone, Copy, PartialEq)]
 enum Split {
@@ -203,6 +212,19 @@ struct Outcome {
     false_degraded: usize,
     /// The lowest health ratio of each damper while healthy, after the alarm's warm-up.
     healthy_min_ratio: [Option<f64>; 2],
+    /// Time a healthy damper's published ratio spent below the alarm's threshold, after the
+    /// warm-up (s, both dampers summed), and in how many stretches.
+    below_s: f64,
+    below_stretches: usize,
+    /// Of those stretches, how many began within `JUMP_WINDOW_S` of a materialisation.
+    below_after_jump: usize,
+    /// Jump hypotheses that became particles (`Rbpf::jump_count`) while both dampers were
+    /// healthy, and how many of them moved a healthy published ratio down by `JUMP_MOVE`.
+    healthy_jumps: usize,
+    moving_jumps: usize,
+    /// Jump hypotheses adopted into the published posterior (`Rbpf::jump_adoptions`) while
+    /// both dampers were healthy.
+    healthy_adoptions: usize,
     judged: usize,
     within: usize,
     covered: [usize; 2],
@@ -264,7 +286,7 @@ impl Outcome {
         let pct = |x: f64| format!("{:.1}", 100.0 * x);
         let detections: Vec<String> = self.detections.iter().map(Detection::text).collect();
         format!(
-            "| {} | {}{} | {} | {} / {} | {} | {} / {} | {} | {:+.1} / {:+.1} | {} | {:.0} |",
+            "| {} | {}{} | {} | {} / {} | {:.2} s, {} ({} after a jump) | {} / {} / {} | {} | {} / {} | {} | {:+.1} / {:+.1} | {} | {:.0} |",
             self.draw.seed,
             self.draw.short(),
             self.diverged_at_s
@@ -272,6 +294,12 @@ impl Outcome {
             self.false_degraded,
             ratio(self.healthy_min_ratio[0]),
             ratio(self.healthy_min_ratio[1]),
+            self.below_s,
+            self.below_stretches,
+            self.below_after_jump,
+            self.healthy_jumps,
+            self.healthy_adoptions,
+            self.moving_jumps,
             pct(self.within_share()),
             pct(self.share(self.covered[0])),
             pct(self.share(self.covered[1])),
@@ -288,7 +316,7 @@ impl Outcome {
     }
 }
 
-const HEADER: &str = "| seed | conditions | false degraded | lowest healthy ratio csy / csay | both within 5 % [%] | 90 % coverage csy / csay [%] | model_mismatch [%] | mean error csy / csay [%] | detection delay | wall s |\n|---|---|---|---|---|---|---|---|---|---|";
+const HEADER: &str = "| seed | conditions | false degraded | lowest healthy ratio csy / csay | healthy below threshold: time, stretches | healthy jumps / adopted / moving the mean | both within 5 % [%] | 90 % coverage csy / csay [%] | model_mismatch [%] | mean error csy / csay [%] | detection delay | wall s |\n|---|---|---|---|---|---|---|---|---|---|---|---|";
 
 fn run(
     draw: Draw,
@@ -322,6 +350,12 @@ fn run(
         draw: draw.clone(),
         false_degraded: 0,
         healthy_min_ratio: [None; 2],
+        below_s: 0.0,
+        below_stretches: 0,
+        below_after_jump: 0,
+        healthy_jumps: 0,
+        moving_jumps: 0,
+        healthy_adoptions: 0,
         judged: 0,
         within: 0,
         covered: [0; 2],
@@ -334,6 +368,14 @@ fn run(
     // Judged time as the alarm counts it (not paused, no mismatch), for its warm-up.
     let mut judged_s = 0.0;
     let mut step = 0usize;
+    // Jump instrumentation: the materialisations seen, each (time, healthy ratios before it,
+    // the lowest since) until its window closes; whether each damper is below threshold.
+    let mut jumps_seen = 0u64;
+    let mut adoptions_seen = 0u64;
+    let mut open_jumps: Vec<(f64, [f64; 2], [f64; 2])> = vec![];
+    let mut last_jump_s = f64::NEG_INFINITY;
+    let mut below = [false; 2];
+    let mut ratios_before = [1.0; 2];
     while let Some((sample, truth)) = sim.step() {
         step += 1;
         let e = match monitor.step(sample) {
@@ -376,12 +418,47 @@ fn run(
                 );
             }
         }
+        let ratios = [0, 1].map(|k| posts[k].mean_ns_per_m / nominal[k]);
+        let jumps = monitor.rbpf().jump_count();
+        let adoptions = monitor.rbpf().jump_adoptions();
+        if adoptions > adoptions_seen {
+            adoptions_seen = adoptions;
+            o.healthy_adoptions += usize::from(healthy[0] && healthy[1]);
+        }
+        if jumps > jumps_seen {
+            jumps_seen = jumps;
+            last_jump_s = time;
+            if healthy[0] && healthy[1] {
+                o.healthy_jumps += 1;
+                open_jumps.push((time, ratios_before, ratios));
+            }
+        }
+        open_jumps.retain_mut(|(at, before, lowest)| {
+            for k in 0..2 {
+                lowest[k] = lowest[k].min(ratios[k]);
+            }
+            let open = time - *at < JUMP_WINDOW_S;
+            if !open && (0..2).any(|k| before[k] - lowest[k] > JUMP_MOVE) {
+                o.moving_jumps += 1;
+            }
+            open
+        });
+        ratios_before = ratios;
         if judged_s + 0.5 * config.dt_s >= config.alarm.warmup_s {
             for k in 0..2 {
                 if healthy[k] {
-                    let r = posts[k].mean_ns_per_m / nominal[k];
+                    let r = ratios[k];
                     let m = o.healthy_min_ratio[k].get_or_insert(r);
                     *m = m.min(r);
+                    let now_below = r < threshold;
+                    if now_below {
+                        o.below_s += config.dt_s;
+                        if !below[k] {
+                            o.below_stretches += 1;
+                            o.below_after_jump += usize::from(time - last_jump_s < JUMP_WINDOW_S);
+                        }
+                    }
+                    below[k] = now_below;
                 }
             }
         }
@@ -399,6 +476,10 @@ fn run(
         }
         o.mismatch += usize::from(e.model_mismatch);
     }
+    o.moving_jumps += open_jumps
+        .iter()
+        .filter(|(_, before, lowest)| (0..2).any(|k| before[k] - lowest[k] > JUMP_MOVE))
+        .count();
     o.detections = detections;
     o.seconds = started.elapsed().as_secs_f64();
     o
@@ -525,6 +606,18 @@ fn report(args: &Args, outcomes: &[Outcome], threshold: f64, wall_s: f64) {
     println!(
         "| draws with a healthy damper's published ratio below {threshold} | {} of {n} |",
         count(&|o| o.lowest_healthy() < threshold),
+    );
+    println!(
+        "| time a healthy ratio was below {threshold} | {:.2} s in {} stretches ({} within {JUMP_WINDOW_S} s of a jump) |",
+        outcomes.iter().map(|o| o.below_s).sum::<f64>(),
+        outcomes.iter().map(|o| o.below_stretches).sum::<usize>(),
+        outcomes.iter().map(|o| o.below_after_jump).sum::<usize>(),
+    );
+    println!(
+        "| jumps materialised while healthy / adopted (published) / moving a published ratio down by {JUMP_MOVE} within {JUMP_WINDOW_S} s | {} / {} / {} |",
+        outcomes.iter().map(|o| o.healthy_jumps).sum::<usize>(),
+        outcomes.iter().map(|o| o.healthy_adoptions).sum::<usize>(),
+        outcomes.iter().map(|o| o.moving_jumps).sum::<usize>(),
     );
     println!(
         "| lowest healthy ratio per draw | {} |",

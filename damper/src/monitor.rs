@@ -33,7 +33,8 @@ impl DamperMonitorState {
     /// (`tests/data/golden/state-layout-damper.txt`), so a change cannot ship without it.
     /// 3: the RBPF's jump-search sentinels (`RbpfState`).
     /// 4: the settling after a pause judged on the innovations (`PauseState`).
-    pub const STATE_FORMAT_VERSION: u32 = 4;
+    /// 5: jump hypotheses on probation, not yet published (`RbpfState`).
+    pub const STATE_FORMAT_VERSION: u32 = 5;
 }
 
 /// Where a monitor is with respect to its valid speed range.

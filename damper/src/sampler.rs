@@ -29,10 +29,14 @@
 //!   track's velocity std 0.05-0.2 m/s (log-uniform);
 //! - sensor noise: 0.5-3 times the default (log-uniform), both sensors one factor;
 //! - conicity 0.08-0.3 (uniform; the filter assumes 0.15);
-//! - body mass (`half_body_mass_kg`): the design value in a quarter of the draws, else
-//!   0.85-1.4 times it (uniform), fixed over the run. A mass that changes at a stop is not
-//!   drawn: the simulator builds its plant once and can change only the speed and the dampers
-//!   over a run;
+//! - body mass (`half_body_mass_kg`): at the start the design value in a quarter of the
+//!   draws, else 0.85-1.4 times it (uniform). Half of the draws with stops change it at each
+//!   stop at 0 m/s (not while creeping), at the stop's middle, to 0.85-1.4 times the design
+//!   value again (uniform: passengers boarding and alighting; `[load] changes_kg`), where the
+//!   plant stays stable at the run's later speeds with the new mass (else up to 10 draws
+//!   more, then no change at that stop). These changes come from a second stream of the
+//!   seed's generator (`ChaCha8Rng::set_stream(1)`): every other figure of a draw, the
+//!   simulation's seed included, is the one drawn before load changes existed (27 Nov);
 //! - faults: none (40 %); a step (30 %) of `C_sy`, `C_say` or both (a third each) to 0.2-0.6
 //!   of nominal, from 30 s to 20 s before the end; a ramp (15 %) of one damper from nominal to
 //!   0.2-0.6 over 60-300 s (log-uniform; it may end after the run), starting from 30 s to 60 %
@@ -77,6 +81,10 @@ pub const CREEP_M_S: (f64, f64) = (1.0, 4.5);
 pub const ACCEL_M_S2: (f64, f64) = (0.3, 1.0);
 /// The plant's critical speed less this is the top speed (m/s).
 pub const CRITICAL_MARGIN_M_S: f64 = 2.0;
+/// The share of the draws with stops whose load changes at each stop.
+pub const LOAD_CHANGE_SHARE: f64 = 0.5;
+/// The generator stream of the load changes (the main draw is stream 0).
+const LOAD_STREAM: u64 = 1;
 
 /// Whether `seed` is held out (odd) or a tuning draw (even).
 pub fn is_held_out(seed: u64) -> bool {
@@ -128,8 +136,10 @@ pub struct Draw {
     pub seed: u64,
     pub speed_kind: SpeedKind,
     pub fault_shape: FaultShape,
-    /// Plant body mass over the design value.
+    /// Plant body mass over the design value at the start.
     pub mass_ratio: f64,
+    /// The load changes at stops: (time (s), body mass over the design value from then on).
+    pub load_changes: Vec<(f64, f64)>,
     pub noise_factor: f64,
     /// The highest speed drawn from (m/s).
     pub top_speed_m_s: f64,
@@ -219,8 +229,13 @@ impl Draw {
                 None => format!("{} {:.2} at {:.0} s", f.damper.name(), f.ratio, f.at_s),
             })
             .collect();
+        let masses: String = self
+            .load_changes
+            .iter()
+            .map(|(_, r)| format!("->{r:.2}"))
+            .collect();
         format!(
-            "{:.0} s, {speed}, {track}, noise x{:.2}, con {:.3}, mass x{:.2}, {}",
+            "{:.0} s, {speed}, {track}, noise x{:.2}, con {:.3}, mass x{:.2}{masses}, {}",
             s.duration_s,
             self.noise_factor,
             s.vehicle.conicity,
@@ -347,6 +362,56 @@ fn varying_profile(
         },
         stop_list,
     )
+}
+
+/// The load changes of a draw with `stops` on `profile` (module docs): in a share
+/// [`LOAD_CHANGE_SHARE`] of such draws, at the middle of each stop at 0 m/s, a body mass of
+/// [`MASS_RATIO`] times the design value (within the run) at which the plant with each of `dampers` is stable
+/// at the highest speed after the change (with the margin). Draws from `rng` (the load's own
+/// stream) only: the rest of the draw does not depend on it.
+fn load_changes(
+    rng: &mut ChaCha8Rng,
+    vehicle: &BogieParams,
+    dampers: &[Dampers],
+    profile: &SpeedProfile,
+    stops: &[(f64, f64)],
+    duration_s: f64,
+) -> Vec<(f64, f64)> {
+    if stops.is_empty() || !rng.random_bool(LOAD_CHANGE_SHARE) {
+        return vec![];
+    }
+    let design_kg = BogieParams::default().half_body_mass_kg;
+    let mut changes = vec![];
+    for &(from, to) in stops {
+        let at_s = (0.5 * (from + to)).round();
+        if at_s >= duration_s || profile.at(at_s) != 0.0 {
+            continue;
+        }
+        // The highest speed from the change on: the profile's points after it (it is linear
+        // between them) and the stop itself.
+        let fastest = profile
+            .profile_m_s
+            .iter()
+            .filter(|p| p[0] >= at_s)
+            .map(|p| p[1])
+            .fold(0.0, f64::max);
+        let stable = |ratio: f64| {
+            let plant = BogieParams {
+                half_body_mass_kg: design_kg * ratio,
+                ..*vehicle
+            };
+            dampers
+                .iter()
+                .all(|d| growth_rate_per_s(&plant, d, fastest + CRITICAL_MARGIN_M_S) < 1e-6)
+        };
+        if let Some(ratio) = (0..11)
+            .map(|_| (100.0 * uniform(rng, MASS_RATIO)).round() / 100.0)
+            .find(|&r| stable(r))
+        {
+            changes.push((at_s, ratio));
+        }
+    }
+    changes
 }
 
 /// The first stop of a run of `duration_s` that starts after 20 s and ends 20 s before the
@@ -491,6 +556,19 @@ pub fn draw(seed: u64, max_duration_s: f64) -> Draw {
         }
     };
     let simulation_seed = rng.random::<u64>();
+    let mut load_rng = ChaCha8Rng::seed_from_u64(seed);
+    load_rng.set_stream(LOAD_STREAM);
+    let load_changes = match &speed {
+        Some(profile) => load_changes(
+            &mut load_rng,
+            &vehicle,
+            &[nominal, faulted],
+            profile,
+            &stops,
+            duration_s,
+        ),
+        None => vec![],
+    };
     let scenario = DamperScenario {
         name: format!("damper-draw-{seed}"),
         seed: simulation_seed,
@@ -502,8 +580,14 @@ pub fn draw(seed: u64, max_duration_s: f64) -> Draw {
         sensors,
         faults,
         speed,
-        // The plant's mass is `vehicle`'s, constant (no changes at stops), measured.
-        load: crate::scenario::LoadSpec::default(),
+        // The plant's mass is `vehicle`'s at the start, measured; it changes at stops.
+        load: crate::scenario::LoadSpec {
+            changes_kg: load_changes
+                .iter()
+                .map(|&(t, r)| [t, design.half_body_mass_kg * r])
+                .collect(),
+            ..crate::scenario::LoadSpec::default()
+        },
         monitor: DamperMonitorConfig::default(),
         // The filter assumes the design vehicle, whatever the plant's.
         monitor_vehicle_given: true,
@@ -513,6 +597,7 @@ pub fn draw(seed: u64, max_duration_s: f64) -> Draw {
         speed_kind,
         fault_shape,
         mass_ratio,
+        load_changes,
         noise_factor,
         top_speed_m_s: top,
         stops,
@@ -532,14 +617,15 @@ mod tests {
 
     /// Over 200 draws: every drawn scenario validates and stays in the envelope, the filter
     /// keeps the design vehicle, and every corner appears: each fault shape, both dampers
-    /// faulted together, stops, creeping, masses at both ends, each track.
+    /// faulted together, stops, creeping, masses at both ends, each track, loads changing at
+    /// stops (each within the envelope, at a stop).
     #[test]
     fn draws_cover_the_envelope_and_validate() {
         let design = BogieParams::default();
         let mut shapes = [0usize; 4];
         let (mut both, mut stops, mut creep, mut light, mut heavy, mut design_mass) =
             (0, 0, 0, 0, 0, 0);
-        let (mut erri, mut white, mut from_rest) = (0, 0, 0);
+        let (mut erri, mut white, mut from_rest, mut load_changing) = (0, 0, 0, 0);
         for seed in 0..200 {
             let max = if seed % 2 == 0 { 120.0 } else { 600.0 };
             let d = draw(seed, max);
@@ -548,6 +634,24 @@ mod tests {
             assert_eq!(s.monitor_config().vehicle, design, "seed {seed}");
             assert!((0.5 * max..=max).contains(&s.duration_s), "seed {seed}");
             assert!((MASS_RATIO.0..=MASS_RATIO.1).contains(&d.mass_ratio));
+            for (k, &(t, r)) in d.load_changes.iter().enumerate() {
+                assert!(
+                    (MASS_RATIO.0..=MASS_RATIO.1).contains(&r),
+                    "seed {seed}: {r}"
+                );
+                let kg = design.half_body_mass_kg * r;
+                assert_eq!(s.load.changes_kg[k], [t, kg], "seed {seed}");
+                assert_eq!(s.half_body_mass_kg_at(t), kg, "seed {seed}");
+                assert!(
+                    d.stops.iter().any(|&(a, b)| a < t && t < b),
+                    "seed {seed}: {t}"
+                );
+            }
+            assert_eq!(d.load_changes.len(), s.load.changes_kg.len());
+            load_changing += usize::from(!d.load_changes.is_empty());
+            if d.stops.is_empty() {
+                assert!(d.load_changes.is_empty(), "seed {seed}");
+            }
             let c = s.vehicle.conicity;
             assert!((CONICITY.0..=CONICITY.1).contains(&c), "seed {seed}: {c}");
             assert!((NOISE_FACTOR.0..=NOISE_FACTOR.1).contains(&d.noise_factor));
@@ -591,6 +695,7 @@ mod tests {
             erri,
             white,
             from_rest,
+            load_changing,
         ];
         assert!(shapes.iter().all(|&n| n >= 15), "{shapes:?}");
         assert!((60..=100).contains(&shapes[0]), "healthy: {shapes:?}");

@@ -63,6 +63,21 @@ pub struct RbpfState {
     nis_mean: f64,
     noise_scale: NoiseScale,
     sentinels: Option<SentinelState>,
+    /// Per particle, which damper's jump hypothesis not yet adopted it holds (`jump` module
+    /// docs, "Publishing a jump"): 0 none, 1 `C_sy`, 2 `C_say`; empty when none does.
+    on_probation: Vec<u8>,
+    /// Per damper, steps its hypotheses on probation have held a decisive posterior mass in
+    /// a row.
+    decisive_steps: [u64; 2],
+}
+
+/// Whether a particle holds a jump hypothesis not yet published, and of which damper.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Probation {
+    /// Published.
+    None,
+    /// A jump of `C_sy` (0) or `C_say` (1), not yet adopted.
+    Jump(u8),
 }
 
 /// The filter.
@@ -97,6 +112,14 @@ pub struct Rbpf {
     sorted: SortedParticles,
     /// The jump search's sentinels (`jump_search.enabled`).
     sentinels: Option<Sentinels>,
+    /// Per particle, which damper's jump hypothesis not yet adopted it holds (empty: none);
+    /// the published posterior leaves these out (`jump` module docs, "Publishing a jump").
+    on_probation: Vec<Probation>,
+    /// Per damper, steps in a row its particles on probation have held at least
+    /// `jump::ADOPT_POSTERIOR_MASS` of the posterior.
+    decisive_steps: [u64; 2],
+    /// Jump hypotheses adopted so far (published).
+    adoptions: u64,
     /// The time constant of the model's slowest mode (s; [`slowest_time_constant_s`]), with
     /// the jump search (the only part that needs it).
     slowest_time_constant_s: Option<f64>,
@@ -253,6 +276,9 @@ impl Rbpf {
                 ..SortedParticles::default()
             },
             sentinels,
+            on_probation: Vec::new(),
+            decisive_steps: [0; 2],
+            adoptions: 0,
             slowest_time_constant_s,
             max_resume_settle_s,
             design_half_body_mass_kg: filter_model.vehicle.half_body_mass_kg,
@@ -276,6 +302,15 @@ impl Rbpf {
             nis_mean: self.nis_mean,
             noise_scale: self.noise_scale,
             sentinels: self.sentinels.as_ref().map(Sentinels::save),
+            on_probation: self
+                .on_probation
+                .iter()
+                .map(|p| match p {
+                    Probation::None => 0,
+                    Probation::Jump(k) => 1 + k,
+                })
+                .collect(),
+            decisive_steps: self.decisive_steps,
         }
     }
 
@@ -295,6 +330,14 @@ impl Rbpf {
             return Err(DamperError::Config(format!(
                 "snapshot of {} particles, {n} configured",
                 state.ln_theta.len()
+            )));
+        }
+        if !(state.on_probation.is_empty() || state.on_probation.len() == n)
+            || state.on_probation.iter().any(|p| *p > 2)
+        {
+            return Err(DamperError::Config(format!(
+                "snapshot: on_probation of {} entries in 0..=2 expected for {n} particles",
+                state.on_probation.len()
             )));
         }
         if state.ln_theta.iter().flatten().any(|v| !v.is_finite())
@@ -324,6 +367,15 @@ impl Rbpf {
         f.resamples = state.resamples;
         f.nis_mean = state.nis_mean;
         f.noise_scale = state.noise_scale;
+        f.on_probation = state
+            .on_probation
+            .iter()
+            .map(|&p| match p {
+                0 => Probation::None,
+                p => Probation::Jump(p - 1),
+            })
+            .collect();
+        f.decisive_steps = state.decisive_steps;
         f.sorted.stale = true;
         Ok(f)
     }
@@ -412,6 +464,12 @@ impl Rbpf {
         if resample {
             systematic_resample(&self.log_w, &mut self.indices, &mut self.rng);
             self.bank.resample(&self.indices);
+            if !self.on_probation.is_empty() {
+                let before = self.on_probation.clone();
+                for (dst, &i) in self.on_probation.iter_mut().zip(&self.indices) {
+                    *dst = before[i];
+                }
+            }
             for (dst, &i) in self.ln_theta_next.iter_mut().zip(&self.indices) {
                 *dst = self.ln_theta[i];
             }
@@ -443,7 +501,97 @@ impl Rbpf {
             self.ess = effective_sample_size(&self.log_w);
             self.sorted.stale = true;
         }
+        self.judge_probation();
         Ok(())
+    }
+
+    /// The posterior mass of the particles on probation for a jump of damper `k` (0 when
+    /// none is).
+    fn probation_mass(&self, k: usize) -> f64 {
+        self.on_probation
+            .iter()
+            .zip(&self.log_w)
+            .filter(|(p, _)| **p == Probation::Jump(k as u8))
+            .map(|(_, w)| w.exp())
+            .sum()
+    }
+
+    /// Adopts the jump hypotheses of a damper on probation once they have held a decisive
+    /// posterior mass (`jump::ADOPT_POSTERIOR_MASS`) for `jump::ADOPT_TIME_CONSTANTS` time
+    /// constants of the model's slowest mode; and when nothing else is left to publish (the
+    /// resampling kept only particles on probation), the damper's whose hypotheses hold the
+    /// most mass, the other's staying on probation. Forgets them once no particle holds them
+    /// (`jump` module docs, "Publishing a jump").
+    fn judge_probation(&mut self) {
+        if self.on_probation.is_empty() {
+            return;
+        }
+        let window_s = jump::ADOPT_TIME_CONSTANTS * self.slowest_time_constant_s.unwrap_or(0.0);
+        let mass = [0, 1].map(|k| self.probation_mass(k));
+        for (k, mass) in mass.iter().enumerate() {
+            if *mass >= jump::ADOPT_POSTERIOR_MASS {
+                self.decisive_steps[k] += 1;
+            } else {
+                self.decisive_steps[k] = 0;
+            }
+            if self.decisive_steps[k] as f64 * self.dt_s >= window_s {
+                self.adopt(k);
+            }
+        }
+        let rest_empty = self
+            .on_probation
+            .iter()
+            .zip(&self.log_w)
+            .all(|(p, w)| *p != Probation::None || *w == f64::NEG_INFINITY);
+        if rest_empty {
+            self.adopt(usize::from(mass[1] > mass[0]));
+        }
+        if self.on_probation.iter().all(|p| *p == Probation::None) {
+            self.on_probation.clear();
+            self.decisive_steps = [0; 2];
+        }
+    }
+
+    /// Publishes damper `k`'s jump hypotheses on probation.
+    fn adopt(&mut self, k: usize) {
+        let jump = Probation::Jump(k as u8);
+        let mut adopted = false;
+        for p in self.on_probation.iter_mut().filter(|p| **p == jump) {
+            *p = Probation::None;
+            adopted = true;
+        }
+        self.adoptions += u64::from(adopted);
+        self.decisive_steps[k] = 0;
+    }
+
+    /// The weights the published posterior uses: the particles', those on probation left out
+    /// (the others renormalised).
+    fn published_weights(&self) -> Vec<f64> {
+        let mut w: Vec<f64> = self.log_w.iter().map(|v| v.exp()).collect();
+        if !self.on_probation.is_empty() {
+            for (w, p) in w.iter_mut().zip(&self.on_probation) {
+                if *p != Probation::None {
+                    *w = 0.0;
+                }
+            }
+            let total: f64 = w.iter().sum();
+            if total > 0.0 {
+                w.iter_mut().for_each(|w| *w /= total);
+            } else {
+                w = self.log_w.iter().map(|v| v.exp()).collect();
+            }
+        }
+        w
+    }
+
+    /// Jump hypotheses adopted into the published posterior so far.
+    pub fn jump_adoptions(&self) -> u64 {
+        self.adoptions
+    }
+
+    /// The posterior mass of the jump hypotheses not yet adopted (0: none).
+    pub fn jump_probation_mass(&self) -> f64 {
+        self.probation_mass(0) + self.probation_mass(1)
     }
 
     /// The sentinels' jump hypotheses (total posterior odds `odds` against the cloud) become
@@ -474,6 +622,9 @@ impl Rbpf {
             let r = self.rng.random_range(i..n);
             self.indices.swap(i, r);
         }
+        if self.on_probation.is_empty() {
+            self.on_probation = vec![Probation::None; n];
+        }
         for &p in &self.indices[..m] {
             self.log_w[p] = f64::NEG_INFINITY;
         }
@@ -488,6 +639,7 @@ impl Rbpf {
             let z: f64 = self.rng.sample(StandardNormal);
             self.ln_theta[p][k] = sentinels.clamp(k, theta_j[k] + js.newcomer_ln_std * z);
             self.log_w[p] = ln_each;
+            self.on_probation[p] = Probation::Jump(k as u8);
             self.bank.copy_particle(p, bank, j);
         }
         normalize_log_weights(&mut self.log_w)?;
@@ -717,13 +869,15 @@ impl Rbpf {
         ([origin[0] + shift[0], origin[1] + shift[1]], cov)
     }
 
-    /// Posterior summary (mean, 5%/95% quantiles, health ratio) and effective sample size.
-    /// O(N); the particles are sorted (O(N log N)) only after their parameters changed.
+    /// The published posterior summary (mean, 5%/95% quantiles, health ratio: jump hypotheses
+    /// on probation left out, `jump` module docs) and the effective sample size (of all the
+    /// particles). O(N); the particles are sorted (O(N log N)) only after their parameters
+    /// changed.
     pub fn estimate(&mut self) -> RbpfEstimate {
         if self.sorted.stale {
             self.sorted.refresh(&self.ln_theta);
         }
-        let w: Vec<f64> = self.log_w.iter().map(|v| v.exp()).collect();
+        let w = self.published_weights();
         let post = |k: usize, nominal: f64| self.sorted.posterior(k, &w, nominal);
         RbpfEstimate {
             csy: post(0, self.nominal.csy_ns_per_m),
@@ -732,11 +886,11 @@ impl Rbpf {
         }
     }
 
-    /// Posterior mean of the coefficients (O(N), no sorting).
+    /// Published posterior mean of the coefficients (O(N), no sorting; as [`Rbpf::estimate`]:
+    /// jump hypotheses on probation left out).
     pub fn mean(&self) -> Dampers {
         let mut m = [0.0; 2];
-        for (th, lw) in self.ln_theta.iter().zip(&self.log_w) {
-            let w = lw.exp();
+        for (th, w) in self.ln_theta.iter().zip(self.published_weights()) {
             m[0] += w * th[0].exp();
             m[1] += w * th[1].exp();
         }
@@ -789,11 +943,9 @@ mod tests {
     use super::*;
     use crate::{BogieSimulator, DamperScenario};
 
-    /// A hypothesis becomes as many particles as its share of the posterior,
-    /// `odds / (1 + odds)`, holding exactly that mass, each with the sentinel's Kalman state and coefficient (the
-    /// other its own); the other particles keep their relative weights; every odds restarts.
-    #[test]
-    fn a_materialised_hypothesis_holds_its_posterior_mass() {
+    /// N = 64 with the jump search, 0.2 s into `damper-seed`; no hypothesis becomes particles
+    /// by itself (`materialise_odds` out of reach): the tests put them in.
+    fn seed_filter_with_a_silent_search() -> Rbpf {
         let text = std::fs::read_to_string(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/../config/scenarios/damper-seed.toml"
@@ -810,6 +962,15 @@ mod tests {
         while let Some((y, _)) = sim.step() {
             f.step(&y.to_vector()).unwrap();
         }
+        f
+    }
+
+    /// A hypothesis becomes as many particles as its share of the posterior,
+    /// `odds / (1 + odds)`, holding exactly that mass, each with the sentinel's Kalman state and coefficient (the
+    /// other its own); the other particles keep their relative weights; every odds restarts.
+    #[test]
+    fn a_materialised_hypothesis_holds_its_posterior_mass() {
+        let mut f = seed_filter_with_a_silent_search();
         let (before_theta, before_w) = (f.ln_theta.clone(), f.log_w.clone());
         // All the odds on one sentinel (C_say, offset -0.8): every newcomer stands for it.
         let j = 6;
@@ -844,5 +1005,89 @@ mod tests {
             .iter()
             .all(|q| *q == f64::NEG_INFINITY));
         assert_eq!(f.jump_count(), 1);
+    }
+
+    /// The published mean of damper `k` over the particles not on probation.
+    fn incumbents_mean(f: &Rbpf, k: usize) -> f64 {
+        let (mut sum, mut mass) = (0.0, 0.0);
+        for ((th, lw), p) in f.ln_theta.iter().zip(&f.log_w).zip(&f.on_probation) {
+            if *p == Probation::None {
+                sum += lw.exp() * th[k].exp();
+                mass += lw.exp();
+            }
+        }
+        sum / mass
+    }
+
+    /// A jump hypothesis that became particles is not published, however much of the
+    /// posterior it holds, until it has held `ADOPT_POSTERIOR_MASS` for
+    /// `ADOPT_TIME_CONSTANTS` slowest time constants in a row; then it is, and only that
+    /// damper's hypotheses are adopted. Without the probation the published `C_say` follows
+    /// the newcomers at once (here to about 0.45 x nominal: the alarm's threshold is 0.7).
+    #[test]
+    fn a_jump_is_published_only_once_its_mass_was_decisive_for_a_time_constant() {
+        let mut f = seed_filter_with_a_silent_search();
+        let nominal = f.nominal.csay_ns_per_m;
+        let before = f.estimate().csay.mean_ns_per_m / nominal;
+        // A C_say hypothesis (sentinel 6, -0.8 in ln C) becomes particles.
+        let sentinels = f.sentinels.as_mut().unwrap();
+        sentinels.ln_odds_mut().fill(f64::NEG_INFINITY);
+        sentinels.ln_odds_mut()[6] = 0.25f64.ln();
+        f.materialise(0.25).unwrap();
+        // And one particle stands for a C_sy hypothesis on probation, with little mass.
+        let csy = (0..64)
+            .find(|&i| f.on_probation[i] == Probation::None)
+            .unwrap();
+        f.on_probation[csy] = Probation::Jump(0);
+        // The data favour the C_say newcomers: 99 % of the mass.
+        let newcomer = |f: &Rbpf, i: usize| f.on_probation[i] == Probation::Jump(1);
+        let boost = (0.99f64 / 0.01 * (1.0 - 0.2) / 0.2).ln();
+        for i in 0..64 {
+            if newcomer(&f, i) {
+                f.log_w[i] += boost;
+            }
+        }
+        normalize_log_weights(&mut f.log_w).unwrap();
+        assert!(
+            (f.probation_mass(1) - 0.99).abs() < 1e-3,
+            "{}",
+            f.probation_mass(1)
+        );
+        f.sorted.stale = true;
+        let full: f64 = (0..64)
+            .map(|i| f.log_w[i].exp() * f.ln_theta[i][1].exp())
+            .sum::<f64>()
+            / nominal;
+        assert!(full < 0.6, "the newcomers' mean {full}");
+        let window =
+            (jump::ADOPT_TIME_CONSTANTS * f.slowest_time_constant_s.unwrap() / f.dt_s).ceil();
+        for step in 0..window as usize - 1 {
+            f.judge_probation();
+            let published = f.estimate().csay.mean_ns_per_m / nominal;
+            assert!(
+                (published - incumbents_mean(&f, 1) / nominal).abs() < 1e-12,
+                "step {step}"
+            );
+            assert!(
+                (published - before).abs() < 0.05,
+                "step {step}: {published} {before}"
+            );
+            assert!((f.mean().csay_ns_per_m / nominal - published).abs() < 1e-12);
+        }
+        assert_eq!(f.jump_adoptions(), 0);
+        f.judge_probation();
+        f.judge_probation();
+        assert_eq!(f.jump_adoptions(), 1);
+        assert!(f
+            .on_probation
+            .iter()
+            .all(|p| !matches!(p, Probation::Jump(1))));
+        assert_eq!(
+            f.on_probation[csy],
+            Probation::Jump(0),
+            "the other damper's waits"
+        );
+        let published = f.estimate().csay.mean_ns_per_m / nominal;
+        assert!(published < 0.6, "adopted: {published}");
     }
 }
