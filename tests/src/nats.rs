@@ -15,6 +15,38 @@ use serde_json::Value;
 
 use crate::Service;
 
+/// The vehicle and fleet both tests run as.
+pub const VEHICLE: &str = "unit-7";
+pub const FLEET: &str = "north";
+
+/// A drive replay that raises events until it is stopped (a few tens per second).
+pub const LOOPING_DRIVE_REPLAY: [&str; 7] = [
+    "--scenario",
+    "config/scenarios/adhesion-seed.toml",
+    "--speed",
+    "max",
+    "--loop",
+    "--wait-subscriber-s",
+    "5",
+];
+
+/// The settings of a service that stores its events in `data_dir` and forwards them to
+/// `stream` at `url`, as [`VEHICLE`] of [`FLEET`], with no pacing to speak of.
+pub fn uplink_settings<'a>(
+    data_dir: &'a str,
+    url: &'a str,
+    stream: &'a str,
+) -> [(&'static str, &'a str); 6] {
+    [
+        ("RAILMON_STORAGE__DATA_DIR", data_dir),
+        ("RAILMON_IDENTITY__VEHICLE_ID", VEHICLE),
+        ("RAILMON_IDENTITY__FLEET", FLEET),
+        ("RAILMON_UPLINK__URL", url),
+        ("RAILMON_UPLINK__STREAM", stream),
+        ("RAILMON_UPLINK__MAX_EVENTS_PER_S", "100000"),
+    ]
+}
+
 /// `nats-server`: $NATS_SERVER, else on the PATH, /usr/sbin (Debian) or /usr/bin.
 pub fn nats_server_binary() -> Option<PathBuf> {
     if let Some(path) = std::env::var_os("NATS_SERVER") {
@@ -51,9 +83,9 @@ pub fn with_client<T>(url: &str, f: impl AsyncFnOnce(async_nats::Client) -> T) -
     })
 }
 
-/// The uplink's stream as one vehicle's events: the event ids of its messages in stream order
-/// (each message's subject, message id and payload checked against `fleet` and `vehicle`).
-pub fn stream_event_ids(url: &str, stream: &str, fleet: &str, vehicle: &str) -> Vec<u64> {
+/// The uplink's stream as [`VEHICLE`]'s events: the event ids of its messages in stream order
+/// (each message's subject, message id and payload checked against [`FLEET`] and [`VEHICLE`]).
+pub fn stream_event_ids(url: &str, stream: &str) -> Vec<u64> {
     with_client(url, async |client| {
         let js = async_nats::jetstream::new(client);
         let mut stream = js.get_stream(stream).await.expect("the uplink's stream");
@@ -62,7 +94,7 @@ pub fn stream_event_ids(url: &str, stream: &str, fleet: &str, vehicle: &str) -> 
         if info.state.messages == 0 {
             return ids;
         }
-        let subjects = format!("railmon.{fleet}.{vehicle}.");
+        let subjects = format!("railmon.{FLEET}.{VEHICLE}.");
         for seq in info.state.first_sequence..=info.state.last_sequence {
             let message = stream
                 .get_raw_message(seq)
@@ -80,7 +112,7 @@ pub fn stream_event_ids(url: &str, stream: &str, fleet: &str, vehicle: &str) -> 
                 .to_string();
             let body: Value = serde_json::from_slice(&message.payload).unwrap();
             let id = body["id"].as_u64().expect("event id");
-            assert_eq!(format!("{vehicle}:{id}"), message_id);
+            assert_eq!(format!("{VEHICLE}:{id}"), message_id);
             ids.push(id);
         }
         ids
@@ -127,17 +159,11 @@ pub fn wait_caught_up(service: &Service, timeout: Duration) -> Duration {
     }
 }
 
-/// Checks that the stream holds every event `service` stored exactly once (by message id),
+/// Checks that `stream` holds every event `service` stored exactly once (by message id),
 /// nothing else, and in the order of their ids (stream sequence increasing with the event id);
 /// returns how many.
-pub fn assert_exactly_once(
-    url: &str,
-    stream: &str,
-    fleet: &str,
-    vehicle: &str,
-    service: &Service,
-) -> usize {
-    let in_stream_order = stream_event_ids(url, stream, fleet, vehicle);
+pub fn assert_exactly_once(url: &str, stream: &str, service: &Service) -> usize {
+    let in_stream_order = stream_event_ids(url, stream);
     let mut on_ground: BTreeMap<u64, u32> = BTreeMap::new();
     for id in &in_stream_order {
         *on_ground.entry(*id).or_insert(0) += 1;

@@ -17,12 +17,10 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use railmon_system_tests::monitoring::{free_addr, wait_for};
-use railmon_system_tests::nats::{self, uplink_status, wait_caught_up};
+use railmon_system_tests::nats::{self, uplink_status, wait_caught_up, LOOPING_DRIVE_REPLAY};
 use railmon_system_tests::{start_replay, PrivateBus, Process, Service};
 
-const SEED: &str = "config/scenarios/adhesion-seed.toml";
 const STREAM: &str = "RAILMON_TEST";
-const VEHICLE: &str = "unit-7";
 
 /// A `nats-server -js` on `addr` with its store in `store_dir` (kept across restarts).
 fn start_nats(binary: &PathBuf, addr: &str, store_dir: &std::path::Path) -> Process {
@@ -46,7 +44,7 @@ fn start_nats(binary: &PathBuf, addr: &str, store_dir: &std::path::Path) -> Proc
 }
 
 fn assert_exactly_once(url: &str, service: &Service) -> usize {
-    nats::assert_exactly_once(url, STREAM, "north", VEHICLE, service)
+    nats::assert_exactly_once(url, STREAM, service)
 }
 
 #[test]
@@ -63,25 +61,9 @@ fn every_event_arrives_exactly_once_across_a_server_outage_and_a_restart() {
     let url = format!("nats://{nats_addr}");
     let mut server = start_nats(&nats_binary, &nats_addr, &nats_store);
     let data = data_dir.to_str().unwrap().to_string();
-    let settings = [
-        ("RAILMON_STORAGE__DATA_DIR", data.as_str()),
-        ("RAILMON_IDENTITY__VEHICLE_ID", VEHICLE),
-        ("RAILMON_IDENTITY__FLEET", "north"),
-        ("RAILMON_UPLINK__URL", url.as_str()),
-        ("RAILMON_UPLINK__STREAM", STREAM),
-        ("RAILMON_UPLINK__MAX_EVENTS_PER_S", "100000"),
-    ];
+    let settings = nats::uplink_settings(&data, &url, STREAM);
     let mut service = Service::start(&bus, &settings);
-    let replay_args = [
-        "--scenario",
-        SEED,
-        "--speed",
-        "max",
-        "--loop",
-        "--wait-subscriber-s",
-        "5",
-    ];
-    let mut replay = start_replay(&bus, "drive", &replay_args);
+    let mut replay = start_replay(&bus, "drive", &LOOPING_DRIVE_REPLAY);
 
     // 1. Connected: events are forwarded as they are stored.
     wait_for("events forwarded", Duration::from_secs(30), || {
@@ -155,7 +137,7 @@ fn every_event_arrives_exactly_once_across_a_server_outage_and_a_restart() {
     assert_eq!(assert_exactly_once(&url, &service), forwarded);
 
     // 5. Killed (SIGKILL) while forwarding, then restarted: still exactly once.
-    let mut replay = start_replay(&bus, "drive", &replay_args);
+    let mut replay = start_replay(&bus, "drive", &LOOPING_DRIVE_REPLAY);
     wait_for("new events forwarded", Duration::from_secs(30), || {
         uplink_status(&service)["acknowledged_event_id"].as_u64() >= Some(last + 10)
     });

@@ -33,13 +33,12 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use railmon_system_tests::monitoring::{free_addr, wait_for};
-use railmon_system_tests::nats::{self, uplink_status, wait_caught_up, with_client};
+use railmon_system_tests::nats::{
+    self, uplink_status, wait_caught_up, with_client, LOOPING_DRIVE_REPLAY,
+};
 use railmon_system_tests::{start_replay, PrivateBus, Process, Service};
 
-const SEED: &str = "config/scenarios/adhesion-seed.toml";
 const STREAM: &str = "RAILMON_CLUSTER_TEST";
-const FLEET: &str = "north";
-const VEHICLE: &str = "unit-7";
 const NODES: usize = 3;
 
 /// One node of the cluster.
@@ -242,25 +241,9 @@ fn every_event_arrives_exactly_once_across_a_cut_link_a_killed_service_and_a_kil
 
     let data_dir = work.join("data");
     let data = data_dir.to_str().unwrap().to_string();
-    let settings = [
-        ("RAILMON_STORAGE__DATA_DIR", data.as_str()),
-        ("RAILMON_IDENTITY__VEHICLE_ID", VEHICLE),
-        ("RAILMON_IDENTITY__FLEET", FLEET),
-        ("RAILMON_UPLINK__URL", proxy_url.as_str()),
-        ("RAILMON_UPLINK__STREAM", STREAM),
-        ("RAILMON_UPLINK__MAX_EVENTS_PER_S", "100000"),
-    ];
-    let replay_args = [
-        "--scenario",
-        SEED,
-        "--speed",
-        "max",
-        "--loop",
-        "--wait-subscriber-s",
-        "5",
-    ];
+    let settings = nats::uplink_settings(&data, &proxy_url, STREAM);
     let mut service = Service::start(&bus, &settings);
-    let mut replay = start_replay(&bus, "drive", &replay_args);
+    let mut replay = start_replay(&bus, "drive", &LOOPING_DRIVE_REPLAY);
 
     // Events flowing.
     wait_for("events forwarded", Duration::from_secs(30), || {
@@ -279,7 +262,11 @@ fn every_event_arrives_exactly_once_across_a_cut_link_a_killed_service_and_a_kil
     });
     std::thread::sleep(Duration::from_secs(2));
     let cut = uplink_status(&service);
-    assert_eq!(counter(&cut, "acknowledged_event_id"), acked_at_cut, "{cut}");
+    assert_eq!(
+        counter(&cut, "acknowledged_event_id"),
+        acked_at_cut,
+        "{cut}"
+    );
     let backlog_at_restore = last_event_id(&service) - acked_at_cut;
     proxy.restore();
     let restored_at = Instant::now();
@@ -294,11 +281,13 @@ fn every_event_arrives_exactly_once_across_a_cut_link_a_killed_service_and_a_kil
     replay.terminate(Duration::from_secs(10));
     drop(service);
     let service = Service::start(&bus, &settings);
-    let mut replay = start_replay(&bus, "drive", &replay_args);
+    let mut replay = start_replay(&bus, "drive", &LOOPING_DRIVE_REPLAY);
     let after_restart = last_event_id(&service);
-    wait_for("forwarding after the restart", Duration::from_secs(30), || {
-        uplink_status(&service)["acknowledged_event_id"].as_u64() >= Some(after_restart + 10)
-    });
+    wait_for(
+        "forwarding after the restart",
+        Duration::from_secs(30),
+        || uplink_status(&service)["acknowledged_event_id"].as_u64() >= Some(after_restart + 10),
+    );
 
     // 3. kill -9 of the stream's leader, made to be a node the service is not connected to.
     let leader = {
@@ -326,15 +315,17 @@ fn every_event_arrives_exactly_once_across_a_cut_link_a_killed_service_and_a_kil
     });
     let elected = node_killed_at.elapsed();
     let new_leader = stream_leader(&url).unwrap_or_default();
-    wait_for("events raised after the node kill", Duration::from_secs(30), || {
-        last_event_id(&service) >= last_at_node_kill + 20
-    });
+    wait_for(
+        "events raised after the node kill",
+        Duration::from_secs(30),
+        || last_event_id(&service) >= last_at_node_kill + 20,
+    );
     replay.terminate(Duration::from_secs(10));
     let caught_up = wait_caught_up(&service, Duration::from_secs(60));
     let since_node_kill = node_killed_at.elapsed();
 
     let status = uplink_status(&service);
-    let total = nats::assert_exactly_once(&url, STREAM, FLEET, VEHICLE, &service);
+    let total = nats::assert_exactly_once(&url, STREAM, &service);
     assert!(
         total as u64 > last_at_node_kill,
         "{total} events, {last_at_node_kill} before the node kill"
