@@ -34,6 +34,7 @@ use std::time::{Duration, Instant};
 use railmon_bus::BusConfig;
 
 pub mod monitoring;
+pub mod nats;
 
 pub struct Binaries {
     pub railmon: PathBuf,

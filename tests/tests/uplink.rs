@@ -12,29 +12,15 @@
 //! messages the server acknowledged, which no client can see. For the vehicle a stopped server
 //! and a cut link are the same: the connection drops.
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use railmon_system_tests::monitoring::{free_addr, wait_for};
+use railmon_system_tests::nats::{self, uplink_status, wait_caught_up, LOOPING_DRIVE_REPLAY};
 use railmon_system_tests::{start_replay, PrivateBus, Process, Service};
-use serde_json::Value;
 
-const SEED: &str = "config/scenarios/adhesion-seed.toml";
 const STREAM: &str = "RAILMON_TEST";
-const VEHICLE: &str = "unit-7";
-
-fn nats_server_binary() -> Option<PathBuf> {
-    if let Some(path) = std::env::var_os("NATS_SERVER") {
-        return Some(path.into());
-    }
-    let path = std::env::var_os("PATH").unwrap_or_default();
-    std::env::split_paths(&path)
-        .chain(["/usr/sbin".into(), "/usr/bin".into()])
-        .map(|dir| dir.join("nats-server"))
-        .find(|p| p.is_file())
-}
 
 /// A `nats-server -js` on `addr` with its store in `store_dir` (kept across restarts).
 fn start_nats(binary: &PathBuf, addr: &str, store_dir: &std::path::Path) -> Process {
@@ -57,111 +43,13 @@ fn start_nats(binary: &PathBuf, addr: &str, store_dir: &std::path::Path) -> Proc
     process
 }
 
-/// Every message of the stream: message id -> how many times it is stored.
-fn stream_message_ids(url: &str) -> BTreeMap<String, u32> {
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    runtime.block_on(async {
-        let client = async_nats::connect(url).await.expect("connecting to NATS");
-        let js = async_nats::jetstream::new(client);
-        let mut stream = js.get_stream(STREAM).await.expect("the uplink's stream");
-        let info = stream.info().await.unwrap().clone();
-        let mut ids = BTreeMap::new();
-        for seq in info.state.first_sequence..=info.state.last_sequence {
-            if info.state.messages == 0 {
-                break;
-            }
-            let message = stream
-                .get_raw_message(seq)
-                .await
-                .expect("message by sequence");
-            assert!(
-                message
-                    .subject
-                    .as_str()
-                    .starts_with("railmon.north.unit-7."),
-                "{}",
-                message.subject
-            );
-            let id = message
-                .headers
-                .get("Nats-Msg-Id")
-                .expect("Nats-Msg-Id")
-                .to_string();
-            let body: Value = serde_json::from_slice(&message.payload).unwrap();
-            assert_eq!(format!("{VEHICLE}:{}", body["id"]), id);
-            *ids.entry(id).or_insert(0) += 1;
-        }
-        ids
-    })
-}
-
-/// Every stored event's id, from the service's API.
-fn stored_ids(service: &Service) -> Vec<u64> {
-    let mut ids = Vec::new();
-    let mut after_id = 0;
-    loop {
-        let page = service.get_json(&format!("/api/v1/events?after_id={after_id}&limit=1000"));
-        let events = page["events"].as_array().unwrap();
-        if events.is_empty() {
-            return ids;
-        }
-        ids.extend(events.iter().map(|e| e["id"].as_u64().unwrap()));
-        after_id = page["next_after_id"].as_u64().unwrap();
-    }
-}
-
-fn uplink_status(service: &Service) -> Value {
-    service.get_json("/api/v1/status")["uplink"].clone()
-}
-
-/// Waits until every stored event is acknowledged; returns how long that took.
-fn wait_caught_up(service: &Service, timeout: Duration) -> Duration {
-    let start = Instant::now();
-    loop {
-        let status = service.get_json("/api/v1/status");
-        let last = status["events"]["last_event_id"].as_u64().unwrap();
-        let uplink = &status["uplink"];
-        if uplink["acknowledged_event_id"].as_u64() == Some(last)
-            && uplink["backlog_events"].as_u64() == Some(0)
-            && status["events"]["events_pending"].as_u64() == Some(0)
-        {
-            return start.elapsed();
-        }
-        assert!(
-            start.elapsed() < timeout,
-            "uplink not caught up within {timeout:?}: {status}"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
 fn assert_exactly_once(url: &str, service: &Service) -> usize {
-    let on_ground = stream_message_ids(url);
-    let repeated: Vec<_> = on_ground.iter().filter(|(_, n)| **n > 1).collect();
-    assert!(repeated.is_empty(), "stored more than once: {repeated:?}");
-    let stored: Vec<String> = stored_ids(service)
-        .into_iter()
-        .map(|id| format!("{VEHICLE}:{id}"))
-        .collect();
-    let missing: Vec<_> = stored
-        .iter()
-        .filter(|id| !on_ground.contains_key(*id))
-        .collect();
-    assert!(missing.is_empty(), "never arrived: {missing:?}");
-    assert_eq!(on_ground.len(), stored.len(), "messages of unknown events");
-    stored.len()
+    nats::assert_exactly_once(url, STREAM, service)
 }
 
 #[test]
 fn every_event_arrives_exactly_once_across_a_server_outage_and_a_restart() {
-    let Some(nats) = nats_server_binary() else {
-        eprintln!(
-            "SKIPPED: nats-server is not installed (scripts/install-test-deps installs Debian's \
-             `nats-server`, or set NATS_SERVER=/path/to/nats-server)"
-        );
+    let Some(nats_binary) = nats::skip_without_nats_server() else {
         return;
     };
     let bus = PrivateBus::new();
@@ -171,27 +59,11 @@ fn every_event_arrives_exactly_once_across_a_server_outage_and_a_restart() {
     let data_dir = work.join("data");
     let nats_addr = free_addr();
     let url = format!("nats://{nats_addr}");
-    let mut server = start_nats(&nats, &nats_addr, &nats_store);
+    let mut server = start_nats(&nats_binary, &nats_addr, &nats_store);
     let data = data_dir.to_str().unwrap().to_string();
-    let settings = [
-        ("RAILMON_STORAGE__DATA_DIR", data.as_str()),
-        ("RAILMON_IDENTITY__VEHICLE_ID", VEHICLE),
-        ("RAILMON_IDENTITY__FLEET", "north"),
-        ("RAILMON_UPLINK__URL", url.as_str()),
-        ("RAILMON_UPLINK__STREAM", STREAM),
-        ("RAILMON_UPLINK__MAX_EVENTS_PER_S", "100000"),
-    ];
+    let settings = nats::uplink_settings(&data, &url, STREAM);
     let mut service = Service::start(&bus, &settings);
-    let replay_args = [
-        "--scenario",
-        SEED,
-        "--speed",
-        "max",
-        "--loop",
-        "--wait-subscriber-s",
-        "5",
-    ];
-    let mut replay = start_replay(&bus, "drive", &replay_args);
+    let mut replay = start_replay(&bus, "drive", &LOOPING_DRIVE_REPLAY);
 
     // 1. Connected: events are forwarded as they are stored.
     wait_for("events forwarded", Duration::from_secs(30), || {
@@ -234,7 +106,7 @@ fn every_event_arrives_exactly_once_across_a_server_outage_and_a_restart() {
     );
 
     // 3. The server comes back (same store): the backlog drains, oldest first.
-    let _server = start_nats(&nats, &nats_addr, &nats_store);
+    let _server = start_nats(&nats_binary, &nats_addr, &nats_store);
     replay.terminate(Duration::from_secs(10));
     let drained = wait_caught_up(&service, Duration::from_secs(60));
     let status = service.get_json("/api/v1/status");
@@ -265,7 +137,7 @@ fn every_event_arrives_exactly_once_across_a_server_outage_and_a_restart() {
     assert_eq!(assert_exactly_once(&url, &service), forwarded);
 
     // 5. Killed (SIGKILL) while forwarding, then restarted: still exactly once.
-    let mut replay = start_replay(&bus, "drive", &replay_args);
+    let mut replay = start_replay(&bus, "drive", &LOOPING_DRIVE_REPLAY);
     wait_for("new events forwarded", Duration::from_secs(30), || {
         uplink_status(&service)["acknowledged_event_id"].as_u64() >= Some(last + 10)
     });
