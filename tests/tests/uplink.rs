@@ -152,3 +152,114 @@ fn every_event_arrives_exactly_once_across_a_server_outage_and_a_restart() {
     drop(service);
     let _ = std::fs::remove_dir_all(&work);
 }
+
+/// A page published before its acknowledgements are awaited can leave a hole on the ground: a
+/// message lost with a dropped connection while the next ones were stored (or a publish during
+/// a leader election). Here the ground already holds every stored event but two, and its
+/// duplicate window has passed: the uplink must send exactly those two, not move its cursor
+/// past them (they would never arrive) and not send the rest again (stored twice).
+#[test]
+fn events_missing_between_events_the_ground_holds_are_sent_and_nothing_else() {
+    let Some(nats_binary) = nats::skip_without_nats_server() else {
+        return;
+    };
+    let bus = PrivateBus::new();
+    let work = std::env::temp_dir().join(format!("railmon-uplink-hole-{}", bus.prefix));
+    let _ = std::fs::remove_dir_all(&work);
+    let data_dir = work.join("data");
+    let nats_addr = free_addr();
+    let url = format!("nats://{nats_addr}");
+    let _server = start_nats(&nats_binary, &nats_addr, &work.join("nats"));
+    let data = data_dir.to_str().unwrap().to_string();
+    let settings = nats::uplink_settings(&data, &url, STREAM);
+
+    // 1. Events stored with the uplink off.
+    let service = Service::start(&bus, &settings[..3]);
+    let mut replay = start_replay(&bus, "drive", &LOOPING_DRIVE_REPLAY);
+    wait_for("events stored", Duration::from_secs(30), || {
+        service.get_json("/api/v1/status")["events"]["last_event_id"].as_u64() >= Some(30)
+    });
+    replay.terminate(Duration::from_secs(10));
+    let mut service = service;
+    assert!(service.process.terminate(Duration::from_secs(10)).success());
+    drop(service);
+
+    // 2. The ground holds all of them but two (as one vehicle's uplink would have sent them),
+    // and its duplicate window is over.
+    let events: Vec<serde_json::Value> = {
+        let mut service = Service::start(&bus, &settings[..3]);
+        let mut events = Vec::new();
+        loop {
+            let after_id = events
+                .last()
+                .map_or(0, |e: &serde_json::Value| e["id"].as_u64().unwrap());
+            let page = service.get_json(&format!("/api/v1/events?after_id={after_id}&limit=1000"));
+            let page = page["events"].as_array().unwrap();
+            if page.is_empty() {
+                break;
+            }
+            events.extend(page.iter().cloned());
+        }
+        assert!(service.process.terminate(Duration::from_secs(10)).success());
+        events
+    };
+    let ids: Vec<u64> = events.iter().map(|e| e["id"].as_u64().unwrap()).collect();
+    let missing = [ids[4], ids[ids.len() - 3]];
+    nats::with_client(&url, async |client| {
+        let js = async_nats::jetstream::new(client);
+        js.create_stream(async_nats::jetstream::stream::Config {
+            name: STREAM.into(),
+            subjects: vec!["railmon.>".into()],
+            duplicate_window: Duration::from_secs(1),
+            ..Default::default()
+        })
+        .await
+        .expect("creating the stream");
+        for event in events
+            .iter()
+            .filter(|e| !missing.contains(&e["id"].as_u64().unwrap()))
+        {
+            let subject = format!(
+                "railmon.{}.{}.{}.events",
+                nats::FLEET,
+                nats::VEHICLE,
+                event["stream"].as_str().unwrap()
+            );
+            let mut payload = event.clone();
+            payload["vehicle_id"] = nats::VEHICLE.into();
+            payload["fleet"] = nats::FLEET.into();
+            let message = async_nats::jetstream::message::PublishMessage::build()
+                .message_id(format!("{}:{}", nats::VEHICLE, event["id"]))
+                .payload(serde_json::to_vec(&payload).unwrap().into());
+            js.send_publish(subject, message)
+                .await
+                .unwrap()
+                .await
+                .expect("stored");
+        }
+    });
+    std::thread::sleep(Duration::from_secs(2));
+
+    // 3. The uplink on: the two missing events arrive, once each, and nothing else is sent.
+    let service = Service::start(&bus, &settings);
+    wait_caught_up(&service, Duration::from_secs(60));
+    let status = uplink_status(&service);
+    let in_stream_order = nats::stream_event_ids(&url, STREAM);
+    let stored = nats::stored_ids(&service);
+    let mut on_ground = in_stream_order.clone();
+    on_ground.sort_unstable();
+    assert_eq!(
+        on_ground, stored,
+        "the ground's events, once each: {status}"
+    );
+    // Stored since the restart (the service's own events) come after the holes are filled.
+    let sent_now: Vec<u64> = in_stream_order[ids.len() - missing.len()..].to_vec();
+    assert_eq!(&sent_now[..2], &missing, "{status}");
+    assert_eq!(
+        status["events_sent"].as_u64(),
+        Some(sent_now.len() as u64),
+        "{status}"
+    );
+    drop(service);
+    let _ = std::fs::remove_dir_all(&work);
+}

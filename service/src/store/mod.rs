@@ -211,6 +211,16 @@ const MAX_UNREADABLE_IDS: usize = 10_000;
 /// The uplink's cursor's row in the `counters` table: no schema change, so a build without the
 /// uplink opens the same database unchanged (a vehicle's software can be rolled back).
 const UPLINK_CURSOR: &str = "uplink_acked_id";
+const UPLINK_STREAM_SEQUENCE: &str = "uplink_stream_sequence";
+
+/// Where the uplink stands: every stored event up to `acked_id` is on the ground, and every
+/// message of this vehicle in the ground's stream with a higher event id has a stream sequence
+/// above `stream_sequence` (where the uplink looks for what it sent but could not confirm).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct UplinkCursor {
+    pub acked_id: u64,
+    pub stream_sequence: u64,
+}
 
 #[derive(Clone, Debug)]
 enum Location {
@@ -693,30 +703,42 @@ impl EventStore {
         }
     }
 
-    /// The uplink's cursor: the last event id the ground acknowledged (0: none yet).
-    pub fn uplink_cursor(&self) -> Result<u64, StoreError> {
+    /// The uplink's cursor (zeros: nothing acknowledged yet).
+    pub fn uplink_cursor(&self) -> Result<UplinkCursor, StoreError> {
         self.with_connection(|c| {
-            let value: Option<i64> = c
-                .query_row(
-                    "SELECT value FROM counters WHERE name = ?1",
-                    [UPLINK_CURSOR],
-                    |r| r.get(0),
-                )
-                .optional()?;
-            Ok(value.unwrap_or(0).max(0) as u64)
+            let mut read = c.prepare_cached("SELECT value FROM counters WHERE name = ?1")?;
+            let mut value = |name: &str| -> Result<u64, StoreError> {
+                let v: Option<i64> = read.query_row([name], |r| r.get(0)).optional()?;
+                Ok(v.unwrap_or(0).max(0) as u64)
+            };
+            Ok(UplinkCursor {
+                acked_id: value(UPLINK_CURSOR)?,
+                stream_sequence: value(UPLINK_STREAM_SEQUENCE)?,
+            })
         })
     }
 
-    /// Moves the uplink's cursor forward to `acked_id` (never back). One statement in its own
-    /// transaction with a durable commit: after a crash the cursor is the old or the new id,
-    /// never torn, and never ahead of what the ground acknowledged.
-    pub fn save_uplink_cursor(&self, acked_id: u64) -> Result<(), StoreError> {
+    /// Saves the uplink's cursor: its event id only forward (never back), its stream sequence
+    /// as given (a stream created again on the ground starts its sequences at 1). Both in one
+    /// transaction with a durable commit: after a crash the cursor is the old or the new one,
+    /// never torn, and never ahead of what the ground holds.
+    pub fn save_uplink_cursor(&self, cursor: UplinkCursor) -> Result<(), StoreError> {
         self.with_connection(|c| {
-            c.prepare_cached(
+            let tx = c.unchecked_transaction()?;
+            tx.prepare_cached(
                 "INSERT INTO counters (name, value) VALUES (?1, ?2)
                  ON CONFLICT (name) DO UPDATE SET value = max(value, excluded.value)",
             )?
-            .execute(params![UPLINK_CURSOR, acked_id as i64])?;
+            .execute(params![UPLINK_CURSOR, cursor.acked_id as i64])?;
+            tx.prepare_cached(
+                "INSERT INTO counters (name, value) VALUES (?1, ?2)
+                 ON CONFLICT (name) DO UPDATE SET value = excluded.value",
+            )?
+            .execute(params![
+                UPLINK_STREAM_SEQUENCE,
+                cursor.stream_sequence as i64
+            ])?;
+            tx.commit()?;
             Ok(())
         })
     }
@@ -995,7 +1017,7 @@ mod tests {
         let now = railmon_bus::utc_now_ns();
         {
             let (store, thread) = EventStore::open(&config(&dir), &identity()).unwrap();
-            assert_eq!(store.uplink_cursor().unwrap(), 0);
+            assert_eq!(store.uplink_cursor().unwrap(), UplinkCursor::default());
             store.append(
                 (0..5)
                     .map(|_| event("slip_started", "1", now, None))
@@ -1003,15 +1025,21 @@ mod tests {
             );
             store.flush();
             assert_eq!(store.count_after(0).unwrap(), 5);
-            store.save_uplink_cursor(3).unwrap();
-            store.save_uplink_cursor(2).unwrap();
-            assert_eq!(store.uplink_cursor().unwrap(), 3);
+            let at = |acked_id, stream_sequence| UplinkCursor {
+                acked_id,
+                stream_sequence,
+            };
+            store.save_uplink_cursor(at(3, 40)).unwrap();
+            // The id never moves back; the sequence follows the ground's stream.
+            store.save_uplink_cursor(at(2, 7)).unwrap();
+            assert_eq!(store.uplink_cursor().unwrap(), at(3, 7));
             assert_eq!(store.count_after(3).unwrap(), 2);
             store.close();
             thread.join().unwrap();
         }
         let (store, _thread) = EventStore::open(&config(&dir), &identity()).unwrap();
-        assert_eq!(store.uplink_cursor().unwrap(), 3);
+        assert_eq!(store.uplink_cursor().unwrap().acked_id, 3);
+        assert_eq!(store.uplink_cursor().unwrap().stream_sequence, 7);
         let _ = std::fs::remove_dir_all(&dir);
     }
 

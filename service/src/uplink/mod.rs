@@ -10,12 +10,16 @@
 //!
 //! Exactly once on the ground, also across a lost acknowledgement, a link loss, a restart or a
 //! kill -9: events after the cursor are sent again, and
-//! - on every (re)connection the cursor first moves to the highest id of this vehicle the stream
-//!   already holds (the last message of each of its subjects): messages stored but not
-//!   acknowledged, or acknowledged but not yet committed to the cursor, are not sent again,
-//!   however long the link was down;
+//! - on every (re)connection the uplink first reads the headers of what it sent since the
+//!   cursor was saved (the cursor keeps the stream sequence to look after) and moves the cursor
+//!   over the events the stream holds, in id order, up to the first it does not hold; those it
+//!   holds beyond such a hole are not sent again (see `ground`), however long the link was down;
 //! - a re-send within a connection (an acknowledgement timed out) carries the same message id,
 //!   which the stream's duplicate window drops (counted: `railmon_uplink_duplicates_total`).
+//!
+//! A hole (a message lost with a dropped connection while the next ones were stored, or a
+//! publish during a leader election) is filled after the events beyond it: per vehicle the
+//! ground's order is the event id's, which the stream sequence follows except there.
 //!
 //! The stream is created if missing (subjects `<prefix>.>`, duplicate window 2 min, file
 //! storage, one replica): a vehicle then also works against a plain `nats-server -js`. A
@@ -27,6 +31,7 @@
 //! waits for a commit in progress, never the other way round for longer than one page read).
 
 pub mod config;
+mod ground;
 mod pace;
 
 use std::future::IntoFuture;
@@ -41,6 +46,7 @@ use utoipa::ToSchema;
 use crate::config::Identity;
 use crate::store::{EventQuery, EventStore, EventView};
 pub use config::UplinkConfig;
+use ground::Cursor;
 use pace::{Backoff, Pacer};
 
 /// Events read and published per page; their acknowledgements are awaited before the next.
@@ -59,9 +65,6 @@ const BACKOFF_MIN: Duration = Duration::from_millis(250);
 const BACKOFF_MAX: Duration = Duration::from_secs(5);
 /// At most one log line per failure kind this often (a link that flaps in a cutting).
 const LOG_EVERY: Duration = Duration::from_secs(10);
-
-/// The event streams, as events name them (`stream` of an event); one subject each.
-const EVENT_STREAMS: [&str; 4] = ["drive", "bogie", "vehicle", "service"];
 
 /// What went wrong, as `railmon_uplink_failures_total{kind}` counts it.
 pub const FAILURE_KINDS: [&str; 6] = [
@@ -162,6 +165,11 @@ impl Subjects {
         format!("{}.{stream}.events", self.base)
     }
 
+    /// Every event subject of this vehicle.
+    fn all_events(&self) -> String {
+        self.events("*")
+    }
+
     fn message_id(&self, event_id: u64) -> String {
         format!("{}:{event_id}", self.vehicle_id)
     }
@@ -228,7 +236,7 @@ pub async fn run(store: Arc<EventStore>, config: UplinkConfig, counters: Arc<Upl
     let mut backoff = Backoff::new(BACKOFF_MIN, BACKOFF_MAX);
     let mut cursor = loop {
         match blocking(&store, |s| s.uplink_cursor()).await {
-            Ok(cursor) => break cursor,
+            Ok(saved) => break Cursor::new(saved),
             Err(e) => {
                 counters.fail("store");
                 log.warn("store", &format!("cannot read the cursor: {e}"));
@@ -236,8 +244,8 @@ pub async fn run(store: Arc<EventStore>, config: UplinkConfig, counters: Arc<Upl
             }
         }
     };
-    counters.cursor.store(cursor, Relaxed);
-    refresh_backlog(&store, cursor, &counters).await;
+    counters.cursor.store(cursor.acked_id(), Relaxed);
+    refresh_backlog(&store, cursor.acked_id(), &counters).await;
     // The backlog is counted apart from the forwarding, which may wait on a dead link.
     tokio::spawn(count_backlog(store.clone(), counters.clone()));
     let client = loop {
@@ -254,7 +262,7 @@ pub async fn run(store: Arc<EventStore>, config: UplinkConfig, counters: Arc<Upl
         url = %config.url,
         subjects = %format!("{}.*.events", subjects.base),
         stream = %config.stream,
-        cursor,
+        cursor = cursor.acked_id(),
         "uplink started"
     );
     let js = jetstream::ContextBuilder::new()
@@ -267,6 +275,8 @@ pub async fn run(store: Arc<EventStore>, config: UplinkConfig, counters: Arc<Upl
             // The stream answered: the link is up (also if the client's `Connected` event came
             // before the callback was in place).
             counters.link_up.store(1, Relaxed);
+            // What the stream holds above the cursor is read again on every connection.
+            cursor.forget_held();
             reconcile(&stream, &subjects, &store, &mut cursor, &counters).await?;
             forward(
                 &js,
@@ -407,60 +417,70 @@ async fn ensure_stream(
     .map_err(|e| Failure("stream", format!("stream {}: {e}", config.stream)))
 }
 
-/// Moves the cursor to the highest event id of this vehicle the stream holds (see the module
-/// documentation): what was stored but not acknowledged, or acknowledged but not committed,
-/// is not sent again, however long ago it was sent.
+/// Moves the cursor over the events the stream already holds (see the module documentation
+/// and `ground`): what was stored but not acknowledged, or acknowledged but not committed, is
+/// not sent again, however long ago it was sent.
 async fn reconcile(
     stream: &jetstream::stream::Stream,
     subjects: &Subjects,
     store: &Arc<EventStore>,
-    cursor: &mut u64,
+    cursor: &mut Cursor,
     counters: &UplinkCounters,
 ) -> Result<(), Failure> {
-    use jetstream::stream::LastRawMessageErrorKind;
-    let mut highest = *cursor;
-    for name in EVENT_STREAMS {
-        match stream
-            .get_last_raw_message_by_subject(&subjects.events(name))
-            .await
-        {
-            Ok(message) => {
-                let id = message
-                    .headers
-                    .get("Nats-Msg-Id")
-                    .and_then(|v| subjects.event_id(v.as_str()));
-                highest = highest.max(id.unwrap_or(0));
-            }
-            Err(e) if e.kind() == LastRawMessageErrorKind::NoMessageFound => {}
-            Err(e) => return Err(Failure("stream", format!("reading the last message: {e}"))),
+    let last_stored_id = store.counters.last_id.load(Relaxed);
+    ground::read_above_cursor(
+        stream,
+        subjects.all_events(),
+        last_stored_id,
+        |message_id| subjects.event_id(message_id),
+        ACK_TIMEOUT,
+        cursor,
+    )
+    .await
+    .map_err(|e| Failure("stream", e))?;
+    let from = cursor.acked_id();
+    while !cursor.holds_nothing_above() {
+        let after_id = cursor.acked_id();
+        let page = blocking(store, move |s| {
+            s.page(&EventQuery {
+                after_id,
+                limit: PAGE_EVENTS,
+                ..EventQuery::default()
+            })
+        })
+        .await
+        .map_err(|e| Failure("store", format!("reading events: {e}")))?;
+        let Some(held_until) = cursor.contiguous_until(page.iter().map(|e| e.id)) else {
+            break;
+        };
+        commit_cursor(store, held_until, cursor, counters).await?;
+        if page.last().is_some_and(|e| e.id != held_until) {
+            break;
         }
     }
-    if highest > *cursor {
-        // Never beyond what this store holds (a stream written by another database).
-        let last_stored = store.counters.last_id.load(Relaxed);
-        if highest <= last_stored {
-            tracing::info!(
-                from = *cursor,
-                to = highest,
-                "uplink: the stream already holds events after the cursor; cursor moved"
-            );
-            commit_cursor(store, highest, cursor, counters).await?;
-        }
+    if cursor.acked_id() > from {
+        tracing::info!(
+            from,
+            to = cursor.acked_id(),
+            held_beyond = !cursor.holds_nothing_above(),
+            "uplink: the stream already holds events after the cursor; cursor moved"
+        );
     }
     Ok(())
 }
 
 async fn commit_cursor(
     store: &Arc<EventStore>,
-    id: u64,
-    cursor: &mut u64,
+    acked_id: u64,
+    cursor: &mut Cursor,
     counters: &UplinkCounters,
 ) -> Result<(), Failure> {
-    blocking(store, move |s| s.save_uplink_cursor(id))
+    let next = cursor.at(acked_id);
+    blocking(store, move |s| s.save_uplink_cursor(next))
         .await
         .map_err(|e| Failure("store", format!("cannot save the cursor: {e}")))?;
-    *cursor = id;
-    counters.cursor.store(id, Relaxed);
+    cursor.saved(next);
+    counters.cursor.store(acked_id, Relaxed);
     Ok(())
 }
 
@@ -469,22 +489,22 @@ async fn forward(
     js: &jetstream::Context,
     store: &Arc<EventStore>,
     subjects: &Subjects,
-    cursor: &mut u64,
+    cursor: &mut Cursor,
     counters: &UplinkCounters,
     pacer: &mut Pacer,
     backoff: &mut Backoff,
 ) -> Result<(), Failure> {
     let mut backlog_counted = Instant::now();
     loop {
-        if store.counters.last_id.load(Relaxed) <= *cursor {
+        if store.counters.last_id.load(Relaxed) <= cursor.acked_id() {
             if backlog_counted.elapsed() >= BACKLOG_REFRESH {
-                refresh_backlog(store, *cursor, counters).await;
+                refresh_backlog(store, cursor.acked_id(), counters).await;
                 backlog_counted = Instant::now();
             }
             tokio::time::sleep(IDLE_POLL).await;
             continue;
         }
-        let after_id = *cursor;
+        let after_id = cursor.acked_id();
         let page = blocking(store, move |s| {
             s.read_page(&EventQuery {
                 after_id,
@@ -497,11 +517,11 @@ async fn forward(
         let Some(last_read_id) = page.last_read_id else {
             // The store's last id is ahead of its rows (pruned): nothing left to send.
             tokio::time::sleep(IDLE_POLL).await;
-            refresh_backlog(store, *cursor, counters).await;
+            refresh_backlog(store, cursor.acked_id(), counters).await;
             continue;
         };
         let mut in_flight: Vec<(u64, PublishAckFuture)> = Vec::with_capacity(page.events.len());
-        for event in &page.events {
+        for event in page.events.iter().filter(|e| !cursor.holds(e.id)) {
             let wait = pacer.delay(Instant::now());
             if wait >= Duration::from_millis(1) {
                 tokio::time::sleep(wait).await;
@@ -528,6 +548,7 @@ async fn forward(
                 .map_err(|_| Failure("ack", format!("event {id}: timed out")))?
                 .map_err(|e| Failure("ack", format!("event {id}: {e}")))?;
             counters.acknowledged.fetch_add(1, Relaxed);
+            cursor.saw_sequence(ack.sequence);
             if ack.duplicate {
                 counters.duplicates.fetch_add(1, Relaxed);
             }
@@ -538,7 +559,7 @@ async fn forward(
             .unwrap_or(0);
         counters.last_ack_unix_ms.store(now_ms, Relaxed);
         commit_cursor(store, last_read_id, cursor, counters).await?;
-        refresh_backlog(store, *cursor, counters).await;
+        refresh_backlog(store, cursor.acked_id(), counters).await;
         backlog_counted = Instant::now();
         backoff.reset();
     }
