@@ -35,6 +35,7 @@ use railmon_bus::BusConfig;
 
 pub mod monitoring;
 pub mod nats;
+pub mod nats_cluster;
 
 pub struct Binaries {
     pub railmon: PathBuf,
