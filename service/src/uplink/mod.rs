@@ -44,7 +44,7 @@ use serde::Serialize;
 use utoipa::ToSchema;
 
 use crate::config::Identity;
-use crate::store::{EventQuery, EventStore, EventView};
+use crate::store::{EventQuery, EventStore, EventView, ReadPage};
 pub use config::UplinkConfig;
 use ground::Cursor;
 use pace::{Backoff, Pacer};
@@ -440,21 +440,12 @@ async fn reconcile(
     .map_err(|e| Failure("stream", e))?;
     let from = cursor.acked_id();
     while !cursor.holds_nothing_above() {
-        let after_id = cursor.acked_id();
-        let page = blocking(store, move |s| {
-            s.page(&EventQuery {
-                after_id,
-                limit: PAGE_EVENTS,
-                ..EventQuery::default()
-            })
-        })
-        .await
-        .map_err(|e| Failure("store", format!("reading events: {e}")))?;
-        let Some(held_until) = cursor.contiguous_until(page.iter().map(|e| e.id)) else {
+        let page = page_after(store, cursor.acked_id()).await?;
+        let Some(held_until) = cursor.contiguous_until(page.events.iter().map(|e| e.id)) else {
             break;
         };
         commit_cursor(store, held_until, cursor, counters).await?;
-        if page.last().is_some_and(|e| e.id != held_until) {
+        if page.events.last().is_some_and(|e| e.id != held_until) {
             break;
         }
     }
@@ -467,6 +458,19 @@ async fn reconcile(
         );
     }
     Ok(())
+}
+
+/// The next page of stored events after `after_id`, oldest first.
+async fn page_after(store: &Arc<EventStore>, after_id: u64) -> Result<ReadPage, Failure> {
+    blocking(store, move |s| {
+        s.read_page(&EventQuery {
+            after_id,
+            limit: PAGE_EVENTS,
+            ..EventQuery::default()
+        })
+    })
+    .await
+    .map_err(|e| Failure("store", format!("reading events: {e}")))
 }
 
 async fn commit_cursor(
@@ -504,16 +508,7 @@ async fn forward(
             tokio::time::sleep(IDLE_POLL).await;
             continue;
         }
-        let after_id = cursor.acked_id();
-        let page = blocking(store, move |s| {
-            s.read_page(&EventQuery {
-                after_id,
-                limit: PAGE_EVENTS,
-                ..EventQuery::default()
-            })
-        })
-        .await
-        .map_err(|e| Failure("store", format!("reading events: {e}")))?;
+        let page = page_after(store, cursor.acked_id()).await?;
         let Some(last_read_id) = page.last_read_id else {
             // The store's last id is ahead of its rows (pruned): nothing left to send.
             tokio::time::sleep(IDLE_POLL).await;
