@@ -55,9 +55,19 @@ fn temp_dir(name: &str) -> PathBuf {
 }
 
 fn spawn(env: &str, default: &str, args: Vec<String>) -> Process {
+    spawn_with_env(env, default, args, &[])
+}
+
+fn spawn_with_env(
+    env: &str,
+    default: &str,
+    args: Vec<String>,
+    envs: &[(String, String)],
+) -> Process {
     let binary = std::env::var(env).unwrap_or_else(|_| default.into());
     let child = Command::new(&binary)
         .args(&args)
+        .envs(envs.iter().map(|(k, v)| (k, v)))
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::null())
@@ -76,6 +86,23 @@ pub struct Prometheus {
     pub process: Process,
     pub addr: String,
     dir: PathBuf,
+    /// The command line and environment, to start it again on the same port and data.
+    args: Vec<String>,
+    envs: Vec<(String, String)>,
+}
+
+/// What a [`Prometheus`] runs as.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum PrometheusMode {
+    /// A server that scrapes, stores and evaluates rules.
+    Server,
+    /// A server that also accepts remote writes (`--web.enable-remote-write-receiver`): the
+    /// ground of dashboards/prometheus/ground.yml.
+    Receiver,
+    /// Agent mode (`--enable-feature=agent`): scrapes and remote-writes from its WAL, no
+    /// queries; `${VAR}` in external labels from the environment (`expand-external-labels`):
+    /// the onboard agent of dashboards/prometheus/agent.yml.
+    Agent,
 }
 
 impl Prometheus {
@@ -83,25 +110,83 @@ impl Prometheus {
     /// the path of the repository's `dashboards/prometheus/alerts.yml`) and waits until it
     /// answers.
     pub fn start(config: &str) -> Prometheus {
+        Self::start_as(PrometheusMode::Server, config, &[])
+    }
+
+    /// [`Prometheus::start`] in `mode`, with `envs` added to its environment.
+    pub fn start_as(mode: PrometheusMode, config: &str, envs: &[(&str, &str)]) -> Prometheus {
         let dir = temp_dir("prometheus");
         let rules = workspace_root().join("dashboards/prometheus/alerts.yml");
         let config = config.replace("{rules}", &rules.display().to_string());
         std::fs::write(dir.join("prometheus.yml"), config).unwrap();
         let addr = free_addr();
-        let process = spawn(
-            "PROMETHEUS",
-            "prometheus",
-            vec![
-                format!("--config.file={}", dir.join("prometheus.yml").display()),
-                format!("--storage.tsdb.path={}", dir.join("data").display()),
-                format!("--web.listen-address={addr}"),
-            ],
-        );
-        let prometheus = Prometheus { process, addr, dir };
-        wait_for("Prometheus answering", Duration::from_secs(30), || {
-            std::net::TcpStream::connect(&prometheus.addr).is_ok()
-        });
+        let mut args = vec![
+            format!("--config.file={}", dir.join("prometheus.yml").display()),
+            format!("--web.listen-address={addr}"),
+        ];
+        match mode {
+            PrometheusMode::Server | PrometheusMode::Receiver => args.push(format!(
+                "--storage.tsdb.path={}",
+                dir.join("data").display()
+            )),
+            // 2.42 refuses the tsdb flags in agent mode; its WAL has a flag of its own.
+            PrometheusMode::Agent => args.extend([
+                "--enable-feature=agent,expand-external-labels".to_string(),
+                format!("--storage.agent.path={}", dir.join("agent").display()),
+                "--storage.agent.wal-compression".to_string(),
+            ]),
+        }
+        if mode == PrometheusMode::Receiver {
+            args.push("--web.enable-remote-write-receiver".into());
+        }
+        let envs: Vec<(String, String)> = envs
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect();
+        let process = spawn_with_env("PROMETHEUS", "prometheus", args.clone(), &envs);
+        let prometheus = Prometheus {
+            process,
+            addr,
+            dir,
+            args,
+            envs,
+        };
+        prometheus.wait_ready();
         prometheus
+    }
+
+    fn wait_ready(&self) {
+        wait_for("Prometheus answering", Duration::from_secs(30), || {
+            std::net::TcpStream::connect(&self.addr).is_ok()
+        });
+    }
+
+    /// Stops it (SIGTERM, a clean shutdown), keeping its data directory.
+    pub fn stop(&mut self) {
+        self.process.terminate(Duration::from_secs(30));
+    }
+
+    /// Starts it again after [`Prometheus::stop`]: same port, configuration and data.
+    pub fn start_again(&mut self) {
+        self.process = spawn_with_env("PROMETHEUS", "prometheus", self.args.clone(), &self.envs);
+        self.wait_ready();
+    }
+
+    /// The total size in bytes of the files under `sub` of its directory (`agent/wal`).
+    pub fn disk_bytes(&self, sub: &str) -> u64 {
+        fn walk(dir: &std::path::Path) -> u64 {
+            std::fs::read_dir(dir)
+                .into_iter()
+                .flatten()
+                .flatten()
+                .map(|e| match e.metadata() {
+                    Ok(m) if m.is_dir() => walk(&e.path()),
+                    Ok(m) => m.len(),
+                    Err(_) => 0,
+                })
+                .sum()
+        }
+        walk(&self.dir.join(sub))
     }
 
     /// A scrape config of job `job` over `targets`, every 250 ms, rules evaluated every 250 ms.
@@ -116,10 +201,20 @@ impl Prometheus {
 
     /// The result vector of an instant query (`[]` on an error status).
     pub fn query(&self, query: &str) -> Vec<Value> {
-        let (status, body) = http_get(
-            &self.addr,
-            &format!("/api/v1/query?query={}", encode(query)),
-        );
+        self.query_path(&format!("/api/v1/query?query={}", encode(query)))
+    }
+
+    /// [`Prometheus::query`] evaluated at `time_s` (Unix seconds); a range selector's result
+    /// is the raw samples (`values`: `[time_s, "value"]`).
+    pub fn query_at(&self, query: &str, time_s: f64) -> Vec<Value> {
+        self.query_path(&format!(
+            "/api/v1/query?query={}&time={time_s:.3}",
+            encode(query)
+        ))
+    }
+
+    fn query_path(&self, path: &str) -> Vec<Value> {
+        let (status, body) = http_get(&self.addr, path);
         if status != 200 {
             return Vec::new();
         }
