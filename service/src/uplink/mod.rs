@@ -27,6 +27,7 @@
 //! waits for a commit in progress, never the other way round for longer than one page read).
 
 pub mod config;
+pub mod health;
 mod pace;
 
 use std::future::IntoFuture;
