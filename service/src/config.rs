@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 // the stream modules (which use the event store, which uses this module).
 pub use crate::bogie::config::{BogieConfig, MAX_BOGIES};
 pub use crate::drive::config::DriveConfig;
+pub use crate::fleet::config::FleetConfig;
 pub use crate::uplink::config::UplinkConfig;
 pub use crate::vehicle::config::VehicleConfig;
 
@@ -57,6 +58,8 @@ pub struct ServiceConfig {
     pub bogie: BogieConfig,
     pub vehicle: VehicleConfig,
     pub uplink: UplinkConfig,
+    /// `railmon fleet` only.
+    pub fleet: FleetConfig,
 }
 
 /// `[storage]`: where events and active alarms are kept, and for how long.
@@ -371,6 +374,7 @@ impl ServiceConfig {
         self.vehicle.validate()?;
         self.bogie.validate()?;
         self.uplink.validate()?;
+        self.fleet.validate()?;
         if self.uplink.enabled() {
             for (key, value) in [
                 ("vehicle_id", &self.identity.vehicle_id),

@@ -14,9 +14,11 @@ pub mod app;
 pub mod bogie;
 pub mod config;
 pub mod drive;
+pub mod fleet;
 pub mod http;
 pub mod ingest;
 pub mod metrics;
+pub mod nats_client;
 pub mod outbox;
 pub mod ring;
 pub mod snapshot;
@@ -61,6 +63,8 @@ pub struct AppInner {
     store_writer: std::sync::Mutex<Option<JoinHandle<()>>>,
     /// The event uplink's counters (all 0 while `uplink.url` is empty).
     pub uplink: Arc<uplink::UplinkCounters>,
+    /// The health publisher's counters (all 0 while `uplink.url` is empty).
+    pub health: Arc<uplink::health::HealthCounters>,
     pub started: Instant,
 }
 
@@ -131,6 +135,7 @@ impl AppState {
             store,
             store_writer: std::sync::Mutex::new(Some(store_writer)),
             uplink: Arc::default(),
+            health: Arc::default(),
             started: Instant::now(),
         })))
     }

@@ -4,6 +4,7 @@
 mod analyze_cmd;
 mod config_cmd;
 mod damper_cmd;
+mod fleet_cmd;
 mod serve;
 #[cfg(feature = "analyze")]
 mod summary;
@@ -31,6 +32,10 @@ struct Cli {
 enum Command {
     /// Ingest the sensor streams from the bus and serve estimates over HTTP.
     Serve(serve::ServeArgs),
+    /// The fleet view: a stateless HTTP service answering fleet queries (a vehicle's events,
+    /// its latest health summary, the vehicles with an active alarm) from the vehicles'
+    /// NATS JetStream stream.
+    Fleet(fleet_cmd::FleetArgs),
     /// The settings: their reference, and a check of a configuration.
     #[command(subcommand)]
     Config(config_cmd::ConfigCommand),
@@ -95,6 +100,7 @@ pub(crate) fn print_out(text: &str) -> anyhow::Result<()> {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Serve(args) => serve::run(args),
+        Command::Fleet(args) => fleet_cmd::run(args),
         Command::Config(command) => config_cmd::run(command),
         Command::Damper(command) => damper_cmd::run(command),
         #[cfg(feature = "analyze")]

@@ -353,6 +353,8 @@ struct UplinkMetrics {
     last_ack: prometheus::GaugeVec,
     link_up: IntGaugeVec,
     failures: IntCounterVec,
+    health_sent: IntCounterVec,
+    health_failures: IntCounterVec,
 }
 
 impl UplinkMetrics {
@@ -396,6 +398,16 @@ impl UplinkMetrics {
             failures: f.int_counter_vec(
                 "uplink_failures_total",
                 "Uplink failures by kind: link lost (disconnected), stream lookup or creation, publish, acknowledgement (timed out or refused), event store, connection setup.",
+                &["kind"],
+            )?,
+            health_sent: f.int_counter_vec(
+                "uplink_health_sent_total",
+                "Health summaries (with their alarm snapshots) the ground's stream acknowledged.",
+                &[],
+            )?,
+            health_failures: f.int_counter_vec(
+                "uplink_health_failures_total",
+                "Health summaries not sent, by kind: link down at the tick (disconnected), connection setup, event store, publish, acknowledgement.",
                 &["kind"],
             )?,
         })
@@ -595,6 +607,26 @@ impl Metrics {
         u.last_ack
             .with_label_values(&[] as &[&str])
             .set(counters.last_ack_unix_ms.load(Relaxed) as f64 / 1000.0);
+    }
+
+    /// Brings the health publisher's series to its counters (counters only rise).
+    pub fn count_uplink_health(&self, counters: &crate::uplink::health::HealthCounters) {
+        use std::sync::atomic::Ordering::Relaxed;
+        let rise = |counter: &IntCounter, total: u64| {
+            counter.inc_by(total.saturating_sub(counter.get()));
+        };
+        let u = &self.uplink;
+        rise(
+            &u.health_sent.with_label_values(&[] as &[&str]),
+            counters.sent.load(Relaxed),
+        );
+        let kinds = crate::uplink::health::HEALTH_FAILURE_KINDS;
+        for (kind, n) in kinds.iter().zip(&counters.failures) {
+            rise(
+                &u.health_failures.with_label_values(&[kind]),
+                n.load(Relaxed),
+            );
+        }
     }
 
     /// The text exposition format.

@@ -112,6 +112,11 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
                 state.config.uplink.clone(),
                 state.uplink.clone(),
             ));
+            // Latest wins, on its own connection: a summary never waits behind the events.
+            tokio::spawn(railmon_service::uplink::health::run(
+                state.clone(),
+                state.health.clone(),
+            ));
         }
         let http = state.config.http.clone();
         let counters = state.http.clone();
@@ -139,7 +144,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
 }
 
 /// Resolves on SIGINT or SIGTERM.
-async fn termination() {
+pub async fn termination() {
     use tokio::signal::unix::{signal, SignalKind};
     let mut term = match signal(SignalKind::terminate()) {
         Ok(term) => term,

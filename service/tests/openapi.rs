@@ -41,6 +41,11 @@ async fn document() -> Value {
 /// Runs `tool` of the test Python environment on the document (written to a file, whose path
 /// is the last argument) and panics with its output unless it succeeds.
 async fn check_document_with(tool: &str, args: &[&str]) {
+    check_with(tool, args, document().await).await;
+}
+
+/// [`check_document_with`] on `document`.
+async fn check_with(tool: &str, args: &[&str], document: Value) {
     let venv = std::env::var("RAILMON_TEST_VENV")
         .map(std::path::PathBuf::from)
         .unwrap_or_else(|_| {
@@ -58,7 +63,7 @@ async fn check_document_with(tool: &str, args: &[&str]) {
         std::process::id(),
         N.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
     ));
-    std::fs::write(&file, document().await.to_string()).unwrap();
+    std::fs::write(&file, document.to_string()).unwrap();
     let out = std::process::Command::new(&tool)
         .args(args)
         .arg(&file)
@@ -77,6 +82,21 @@ async fn check_document_with(tool: &str, args: &[&str]) {
 #[tokio::test]
 async fn the_document_passes_the_openapi_validator() {
     check_document_with("openapi-spec-validator", &[]).await;
+}
+
+/// `railmon fleet`'s document too (its answers: tests/tests/fleet.rs).
+#[tokio::test]
+async fn the_fleet_document_passes_the_openapi_validator() {
+    let document = serde_json::to_value(railmon_service::fleet::routes::api_doc()).unwrap();
+    for path in [
+        "/api/v1/vehicles",
+        "/api/v1/vehicles/{vehicle_id}/events",
+        "/api/v1/vehicles/{vehicle_id}/health",
+        "/api/v1/alarms",
+    ] {
+        assert!(document["paths"][path]["get"].is_object(), "{path}");
+    }
+    check_with("openapi-spec-validator", &[], document).await;
 }
 
 /// Checks that each `GET` has an example on one of its JSON answers, and each example against

@@ -19,7 +19,7 @@ pub struct ErrorDetail {
     pub status: u16,
     /// Stable machine-readable code: `unknown_drive`, `unknown_bogie`, `stream_disabled`,
     /// `bad_query`, `bad_path`, `not_found`, `method_not_allowed`, `uri_too_long`,
-    /// `headers_too_large`, `timeout`, `internal`.
+    /// `headers_too_large`, `timeout`, `internal`; `railmon fleet` also `unavailable`.
     pub code: String,
     pub message: String,
 }
@@ -46,6 +46,9 @@ pub enum AppError {
     HeadersTooLarge { bytes: usize, max: usize },
     #[error("the request took longer than {0:?}")]
     Timeout(std::time::Duration),
+    /// `railmon fleet`: its NATS stream cannot be read now (logged by the caller).
+    #[error("the fleet's event stream cannot be read now")]
+    Unavailable,
     /// The detail is logged by the caller; the client gets a short message.
     #[error("internal error")]
     Internal,
@@ -67,6 +70,7 @@ impl AppError {
                 "headers_too_large",
             ),
             AppError::Timeout(_) => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
+            AppError::Unavailable => (StatusCode::SERVICE_UNAVAILABLE, "unavailable"),
             AppError::Internal => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
         }
     }

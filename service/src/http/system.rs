@@ -131,6 +131,7 @@ pub async fn metrics(State(state): State<AppState>) -> Result<Response, AppError
     state.metrics.count_store(&state.store.status());
     if state.config.uplink.enabled() {
         state.metrics.count_uplink(&state.uplink);
+        state.metrics.count_uplink_health(&state.health);
     }
     let text = state.metrics.render().map_err(|e| {
         tracing::error!("rendering metrics: {e}");

@@ -120,7 +120,7 @@ pub struct EventView {
 }
 
 /// An alarm that is active, with the event that raised it.
-#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize, ToSchema)]
 pub struct ActiveAlarm {
     pub stream: String,
     pub subject: String,

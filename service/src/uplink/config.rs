@@ -10,6 +10,9 @@ use crate::stream_keys::invalid;
 
 /// Bounds of `uplink.max_events_per_s`, declared to the reference and checked by `validate`.
 pub const MAX_EVENTS_PER_S: RangeInclusive<u32> = 1..=100_000;
+/// Bounds of `uplink.health_interval_s` (s), declared to the reference and checked by
+/// `validate`: a summary is a few kB, so even the shortest interval is no load on the link.
+pub const HEALTH_INTERVAL_S: RangeInclusive<f64> = 1.0..=3600.0;
 
 #[derive(Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
@@ -38,6 +41,11 @@ pub struct UplinkConfig {
     /// at this rate, oldest first.
     #[schemars(range(min = *MAX_EVENTS_PER_S.start(), max = *MAX_EVENTS_PER_S.end()))]
     pub max_events_per_s: u32,
+    /// How often a health summary (every drive's slip state, every bogie's damper estimates
+    /// with their 90 % intervals, the fuel regime, and the active alarms) goes to
+    /// `<subject_prefix>.<fleet>.<vehicle_id>.health` (and the alarms to `...alarms`), s.
+    #[schemars(range(min = *HEALTH_INTERVAL_S.start(), max = *HEALTH_INTERVAL_S.end()))]
+    pub health_interval_s: f64,
 }
 
 impl Default for UplinkConfig {
@@ -52,6 +60,7 @@ impl Default for UplinkConfig {
             subject_prefix: "railmon".into(),
             stream: "RAILMON".into(),
             max_events_per_s: 200,
+            health_interval_s: 60.0,
         }
     }
 }
@@ -70,16 +79,31 @@ impl std::fmt::Debug for UplinkConfig {
             .field("subject_prefix", &self.subject_prefix)
             .field("stream", &self.stream)
             .field("max_events_per_s", &self.max_events_per_s)
+            .field("health_interval_s", &self.health_interval_s)
             .finish()
     }
 }
 
 /// A subject token we write: letters, digits, `_`, `-` (no `.`, which splits tokens, no
 /// wildcards, no white space).
-fn is_token(s: &str) -> bool {
+pub(crate) fn is_token(s: &str) -> bool {
     !s.is_empty()
         && s.chars()
             .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-'))
+}
+
+impl<'a> From<&'a UplinkConfig> for crate::nats_client::NatsLogin<'a> {
+    fn from(c: &'a UplinkConfig) -> Self {
+        Self {
+            section: "uplink",
+            url: &c.url,
+            user: &c.user,
+            password: &c.password,
+            token: &c.token,
+            creds_file: &c.creds_file,
+            tls_ca_file: &c.tls_ca_file,
+        }
+    }
 }
 
 impl UplinkConfig {
@@ -95,6 +119,11 @@ impl UplinkConfig {
             "uplink.max_events_per_s",
             self.max_events_per_s,
             &MAX_EVENTS_PER_S,
+        )?;
+        settings::check_in_range(
+            "uplink.health_interval_s",
+            self.health_interval_s,
+            &HEALTH_INTERVAL_S,
         )?;
         for server in self.url.split(',').filter(|s| !s.trim().is_empty()) {
             server

@@ -32,6 +32,7 @@
 
 pub mod config;
 mod ground;
+pub mod health;
 mod pace;
 
 use std::future::IntoFuture;

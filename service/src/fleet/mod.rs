@@ -1,0 +1,509 @@
+//! `railmon fleet` (issue 29 item 3): answers fleet queries from the JetStream stream the
+//! vehicles' uplinks write, and nothing else: no database, no state between requests, so any
+//! number of replicas can answer behind a load balancer.
+//!
+//! What it reads (subjects under `fleet.subject_prefix`, `<fleet>.<vehicle>` as the uplink
+//! writes them):
+//! - a vehicle's events: an ephemeral pull consumer filtered on
+//!   `<prefix>.*.<vehicle>.<stream>.events`, starting at the page's stream sequence or at the
+//!   range's start time (minus a clock margin), paged by stream sequence;
+//! - a vehicle's latest health summary: the last message of `<prefix>.*.<vehicle>.health`;
+//! - the active alarms of every vehicle: the last alarm snapshot of each vehicle
+//!   (`<prefix>.*.*.alarms`, one consumer delivering the last message per subject), then only
+//!   the events stored since each snapshot (one consumer over every vehicle's events from the
+//!   oldest recent snapshot, and one per vehicle whose snapshot is old or missing), applied
+//!   with [`alarms::AlarmState`]. Replaying every event ever sent would grow with the stream;
+//!   this grows with the vehicles and the last minutes' events (docs/fleet.md, measured).
+
+pub mod alarms;
+pub mod config;
+pub mod routes;
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::ops::ControlFlow;
+use std::time::Duration;
+
+use async_nats::jetstream::{self, consumer::pull, consumer::AckPolicy, consumer::DeliverPolicy};
+use futures_util::StreamExt;
+use serde::Deserialize;
+
+use crate::store::ActiveAlarm;
+use crate::uplink::health::AlarmSnapshot;
+use alarms::{AlarmEvent, AlarmState};
+pub use config::FleetConfig;
+
+/// Messages asked for per pull request.
+const FETCH_BATCH: usize = 1000;
+/// A time range's start is looked up this much earlier in the stream's (server) time: an
+/// event is stored after it was acquired, unless the vehicle's clock is ahead of the server's
+/// by more than this.
+const CLOCK_MARGIN: Duration = Duration::from_secs(300);
+/// Events stored this long before an alarm snapshot are read too: an event newer than the
+/// snapshot's last id is published after the snapshot was made, and the snapshot is stored
+/// within the health publisher's acknowledgement timeout (5 s) of being made, or not at all.
+const SNAPSHOT_MARGIN: Duration = Duration::from_secs(30);
+/// Vehicles whose snapshot is younger than this share one read of every vehicle's recent
+/// events; an older snapshot (a vehicle offline, or the fleet's first minutes) gets a read of
+/// its vehicle's events alone, so one old snapshot does not make every query read hours.
+const RECENT_WINDOW: Duration = Duration::from_secs(600);
+/// Per-vehicle reads in flight at once.
+const PARALLEL_READS: usize = 16;
+/// Unused consumers (a request that was cut) are removed by the server after this.
+const CONSUMER_INACTIVE: Duration = Duration::from_secs(30);
+
+/// The stream could not be read (the server is down, the stream is missing, ...).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct ReadError(pub String);
+
+fn read_error(what: &str, e: impl std::fmt::Display) -> ReadError {
+    ReadError(format!("{what}: {e}"))
+}
+
+/// A message as read: subject, stream sequence, when the server stored it, payload.
+pub struct Read<'a> {
+    pub subject: &'a str,
+    pub sequence: u64,
+    pub stored: time::OffsetDateTime,
+    pub payload: &'a [u8],
+}
+
+/// `<fleet>.<vehicle>` and the rest of a subject under `prefix`.
+fn tokens<'a>(prefix: &str, subject: &'a str) -> Option<(&'a str, &'a str, &'a str)> {
+    let rest = subject.strip_prefix(prefix)?.strip_prefix('.')?;
+    let mut parts = rest.splitn(3, '.');
+    Some((parts.next()?, parts.next()?, parts.next()?))
+}
+
+/// The fields of an event the fleet needs (the payload is the vehicle's `EventView` with
+/// `vehicle_id` and `fleet`).
+#[derive(Deserialize)]
+struct EventHead<'a> {
+    id: u64,
+    #[serde(borrow)]
+    kind: std::borrow::Cow<'a, str>,
+    #[serde(borrow)]
+    subject: std::borrow::Cow<'a, str>,
+    #[serde(borrow)]
+    time_utc: std::borrow::Cow<'a, str>,
+}
+
+/// A page of one vehicle's events.
+pub struct EventsRequest {
+    pub vehicle_id: String,
+    /// `drive`, `bogie`, `vehicle`, `service`; None: every stream.
+    pub stream: Option<String>,
+    pub since_utc_ns: Option<i64>,
+    pub until_utc_ns: Option<i64>,
+    pub kind: Option<String>,
+    pub after_seq: u64,
+    pub limit: usize,
+}
+
+/// A vehicle's events as stored (JSON objects with `stream_sequence` added), and where the
+/// next page starts.
+pub struct EventsAnswer {
+    pub events: Vec<serde_json::Value>,
+    pub next_after_seq: u64,
+}
+
+/// One vehicle with an alarm snapshot or events in the stream, and its alarms now.
+pub struct VehicleAlarms {
+    pub fleet: String,
+    pub vehicle_id: String,
+    pub alarms: Vec<ActiveAlarm>,
+    /// When the server stored the snapshot the answer starts from (None: from every event).
+    pub snapshot_stored: Option<time::OffsetDateTime>,
+}
+
+/// The stream, through one NATS connection.
+#[derive(Clone)]
+pub struct Fleet {
+    stream: jetstream::stream::Stream,
+    prefix: String,
+}
+
+impl Fleet {
+    /// Connects and looks the stream up (it must exist: the vehicles' uplinks create it).
+    pub async fn connect(config: &FleetConfig) -> Result<Self, ReadError> {
+        let login = crate::nats_client::NatsLogin::from(config);
+        let client = crate::nats_client::connect(&login, "railmon-fleet", true)
+            .await
+            .map_err(ReadError)?;
+        let js = jetstream::ContextBuilder::new()
+            .timeout(Duration::from_secs(5))
+            .build(client);
+        let stream = js
+            .get_stream(&config.stream)
+            .await
+            .map_err(|e| read_error(&format!("stream {} (fleet.stream)", config.stream), e))?;
+        Ok(Self {
+            stream,
+            prefix: config.subject_prefix.clone(),
+        })
+    }
+
+    /// Visits the messages of `filter` from `deliver` in stream order until `visit` breaks or
+    /// none is left; an ephemeral consumer, deleted afterwards.
+    pub async fn read(
+        &self,
+        filter: String,
+        deliver: DeliverPolicy,
+        mut visit: impl FnMut(Read<'_>) -> ControlFlow<()>,
+    ) -> Result<(), ReadError> {
+        let consumer: jetstream::consumer::Consumer<pull::Config> = self
+            .stream
+            .create_consumer(pull::Config {
+                filter_subject: filter.clone(),
+                deliver_policy: deliver,
+                ack_policy: AckPolicy::None,
+                inactive_threshold: CONSUMER_INACTIVE,
+                memory_storage: true,
+                num_replicas: 1,
+                ..Default::default()
+            })
+            .await
+            .map_err(|e| read_error(&format!("consumer on {filter}"), e))?;
+        let result = async {
+            if consumer.cached_info().num_pending == 0 {
+                return Ok(());
+            }
+            loop {
+                let batch = consumer
+                    .fetch()
+                    .max_messages(FETCH_BATCH)
+                    .messages()
+                    .await
+                    .map_err(|e| read_error(&format!("reading {filter}"), e))?;
+                let mut batch = std::pin::pin!(batch);
+                let mut got = 0;
+                while let Some(message) = batch.next().await {
+                    let message =
+                        message.map_err(|e| read_error(&format!("reading {filter}"), e))?;
+                    let info = message
+                        .info()
+                        .map_err(|e| read_error(&format!("reading {filter}"), e))?;
+                    got += 1;
+                    let read = Read {
+                        subject: message.subject.as_str(),
+                        sequence: info.stream_sequence,
+                        stored: info.published,
+                        payload: &message.payload[..],
+                    };
+                    let pending = info.pending;
+                    if visit(read).is_break() || pending == 0 {
+                        return Ok(());
+                    }
+                }
+                if got == 0 {
+                    return Ok(());
+                }
+            }
+        }
+        .await;
+        // Off the answer's path; the inactivity threshold removes it if this fails.
+        let (stream, name) = (self.stream.clone(), consumer.cached_info().name.clone());
+        tokio::spawn(async move {
+            let _ = stream.delete_consumer(&name).await;
+        });
+        result
+    }
+
+    /// A page of one vehicle's events, in stream order (= id order per vehicle).
+    pub async fn events(&self, q: &EventsRequest) -> Result<EventsAnswer, ReadError> {
+        let stream = q.stream.as_deref().unwrap_or("*");
+        let filter = format!("{}.*.{}.{stream}.events", self.prefix, q.vehicle_id);
+        let deliver = match (q.after_seq, q.since_utc_ns) {
+            (0, None) => DeliverPolicy::All,
+            (0, Some(since)) => DeliverPolicy::ByStartTime {
+                start_time: utc(since) - CLOCK_MARGIN,
+            },
+            (after, _) => DeliverPolicy::ByStartSequence {
+                start_sequence: after + 1,
+            },
+        };
+        let mut answer = EventsAnswer {
+            events: Vec::new(),
+            next_after_seq: q.after_seq,
+        };
+        let mut bad = None;
+        self.read(filter, deliver, |m| {
+            answer.next_after_seq = m.sequence;
+            let mut event: serde_json::Map<String, serde_json::Value> =
+                match serde_json::from_slice(m.payload) {
+                    Ok(event) => event,
+                    Err(e) => {
+                        bad = Some(format!("stream sequence {}: {e}", m.sequence));
+                        return ControlFlow::Continue(());
+                    }
+                };
+            let time_ns = event
+                .get("time_utc")
+                .and_then(|t| t.as_str())
+                .and_then(|t| railmon_bus::utc::parse_rfc3339(t).ok());
+            let in_range = match time_ns {
+                Some(t) => {
+                    q.since_utc_ns.is_none_or(|s| t >= s) && q.until_utc_ns.is_none_or(|u| t < u)
+                }
+                None => q.since_utc_ns.is_none() && q.until_utc_ns.is_none(),
+            };
+            let kind_ok = q
+                .kind
+                .as_deref()
+                .is_none_or(|k| event.get("kind").and_then(|v| v.as_str()) == Some(k));
+            if in_range && kind_ok {
+                event.insert("stream_sequence".into(), m.sequence.into());
+                answer.events.push(serde_json::Value::Object(event));
+                if answer.events.len() >= q.limit {
+                    return ControlFlow::Break(());
+                }
+            }
+            ControlFlow::Continue(())
+        })
+        .await?;
+        if let Some(bad) = bad {
+            tracing::warn!("an event that is not JSON skipped: {bad}");
+        }
+        Ok(answer)
+    }
+
+    /// The last health summary of `vehicle_id` (of any fleet): stream sequence, when stored,
+    /// the summary.
+    pub async fn health(
+        &self,
+        vehicle_id: &str,
+    ) -> Result<Option<(u64, time::OffsetDateTime, serde_json::Value)>, ReadError> {
+        let filter = format!("{}.*.{vehicle_id}.health", self.prefix);
+        let mut last = None;
+        let mut bad = None;
+        self.read(filter, DeliverPolicy::LastPerSubject, |m| {
+            match serde_json::from_slice(m.payload) {
+                Ok(summary) => last = Some((m.sequence, m.stored, summary)),
+                Err(e) => bad = Some(format!("stream sequence {}: {e}", m.sequence)),
+            }
+            ControlFlow::Continue(())
+        })
+        .await?;
+        if let (None, Some(bad)) = (&last, bad) {
+            return Err(ReadError(format!("the health summary is not JSON: {bad}")));
+        }
+        Ok(last)
+    }
+
+    /// Every vehicle with events in the stream: `(fleet, vehicle)` and its messages per
+    /// event stream (`drive`, ...).
+    pub async fn vehicles(
+        &self,
+    ) -> Result<BTreeMap<(String, String), BTreeMap<String, u64>>, ReadError> {
+        let filter = format!("{}.*.*.*.events", self.prefix);
+        let subjects = self
+            .stream
+            .info_with_subjects(&filter)
+            .await
+            .map_err(|e| read_error("stream info", e))?;
+        let mut subjects = std::pin::pin!(subjects);
+        let mut vehicles: BTreeMap<(String, String), BTreeMap<String, u64>> = BTreeMap::new();
+        while let Some(subject) = subjects.next().await {
+            let (subject, count) = subject.map_err(|e| read_error("stream info", e))?;
+            if let Some((fleet, vehicle, rest)) = tokens(&self.prefix, &subject) {
+                let stream = rest.strip_suffix(".events").unwrap_or(rest);
+                vehicles
+                    .entry((fleet.to_string(), vehicle.to_string()))
+                    .or_default()
+                    .insert(stream.to_string(), count as u64);
+            }
+        }
+        Ok(vehicles)
+    }
+
+    /// The alarms active on every vehicle (see the module documentation).
+    pub async fn active_alarms(&self) -> Result<Vec<VehicleAlarms>, ReadError> {
+        struct Vehicle {
+            state: AlarmState,
+            after_id: u64,
+            /// Read its events stored from here (None: all).
+            start: Option<time::OffsetDateTime>,
+            snapshot_stored: Option<time::OffsetDateTime>,
+        }
+        let mut vehicles: BTreeMap<(String, String), Vehicle> = BTreeMap::new();
+        let mut bad = 0usize;
+        let prefix = self.prefix.clone();
+        self.read(
+            format!("{prefix}.*.*.alarms"),
+            DeliverPolicy::LastPerSubject,
+            |m| {
+                let Some((fleet, vehicle, _)) = tokens(&prefix, m.subject) else {
+                    return ControlFlow::Continue(());
+                };
+                match serde_json::from_slice::<AlarmSnapshot>(m.payload) {
+                    Ok(snapshot) => {
+                        vehicles.insert(
+                            (fleet.to_string(), vehicle.to_string()),
+                            Vehicle {
+                                state: AlarmState::from_snapshot(&snapshot.alarms),
+                                after_id: snapshot.last_event_id,
+                                start: Some(m.stored - SNAPSHOT_MARGIN),
+                                snapshot_stored: Some(m.stored),
+                            },
+                        );
+                    }
+                    Err(_) => bad += 1,
+                }
+                ControlFlow::Continue(())
+            },
+        )
+        .await?;
+        for key in self.vehicles().await?.into_keys() {
+            vehicles.entry(key).or_insert(Vehicle {
+                state: AlarmState::default(),
+                after_id: 0,
+                start: None,
+                snapshot_stored: None,
+            });
+        }
+        let cutoff = time::OffsetDateTime::now_utc() - RECENT_WINDOW;
+        let recent: BTreeSet<(String, String)> = vehicles
+            .iter()
+            .filter(|(_, v)| v.start.is_some_and(|s| s >= cutoff))
+            .map(|(k, _)| k.clone())
+            .collect();
+        let shared_start = vehicles
+            .iter()
+            .filter(|(k, _)| recent.contains(*k))
+            .filter_map(|(_, v)| v.start)
+            .min();
+        // (fleet, vehicle) and the events after its snapshot, in stream order.
+        type Found = Vec<((String, String), AlarmEvent)>;
+        let after: BTreeMap<(String, String), u64> = vehicles
+            .iter()
+            .map(|(k, v)| (k.clone(), v.after_id))
+            .collect();
+        let collect = |found: &mut Found,
+                       bad: &mut usize,
+                       m: Read<'_>,
+                       only: Option<&BTreeSet<(String, String)>>| {
+            let Some((fleet, vehicle, _)) = tokens(&prefix, m.subject) else {
+                return;
+            };
+            let key = (fleet.to_string(), vehicle.to_string());
+            if only.is_some_and(|only| !only.contains(&key)) {
+                return;
+            }
+            match serde_json::from_slice::<EventHead>(m.payload) {
+                Ok(e)
+                    if e.id > after.get(&key).copied().unwrap_or(0)
+                        && alarms::alarm_of(&e.kind).is_some() =>
+                {
+                    found.push((
+                        key,
+                        AlarmEvent {
+                            id: e.id,
+                            kind: e.kind.into_owned(),
+                            subject: e.subject.into_owned(),
+                            time_utc: e.time_utc.into_owned(),
+                        },
+                    ))
+                }
+                Ok(_) => {}
+                Err(_) => *bad += 1,
+            }
+        };
+        let shared = async {
+            let mut found = Found::new();
+            let mut bad = 0;
+            if let Some(start) = shared_start {
+                self.read(
+                    format!("{prefix}.*.*.*.events"),
+                    DeliverPolicy::ByStartTime { start_time: start },
+                    |m| {
+                        collect(&mut found, &mut bad, m, Some(&recent));
+                        ControlFlow::Continue(())
+                    },
+                )
+                .await?;
+            }
+            Ok::<_, ReadError>((found, bad))
+        };
+        let alone: Vec<_> = vehicles
+            .iter()
+            .filter(|(k, _)| !recent.contains(*k))
+            .map(|((fleet, vehicle), v)| {
+                let deliver = match v.start {
+                    Some(start) => DeliverPolicy::ByStartTime { start_time: start },
+                    None => DeliverPolicy::All,
+                };
+                let filter = format!("{prefix}.{fleet}.{vehicle}.*.events");
+                let collect = &collect;
+                async move {
+                    let mut found = Found::new();
+                    let mut bad = 0;
+                    self.read(filter, deliver, |m| {
+                        collect(&mut found, &mut bad, m, None);
+                        ControlFlow::Continue(())
+                    })
+                    .await?;
+                    Ok::<_, ReadError>((found, bad))
+                }
+            })
+            .collect();
+        let alone = futures_util::stream::iter(alone)
+            .buffer_unordered(PARALLEL_READS)
+            .collect::<Vec<_>>();
+        let (shared, alone) = tokio::join!(shared, alone);
+        for result in std::iter::once(shared).chain(alone) {
+            let (found, n) = result?;
+            bad += n;
+            for (key, event) in found {
+                if let Some(v) = vehicles.get_mut(&key) {
+                    v.state.apply(&event);
+                }
+            }
+        }
+        if bad > 0 {
+            tracing::warn!(
+                messages = bad,
+                "active alarms: messages that are not JSON skipped"
+            );
+        }
+        Ok(vehicles
+            .into_iter()
+            .map(|((fleet, vehicle_id), v)| VehicleAlarms {
+                fleet,
+                vehicle_id,
+                alarms: v.state.active(),
+                snapshot_stored: v.snapshot_stored,
+            })
+            .collect())
+    }
+}
+
+/// Nanoseconds since 1970 as a time.
+pub fn utc(ns: i64) -> time::OffsetDateTime {
+    time::OffsetDateTime::from_unix_timestamp_nanos(i128::from(ns))
+        .unwrap_or(time::OffsetDateTime::UNIX_EPOCH)
+}
+
+/// RFC 3339 UTC of a time.
+pub fn rfc3339(t: time::OffsetDateTime) -> String {
+    let ns = i64::try_from(t.unix_timestamp_nanos()).unwrap_or(0);
+    railmon_bus::utc::format_rfc3339(ns)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn subjects_split_into_fleet_vehicle_and_the_rest() {
+        assert_eq!(
+            tokens("railmon", "railmon.north.unit-7.drive.events"),
+            Some(("north", "unit-7", "drive.events"))
+        );
+        assert_eq!(
+            tokens("a.b", "a.b._.unit-7.alarms"),
+            Some(("_", "unit-7", "alarms"))
+        );
+        assert_eq!(tokens("railmon", "other.north.unit-7.health"), None);
+        assert_eq!(tokens("railmon", "railmonx.north.unit-7.health"), None);
+    }
+}

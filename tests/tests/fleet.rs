@@ -1,0 +1,520 @@
+//! `railmon fleet` (issue 29 item 3) against a real NATS JetStream server: a service with the
+//! uplink on sends its health summary, simulated vehicles' events are published as the uplink
+//! publishes them (subjects, message ids, payloads), and the fleet view answers a vehicle's
+//! events (ids, order, pages, time range), the latest health summary, and which vehicles have
+//! an active alarm, as alarms are raised and then cleared, from events alone and from an alarm
+//! snapshot plus the events after it.
+//!
+//! `fleet_queries_at_1000_vehicles` (ignored: a minute and a half, prints numbers) measures the
+//! latency of the active-alarms query and of one vehicle's events for a day at 1,000 vehicles'
+//! worth of stored events (docs/fleet.md).
+//!
+//! Needs `nats-server` (`scripts/install-test-deps`); without it the tests say so and pass.
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use async_nats::jetstream;
+use railmon_system_tests::monitoring::{free_addr, wait_for};
+use railmon_system_tests::nats::{self, start_nats_server, uplink_settings, with_client};
+use railmon_system_tests::{binaries, http_get, PrivateBus, Process, Service};
+use serde_json::{json, Value};
+
+const STREAM: &str = "RAILMON_FLEET_TEST";
+
+/// `railmon fleet` reading `stream` at `url`, and its address.
+fn start_fleet(url: &str, stream: &str, work: &Path) -> (Process, String) {
+    let addr_file = work.join("fleet-addr");
+    let _ = std::fs::remove_file(&addr_file);
+    let child = Command::new(&binaries().railmon)
+        .args(["fleet", "--addr-file"])
+        .arg(&addr_file)
+        .env("RAILMON_FLEET__URL", url)
+        .env("RAILMON_FLEET__STREAM", stream)
+        .env("RAILMON_FLEET__LISTEN", "127.0.0.1:0")
+        .env("RAILMON_LOG", "warn")
+        .stdin(Stdio::null())
+        .spawn()
+        .expect("starting railmon fleet");
+    let mut process = Process {
+        child,
+        name: "railmon fleet".into(),
+    };
+    let start = Instant::now();
+    let addr = loop {
+        if let Ok(addr) = std::fs::read_to_string(&addr_file) {
+            if !addr.is_empty() {
+                break addr;
+            }
+        }
+        if let Some(status) = process.child.try_wait().unwrap() {
+            panic!("railmon fleet exited early: {status}");
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "railmon fleet did not start"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    (process, addr)
+}
+
+fn get_json(addr: &str, path: &str) -> Value {
+    let (status, body) = http_get(addr, path);
+    assert_eq!(status, 200, "GET {path}: {body}");
+    serde_json::from_str(&body).unwrap_or_else(|e| panic!("GET {path}: {e}: {body}"))
+}
+
+/// An event as the uplink publishes it: `(vehicle, fleet, stream, id, kind, subject, hour)`,
+/// acquired at `hour`:00 on 2026-11-27.
+type SimEvent<'a> = (&'a str, &'a str, &'a str, u64, &'a str, &'a str, u32);
+
+fn event_message(e: &SimEvent) -> (String, String, Vec<u8>) {
+    let (vehicle, fleet, stream, id, kind, subject, hour) = *e;
+    let payload = json!({
+        "id": id, "stream": stream, "kind": kind, "subject": subject,
+        "time_utc": format!("2026-11-27T{hour:02}:00:00Z"),
+        "time_s": f64::from(hour) * 3600.0, "run": 0, "run_time_s": f64::from(hour) * 3600.0,
+        "vehicle_id": vehicle, "fleet": fleet,
+    });
+    (
+        format!("railmon.{fleet}.{vehicle}.{stream}.events"),
+        format!("{vehicle}:{id}"),
+        serde_json::to_vec(&payload).unwrap(),
+    )
+}
+
+/// Publishes `messages` (subject, message id or empty, payload), awaiting every
+/// acknowledgement.
+async fn publish_all(client: async_nats::Client, messages: Vec<(String, String, Vec<u8>)>) {
+    let js = jetstream::new(client);
+    let mut acks = Vec::with_capacity(messages.len());
+    for (subject, id, payload) in messages {
+        let mut message = jetstream::message::PublishMessage::build().payload(payload.into());
+        if !id.is_empty() {
+            message = message.message_id(id);
+        }
+        acks.push(js.send_publish(subject, message).await.expect("publish"));
+        // Bounded in flight: the acknowledgements of a big simulation come back in order.
+        if acks.len() >= 4096 {
+            for ack in acks.drain(..) {
+                ack.await.expect("acknowledged");
+            }
+        }
+    }
+    for ack in acks {
+        ack.await.expect("acknowledged");
+    }
+}
+
+fn publish_events(url: &str, events: &[SimEvent]) {
+    let messages = events.iter().map(event_message).collect();
+    with_client(url, async |client| publish_all(client, messages).await);
+}
+
+/// An alarm snapshot as the health publisher sends it.
+fn snapshot_message(
+    vehicle: &str,
+    fleet: &str,
+    last_event_id: u64,
+    alarms: Value,
+) -> (String, String, Vec<u8>) {
+    let payload = json!({
+        "vehicle_id": vehicle, "fleet": fleet, "generated_utc": "2026-11-27T12:00:00Z",
+        "last_event_id": last_event_id, "alarms": alarms,
+    });
+    (
+        format!("railmon.{fleet}.{vehicle}.alarms"),
+        String::new(),
+        serde_json::to_vec(&payload).unwrap(),
+    )
+}
+
+/// An active alarm: stream, subject, alarm, the id of the event that raised it.
+type Alarm = (String, String, String, u64);
+
+/// `(vehicle, its alarms)` of the fleet's active alarms.
+fn active(addr: &str) -> Vec<(String, Vec<Alarm>)> {
+    let answer = get_json(addr, "/api/v1/alarms");
+    answer["vehicles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| {
+            let alarms = v["alarms"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|a| {
+                    (
+                        a["stream"].as_str().unwrap().to_string(),
+                        a["subject"].as_str().unwrap().to_string(),
+                        a["alarm"].as_str().unwrap().to_string(),
+                        a["event_id"].as_u64().unwrap(),
+                    )
+                })
+                .collect();
+            (v["vehicle_id"].as_str().unwrap().to_string(), alarms)
+        })
+        .collect()
+}
+
+fn ids(page: &Value) -> Vec<u64> {
+    page["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["id"].as_u64().unwrap())
+        .collect()
+}
+
+fn alarm(stream: &str, subject: &str, alarm: &str, id: u64) -> Alarm {
+    (stream.into(), subject.into(), alarm.into(), id)
+}
+
+#[test]
+fn the_fleet_view_answers_events_health_and_active_alarms_from_the_stream() {
+    let Some(nats_binary) = nats::skip_without_nats_server() else {
+        return;
+    };
+    let bus = PrivateBus::new();
+    let work = std::env::temp_dir().join(format!("railmon-fleet-{}", bus.prefix));
+    let _ = std::fs::remove_dir_all(&work);
+    std::fs::create_dir_all(&work).unwrap();
+    let nats_addr = free_addr();
+    let url = format!("nats://{nats_addr}");
+    let _nats = start_nats_server(&nats_binary, &nats_addr, &work.join("nats"));
+    let data_dir = work.join("data");
+    let data_dir = data_dir.to_str().unwrap();
+    let mut settings = uplink_settings(data_dir, &url, STREAM).to_vec();
+    settings.push(("RAILMON_UPLINK__HEALTH_INTERVAL_S", "1"));
+    let service = Service::start(&bus, &settings);
+    // The uplink creates the stream; the fleet view only reads it.
+    wait_for("the uplink's stream", Duration::from_secs(20), || {
+        with_client(&url, async |client| {
+            jetstream::new(client).get_stream(STREAM).await.is_ok()
+        })
+    });
+    let (_fleet, addr) = start_fleet(&url, STREAM, &work);
+
+    // The service's health summary, as its API serves the same views.
+    let started = Instant::now();
+    let health = loop {
+        let (status, body) = http_get(&addr, "/api/v1/vehicles/unit-7/health");
+        if status == 200 {
+            break serde_json::from_str::<Value>(&body).unwrap();
+        }
+        assert_eq!(status, 404, "{body}");
+        assert!(
+            started.elapsed() < Duration::from_secs(15),
+            "no health summary: {body}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let summary = &health["summary"];
+    assert_eq!(summary["vehicle_id"], "unit-7");
+    assert_eq!(summary["fleet"], "north");
+    let drives = service.get_json("/api/v1/drives");
+    assert_eq!(summary["drives"]["drives"], drives["drives"], "{summary}");
+    // The streams the service runs (by default the drives): the others are null.
+    assert!(
+        summary.get("bogies").is_some_and(Value::is_null),
+        "{summary}"
+    );
+    assert!(
+        summary.get("vehicle").is_some_and(Value::is_null),
+        "{summary}"
+    );
+    // Latest wins: a later summary replaces it.
+    let first = health["stream_sequence"].as_u64().unwrap();
+    wait_for("a newer health summary", Duration::from_secs(10), || {
+        get_json(&addr, "/api/v1/vehicles/unit-7/health")["stream_sequence"].as_u64() > Some(first)
+    });
+    assert!(service.metric("railmon_uplink_health_sent_total").unwrap() >= 2.0);
+
+    // Simulated vehicles: sim-a from its events alone; sim-b from an alarm snapshot (after
+    // event 10: bogie 2's anti-yaw damper degraded by event 8) and the events after it.
+    let sim_a: Vec<SimEvent> = vec![
+        ("sim-a", "north", "drive", 1, "slip_started", "1", 1),
+        ("sim-a", "north", "vehicle", 2, "regime_changed", "", 2),
+        ("sim-a", "north", "drive", 3, "slip_ended", "1", 3),
+        ("sim-a", "north", "drive", 4, "slip_started", "2", 4),
+    ];
+    publish_events(&url, &sim_a);
+    let snapshot = json!([{"stream": "bogie", "subject": "2/csay", "alarm": "degraded",
+                           "event_id": 8, "since_utc": "2026-11-27T08:00:00Z"}]);
+    with_client(&url, async |client| {
+        let sim_b_before = event_message(&("sim-b", "south", "drive", 9, "slip_started", "1", 9));
+        // Event 9 is before the snapshot's last id: the snapshot already holds its effect
+        // (none active: the snapshot says so), so it must not be applied again.
+        publish_all(
+            client,
+            vec![
+                sim_b_before,
+                snapshot_message("sim-b", "south", 10, snapshot),
+            ],
+        )
+        .await
+    });
+    assert_eq!(
+        active(&addr),
+        [
+            (
+                "sim-a".to_string(),
+                vec![alarm("drive", "2", "slipping", 4)]
+            ),
+            (
+                "sim-b".to_string(),
+                vec![alarm("bogie", "2/csay", "degraded", 8)]
+            ),
+        ]
+    );
+    publish_events(
+        &url,
+        &[("sim-a", "north", "bogie", 5, "damper_degraded", "1/csy", 5)],
+    );
+    assert_eq!(
+        active(&addr)[0],
+        (
+            "sim-a".to_string(),
+            vec![
+                alarm("bogie", "1/csy", "degraded", 5),
+                alarm("drive", "2", "slipping", 4)
+            ]
+        )
+    );
+    // Every alarm cleared.
+    publish_events(
+        &url,
+        &[
+            ("sim-a", "north", "bogie", 6, "damper_recovered", "1/csy", 6),
+            ("sim-a", "north", "drive", 7, "slip_ended", "2", 7),
+            (
+                "sim-b",
+                "south",
+                "bogie",
+                11,
+                "damper_recovered",
+                "2/csay",
+                11,
+            ),
+        ],
+    );
+    assert_eq!(active(&addr), []);
+    let alarms = get_json(&addr, "/api/v1/alarms");
+    assert_eq!(alarms["vehicles_seen"], 3, "{alarms}");
+
+    // A vehicle's events: all, in id order, each once; one stream; a kind; a time range.
+    let base = "/api/v1/vehicles/sim-a/events";
+    let all = get_json(&addr, base);
+    assert_eq!(ids(&all), [1, 2, 3, 4, 5, 6, 7]);
+    assert!(all["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|e| e["vehicle_id"] == "sim-a"));
+    assert_eq!(
+        ids(&get_json(&addr, &format!("{base}?stream=drive"))),
+        [1, 3, 4, 7]
+    );
+    assert_eq!(
+        ids(&get_json(&addr, &format!("{base}?kind=slip_started"))),
+        [1, 4]
+    );
+    let range = format!("{base}?since=2026-11-27T02:00:00Z&until=2026-11-27T05:00:00Z");
+    assert_eq!(ids(&get_json(&addr, &range)), [2, 3, 4]);
+    // Pages of 3 by stream sequence, then an empty page that keeps the cursor.
+    let mut paged = Vec::new();
+    let mut after = 0;
+    loop {
+        let page = get_json(&addr, &format!("{base}?limit=3&after_seq={after}"));
+        let got = ids(&page);
+        let next = page["next_after_seq"].as_u64().unwrap();
+        if got.is_empty() {
+            assert_eq!(next, after);
+            break;
+        }
+        assert!(next > after);
+        paged.extend(got);
+        after = next;
+    }
+    assert_eq!(paged, [1, 2, 3, 4, 5, 6, 7]);
+    assert_eq!(
+        ids(&get_json(&addr, "/api/v1/vehicles/sim-b/events")),
+        [9, 11]
+    );
+    assert_eq!(
+        ids(&get_json(&addr, "/api/v1/vehicles/nobody/events")),
+        Vec::<u64>::new()
+    );
+
+    let vehicles = get_json(&addr, "/api/v1/vehicles");
+    let sim_a = vehicles["vehicles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|v| v["vehicle_id"] == "sim-a")
+        .expect("sim-a listed");
+    assert_eq!(
+        sim_a["events"],
+        json!({"bogie": 2, "drive": 4, "vehicle": 1})
+    );
+
+    // Bad requests are named; a vehicle without a summary is 404; the document is served.
+    for bad in [
+        "?stream=wheels",
+        "?limit=0",
+        "?since=yesterday",
+        "?colour=red",
+    ] {
+        let (status, body) = http_get(&addr, &format!("{base}{bad}"));
+        assert_eq!(status, 400, "{bad}: {body}");
+        assert!(body.contains("bad_query"), "{body}");
+    }
+    assert_eq!(http_get(&addr, "/api/v1/vehicles/sim-a/health").0, 404);
+    let document = get_json(&addr, "/openapi.json");
+    assert!(document["paths"]["/api/v1/alarms"]["get"].is_object());
+    drop(service);
+    let _ = std::fs::remove_dir_all(&work);
+}
+
+/// Percentiles of `samples` (ms): p50, p99, max.
+fn percentiles(mut samples: Vec<f64>) -> (f64, f64, f64) {
+    samples.sort_by(f64::total_cmp);
+    let at = |q: f64| samples[((samples.len() - 1) as f64 * q).round() as usize];
+    (at(0.5), at(0.99), samples[samples.len() - 1])
+}
+
+fn time_ms(addr: &str, path: &str) -> (f64, Value) {
+    let start = Instant::now();
+    let answer = get_json(addr, path);
+    (start.elapsed().as_secs_f64() * 1e3, answer)
+}
+
+#[test]
+#[ignore = "a measurement (about 90 s), not a check: `cargo test -p railmon-system-tests --test fleet -- --ignored --nocapture`"]
+fn fleet_queries_at_1000_vehicles() {
+    let Some(nats_binary) = nats::skip_without_nats_server() else {
+        return;
+    };
+    const VEHICLES: u64 = 1000;
+    const EVENTS_PER_DAY: u64 = 200;
+    const QUERIES: usize = 200;
+    let work = std::env::temp_dir().join(format!("railmon-fleet-measure-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&work);
+    std::fs::create_dir_all(&work).unwrap();
+    let nats_addr = free_addr();
+    let url = format!("nats://{nats_addr}");
+    let _nats = start_nats_server(&nats_binary, &nats_addr, &work.join("nats"));
+    with_client(&url, async |client| {
+        // As the uplink creates it.
+        jetstream::new(client)
+            .create_stream(jetstream::stream::Config {
+                name: STREAM.into(),
+                subjects: vec!["railmon.>".into()],
+                duplicate_window: Duration::from_secs(120),
+                storage: jetstream::stream::StorageType::File,
+                ..Default::default()
+            })
+            .await
+            .unwrap();
+    });
+    // A day of each vehicle's events: drive slips, damper changes, regime changes; every
+    // 20th vehicle ends the day with a drive slipping.
+    let kinds = [
+        ("drive", "slip_started", "1"),
+        ("drive", "slip_ended", "1"),
+        ("vehicle", "regime_changed", ""),
+        ("bogie", "damper_degraded", "1/csy"),
+        ("bogie", "damper_recovered", "1/csy"),
+    ];
+    let mut messages = Vec::new();
+    for v in 0..VEHICLES {
+        let vehicle = format!("sim-{v:04}");
+        for id in 1..=EVENTS_PER_DAY {
+            let (stream, mut kind, subject) = kinds[(id as usize - 1) % kinds.len()];
+            if id == EVENTS_PER_DAY && v % 20 == 0 {
+                kind = "slip_started";
+            }
+            let stream = if kind.starts_with("slip") {
+                "drive"
+            } else {
+                stream
+            };
+            let seconds = id * 86_400 / (EVENTS_PER_DAY + 1);
+            let payload = json!({
+                "id": id, "stream": stream, "kind": kind, "subject": subject,
+                "time_utc": format!("2026-11-27T{:02}:{:02}:{:02}Z", seconds / 3600, seconds / 60 % 60, seconds % 60),
+                "time_s": seconds as f64, "run": 0, "run_time_s": seconds as f64,
+                "slip_probability": 0.97, "vehicle_id": vehicle, "fleet": "north",
+            });
+            messages.push((
+                format!("railmon.north.{vehicle}.{stream}.events"),
+                format!("{vehicle}:{id}"),
+                serde_json::to_vec(&payload).unwrap(),
+            ));
+        }
+    }
+    let total = messages.len();
+    let start = Instant::now();
+    with_client(&url, async |client| publish_all(client, messages).await);
+    println!(
+        "published {total} events of {VEHICLES} vehicles in {:.1} s",
+        start.elapsed().as_secs_f64()
+    );
+    let (_fleet, addr) = start_fleet(&url, STREAM, &work);
+
+    // Without alarm snapshots: every vehicle's events replayed (the naive way); it may take
+    // longer than the fleet's request timeout (`http.request_timeout_ms`, 10 s).
+    let start = Instant::now();
+    let (status, _) = http_get(&addr, "/api/v1/alarms");
+    println!(
+        "active alarms, no snapshots (replay of all {total} events): status {status} after {:.1} s",
+        start.elapsed().as_secs_f64()
+    );
+
+    // The day's events were stored before the vehicles' last snapshots, as on a running
+    // ground: wait out the snapshot margin, then every vehicle's snapshot.
+    std::thread::sleep(Duration::from_secs(31));
+    let snapshots = (0..VEHICLES)
+        .map(|v| {
+            let vehicle = format!("sim-{v:04}");
+            let alarms = match v % 20 == 0 {
+                true => json!([{"stream": "drive", "subject": "1", "alarm": "slipping",
+                                "event_id": EVENTS_PER_DAY, "since_utc": "2026-11-27T23:52:50Z"}]),
+                false => json!([]),
+            };
+            snapshot_message(&vehicle, "north", EVENTS_PER_DAY, alarms)
+        })
+        .collect();
+    with_client(&url, async |client| publish_all(client, snapshots).await);
+    let mut alarms = Vec::new();
+    for _ in 0..QUERIES {
+        let (ms, answer) = time_ms(&addr, "/api/v1/alarms");
+        assert_eq!(
+            answer["vehicles"].as_array().unwrap().len() as u64,
+            VEHICLES / 20
+        );
+        alarms.push(ms);
+    }
+    let (p50, p99, max) = percentiles(alarms);
+    println!("active alarms, {VEHICLES} vehicles with snapshots: p50 {p50:.1} ms, p99 {p99:.1} ms, max {max:.1} ms ({QUERIES} queries)");
+
+    let mut day = Vec::new();
+    for q in 0..QUERIES {
+        let vehicle = format!("sim-{:04}", (q as u64 * 7919) % VEHICLES);
+        let path = format!(
+            "/api/v1/vehicles/{vehicle}/events?since=2026-11-27T00:00:00Z&until=2026-11-28T00:00:00Z&limit=1000"
+        );
+        let (ms, answer) = time_ms(&addr, &path);
+        assert_eq!(
+            answer["events"].as_array().unwrap().len() as u64,
+            EVENTS_PER_DAY
+        );
+        day.push(ms);
+    }
+    let (p50, p99, max) = percentiles(day);
+    println!("one vehicle's events for a day ({EVENTS_PER_DAY} events): p50 {p50:.1} ms, p99 {p99:.1} ms, max {max:.1} ms ({QUERIES} queries)");
+    let _ = std::fs::remove_dir_all(&work);
+}
