@@ -35,6 +35,7 @@ pub mod speed;
 pub mod speed_profile;
 pub mod status;
 pub mod track;
+pub mod trend;
 
 pub use alarm::{DamperAlarm, DamperAlarmConfig, DamperEvent, DamperEventKind};
 pub use config::DamperMonitorConfig;
@@ -61,3 +62,4 @@ pub use status::{
     BogieStatusEvent, BogieStatusEventDetail, BogieStatusEventKind, BogieStatusWatch,
 };
 pub use track::{ErriLevel, TrackSpec};
+pub use trend::{DegradationTrend, TimeToThreshold, TrendEstimate};

@@ -11,7 +11,8 @@ use crate::gain_table::GainTable;
 use crate::rbpf::{Propagation, Rbpf, RbpfConfig, RbpfState};
 use crate::sample::BogieSample;
 use crate::speed::{PauseReason, SpeedConfig};
-use crate::DamperError;
+use crate::trend::{DegradationTrend, TrendEstimate};
+use crate::{DamperError, DamperId};
 
 /// A monitor's state for a snapshot ([`DamperMonitor::state`], [`DamperMonitor::resume`]):
 /// the RBPF's particles, weights and Kalman states, the EKF's state and covariance, the
@@ -24,6 +25,8 @@ pub struct DamperMonitorState {
     steps: u64,
     consistency: ConsistencyCheck,
     pause: PauseState,
+    /// Each damper's degradation trend (`C_sy`, `C_say`).
+    trends: [DegradationTrend; 2],
 }
 
 impl DamperMonitorState {
@@ -34,7 +37,8 @@ impl DamperMonitorState {
     /// 3: the RBPF's jump-search sentinels (`RbpfState`).
     /// 4: the settling after a pause judged on the innovations (`PauseState`).
     /// 5: jump hypotheses on probation, not yet published (`RbpfState`).
-    pub const STATE_FORMAT_VERSION: u32 = 5;
+    /// 6: each damper's degradation trend (`trends`).
+    pub const STATE_FORMAT_VERSION: u32 = 6;
 }
 
 /// Where a monitor is with respect to its valid speed range.
@@ -110,6 +114,10 @@ pub struct DamperMonitor {
     speed: SpeedConfig,
     pause: PauseState,
     estimate: DamperEstimate,
+    /// Each damper's degradation trend (`C_sy`, `C_say`), fed while the filter learns.
+    trends: [DegradationTrend; 2],
+    /// The nominal dampers (`C_sy`, `C_say`; N s/m) the trends' ratios are of.
+    nominal_ns_per_m: [f64; 2],
 }
 
 impl Settling {
@@ -205,6 +213,8 @@ impl DamperMonitor {
             steps: 0,
             speed: config.speed,
             pause: PauseState::running(config.vehicle.speed_m_s),
+            trends: [(); 2].map(|_| DegradationTrend::new(config.alarm.degraded_below_ratio)),
+            nominal_ns_per_m: [model.nominal.csy_ns_per_m, model.nominal.csay_ns_per_m],
         })
     }
 
@@ -292,6 +302,22 @@ impl DamperMonitor {
             speed_m_s,
             measured_half_body_mass_kg: sample.half_body_mass_kg,
         };
+        // Operating time: the filter learnt from this sample and its model explains the data.
+        if self.pause.reason.is_none() && !self.estimate.model_mismatch {
+            for ((trend, p), nominal) in self
+                .trends
+                .iter_mut()
+                .zip([r.csy, r.csay])
+                .zip(self.nominal_ns_per_m)
+            {
+                trend.update(
+                    self.dt_s,
+                    p.health_ratio,
+                    p.q05_ns_per_m / nominal,
+                    p.q95_ns_per_m / nominal,
+                );
+            }
+        }
         Ok(&self.estimate)
     }
 
@@ -360,6 +386,7 @@ impl DamperMonitor {
             steps: self.steps,
             consistency: self.consistency,
             pause: self.pause.clone(),
+            trends: self.trends.clone(),
         }
     }
 
@@ -408,11 +435,19 @@ impl DamperMonitor {
             consistency,
             speed: config.speed,
             pause,
+            trends: state.trends,
+            nominal_ns_per_m: [model.nominal.csy_ns_per_m, model.nominal.csay_ns_per_m],
         })
     }
 
     pub fn estimate(&self) -> &DamperEstimate {
         &self.estimate
+    }
+
+    /// `damper`'s degradation trend (`crate::trend`) at its last closed bin: `None` before two
+    /// operating minutes.
+    pub fn trend(&self, damper: DamperId) -> Option<TrendEstimate> {
+        self.trends[damper.index()].estimate()
     }
 
     pub fn rbpf(&self) -> &Rbpf {

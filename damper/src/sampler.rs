@@ -605,6 +605,82 @@ pub fn draw(seed: u64, max_duration_s: f64) -> Draw {
     }
 }
 
+/// Ramp lengths of [`ramp_draw`] (s): wear over 1 to 10 minutes (issue 24 item 3).
+pub const RAMP_S: (f64, f64) = (60.0, 600.0);
+/// A ramp of [`ramp_draw`] starts between these times (s): the filter has converged.
+pub const RAMP_ONSET_S: (f64, f64) = (FAULT_FROM_S, 60.0);
+/// A ramp draw runs this long after the truth crosses the alarm's threshold (s): the alarm's
+/// delay is measured within it.
+pub const RAMP_AFTER_CROSSING_S: f64 = 40.0;
+/// The generator stream of a ramp draw's fault (the conditions are stream 0's, the load 1's).
+const RAMP_STREAM: u64 = 2;
+
+/// The conditions of [`draw`]`(seed, ..)` (speed profile, track, noise, conicity, mass and its
+/// changes) with one damper (either, at random) ramping linearly from nominal to
+/// [`FAULT_RATIO`] over [`RAMP_S`] (log-uniform), from [`RAMP_ONSET_S`]; the run lasts until
+/// [`RAMP_AFTER_CROSSING_S`] after the truth crosses `threshold` (the speed profile holds its
+/// last speed beyond its own end). Speeds are capped at the drawn top speed recomputed with the
+/// ramp's final ratio at every mass of the run, so the plant stays stable. `healthy`: the same
+/// draw without the fault (what the ramp costs a healthy damper). The fault's figures come from
+/// their own generator stream: the conditions are those of `draw`.
+pub fn ramp_draw(seed: u64, threshold: f64, healthy: bool) -> Draw {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(RAMP_STREAM);
+    let damper = DamperId::ALL[rng.random_range(0..2)];
+    let length_s = log_uniform(&mut rng, RAMP_S).round();
+    let ratio = (100.0 * uniform(&mut rng, FAULT_RATIO)).round() / 100.0;
+    let at_s = uniform(&mut rng, RAMP_ONSET_S).round();
+    let crossing_s = at_s + length_s * (1.0 - threshold) / (1.0 - ratio);
+    let duration_s = (crossing_s + RAMP_AFTER_CROSSING_S)
+        .min(at_s + length_s + 20.0)
+        .ceil();
+    // Twice as long: the drawn run, and so its speed profile, lasts 0.5-1 times it.
+    let mut d = draw(seed, 2.0 * duration_s);
+    let design = BogieParams::default();
+    let nominal = Dampers::NOMINAL;
+    let mut faulted = nominal;
+    match damper {
+        DamperId::Csy => faulted.csy_ns_per_m *= ratio,
+        DamperId::Csay => faulted.csay_ns_per_m *= ratio,
+    }
+    let s = &mut d.scenario;
+    let speed = SpeedConfig::default();
+    let top = std::iter::once(d.mass_ratio)
+        .chain(d.load_changes.iter().map(|&(_, r)| r))
+        .map(|r| {
+            let plant = BogieParams {
+                half_body_mass_kg: design.half_body_mass_kg * r,
+                ..s.vehicle
+            };
+            top_speed_m_s(&plant, &[nominal, faulted], speed.max_m_s)
+        })
+        .fold(d.top_speed_m_s, f64::min);
+    d.top_speed_m_s = top;
+    s.vehicle.speed_m_s = s.vehicle.speed_m_s.min(top);
+    if let Some(p) = &mut s.speed {
+        p.profile_m_s.iter_mut().for_each(|q| q[1] = q[1].min(top));
+    }
+    s.duration_s = duration_s;
+    s.name = format!("damper-ramp-{seed}");
+    s.faults = if healthy {
+        vec![]
+    } else {
+        vec![DamperFault {
+            damper,
+            kind: FaultKind::Ramp,
+            at_s,
+            end_s: Some(at_s + length_s),
+            ratio,
+        }]
+    };
+    d.fault_shape = if healthy {
+        FaultShape::None
+    } else {
+        FaultShape::Ramp
+    };
+    d
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -757,6 +833,33 @@ mod tests {
         assert!((40.0..53.0).contains(&top), "{top}");
         assert!(growth_rate_per_s(&v, &failed, top + CRITICAL_MARGIN_M_S) < 1e-6);
         assert!(growth_rate_per_s(&v, &failed, top + CRITICAL_MARGIN_M_S + 1.0) > 1e-6);
+    }
+
+    #[test]
+    fn ramp_draws_ramp_one_damper_within_the_envelope() {
+        for seed in 0..30 {
+            let d = ramp_draw(seed, 0.7, false);
+            let s = &d.scenario;
+            s.validate().unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+            assert_eq!(d, ramp_draw(seed, 0.7, false));
+            assert_eq!(s.faults.len(), 1);
+            let f = s.faults[0];
+            let length = f.end_s.unwrap() - f.at_s;
+            assert!((RAMP_S.0..=RAMP_S.1).contains(&length), "seed {seed}");
+            assert!((FAULT_RATIO.0..=FAULT_RATIO.1).contains(&f.ratio));
+            let crossing = f.at_s + length * 0.3 / (1.0 - f.ratio);
+            assert!(s.duration_s > crossing, "seed {seed}");
+            let top = s
+                .speed_profile()
+                .profile_m_s
+                .iter()
+                .map(|p| p[1])
+                .fold(0.0, f64::max);
+            assert!(top <= d.top_speed_m_s, "seed {seed}");
+            let healthy = ramp_draw(seed, 0.7, true);
+            assert!(healthy.scenario.faults.is_empty());
+            assert_eq!(healthy.scenario.duration_s, s.duration_s);
+        }
     }
 
     #[test]

@@ -8,6 +8,8 @@ pub struct BogieMetrics {
     pub damping: EstimateGaugeVec,
     pub health: EstimateGaugeVec,
     pub degraded: EstimateIntGaugeVec,
+    pub trend: EstimateGaugeVec,
+    pub hours_to_threshold: EstimateGaugeVec,
     pub effective_sample_size: EstimateGaugeVec,
     pub events: IntCounterVec,
     pub paused: EstimateIntGaugeVec,
@@ -32,6 +34,18 @@ impl BogieMetrics {
             degraded: f.estimate_gauge_vec(
                 "bogie_damper_degraded",
                 "1 while the damper is flagged degraded (hysteresis on the health ratio).",
+                damper,
+            )?,
+            trend: f.estimate_gauge_vec(
+                "bogie_damper_health_trend_per_operating_hour",
+                "Damper degradation trend: change of the health ratio per operating hour over the \
+                 last operating hour (quantity: rate, q05, q95; NaN before two operating minutes).",
+                &["bogie", "damper", "quantity"],
+            )?,
+            hours_to_threshold: f.estimate_gauge_vec(
+                "bogie_damper_operating_hours_to_threshold",
+                "Operating hours until the health ratio reaches the degraded threshold at its \
+                 trend (0 once below; NaN unless the trend is significantly negative).",
                 damper,
             )?,
             effective_sample_size: f.estimate_gauge_vec(

@@ -11,9 +11,9 @@ use railmon_bus::{BogieFrame, FrameHeader};
 use railmon_damper::gain_table::GainTable;
 use railmon_damper::params::checked_half_body_mass_kg;
 use railmon_damper::{
-    BogieSample, BogieStatusWatch, DamperAlarm, DamperError, DamperEventKind, DamperMonitor,
-    DamperMonitorConfig, DamperMonitorState, DamperPosterior, PauseReason, Propagation, Rbpf,
-    SampleRanges,
+    BogieSample, BogieStatusWatch, DamperAlarm, DamperError, DamperEventKind, DamperId,
+    DamperMonitor, DamperMonitorConfig, DamperMonitorState, DamperPosterior, PauseReason,
+    Propagation, Rbpf, SampleRanges,
 };
 use railmon_records::gain_cache::GainCache;
 
@@ -38,6 +38,10 @@ struct DamperGauges {
     damping: [EstimateGauge; 3],
     health: EstimateGauge,
     degraded: EstimateIntGauge,
+    /// The degradation trend: rate, q05, q95 (per operating hour), and the operating hours to
+    /// the threshold (NaN when none).
+    trend: [EstimateGauge; 3],
+    hours_to_threshold: EstimateGauge,
     /// degraded, recovered.
     events: [IntCounter; 2],
 }
@@ -73,6 +77,13 @@ impl BogieSlot {
                 }),
                 health: metrics.bogie.health.with_label_values(&labels),
                 degraded: metrics.bogie.degraded.with_label_values(&labels),
+                trend: ["rate", "q05", "q95"].map(|q| {
+                    metrics
+                        .bogie
+                        .trend
+                        .with_label_values(&[bogie.as_str(), damper, q])
+                }),
+                hours_to_threshold: metrics.bogie.hours_to_threshold.with_label_values(&labels),
                 events: ["degraded", "recovered"].map(|kind| {
                     metrics
                         .bogie
@@ -432,6 +443,11 @@ impl BogiePipeline {
                         health_ratio: p.health_ratio,
                         degraded: s.alarms[d].degraded(),
                         ekf_n_s_per_m: ekf,
+                        trend: s
+                            .monitor
+                            .as_ref()
+                            .and_then(|m| m.trend(DamperId::ALL[d]))
+                            .map(Into::into),
                     }
                 };
                 BogieView {
@@ -488,6 +504,19 @@ impl BogiePipeline {
                 }
                 g.health.set(d.health_ratio);
                 g.degraded.set(i64::from(d.degraded));
+                let t = d.trend.as_ref();
+                let trend = [
+                    t.map(|t| t.rate_per_operating_h),
+                    t.map(|t| t.rate_q05_per_operating_h),
+                    t.map(|t| t.rate_q95_per_operating_h),
+                ];
+                for (gauge, v) in g.trend.iter().zip(trend) {
+                    gauge.set(v.unwrap_or(f64::NAN));
+                }
+                g.hours_to_threshold.set(
+                    t.and_then(|t| t.operating_h_to_threshold)
+                        .unwrap_or(f64::NAN),
+                );
             }
             slot.ess.set(b.effective_sample_size);
             for (gauge, reason) in slot.paused.iter().zip(PauseReason::ALL) {

@@ -9,7 +9,7 @@ use utoipa::{OpenApi, ToSchema};
 
 use super::view::{
     BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, DamperEventDetail,
-    DamperView, SensorNoiseView,
+    DamperTrendView, DamperView, SensorNoiseView,
 };
 use crate::http::events::{self, EventsPage, EventsQuery, Scope};
 use crate::http::{require_stream, ApiPath, ApiQuery, AppError, ErrorBody, HistoryQuery};
@@ -22,6 +22,7 @@ use crate::AppState;
         BogiesView,
         BogieView,
         DamperView,
+        DamperTrendView,
         SensorNoiseView,
         BogieDetail,
         BogieHistory,

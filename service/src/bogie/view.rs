@@ -31,6 +31,49 @@ pub struct DamperView {
     pub degraded: bool,
     /// The EKF baseline's estimate, N s/m (null when disabled or after it diverged).
     pub ekf_n_s_per_m: Option<f64>,
+    /// How fast the health ratio falls per operating hour (`railmon_damper::trend`); null
+    /// before two operating minutes.
+    pub trend: Option<DamperTrendView>,
+}
+
+/// A damper's degradation trend: the weighted least-squares slope of its health ratio against
+/// operating time (the time its filter learns: moving in its speed range, its model explaining
+/// the data) over the last operating hour, in 10 s bins weighted by the posterior's variance
+/// (docs/damper.md, "Degradation trend"). What a maintainer plans with; the alarm, not the
+/// trend, is for a sudden failure.
+#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
+pub struct DamperTrendView {
+    /// The fitted health ratio (mean over nominal) at the newest bin.
+    pub health_ratio: f64,
+    /// Change of the health ratio per operating hour (negative: degrading), and its 90 %
+    /// interval.
+    pub rate_per_operating_h: f64,
+    pub rate_q05_per_operating_h: f64,
+    pub rate_q95_per_operating_h: f64,
+    /// Operating time the fit spans, h (up to 1).
+    pub window_operating_h: f64,
+    /// Operating hours until the health ratio reaches `estimator.alarm.degraded_below_ratio`
+    /// at the fitted rate (0 once below it), and the earliest and latest at the rate's 90 %
+    /// interval; null unless the rate is significantly negative (its 95 % bound below 0).
+    pub operating_h_to_threshold: Option<f64>,
+    pub operating_h_to_threshold_earliest: Option<f64>,
+    pub operating_h_to_threshold_latest: Option<f64>,
+}
+
+impl From<railmon_damper::TrendEstimate> for DamperTrendView {
+    fn from(t: railmon_damper::TrendEstimate) -> Self {
+        let eta = t.time_to_threshold;
+        Self {
+            health_ratio: t.health_ratio,
+            rate_per_operating_h: t.rate_per_h,
+            rate_q05_per_operating_h: t.rate_q05_per_h,
+            rate_q95_per_operating_h: t.rate_q95_per_h,
+            window_operating_h: t.window_h,
+            operating_h_to_threshold: eta.map(|e| e.hours),
+            operating_h_to_threshold_earliest: eta.map(|e| e.earliest_hours),
+            operating_h_to_threshold_latest: eta.map(|e| e.latest_hours),
+        }
+    }
 }
 
 /// One bogie's latest estimate.
