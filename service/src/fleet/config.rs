@@ -5,7 +5,7 @@ use railmon_settings::SettingsError;
 use serde::{Deserialize, Serialize};
 
 use crate::stream_keys::invalid;
-use crate::uplink::config::is_token;
+use crate::uplink::config::check_stream_and_login;
 
 #[derive(Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
@@ -96,40 +96,6 @@ impl FleetConfig {
     /// names the key. An empty `url` is refused by `railmon fleet` only.
     pub(crate) fn validate(&self) -> Result<(), SettingsError> {
         self.listen_addr()?;
-        crate::nats_client::servers("fleet", &self.url).map_err(|e| invalid("fleet.url", e))?;
-        if !self.subject_prefix.split('.').all(is_token) {
-            return Err(invalid(
-                "fleet.subject_prefix",
-                format!(
-                    "`{}`: use tokens of letters, digits, `_` or `-`, separated by `.`",
-                    self.subject_prefix
-                ),
-            ));
-        }
-        if !is_token(&self.stream) {
-            return Err(invalid(
-                "fleet.stream",
-                format!("`{}`: use letters, digits, `_` or `-`", self.stream),
-            ));
-        }
-        if self.password.is_empty() != self.user.is_empty() {
-            let key = match self.user.is_empty() {
-                true => "fleet.user",
-                false => "fleet.password",
-            };
-            return Err(invalid(key, "user and password go together".into()));
-        }
-        let methods = [
-            !self.user.is_empty(),
-            !self.token.is_empty(),
-            !self.creds_file.is_empty(),
-        ];
-        if methods.iter().filter(|m| **m).count() > 1 {
-            return Err(invalid(
-                "fleet.token",
-                "set one of user and password, token, or creds_file".into(),
-            ));
-        }
-        Ok(())
+        check_stream_and_login(&self.into(), &self.subject_prefix, &self.stream)
     }
 }

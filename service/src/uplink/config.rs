@@ -125,45 +125,50 @@ impl UplinkConfig {
             self.health_interval_s,
             &HEALTH_INTERVAL_S,
         )?;
-        for server in self.url.split(',').filter(|s| !s.trim().is_empty()) {
-            server
-                .trim()
-                .parse::<async_nats::ServerAddr>()
-                .map_err(|e| invalid("uplink.url", format!("`{server}`: {e}")))?;
-        }
-        if !self.subject_prefix.split('.').all(is_token) {
-            return Err(invalid(
-                "uplink.subject_prefix",
-                format!(
-                    "`{}`: use tokens of letters, digits, `_` or `-`, separated by `.`",
-                    self.subject_prefix
-                ),
-            ));
-        }
-        if !is_token(&self.stream) {
-            return Err(invalid(
-                "uplink.stream",
-                format!("`{}`: use letters, digits, `_` or `-`", self.stream),
-            ));
-        }
-        if self.password.is_empty() != self.user.is_empty() {
-            let key = match self.user.is_empty() {
-                true => "uplink.user",
-                false => "uplink.password",
-            };
-            return Err(invalid(key, "user and password go together".into()));
-        }
-        let methods = [
-            !self.user.is_empty(),
-            !self.token.is_empty(),
-            !self.creds_file.is_empty(),
-        ];
-        if methods.iter().filter(|m| **m).count() > 1 {
-            return Err(invalid(
-                "uplink.token",
-                "set one of user and password, token, or creds_file".into(),
-            ));
-        }
-        Ok(())
+        check_stream_and_login(&self.into(), &self.subject_prefix, &self.stream)
     }
+}
+
+/// The checks `[uplink]` and `[fleet]` share: the servers, the subject prefix and stream as
+/// NATS tokens, and at most one way to log in; errors name `<section>.<key>`.
+pub(crate) fn check_stream_and_login(
+    login: &crate::nats_client::NatsLogin,
+    subject_prefix: &str,
+    stream: &str,
+) -> Result<(), SettingsError> {
+    let key = |k: &str| format!("{}.{k}", login.section);
+    crate::nats_client::servers(login.section, login.url).map_err(|e| invalid(&key("url"), e))?;
+    if !subject_prefix.split('.').all(is_token) {
+        return Err(invalid(
+            &key("subject_prefix"),
+            format!(
+                "`{subject_prefix}`: use tokens of letters, digits, `_` or `-`, separated by `.`"
+            ),
+        ));
+    }
+    if !is_token(stream) {
+        return Err(invalid(
+            &key("stream"),
+            format!("`{stream}`: use letters, digits, `_` or `-`"),
+        ));
+    }
+    if login.password.is_empty() != login.user.is_empty() {
+        let which = match login.user.is_empty() {
+            true => "user",
+            false => "password",
+        };
+        return Err(invalid(&key(which), "user and password go together".into()));
+    }
+    let methods = [
+        !login.user.is_empty(),
+        !login.token.is_empty(),
+        !login.creds_file.is_empty(),
+    ];
+    if methods.iter().filter(|m| **m).count() > 1 {
+        return Err(invalid(
+            &key("token"),
+            "set one of user and password, token, or creds_file".into(),
+        ));
+    }
+    Ok(())
 }
