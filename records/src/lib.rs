@@ -19,6 +19,7 @@ pub use output::{refuse_output_that_is_an_input, AtomicFile};
 
 pub mod bogie;
 pub mod bounded;
+mod crlf;
 pub mod drive;
 pub mod gain_cache;
 pub mod output;
@@ -107,7 +108,7 @@ impl Column {
 pub struct CsvTable<R: Read> {
     file: String,
     header: Vec<String>,
-    reader: csv::Reader<bounded::LineBounded<R>>,
+    reader: csv::Reader<bounded::LineBounded<crlf::CrlfAsLf<R>>>,
     record: csv::StringRecord,
     /// Line of the row read last (1: the header).
     line: u64,
@@ -131,7 +132,7 @@ impl<R: Read> CsvTable<R> {
             .has_headers(true)
             .flexible(false)
             .trim(csv::Trim::All)
-            .from_reader(bounded::LineBounded::new(reader));
+            .from_reader(bounded::LineBounded::new(crlf::CrlfAsLf::new(reader)));
         let header = reader
             .headers()
             .map_err(|e| csv_error(label, e))?
@@ -423,6 +424,22 @@ mod tests {
             out.push((row.f64(&a)?, row.f64(&b)?));
         }
         Ok(out)
+    }
+
+    /// A file saved with Windows line endings names the same lines as one saved with `\n`
+    /// (the `csv` crate alone named every row of it one line early).
+    #[test]
+    fn a_bad_value_is_named_on_its_line_whatever_the_line_endings() {
+        for newline in ["\n", "\r\n"] {
+            let text = ["a,b", "1,2", "", "3,4", "5,x", ""].join(newline);
+            let e = read_all(&text).unwrap_err().to_string();
+            assert_eq!(
+                e, "t.csv:5: field \"b\" = \"x\": not a number",
+                "{newline:?}"
+            );
+            let good = ["a,b", "1,2", "3,4"].join(newline);
+            assert_eq!(read_all(&good).unwrap(), vec![(1.0, 2.0), (3.0, 4.0)]);
+        }
     }
 
     /// A regular file of one endless line is refused at the bound, naming the line, instead of
