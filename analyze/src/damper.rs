@@ -68,6 +68,10 @@ pub struct Args {
     /// (`rbpf.seed + bogie - 1`, as the service seeds it) and event subject.
     #[arg(long, default_value_t = 1)]
     pub bogie: u32,
+    /// Analyse every bogie of each recording, each as `--bogie` would, into its own folder
+    /// `bogie-<id>` (under the input's), all of them in parallel with `--jobs`.
+    #[arg(long, conflicts_with_all = ["bogie", "scenario"])]
+    pub every_bogie: bool,
     /// Write a row of `estimates.csv` (and a plot point) every this many steps.
     #[arg(long, default_value_t = 10)]
     pub csv_every: usize,
@@ -79,7 +83,25 @@ pub struct Args {
     pub gain_cache: Option<std::path::PathBuf>,
 }
 
-crate::many::analysis!(DamperReport, DamperAnalysisError);
+crate::many::analysis!(DamperReport, DamperAnalysisError;
+    fn parts(&self, input: &Path) -> Result<Option<Vec<crate::many::Part>>, DamperAnalysisError> {
+        if !self.every_bogie {
+            return Ok(None);
+        }
+        let ids = BogieCsvReader::bogies_in(input)?;
+        Ok(Some(
+            ids.into_iter()
+                .map(|id| crate::many::Part {
+                    id,
+                    folder: format!("bogie-{id}"),
+                })
+                .collect(),
+        ))
+    }
+    fn select_part(&mut self, id: u32) {
+        self.bogie = id;
+    }
+);
 
 fn parse_propagation(s: &str) -> Result<Propagation, String> {
     match s {

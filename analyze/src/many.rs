@@ -26,12 +26,28 @@ pub trait Analysis: Clone + Send + Sync {
     fn run_args_mut(&mut self) -> &mut RunArgs;
     /// Runs the analysis and writes every report file into `run_args().out`.
     fn analyse(&self) -> Result<Self::Report, Self::Error>;
+    /// The parts of `input` to analyse each on its own, when the arguments ask for that (a
+    /// damper recording's bogies with `--every-bogie`); `None`: the input is one run.
+    fn parts(&self, _input: &Path) -> Result<Option<Vec<Part>>, Self::Error> {
+        Ok(None)
+    }
+    /// Makes the arguments analyse part `id` of their input (one of [`Self::parts`]).
+    fn select_part(&mut self, _id: u32) {}
+}
+
+/// A part of an input analysed on its own (a bogie of a recording), into its own folder.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Part {
+    pub id: u32,
+    /// The folder under the input's, e.g. `bogie-2`.
+    pub folder: String,
 }
 
 /// [`Analysis`] for the domain module's `Args` (its `RunArgs` in the field `run`) and its
-/// `run`: `analysis!(Report, Error);` in each domain.
+/// `run`: `analysis!(Report, Error);` in each domain, followed by any other method of the
+/// trait the domain defines (`analysis!(Report, Error; fn parts(..) {..})`).
 macro_rules! analysis {
-    ($report:ty, $error:ty) => {
+    ($report:ty, $error:ty $(; $($extra:tt)*)?) => {
         impl $crate::many::Analysis for Args {
             type Report = $report;
             type Error = $error;
@@ -44,6 +60,7 @@ macro_rules! analysis {
             fn analyse(&self) -> Result<$report, $error> {
                 run(self)
             }
+            $($($extra)*)?
         }
     };
 }
@@ -79,11 +96,46 @@ pub struct Many<A: clap::Args> {
     pub args: A,
 }
 
-/// One input of a many-input run and the folder its outputs go to.
+/// One input of a many-input run (or one part of it) and the folder its outputs go to.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Job {
     pub input: PathBuf,
     pub out: PathBuf,
+    /// The part of the input ([`Analysis::parts`]); `None`: all of it.
+    pub part: Option<u32>,
+}
+
+impl Job {
+    /// The input as the lines of a run name it: its path, and its part's folder.
+    pub fn name(&self) -> String {
+        match self.part {
+            Some(_) => format!(
+                "{} ({})",
+                self.input.display(),
+                self.out.file_name().unwrap_or_default().to_string_lossy()
+            ),
+            None => self.input.display().to_string(),
+        }
+    }
+}
+
+/// `jobs` with each input that [`Analysis::parts`] splits replaced by a job per part, in the
+/// input's folder's subfolder; an input whose parts cannot be read is returned with its error
+/// and left out (the other inputs still run).
+pub fn split_into_parts<A: Analysis>(args: &A, jobs: Vec<Job>) -> (Vec<Job>, Vec<(Job, A::Error)>) {
+    let (mut split, mut failed) = (Vec::new(), Vec::new());
+    for job in jobs {
+        match args.parts(&job.input) {
+            Ok(None) => split.push(job),
+            Ok(Some(parts)) => split.extend(parts.into_iter().map(|p| Job {
+                input: job.input.clone(),
+                out: job.out.join(&p.folder),
+                part: Some(p.id),
+            })),
+            Err(e) => failed.push((job, e)),
+        }
+    }
+    (split, failed)
 }
 
 /// What a command line asks for.
@@ -127,7 +179,11 @@ impl Inputs {
                         ),
                     ));
                 }
-                jobs.push(Job { input, out: folder });
+                jobs.push(Job {
+                    input,
+                    out: folder,
+                    part: None,
+                });
             }
         }
         Ok(Plan::Many(jobs))
@@ -238,6 +294,9 @@ fn run_one<A: Analysis>(args: &A, job: &Job) -> Result<A::Report, Failed<A::Erro
     run.input = Some(job.input.clone());
     run.scenario = None;
     run.out = job.out.clone();
+    if let Some(id) = job.part {
+        args.select_part(id);
+    }
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| args.analyse()))
         .map_err(|panic| {
             let text = panic
@@ -280,6 +339,7 @@ mod tests {
         let job = |name: &str, stem: &str| Job {
             input: dir.join(name),
             out: out.join(stem),
+            part: None,
         };
         assert_eq!(
             inputs(&[&dir]).plan(out).unwrap(),

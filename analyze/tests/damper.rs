@@ -31,6 +31,7 @@ fn args(out: &Path) -> Args {
         propagation: None,
         duration_s: Some(3.0),
         bogie: 1,
+        every_bogie: false,
         csv_every: 10,
         gain_cache: None,
     }

@@ -5,7 +5,7 @@
 use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::anyhow;
-use railmon_analyze::many::{run_all, Analysis, Many, Plan};
+use railmon_analyze::many::{run_all, split_into_parts, Analysis, Job, Many, Plan};
 
 use crate::summary;
 
@@ -24,6 +24,15 @@ pub fn run<A: Analysis + clap::Args>(many: Many<A>, shown: Shown<A::Report>) -> 
     let out = args.run_args().out.clone();
     let jobs = match inputs.plan(&out)? {
         Plan::Many(jobs) => jobs,
+        // One file whose parts are analysed each on its own (a recording's bogies): a run
+        // per part, in `--out/<part>/`.
+        Plan::One if inputs.input.len() == 1 && args.parts(&inputs.input[0])?.is_some() => {
+            vec![Job {
+                input: inputs.input[0].clone(),
+                out: out.clone(),
+                part: None,
+            }]
+        }
         Plan::One => {
             args.run_args_mut().input = inputs.input.first().cloned();
             let report = args.analyse()?;
@@ -37,12 +46,17 @@ pub fn run<A: Analysis + clap::Args>(many: Many<A>, shown: Shown<A::Report>) -> 
             ));
         }
     };
+    let (jobs, unreadable) = split_into_parts(&args, jobs);
+    let total = jobs.len() + unreadable.len();
+    let mut failed = Vec::new();
+    for (job, e) in unreadable {
+        report_failure(&job, e.into(), &mut failed);
+    }
     let threads = inputs.threads(jobs.len());
     let clock = Instant::now();
-    let mut failed = Vec::new();
     let mut printed = Ok(());
     run_all(&args, &jobs, threads, |done| {
-        let input = done.job.input.display().to_string();
+        let input = done.job.name();
         match done.result {
             Ok(report) => {
                 let line = format!(
@@ -55,31 +69,33 @@ pub fn run<A: Analysis + clap::Args>(many: Many<A>, shown: Shown<A::Report>) -> 
                     printed = crate::print_out(&line);
                 }
             }
-            Err(e) => {
-                let error = crate::one_line(&e.into());
-                match error.starts_with(&input) {
-                    true => eprintln!("railmon: {error}"),
-                    false => eprintln!("railmon: {input}: {error}"),
-                }
-                failed.push(input);
-            }
+            Err(e) => report_failure(done.job, e.into(), &mut failed),
         }
     });
     printed?;
     crate::print_out(&format!(
-        "analysed {} inputs in {:.1} s on {threads} threads: {} done, {} failed\n",
-        jobs.len(),
+        "analysed {total} inputs in {:.1} s on {threads} threads: {} done, {} failed\n",
         clock.elapsed().as_secs_f64(),
-        jobs.len() - failed.len(),
+        total - failed.len(),
         failed.len()
     ))?;
     match failed.is_empty() {
         true => Ok(()),
         false => Err(anyhow!(
-            "{} of {} inputs failed: {}",
+            "{} of {total} inputs failed: {}",
             failed.len(),
-            jobs.len(),
             failed.join(", ")
         )),
     }
+}
+
+/// Prints a failed input's error (naming its file once) and notes it.
+fn report_failure(job: &Job, e: anyhow::Error, failed: &mut Vec<String>) {
+    let input = job.name();
+    let error = crate::one_line(&e);
+    match job.part.is_none() && error.starts_with(&input) {
+        true => eprintln!("railmon: {error}"),
+        false => eprintln!("railmon: {input}: {error}"),
+    }
+    failed.push(input);
 }

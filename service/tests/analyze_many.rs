@@ -207,3 +207,113 @@ fn a_bad_input_is_named_and_fails_the_run_while_the_others_complete() {
     assert!(!clash.exists(), "nothing runs");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+fn analyze_damper(args: &[&std::ffi::OsStr]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_railmon"))
+        .args(["analyze", "damper", "--particles", "30", "--no-plots"])
+        .args(args)
+        .output()
+        .expect("running railmon analyze damper")
+}
+
+/// `path`'s rows as two bogies: bogie 2 as recorded, bogie 1 with every sensor halved (so
+/// that the two give other estimates), interleaved as a recording of several bogies is.
+fn two_bogies(path: &Path, two: &Path) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let sensor: Vec<bool> = header
+        .iter()
+        .map(|h| h.ends_with("_m_s2") || h.ends_with("_rad_s"))
+        .collect();
+    let row = |bogie: u32, fields: &[&str], scale: f64| {
+        let mut out = vec![fields[0].to_owned(), bogie.to_string()];
+        out.extend(fields[1..].iter().zip(&sensor[1..]).map(|(f, s)| match s {
+            true => (scale * f.parse::<f64>().unwrap()).to_string(),
+            false => f.to_string(),
+        }));
+        out.join(",")
+    };
+    let mut out = vec![format!("{},bogie,{}", header[0], header[1..].join(","))];
+    for line in lines {
+        let fields: Vec<&str> = line.split(',').collect();
+        out.push(row(1, &fields, 0.5));
+        out.push(row(2, &fields, 1.0));
+    }
+    std::fs::write(two, out.join("\n") + "\n").unwrap();
+}
+
+#[test]
+fn every_bogie_of_a_recording_is_analysed_as_its_own_run() {
+    let dir = scratch("bogies");
+    let scenario =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenarios/damper-seed.toml");
+    let sim = dir.join("sim");
+    let out = analyze_damper(&[
+        "--scenario".as_ref(),
+        scenario.as_os_str(),
+        "--duration-s".as_ref(),
+        "1".as_ref(),
+        "--out".as_ref(),
+        sim.as_os_str(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let two = dir.join("two.csv");
+    two_bogies(&sim.join("bogie.csv"), &two);
+
+    let every = dir.join("every");
+    let out = analyze_damper(&[
+        "--input".as_ref(),
+        two.as_os_str(),
+        "--every-bogie".as_ref(),
+        "--jobs".as_ref(),
+        "2".as_ref(),
+        "--out".as_ref(),
+        every.as_os_str(),
+    ]);
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    for part in ["(bogie-1)", "(bogie-2)", "2 done, 0 failed"] {
+        assert!(stdout.contains(part), "no {part} in:\n{stdout}");
+    }
+    // Each bogie's folder holds what `--bogie N` writes (its seed, its rows), to the byte but
+    // for the run's timing.
+    let without_timing = |dir: &Path| {
+        let mut t = tree(dir);
+        t.remove(Path::new("timing.csv")).expect("a timing.csv");
+        t
+    };
+    let mut estimates = Vec::new();
+    for bogie in ["1", "2"] {
+        let alone = dir.join(format!("alone-{bogie}"));
+        let out = analyze_damper(&[
+            "--input".as_ref(),
+            two.as_os_str(),
+            "--bogie".as_ref(),
+            bogie.as_ref(),
+            "--out".as_ref(),
+            alone.as_os_str(),
+        ]);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let part = without_timing(&every.join(format!("bogie-{bogie}")));
+        assert_eq!(part, without_timing(&alone), "bogie {bogie}");
+        estimates.push(part[Path::new("estimates.csv")].clone());
+    }
+    assert_ne!(estimates[0], estimates[1], "the two bogies' data differ");
+
+    // With `--bogie` or a scenario there is nothing to split: refused by the command line.
+    let out = analyze_damper(&[
+        "--scenario".as_ref(),
+        scenario.as_os_str(),
+        "--every-bogie".as_ref(),
+        "--out".as_ref(),
+        dir.join("no").as_os_str(),
+    ]);
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("cannot be used with"),
+        "{}",
+        text(&out.stderr)
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
