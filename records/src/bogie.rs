@@ -105,6 +105,20 @@ impl BogieCsvReader<File> {
     pub fn open(path: &Path) -> Result<Self, RecordError> {
         Self::new(CsvTable::open(path)?)
     }
+
+    /// The bogies a recording holds, in increasing order ([`DEFAULT_BOGIE_ID`] alone for a
+    /// file without a `bogie` column): one pass over the file, every row checked as
+    /// [`Self::as_recorded`] reads it, so a file this accepts is one each bogie's run reads.
+    pub fn bogies_in(path: &Path) -> Result<Vec<u32>, RecordError> {
+        let mut reader = Self::open(path)?.as_recorded();
+        if !reader.has_bogie_column() {
+            return Ok(vec![DEFAULT_BOGIE_ID]);
+        }
+        while reader.next_bogie_record()?.is_some() {}
+        let mut ids: Vec<u32> = reader.last_time_s.iter().map(|(id, _)| *id).collect();
+        ids.sort_unstable();
+        Ok(ids)
+    }
 }
 
 impl<R: Read> BogieCsvReader<R> {
