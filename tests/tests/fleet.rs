@@ -516,5 +516,126 @@ fn fleet_queries_at_1000_vehicles() {
     }
     let (p50, p99, max) = percentiles(day);
     println!("one vehicle's events for a day ({EVENTS_PER_DAY} events): p50 {p50:.1} ms, p99 {p99:.1} ms, max {max:.1} ms ({QUERIES} queries)");
+    day_query_breakdown(&url, VEHICLES, EVENTS_PER_DAY);
     let _ = std::fs::remove_dir_all(&work);
+}
+
+/// Where a vehicle's day goes, read with a client of its own (the steps `railmon fleet` takes,
+/// timed one by one): the subjects lookup, a consumer's creation and its fetch, for a filter with
+/// wildcards (`railmon.*.<vehicle>.*.events`) and for each literal subject of the vehicle; and
+/// the decoding of the payloads.
+fn day_query_breakdown(url: &str, vehicles: u64, events_per_day: u64) {
+    use async_nats::jetstream::consumer::{pull, AckPolicy, DeliverPolicy};
+    use futures_util::StreamExt;
+    const SAMPLES: u64 = 50;
+    let start_time = time_of("2026-11-26T23:55:00Z");
+    with_client(url, async |client| {
+        let js = jetstream::new(client);
+        let stream = js.get_stream(STREAM).await.unwrap();
+        // (create, fetch) ms of a consumer on `filter` read to its end, and the payloads.
+        let read = async |filter: String| {
+            let start = Instant::now();
+            let consumer: jetstream::consumer::Consumer<pull::Config> = stream
+                .create_consumer(pull::Config {
+                    filter_subject: filter,
+                    deliver_policy: DeliverPolicy::ByStartTime { start_time },
+                    ack_policy: AckPolicy::None,
+                    inactive_threshold: Duration::from_secs(30),
+                    memory_storage: true,
+                    num_replicas: 1,
+                    ..Default::default()
+                })
+                .await
+                .unwrap();
+            let created = start.elapsed().as_secs_f64() * 1e3;
+            let start = Instant::now();
+            let mut payloads = Vec::new();
+            let mut pending = consumer.cached_info().num_pending;
+            while pending > 0 {
+                let mut batch = consumer
+                    .fetch()
+                    .max_messages(1000)
+                    .messages()
+                    .await
+                    .unwrap();
+                while let Some(message) = batch.next().await {
+                    let message = message.unwrap();
+                    pending = message.info().unwrap().pending;
+                    payloads.push(message.payload.clone());
+                    if pending == 0 {
+                        break;
+                    }
+                }
+            }
+            let fetched = start.elapsed().as_secs_f64() * 1e3;
+            let name = consumer.cached_info().name.clone();
+            stream.delete_consumer(&name).await.unwrap();
+            (created, fetched, payloads)
+        };
+        let (mut info, mut wc_create, mut wc_fetch) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut lit_create, mut lit_fetch, mut decode) = (Vec::new(), Vec::new(), Vec::new());
+        for q in 0..SAMPLES {
+            let vehicle = format!("sim-{:04}", (q * 7919) % vehicles);
+            let (created, fetched, payloads) = read(format!("railmon.*.{vehicle}.*.events")).await;
+            assert_eq!(payloads.len() as u64, events_per_day);
+            wc_create.push(created);
+            wc_fetch.push(fetched);
+            let start = Instant::now();
+            let subjects: Vec<String> = stream
+                .info_with_subjects(format!("railmon.*.{vehicle}.*.events"))
+                .await
+                .unwrap()
+                .map(|s| s.unwrap().0)
+                .collect()
+                .await;
+            info.push(start.elapsed().as_secs_f64() * 1e3);
+            let (mut created, mut fetched, mut n) = (0.0, 0.0, 0);
+            for subject in subjects {
+                let (c, f, p) = read(subject).await;
+                (created, fetched, n) = (created + c, fetched + f, n + p.len());
+            }
+            assert_eq!(n as u64, events_per_day);
+            lit_create.push(created);
+            lit_fetch.push(fetched);
+            let start = Instant::now();
+            let events: Vec<Value> = payloads
+                .iter()
+                .map(|p| serde_json::from_slice(p).unwrap())
+                .collect();
+            let body = serde_json::to_vec(&events).unwrap();
+            assert!(!body.is_empty());
+            decode.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+        let show = |what: &str, samples: Vec<f64>| {
+            let (p50, p99, max) = percentiles(samples);
+            println!("  {what}: p50 {p50:.2} ms, p99 {p99:.2} ms, max {max:.2} ms");
+        };
+        println!("a vehicle's day, step by step ({SAMPLES} vehicles, a client of the test's own):");
+        show(
+            "consumer on railmon.*.<vehicle>.*.events: created",
+            wc_create,
+        );
+        show(
+            "consumer on railmon.*.<vehicle>.*.events: its messages fetched",
+            wc_fetch,
+        );
+        show(
+            "the vehicle's subjects (stream info, subjects filter)",
+            info,
+        );
+        show(
+            "a consumer per literal subject (3): created, summed",
+            lit_create,
+        );
+        show(
+            "a consumer per literal subject (3): fetched, summed",
+            lit_fetch,
+        );
+        show("decoding the 200 payloads and encoding the answer", decode);
+    });
+}
+
+fn time_of(rfc3339: &str) -> time::OffsetDateTime {
+    let ns = railmon_bus::utc::parse_rfc3339(rfc3339).unwrap();
+    time::OffsetDateTime::from_unix_timestamp_nanos(i128::from(ns)).unwrap()
 }
