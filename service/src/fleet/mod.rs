@@ -53,6 +53,9 @@ const RECENT_WINDOW: Duration = Duration::from_secs(600);
 const PARALLEL_READS: usize = 16;
 /// Unused consumers (a request that was cut) are removed by the server after this.
 const CONSUMER_INACTIVE: Duration = Duration::from_secs(30);
+/// `--create-stream`: how long a missing stream's creation is retried (a cluster's first leader
+/// election takes seconds; the tests' three nodes took up to 11 s, docs/fleet.md).
+pub const CREATE_PATIENCE: Duration = Duration::from_secs(60);
 
 /// The stream could not be read (the server is down, the stream is missing, ...).
 #[derive(Debug, thiserror::Error)]
@@ -127,8 +130,15 @@ pub struct Fleet {
 }
 
 impl Fleet {
-    /// Connects and looks the stream up (it must exist: the vehicles' uplinks create it).
-    pub async fn connect(config: &FleetConfig) -> Result<Self, ReadError> {
+    /// Connects and looks the stream up: it must exist (the vehicles' uplinks create it), unless
+    /// `create_replicas` is given: then a missing stream is created as the uplink would create
+    /// it but with that many replicas (`railmon fleet --create-stream`: a ground whose vehicles
+    /// may not create streams), retrying for up to [`CREATE_PATIENCE`] while a cluster elects
+    /// its leader. An existing stream is used as it is.
+    pub async fn connect(
+        config: &FleetConfig,
+        create_replicas: Option<usize>,
+    ) -> Result<Self, ReadError> {
         let login = crate::nats_client::NatsLogin::from(config);
         let client = crate::nats_client::connect(&login, "railmon-fleet", true)
             .await
@@ -136,10 +146,28 @@ impl Fleet {
         let js = jetstream::ContextBuilder::new()
             .timeout(Duration::from_secs(5))
             .build(client);
-        let stream = js
-            .get_stream(&config.stream)
-            .await
-            .map_err(|e| read_error(&format!("stream {} (fleet.stream)", config.stream), e))?;
+        let what = format!("stream {} (fleet.stream)", config.stream);
+        let stream = match create_replicas {
+            None => js
+                .get_stream(&config.stream)
+                .await
+                .map_err(|e| read_error(&what, e))?,
+            Some(replicas) => {
+                let wanted =
+                    crate::uplink::stream_config(&config.stream, &config.subject_prefix, replicas);
+                let start = std::time::Instant::now();
+                loop {
+                    match js.get_or_create_stream(wanted.clone()).await {
+                        Ok(stream) => break stream,
+                        Err(e) if start.elapsed() < CREATE_PATIENCE => {
+                            tracing::info!("{what}: not created yet ({e}); retrying");
+                            tokio::time::sleep(Duration::from_secs(1)).await;
+                        }
+                        Err(e) => return Err(read_error(&what, e)),
+                    }
+                }
+            }
+        };
         Ok(Self {
             stream,
             prefix: config.subject_prefix.clone(),
