@@ -2,8 +2,8 @@
 #   target `railmon` (the last stage, the default): the onboard `railmon` (`serve` only: built
 #     with `--no-default-features`, no plotting or font code, so no libfontconfig) and
 #     `sensors-replay`, packaging binaries built by cargo on the host;
-#   target `monitoring`: Prometheus and Alertmanager, Debian's packages (the ones the system
-#     tests run), for compose.yaml.
+#   target `monitoring`: the ground's Prometheus, Alertmanager and NATS server (JetStream),
+#     Debian's packages (the ones the system tests run), for compose.yaml.
 #
 # Why host-built binaries and no `rust` build stage: the machines this project is built and
 # soak-tested on reach crates.io and Debian's mirror but no image registry and no rustup from
@@ -30,13 +30,16 @@ ARG BASE_IMAGE=debian:bookworm-slim
 FROM ${BASE_IMAGE} AS monitoring
 LABEL org.opencontainers.image.title=railmon-monitoring
 # policy-rc.d: the packages' maintainer scripts must not try to start services in a build.
-# Debian's packages create the users `prometheus` (both daemons run as it) and their state dirs.
+# Debian's packages create the users `prometheus` (both daemons run as it) and `nats`, and the
+# Prometheus state dirs; /var/lib/nats (JetStream's store, dashboards/nats/nats.conf) belongs to
+# `nats`, so that a fresh named volume mounted there inherits it.
 COPY scripts/http-probe /usr/local/bin/http-probe
 RUN printf '#!/bin/sh\nexit 101\n' >/usr/sbin/policy-rc.d \
  && chmod 0755 /usr/sbin/policy-rc.d \
  && apt-get update \
  && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
-        prometheus prometheus-alertmanager \
+        prometheus prometheus-alertmanager nats-server \
+ && install -d -o nats -g nats -m 0700 /var/lib/nats \
  && apt-get clean \
  && rm -rf /var/lib/apt/lists/* /var/cache/apt/*.bin /usr/sbin/policy-rc.d
 USER prometheus

@@ -17,6 +17,12 @@ pub struct FleetArgs {
     /// `fleet.listen` with port 0).
     #[arg(long)]
     addr_file: Option<PathBuf>,
+    /// Creates the stream (`fleet.stream`, subjects `<fleet.subject_prefix>.>`, file storage,
+    /// the uplink's duplicate window) with this many replicas (1..=5) when the servers have none,
+    /// retrying for up to a minute while a cluster elects its leader; an existing stream is used
+    /// as it is. For a ground whose vehicles may not create streams (compose.yaml's fleet).
+    #[arg(long, value_name = "REPLICAS", value_parser = clap::value_parser!(u8).range(1..=5))]
+    create_stream: Option<u8>,
 }
 
 pub fn run(args: FleetArgs) -> anyhow::Result<()> {
@@ -33,9 +39,10 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         .build()
         .context("tokio runtime")?;
     runtime.block_on(async {
-        let reader = railmon_service::fleet::Fleet::connect(&fleet)
-            .await
-            .with_context(|| format!("reading the stream {} at {}", fleet.stream, fleet.url))?;
+        let reader =
+            railmon_service::fleet::Fleet::connect(&fleet, args.create_stream.map(usize::from))
+                .await
+                .with_context(|| format!("reading the stream {} at {}", fleet.stream, fleet.url))?;
         let listener = tokio::net::TcpListener::bind(addr)
             .await
             .with_context(|| format!("cannot listen on {addr} (fleet.listen)"))?;

@@ -78,8 +78,22 @@ pub fn with_client<T>(url: &str, f: impl AsyncFnOnce(async_nats::Client) -> T) -
         .build()
         .unwrap();
     runtime.block_on(async {
-        let client = async_nats::connect(url).await.expect("connecting to NATS");
-        f(client).await
+        // async-nats ignores a url's user and password: `nats://user:password@host:port` logs
+        // in with them here (the compose fleet's logins, tests/fleet.rs).
+        let login = url.split_once("://").and_then(|(scheme, rest)| {
+            let (login, host) = rest.split_once('@')?;
+            let (user, password) = login.split_once(':').unwrap_or((login, ""));
+            Some((format!("{scheme}://{host}"), user, password))
+        });
+        let client = match login {
+            Some((url, user, password)) => {
+                async_nats::ConnectOptions::with_user_and_password(user.into(), password.into())
+                    .connect(url)
+                    .await
+            }
+            None => async_nats::connect(url).await,
+        };
+        f(client.expect("connecting to NATS")).await
     })
 }
 

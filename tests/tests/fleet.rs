@@ -379,6 +379,131 @@ fn the_fleet_view_answers_events_health_and_active_alarms_from_the_stream() {
     let _ = std::fs::remove_dir_all(&work);
 }
 
+/// compose.yaml's fleet logins (issue 29 item 4) on one local server: the `authorization`
+/// block of dashboards/nats/nats.conf as it is (its cluster needs compose's host names). A
+/// service logged in as `vehicle` may not create the stream: its uplink retries until
+/// `railmon fleet --create-stream 1`, logged in as `ground`, created it, then forwards every
+/// event exactly once; `vehicle` can neither create nor delete a stream itself.
+#[test]
+fn the_compose_fleets_logins_let_the_fleet_view_create_the_stream_and_not_the_vehicles() {
+    let Some(nats_binary) = nats::skip_without_nats_server() else {
+        return;
+    };
+    let bus = PrivateBus::new();
+    let work = std::env::temp_dir().join(format!("railmon-fleet-logins-{}", bus.prefix));
+    let _ = std::fs::remove_dir_all(&work);
+    std::fs::create_dir_all(work.join("nats")).unwrap();
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
+    let compose_config = std::fs::read_to_string(repo.join("dashboards/nats/nats.conf")).unwrap();
+    let logins = &compose_config[compose_config
+        .find("authorization {")
+        .expect("nats.conf has an authorization block")..];
+    let nats_addr = free_addr();
+    let config = work.join("nats.conf");
+    std::fs::write(
+        &config,
+        format!(
+            "listen: \"{nats_addr}\"\njetstream {{ store_dir: \"{}\" }}\n{logins}",
+            work.join("nats").display()
+        ),
+    )
+    .unwrap();
+    let child = Command::new(&nats_binary)
+        .arg("-c")
+        .arg(&config)
+        .env("NATS_GROUND_PASSWORD", "ground-pw")
+        .env("NATS_VEHICLE_PASSWORD", "vehicle-pw")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("starting nats-server");
+    let _nats = Process {
+        child,
+        name: "nats-server".into(),
+    };
+    wait_for("nats-server listening", Duration::from_secs(10), || {
+        std::net::TcpStream::connect(&nats_addr).is_ok()
+    });
+    let url = format!("nats://{nats_addr}");
+    let ground = format!("nats://ground:ground-pw@{nats_addr}");
+    let vehicle = format!("nats://vehicle:vehicle-pw@{nats_addr}");
+    let stream_exists = || {
+        with_client(&ground, async |client| {
+            jetstream::new(client).get_stream(STREAM).await.is_ok()
+        })
+    };
+
+    let data_dir = work.join("data");
+    let data_dir = data_dir.to_str().unwrap();
+    let mut settings = uplink_settings(data_dir, &url, STREAM).to_vec();
+    settings.extend([
+        ("RAILMON_UPLINK__USER", "vehicle"),
+        ("RAILMON_UPLINK__PASSWORD", "vehicle-pw"),
+    ]);
+    let service = Service::start(&bus, &settings);
+    let mut replay = railmon_system_tests::start_replay(&bus, "drive", &nats::LOOPING_DRIVE_REPLAY);
+    wait_for(
+        "the uplink refused the stream",
+        Duration::from_secs(20),
+        || nats::uplink_status(&service)["failures"]["stream"].as_u64() > Some(0),
+    );
+    assert!(!stream_exists(), "a vehicle created the stream");
+
+    let addr_file = work.join("fleet-addr");
+    let child = Command::new(&binaries().railmon)
+        .args(["fleet", "--create-stream", "1", "--addr-file"])
+        .arg(&addr_file)
+        .env("RAILMON_FLEET__URL", &url)
+        .env("RAILMON_FLEET__USER", "ground")
+        .env("RAILMON_FLEET__PASSWORD", "ground-pw")
+        .env("RAILMON_FLEET__STREAM", STREAM)
+        .env("RAILMON_FLEET__LISTEN", "127.0.0.1:0")
+        .env("RAILMON_LOG", "warn")
+        .stdin(Stdio::null())
+        .spawn()
+        .expect("starting railmon fleet");
+    let _fleet = Process {
+        child,
+        name: "railmon fleet".into(),
+    };
+    wait_for("railmon fleet listening", Duration::from_secs(20), || {
+        std::fs::read_to_string(&addr_file).is_ok_and(|a| !a.is_empty())
+    });
+    let config = with_client(&ground, async |client| {
+        let mut stream = jetstream::new(client).get_stream(STREAM).await.unwrap();
+        stream.info().await.unwrap().config.clone()
+    });
+    assert_eq!(config.subjects, ["railmon.>"]);
+    assert_eq!(config.num_replicas, 1);
+    assert_eq!(config.duplicate_window, Duration::from_secs(120));
+    // No new events while the stream and the store are compared (as tests/uplink.rs).
+    replay.terminate(Duration::from_secs(10));
+    nats::wait_caught_up(&service, Duration::from_secs(30));
+    let events = nats::assert_exactly_once(&ground, STREAM, &service);
+    assert!(events > 0);
+
+    // Refused to `vehicle` however asked: a second stream, deleting this one.
+    with_client(&vehicle, async |client| {
+        let js = jetstream::new(client);
+        let created = js
+            .create_stream(jetstream::stream::Config {
+                name: "RAILMON_OTHER".into(),
+                subjects: vec!["other.>".into()],
+                ..Default::default()
+            })
+            .await;
+        assert!(created.is_err(), "vehicle created a stream");
+        assert!(
+            js.delete_stream(STREAM).await.is_err(),
+            "vehicle deleted the stream"
+        );
+    });
+    assert!(stream_exists());
+    drop(service);
+    let _ = std::fs::remove_dir_all(&work);
+}
+
 /// Percentiles of `samples` (ms): p50, p99, max.
 fn percentiles(mut samples: Vec<f64>) -> (f64, f64, f64) {
     samples.sort_by(f64::total_cmp);
@@ -516,5 +641,126 @@ fn fleet_queries_at_1000_vehicles() {
     }
     let (p50, p99, max) = percentiles(day);
     println!("one vehicle's events for a day ({EVENTS_PER_DAY} events): p50 {p50:.1} ms, p99 {p99:.1} ms, max {max:.1} ms ({QUERIES} queries)");
+    day_query_breakdown(&url, VEHICLES, EVENTS_PER_DAY);
     let _ = std::fs::remove_dir_all(&work);
+}
+
+/// Where a vehicle's day goes, read with a client of its own (the steps `railmon fleet` takes,
+/// timed one by one): the subjects lookup, a consumer's creation and its fetch, for a filter with
+/// wildcards (`railmon.*.<vehicle>.*.events`) and for each literal subject of the vehicle; and
+/// the decoding of the payloads.
+fn day_query_breakdown(url: &str, vehicles: u64, events_per_day: u64) {
+    use async_nats::jetstream::consumer::{pull, AckPolicy, DeliverPolicy};
+    use futures_util::StreamExt;
+    const SAMPLES: u64 = 50;
+    let start_time = time_of("2026-11-26T23:55:00Z");
+    with_client(url, async |client| {
+        let js = jetstream::new(client);
+        let stream = js.get_stream(STREAM).await.unwrap();
+        // (create, fetch) ms of a consumer on `filter` read to its end, and the payloads.
+        let read = async |filter: String| {
+            let start = Instant::now();
+            let consumer: jetstream::consumer::Consumer<pull::Config> = stream
+                .create_consumer(pull::Config {
+                    filter_subject: filter,
+                    deliver_policy: DeliverPolicy::ByStartTime { start_time },
+                    ack_policy: AckPolicy::None,
+                    inactive_threshold: Duration::from_secs(30),
+                    memory_storage: true,
+                    num_replicas: 1,
+                    ..Default::default()
+                })
+                .await
+                .unwrap();
+            let created = start.elapsed().as_secs_f64() * 1e3;
+            let start = Instant::now();
+            let mut payloads = Vec::new();
+            let mut pending = consumer.cached_info().num_pending;
+            while pending > 0 {
+                let mut batch = consumer
+                    .fetch()
+                    .max_messages(1000)
+                    .messages()
+                    .await
+                    .unwrap();
+                while let Some(message) = batch.next().await {
+                    let message = message.unwrap();
+                    pending = message.info().unwrap().pending;
+                    payloads.push(message.payload.clone());
+                    if pending == 0 {
+                        break;
+                    }
+                }
+            }
+            let fetched = start.elapsed().as_secs_f64() * 1e3;
+            let name = consumer.cached_info().name.clone();
+            stream.delete_consumer(&name).await.unwrap();
+            (created, fetched, payloads)
+        };
+        let (mut info, mut wc_create, mut wc_fetch) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut lit_create, mut lit_fetch, mut decode) = (Vec::new(), Vec::new(), Vec::new());
+        for q in 0..SAMPLES {
+            let vehicle = format!("sim-{:04}", (q * 7919) % vehicles);
+            let (created, fetched, payloads) = read(format!("railmon.*.{vehicle}.*.events")).await;
+            assert_eq!(payloads.len() as u64, events_per_day);
+            wc_create.push(created);
+            wc_fetch.push(fetched);
+            let start = Instant::now();
+            let subjects: Vec<String> = stream
+                .info_with_subjects(format!("railmon.*.{vehicle}.*.events"))
+                .await
+                .unwrap()
+                .map(|s| s.unwrap().0)
+                .collect()
+                .await;
+            info.push(start.elapsed().as_secs_f64() * 1e3);
+            let (mut created, mut fetched, mut n) = (0.0, 0.0, 0);
+            for subject in subjects {
+                let (c, f, p) = read(subject).await;
+                (created, fetched, n) = (created + c, fetched + f, n + p.len());
+            }
+            assert_eq!(n as u64, events_per_day);
+            lit_create.push(created);
+            lit_fetch.push(fetched);
+            let start = Instant::now();
+            let events: Vec<Value> = payloads
+                .iter()
+                .map(|p| serde_json::from_slice(p).unwrap())
+                .collect();
+            let body = serde_json::to_vec(&events).unwrap();
+            assert!(!body.is_empty());
+            decode.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+        let show = |what: &str, samples: Vec<f64>| {
+            let (p50, p99, max) = percentiles(samples);
+            println!("  {what}: p50 {p50:.2} ms, p99 {p99:.2} ms, max {max:.2} ms");
+        };
+        println!("a vehicle's day, step by step ({SAMPLES} vehicles, a client of the test's own):");
+        show(
+            "consumer on railmon.*.<vehicle>.*.events: created",
+            wc_create,
+        );
+        show(
+            "consumer on railmon.*.<vehicle>.*.events: its messages fetched",
+            wc_fetch,
+        );
+        show(
+            "the vehicle's subjects (stream info, subjects filter)",
+            info,
+        );
+        show(
+            "a consumer per literal subject (3): created, summed",
+            lit_create,
+        );
+        show(
+            "a consumer per literal subject (3): fetched, summed",
+            lit_fetch,
+        );
+        show("decoding the 200 payloads and encoding the answer", decode);
+    });
+}
+
+fn time_of(rfc3339: &str) -> time::OffsetDateTime {
+    let ns = railmon_bus::utc::parse_rfc3339(rfc3339).unwrap();
+    time::OffsetDateTime::from_unix_timestamp_nanos(i128::from(ns)).unwrap()
 }

@@ -4,14 +4,17 @@
 //!
 //! What it reads (subjects under `fleet.subject_prefix`, `<fleet>.<vehicle>` as the uplink
 //! writes them):
-//! - a vehicle's events: an ephemeral pull consumer filtered on
-//!   `<prefix>.*.<vehicle>.<stream>.events`, starting at the page's stream sequence or at the
-//!   range's start time (minus a clock margin), paged by stream sequence;
+//! - a vehicle's events: its subjects `<prefix>.<fleet>.<vehicle>.<stream>.events` from the
+//!   stream's subject counts, then an ephemeral pull consumer on each (a literal filter: the
+//!   server jumps to the subject's messages, see [`Fleet::events`]), starting at the page's
+//!   stream sequence or at the range's start time (minus a clock margin), merged and paged by
+//!   stream sequence;
 //! - a vehicle's latest health summary: the last message of `<prefix>.*.<vehicle>.health`;
 //! - the active alarms of every vehicle: the last alarm snapshot of each vehicle
 //!   (`<prefix>.*.*.alarms`, one consumer delivering the last message per subject), then only
 //!   the events stored since each snapshot (one consumer over every vehicle's events from the
-//!   oldest recent snapshot, and one per vehicle whose snapshot is old or missing), applied
+//!   oldest recent snapshot, and one per event subject of a vehicle whose snapshot is old or
+//!   missing), applied
 //!   with [`alarms::AlarmState`]. Replaying every event ever sent would grow with the stream;
 //!   this grows with the vehicles and the last minutes' events (docs/fleet.md, measured).
 
@@ -50,6 +53,9 @@ const RECENT_WINDOW: Duration = Duration::from_secs(600);
 const PARALLEL_READS: usize = 16;
 /// Unused consumers (a request that was cut) are removed by the server after this.
 const CONSUMER_INACTIVE: Duration = Duration::from_secs(30);
+/// `--create-stream`: how long a missing stream's creation is retried (a cluster's first leader
+/// election takes seconds; the tests' three nodes took up to 11 s, docs/fleet.md).
+pub const CREATE_PATIENCE: Duration = Duration::from_secs(60);
 
 /// The stream could not be read (the server is down, the stream is missing, ...).
 #[derive(Debug, thiserror::Error)]
@@ -124,8 +130,15 @@ pub struct Fleet {
 }
 
 impl Fleet {
-    /// Connects and looks the stream up (it must exist: the vehicles' uplinks create it).
-    pub async fn connect(config: &FleetConfig) -> Result<Self, ReadError> {
+    /// Connects and looks the stream up: it must exist (the vehicles' uplinks create it), unless
+    /// `create_replicas` is given: then a missing stream is created as the uplink would create
+    /// it but with that many replicas (`railmon fleet --create-stream`: a ground whose vehicles
+    /// may not create streams), retrying for up to [`CREATE_PATIENCE`] while a cluster elects
+    /// its leader. An existing stream is used as it is.
+    pub async fn connect(
+        config: &FleetConfig,
+        create_replicas: Option<usize>,
+    ) -> Result<Self, ReadError> {
         let login = crate::nats_client::NatsLogin::from(config);
         let client = crate::nats_client::connect(&login, "railmon-fleet", true)
             .await
@@ -133,10 +146,28 @@ impl Fleet {
         let js = jetstream::ContextBuilder::new()
             .timeout(Duration::from_secs(5))
             .build(client);
-        let stream = js
-            .get_stream(&config.stream)
-            .await
-            .map_err(|e| read_error(&format!("stream {} (fleet.stream)", config.stream), e))?;
+        let what = format!("stream {} (fleet.stream)", config.stream);
+        let stream = match create_replicas {
+            None => js
+                .get_stream(&config.stream)
+                .await
+                .map_err(|e| read_error(&what, e))?,
+            Some(replicas) => {
+                let wanted =
+                    crate::uplink::stream_config(&config.stream, &config.subject_prefix, replicas);
+                let start = std::time::Instant::now();
+                loop {
+                    match js.get_or_create_stream(wanted.clone()).await {
+                        Ok(stream) => break stream,
+                        Err(e) if start.elapsed() < CREATE_PATIENCE => {
+                            tracing::info!("{what}: not created yet ({e}); retrying");
+                            tokio::time::sleep(Duration::from_secs(1)).await;
+                        }
+                        Err(e) => return Err(read_error(&what, e)),
+                    }
+                }
+            }
+        };
         Ok(Self {
             stream,
             prefix: config.subject_prefix.clone(),
@@ -149,8 +180,22 @@ impl Fleet {
         &self,
         filter: String,
         deliver: DeliverPolicy,
+        visit: impl FnMut(Read<'_>) -> ControlFlow<()>,
+    ) -> Result<(), ReadError> {
+        self.read_in_batches(filter, deliver, FETCH_BATCH, visit)
+            .await
+    }
+
+    /// [`Fleet::read`] asking for `batch` messages per pull request (1..=[`FETCH_BATCH`]): a
+    /// page of `limit` events that `visit` ends early is not sent a full batch.
+    pub async fn read_in_batches(
+        &self,
+        filter: String,
+        deliver: DeliverPolicy,
+        batch: usize,
         mut visit: impl FnMut(Read<'_>) -> ControlFlow<()>,
     ) -> Result<(), ReadError> {
+        let batch = batch.clamp(1, FETCH_BATCH);
         let consumer: jetstream::consumer::Consumer<pull::Config> = self
             .stream
             .create_consumer(pull::Config {
@@ -171,7 +216,7 @@ impl Fleet {
             loop {
                 let batch = consumer
                     .fetch()
-                    .max_messages(FETCH_BATCH)
+                    .max_messages(batch)
                     .messages()
                     .await
                     .map_err(|e| read_error(&format!("reading {filter}"), e))?;
@@ -209,10 +254,36 @@ impl Fleet {
         result
     }
 
+    /// The subjects in the stream that match `pattern` (wildcards allowed), from the stream's
+    /// per-subject counts: no message is read.
+    pub async fn subjects(&self, pattern: &str) -> Result<Vec<String>, ReadError> {
+        let subjects = self
+            .stream
+            .info_with_subjects(pattern)
+            .await
+            .map_err(|e| read_error("stream info", e))?;
+        let mut subjects = std::pin::pin!(subjects);
+        let mut found = Vec::new();
+        while let Some(subject) = subjects.next().await {
+            found.push(subject.map_err(|e| read_error("stream info", e))?.0);
+        }
+        Ok(found)
+    }
+
     /// A page of one vehicle's events, in stream order (= id order per vehicle).
+    ///
+    /// One consumer per literal subject of the vehicle (`<prefix>.<fleet>.<vehicle>.<stream>.events`,
+    /// looked up in the stream's subject counts), each read to `limit` events, merged by
+    /// stream sequence; not one consumer on `<prefix>.*.<vehicle>.*.events`. Why: a 2.9 server
+    /// finds the next message of a filter with wildcards by reading every message of a block
+    /// holding more than 32 subjects (`firstMatching`'s linear scan), i.e. every vehicle's
+    /// events from the start position, while for a literal subject it jumps to the subject's
+    /// first message in each block; at 1,000 vehicles that was most of a day query's time
+    /// (docs/fleet.md, "Measured").
     pub async fn events(&self, q: &EventsRequest) -> Result<EventsAnswer, ReadError> {
         let stream = q.stream.as_deref().unwrap_or("*");
-        let filter = format!("{}.*.{}.{stream}.events", self.prefix, q.vehicle_id);
+        let pattern = format!("{}.*.{}.{stream}.events", self.prefix, q.vehicle_id);
+        let subjects = self.subjects(&pattern).await?;
         let deliver = match (q.after_seq, q.since_utc_ns) {
             (0, None) => DeliverPolicy::All,
             (0, Some(since)) => DeliverPolicy::ByStartTime {
@@ -222,49 +293,61 @@ impl Fleet {
                 start_sequence: after + 1,
             },
         };
-        let mut answer = EventsAnswer {
-            events: Vec::new(),
-            next_after_seq: q.after_seq,
-        };
-        let mut bad = None;
-        self.read(filter, deliver, |m| {
-            answer.next_after_seq = m.sequence;
-            let mut event: serde_json::Map<String, serde_json::Value> =
-                match serde_json::from_slice(m.payload) {
-                    Ok(event) => event,
-                    Err(e) => {
-                        bad = Some(format!("stream sequence {}: {e}", m.sequence));
-                        return ControlFlow::Continue(());
+        // Per subject: its events in range (stream sequence, event), the last sequence read,
+        // and a payload that is not JSON.
+        let reads = subjects.into_iter().map(|filter| async move {
+            let mut events = Vec::new();
+            let mut last_read = 0;
+            let mut bad = None;
+            self.read_in_batches(filter, deliver, q.limit, |m| {
+                last_read = m.sequence;
+                match in_page(q, m.payload) {
+                    Ok(Some(event)) => {
+                        events.push((m.sequence, event));
+                        if events.len() >= q.limit {
+                            return ControlFlow::Break(());
+                        }
                     }
-                };
-            let time_ns = event
-                .get("time_utc")
-                .and_then(|t| t.as_str())
-                .and_then(|t| railmon_bus::utc::parse_rfc3339(t).ok());
-            let in_range = match time_ns {
-                Some(t) => {
-                    q.since_utc_ns.is_none_or(|s| t >= s) && q.until_utc_ns.is_none_or(|u| t < u)
+                    Ok(None) => {}
+                    Err(e) => bad = Some(format!("stream sequence {}: {e}", m.sequence)),
                 }
-                None => q.since_utc_ns.is_none() && q.until_utc_ns.is_none(),
-            };
-            let kind_ok = q
-                .kind
-                .as_deref()
-                .is_none_or(|k| event.get("kind").and_then(|v| v.as_str()) == Some(k));
-            if in_range && kind_ok {
-                event.insert("stream_sequence".into(), m.sequence.into());
-                answer.events.push(serde_json::Value::Object(event));
-                if answer.events.len() >= q.limit {
-                    return ControlFlow::Break(());
-                }
+                ControlFlow::Continue(())
+            })
+            .await?;
+            Ok::<_, ReadError>((events, last_read, bad))
+        });
+        let parts = futures_util::future::try_join_all(reads).await?;
+        let mut events = Vec::new();
+        let mut last_read = q.after_seq;
+        for (part, last, bad) in parts {
+            events.extend(part);
+            last_read = last_read.max(last);
+            if let Some(bad) = bad {
+                tracing::warn!("an event that is not JSON skipped: {bad}");
             }
-            ControlFlow::Continue(())
-        })
-        .await?;
-        if let Some(bad) = bad {
-            tracing::warn!("an event that is not JSON skipped: {bad}");
         }
-        Ok(answer)
+        events.sort_unstable_by_key(|(sequence, _)| *sequence);
+        // A full page ends at its last event: each subject was read up to its `limit`-th
+        // event, so every message of every subject before that one was read. A short page
+        // read every subject to its end.
+        let next_after_seq = match events.len() >= q.limit {
+            true => {
+                events.truncate(q.limit);
+                events.last().map_or(last_read, |(sequence, _)| *sequence)
+            }
+            false => last_read,
+        };
+        let events = events
+            .into_iter()
+            .map(|(sequence, mut event)| {
+                event.insert("stream_sequence".into(), sequence.into());
+                serde_json::Value::Object(event)
+            })
+            .collect();
+        Ok(EventsAnswer {
+            events,
+            next_after_seq,
+        })
     }
 
     /// The last health summary of `vehicle_id` (of any fleet): stream sequence, when stored,
@@ -353,7 +436,9 @@ impl Fleet {
             },
         )
         .await?;
-        for key in self.vehicles().await?.into_keys() {
+        // The event streams of each vehicle: its literal subjects for the reads of its own.
+        let event_streams = self.vehicles().await?;
+        for key in event_streams.keys().cloned() {
             vehicles.entry(key).or_insert(Vehicle {
                 state: AlarmState::default(),
                 after_id: 0,
@@ -424,15 +509,26 @@ impl Fleet {
             }
             Ok::<_, ReadError>((found, bad))
         };
+        // A read per literal subject, not one on `<fleet>.<vehicle>.*.events`: see `events`.
         let alone: Vec<_> = vehicles
             .iter()
             .filter(|(k, _)| !recent.contains(*k))
-            .map(|((fleet, vehicle), v)| {
+            .flat_map(|(key, v)| {
                 let deliver = match v.start {
                     Some(start) => DeliverPolicy::ByStartTime { start_time: start },
                     None => DeliverPolicy::All,
                 };
-                let filter = format!("{prefix}.{fleet}.{vehicle}.*.events");
+                let (fleet, vehicle) = key;
+                let prefix = &prefix;
+                let streams = event_streams.get(key).into_iter().flat_map(|s| s.keys());
+                streams.map(move |stream| {
+                    (
+                        format!("{prefix}.{fleet}.{vehicle}.{stream}.events"),
+                        deliver,
+                    )
+                })
+            })
+            .map(|(filter, deliver)| {
                 let collect = &collect;
                 async move {
                     let mut found = Found::new();
@@ -450,13 +546,17 @@ impl Fleet {
             .buffer_unordered(PARALLEL_READS)
             .collect::<Vec<_>>();
         let (shared, alone) = tokio::join!(shared, alone);
+        let mut all = Found::new();
         for result in std::iter::once(shared).chain(alone) {
             let (found, n) = result?;
             bad += n;
-            for (key, event) in found {
-                if let Some(v) = vehicles.get_mut(&key) {
-                    v.state.apply(&event);
-                }
+            all.extend(found);
+        }
+        // Each vehicle's events in id order: its streams were read apart.
+        all.sort_by(|(a, x), (b, y)| a.cmp(b).then(x.id.cmp(&y.id)));
+        for (key, event) in all {
+            if let Some(v) = vehicles.get_mut(&key) {
+                v.state.apply(&event);
             }
         }
         if bad > 0 {
@@ -481,6 +581,27 @@ impl Fleet {
 pub fn utc(ns: i64) -> time::OffsetDateTime {
     time::OffsetDateTime::from_unix_timestamp_nanos(i128::from(ns))
         .unwrap_or(time::OffsetDateTime::UNIX_EPOCH)
+}
+
+/// An event of `payload` if it is in the request's time range and of its kind (None if not).
+fn in_page(
+    q: &EventsRequest,
+    payload: &[u8],
+) -> Result<Option<serde_json::Map<String, serde_json::Value>>, serde_json::Error> {
+    let event: serde_json::Map<String, serde_json::Value> = serde_json::from_slice(payload)?;
+    let time_ns = event
+        .get("time_utc")
+        .and_then(|t| t.as_str())
+        .and_then(|t| railmon_bus::utc::parse_rfc3339(t).ok());
+    let in_range = match time_ns {
+        Some(t) => q.since_utc_ns.is_none_or(|s| t >= s) && q.until_utc_ns.is_none_or(|u| t < u),
+        None => q.since_utc_ns.is_none() && q.until_utc_ns.is_none(),
+    };
+    let kind_ok = q
+        .kind
+        .as_deref()
+        .is_none_or(|k| event.get("kind").and_then(|v| v.as_str()) == Some(k));
+    Ok((in_range && kind_ok).then_some(event))
 }
 
 /// RFC 3339 UTC of a time.

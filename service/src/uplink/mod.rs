@@ -403,19 +403,31 @@ async fn connect(
         .map_err(|e| format!("connecting to {}: {e}", config.url))
 }
 
+/// The stream a vehicle's uplink creates when the server has none (one replica: a vehicle
+/// cannot know the ground's cluster), and `railmon fleet --create-stream` with the ground's
+/// replicas: subjects `<subject_prefix>.>`, file storage, the duplicate window.
+pub fn stream_config(
+    stream: &str,
+    subject_prefix: &str,
+    replicas: usize,
+) -> jetstream::stream::Config {
+    jetstream::stream::Config {
+        name: stream.to_string(),
+        subjects: vec![format!("{subject_prefix}.>")],
+        duplicate_window: DUPLICATE_WINDOW,
+        storage: jetstream::stream::StorageType::File,
+        num_replicas: replicas,
+        ..Default::default()
+    }
+}
+
 async fn ensure_stream(
     js: &jetstream::Context,
     config: &UplinkConfig,
 ) -> Result<jetstream::stream::Stream, Failure> {
-    js.get_or_create_stream(jetstream::stream::Config {
-        name: config.stream.clone(),
-        subjects: vec![format!("{}.>", config.subject_prefix)],
-        duplicate_window: DUPLICATE_WINDOW,
-        storage: jetstream::stream::StorageType::File,
-        ..Default::default()
-    })
-    .await
-    .map_err(|e| Failure("stream", format!("stream {}: {e}", config.stream)))
+    js.get_or_create_stream(stream_config(&config.stream, &config.subject_prefix, 1))
+        .await
+        .map_err(|e| Failure("stream", format!("stream {}: {e}", config.stream)))
 }
 
 /// Moves the cursor over the events the stream already holds (see the module documentation
