@@ -153,6 +153,40 @@ fn every_event_arrives_exactly_once_across_a_server_outage_and_a_restart() {
     let _ = std::fs::remove_dir_all(&work);
 }
 
+/// A ground that never answers (no server listening at the uplink's url): the service runs as
+/// without the uplink, its events wait in the store (counted as the backlog), and the failed
+/// attempts count as `unreachable`, not as a stream the ground refused.
+#[test]
+fn with_no_server_the_events_wait_and_the_attempts_count_as_unreachable() {
+    let bus = PrivateBus::new();
+    let work = std::env::temp_dir().join(format!("railmon-uplink-none-{}", bus.prefix));
+    let _ = std::fs::remove_dir_all(&work);
+    let data = work.join("data").to_str().unwrap().to_string();
+    let url = format!("nats://{}", free_addr());
+    let service = Service::start(&bus, &nats::uplink_settings(&data, &url, STREAM));
+    let _replay = start_replay(&bus, "drive", &LOOPING_DRIVE_REPLAY);
+    wait_for("attempts counted", Duration::from_secs(30), || {
+        uplink_status(&service)["failures"]["unreachable"].as_u64() >= Some(2)
+    });
+    wait_for("events waiting", Duration::from_secs(30), || {
+        uplink_status(&service)["backlog_events"].as_u64() >= Some(10)
+    });
+    let status = uplink_status(&service);
+    assert_eq!(status["link_up"], false, "{status}");
+    assert_eq!(status["events_sent"], 0, "{status}");
+    for kind in ["stream", "publish", "ack", "store"] {
+        assert_eq!(status["failures"][kind], 0, "{kind}: {status}");
+    }
+    // The estimates are served as ever: the uplink waits beside them.
+    let drives = service.get_json("/api/v1/drives");
+    assert!(
+        drives["drives"].as_array().is_some_and(|d| !d.is_empty()),
+        "{drives}"
+    );
+    drop(service);
+    let _ = std::fs::remove_dir_all(&work);
+}
+
 /// A page published before its acknowledgements are awaited can leave a hole on the ground: a
 /// message lost with a dropped connection while the next ones were stored (or a publish during
 /// a leader election). Here the ground already holds every stored event but two, and its

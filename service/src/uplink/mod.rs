@@ -67,9 +67,15 @@ const BACKOFF_MAX: Duration = Duration::from_secs(5);
 /// At most one log line per failure kind this often (a link that flaps in a cutting).
 const LOG_EVERY: Duration = Duration::from_secs(10);
 
-/// What went wrong, as `railmon_uplink_failures_total{kind}` counts it.
-pub const FAILURE_KINDS: [&str; 6] = [
+/// What went wrong, as `railmon_uplink_failures_total{kind}` counts it. `unreachable`: an
+/// attempt on the stream (reach it, publish, await acknowledgements) failed while the client
+/// had no connection to any server (none listening at start, or during an outage); `stream`,
+/// `publish` and `ack` are the same failures with a server connected (a stream refused, a
+/// permission, a leader election), so that a ground that is away does not read as a ground
+/// that refuses.
+pub const FAILURE_KINDS: [&str; 7] = [
     "disconnected",
+    "unreachable",
     "stream",
     "publish",
     "ack",
@@ -294,8 +300,12 @@ pub async fn run(store: Arc<EventStore>, config: UplinkConfig, counters: Arc<Upl
             Ok(()) => continue,
             Err(failure) => failure,
         };
-        counters.fail(kind);
         let connected = client.connection_state() == async_nats::connection::State::Connected;
+        let kind = match (connected, kind) {
+            (false, "stream" | "publish" | "ack") => "unreachable",
+            _ => kind,
+        };
+        counters.fail(kind);
         counters.link_up.store(i64::from(connected), Relaxed);
         log.warn(kind, &message);
         tokio::time::sleep(backoff.next_delay()).await;
