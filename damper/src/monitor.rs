@@ -392,8 +392,9 @@ impl DamperMonitor {
 
     /// The monitor of `config` where `state` left it (its gain table `table`, as
     /// [`DamperMonitor::with_gain_table`]): the same samples then give exactly the estimates
-    /// the monitor that saved it would have given. A state of another particle count or
-    /// propagation is refused, and nothing is built.
+    /// the monitor that saved it would have given. A state of more particles than configured
+    /// or of another propagation is refused, and nothing is built; one of fewer (saved while
+    /// degraded, [`DamperMonitor::set_particles`]) resumes at its own count.
     pub fn resume(
         config: &DamperMonitorConfig,
         table: Option<Arc<GainTable>>,
@@ -452,6 +453,18 @@ impl DamperMonitor {
 
     pub fn rbpf(&self) -> &Rbpf {
         &self.rbpf
+    }
+
+    /// Resamples the RBPF's cloud to `n` particles ([`Rbpf::set_particles`]): what a host that
+    /// cannot keep up at the configured count runs meanwhile. The estimate is the next step's.
+    pub fn set_particles(&mut self, n: usize) -> Result<(), DamperError> {
+        self.rbpf.set_particles(n)
+    }
+
+    /// The particles the RBPF runs now (the configured count unless
+    /// [`DamperMonitor::set_particles`] said otherwise).
+    pub fn particles(&self) -> usize {
+        self.rbpf.n_particles()
     }
 
     pub fn ekf(&self) -> Option<&AugmentedEkf> {

@@ -347,6 +347,36 @@ impl Bank {
         }
     }
 
+    /// `indices.len()` filters, filter `j` a copy of filter `indices[j]` (resampling to another
+    /// particle count, `Rbpf::set_particles`). The steady-state bank recomputes each new
+    /// particle's gain node at its next step.
+    pub(super) fn resize(&mut self, indices: &[usize]) {
+        let n = indices.len();
+        match self {
+            Bank::Exact(b) => {
+                b.est = indices.iter().map(|&i| b.est[i].clone()).collect();
+                b.next.clone_from(&b.est);
+            }
+            Bank::Steady(b) => {
+                let blocks = n.div_ceil(BLOCK);
+                // Whole blocks: the padding particles stay at zero, as in `Bank::new`.
+                let mut x = vec![Row::ZERO; N_STATES * blocks];
+                for (j, &i) in indices.iter().enumerate() {
+                    for s in 0..N_STATES {
+                        *at_mut(&mut x, N_STATES, s, j) = at(&b.x, N_STATES, s, i);
+                    }
+                }
+                b.x = x;
+                b.next = vec![Row::ZERO; N_STATES * blocks];
+                b.yaw = vec![Row::ZERO; blocks];
+                b.series = vec![Row::ZERO; blocks];
+                b.nodes = vec![Row::ZERO; NODE_LEN * blocks];
+                b.node_theta = vec![[f64::NAN; 2]; n];
+                b.n = n;
+            }
+        }
+    }
+
     /// Every filter back at its start (`Bank::new`): the state at rest, and (exact) the
     /// start's covariance.
     pub(super) fn reset_states(&mut self) {

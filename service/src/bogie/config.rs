@@ -46,6 +46,9 @@ pub struct BogieConfig {
     /// sample time are stepped side by side). Unset: one fewer than the cores, at most one
     /// fewer than the bogies ([`BogieConfig::worker_threads`]); 0: all on the ingest thread.
     pub worker_threads: Option<usize>,
+    /// Degraded compute: what the bogies' filters do when they cannot keep up with real time
+    /// (docs/damper.md, "Degraded compute").
+    pub realtime: BogieRealtimeConfig,
     /// The estimator (`railmon_damper::DamperMonitorConfig`): its default, or the preset the
     /// table names (`preset = "paper"`), with the given keys on top (e.g.
     /// `RAILMON_BOGIE__ESTIMATOR__RBPF__PARTICLES=100`). Each bogie's RBPF is seeded with
@@ -65,8 +68,37 @@ impl Default for BogieConfig {
             history_interval_ms: 100,
             history_capacity: 72_000,
             worker_threads: None,
+            realtime: BogieRealtimeConfig::default(),
             estimator: DamperMonitorConfig::default(),
         }
+    }
+}
+
+/// Bounds of `bogie.realtime.lag_budget_ms`: at least ten 1 kHz frames (less, the scheduler's
+/// jitter alone exceeds it), at most a minute (longer, the lag's own baseline window of 30-60 s,
+/// `crate::ingest`'s `RealTimeTracker`, forgets it before the budget is reached).
+pub const LAG_BUDGET_MS: std::ops::RangeInclusive<u64> = 10..=60_000;
+
+/// `[bogie.realtime]`: when the bogies' filters cannot keep up with real time (their load, or
+/// their lag over the budget), every bogie's particle filter runs fewer particles (resampled
+/// down, to `railmon_damper::MIN_DEGRADED_PARTICLES` at least) instead of falling behind, and
+/// the configured count again once the CPU is back (`super::compute`). Reported in
+/// `/api/v1/bogies` and `/api/v1/status` (`compute`), the metrics `bogie_particles` and
+/// `bogie_compute_degradations_total`, and the events `compute_degraded` /
+/// `compute_restored`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct BogieRealtimeConfig {
+    /// The most the estimates may fall behind the samples' clock (the stream's `lag_s`) before
+    /// the particles are cut; they are raised again only while the lag stays under half of it.
+    #[schemars(range(min = *LAG_BUDGET_MS.start(), max = *LAG_BUDGET_MS.end()))]
+    pub lag_budget_ms: u64,
+}
+
+impl Default for BogieRealtimeConfig {
+    fn default() -> Self {
+        // Half the 100 ms p99 target: a cut takes two windows (2 s) to show.
+        Self { lag_budget_ms: 50 }
     }
 }
 
@@ -101,6 +133,17 @@ impl BogieConfig {
             return Err(invalid(
                 "bogie.worker_threads",
                 format!("{n}, expected 0..{MAX_BOGIES} (one per bogie at most)"),
+            ));
+        }
+        let budget = self.realtime.lag_budget_ms;
+        if !LAG_BUDGET_MS.contains(&budget) {
+            return Err(invalid(
+                "bogie.realtime.lag_budget_ms",
+                format!(
+                    "{budget}, expected {}..={}",
+                    LAG_BUDGET_MS.start(),
+                    LAG_BUDGET_MS.end()
+                ),
             ));
         }
         let ids = &self.bogies;

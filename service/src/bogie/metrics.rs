@@ -1,6 +1,6 @@
 //! Metric families of the bogie stream (labels `bogie`, `damper`: `csy` or `csay`).
 
-use prometheus::{IntCounter, IntCounterVec};
+use prometheus::{IntCounter, IntCounterVec, IntGaugeVec};
 
 use crate::metrics::{EstimateGaugeVec, EstimateIntGaugeVec, Families};
 
@@ -15,6 +15,8 @@ pub struct BogieMetrics {
     pub paused: EstimateIntGaugeVec,
     pub speed: EstimateGaugeVec,
     pub snapshot_refused: IntCounter,
+    pub particles: IntGaugeVec,
+    pub compute_degradations: IntCounter,
 }
 
 impl BogieMetrics {
@@ -73,6 +75,17 @@ impl BogieMetrics {
                 "bogie_snapshot_refused_total",
                 "Bogie snapshots found at start and refused (another format version, other \
                  settings, too old, corrupt): the filters started from their prior.",
+            )?,
+            particles: f.int_gauge_vec(
+                "bogie_particles",
+                "Particles the bogie's filter runs now: the configured count (estimator.rbpf.\
+                 particles) unless the compute is degraded (bogie.realtime).",
+                &["bogie"],
+            )?,
+            compute_degradations: f.int_counter(
+                "bogie_compute_degradations_total",
+                "Cuts of the bogies' particles because the filters could not keep up with real \
+                 time (each a compute_degraded event).",
             )?,
         })
     }

@@ -5,8 +5,10 @@
 //! Settings in [`config`], the JSON in [`view`], the ingest side in [`pipeline`], the
 //! endpoints in [`routes`], the metric families in [`metrics`]; the bogies' filters step in
 //! parallel on a few worker threads (`workers`, `bogie.worker_threads`); one more thread solves
-//! the gain table's speed nodes ahead of them (`warm`).
+//! the gain table's speed nodes ahead of them (`warm`). When they cannot keep up with real
+//! time, every filter runs fewer particles until the CPU is back (`compute`, `bogie.realtime`).
 
+mod compute;
 pub mod config;
 pub mod metrics;
 pub mod pipeline;
@@ -19,7 +21,7 @@ pub use config::{BogieConfig, MAX_BOGIES};
 pub use metrics::BogieMetrics;
 pub use pipeline::BogiePipeline;
 pub use routes::{routes, BogieApi};
-pub use view::{BogieShared, BogiesView, DamperEventDetail};
+pub use view::{BogieShared, BogiesView, ComputeEventDetail, ComputeView, DamperEventDetail};
 
 impl BogieConfig {
     /// The outbox of the bogie stream, sized by this config.

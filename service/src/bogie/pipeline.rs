@@ -6,27 +6,28 @@
 
 use std::sync::Arc;
 
-use prometheus::IntCounter;
+use prometheus::{IntCounter, IntGauge};
 use railmon_bus::{BogieFrame, FrameHeader};
 use railmon_damper::gain_table::GainTable;
 use railmon_damper::params::checked_half_body_mass_kg;
 use railmon_damper::{
     BogieSample, BogieStatusWatch, DamperAlarm, DamperError, DamperEventKind, DamperId,
     DamperMonitor, DamperMonitorConfig, DamperMonitorState, DamperPosterior, PauseReason,
-    Propagation, Rbpf, SampleRanges,
+    Propagation, Rbpf, SampleRanges, MIN_DEGRADED_PARTICLES,
 };
 use railmon_records::gain_cache::GainCache;
 
 use railmon_bus::StreamKind;
 
+use super::compute::{ComputeChange, ComputeController, ComputeWindow};
 use super::view::{
-    BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, DamperEventDetail,
-    DamperView, DAMPERS,
+    BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, ComputeEventDetail,
+    ComputeView, DamperEventDetail, DamperView, DAMPERS,
 };
 use super::warm::NodeWarmer;
 use super::workers::{BogieWorkers, Done, Job, StepOutcome};
 use super::BogieConfig;
-use crate::ingest::{CompletedStep, Pipeline, Rejection};
+use crate::ingest::{CompletedStep, Pipeline, RealTimeTracker, Rejection};
 use crate::metrics::{EstimateGauge, EstimateIntGauge, Metrics};
 use crate::outbox::{Stamp, Track};
 use crate::snapshot::StateFormat;
@@ -61,6 +62,8 @@ struct BogieSlot {
     /// `paused` gauges, one per reason (`PauseReason::ALL` order), and the speed.
     paused: [EstimateIntGauge; 3],
     speed: EstimateGauge,
+    /// Particles its filter runs now.
+    particles: IntGauge,
 }
 
 impl BogieSlot {
@@ -110,6 +113,7 @@ impl BogieSlot {
                     .with_label_values(&[bogie.as_str(), r.as_str()])
             }),
             speed: metrics.bogie.speed.with_label_values(&[bogie.as_str()]),
+            particles: metrics.bogie.particles.with_label_values(&[bogie.as_str()]),
         }
     }
 }
@@ -169,6 +173,15 @@ pub struct BogiePipeline {
     /// Deferred steps done, for the ingest loop's step times ([`Pipeline::take_completed`]).
     completed: Vec<CompletedStep>,
     snapshot_refused: IntCounter,
+    /// Degraded compute (`super::compute`): the particles every filter runs, decided once per
+    /// second of samples from the load and lag measured here as the stream's status measures
+    /// them (`RealTimeTracker`), the compute time of `step`, `bridge` and `publish` counted.
+    compute: ComputeController,
+    realtime: RealTimeTracker,
+    busy_ns: u64,
+    degradations: IntCounter,
+    degradation_count: u64,
+    compute_changed_time_s: Option<f64>,
 }
 
 impl BogiePipeline {
@@ -235,6 +248,11 @@ impl BogiePipeline {
             )),
             _ => None,
         };
+        let compute = ComputeController::new(
+            estimator.rbpf.particles,
+            MIN_DEGRADED_PARTICLES,
+            config.realtime.lag_budget_ms as f64 * 1e-3,
+        );
         let pipeline = Self {
             config,
             shared,
@@ -248,6 +266,12 @@ impl BogiePipeline {
             rejections: Vec::new(),
             completed: Vec::new(),
             snapshot_refused: metrics.bogie.snapshot_refused.clone(),
+            compute,
+            realtime: RealTimeTracker::default(),
+            busy_ns: 0,
+            degradations: metrics.bogie.compute_degradations.clone(),
+            degradation_count: 0,
+            compute_changed_time_s: None,
         };
         // The configured bogies are listed (without samples) before the first frame.
         pipeline
@@ -276,9 +300,13 @@ impl BogiePipeline {
         let slot = &mut self.slots[k];
         if slot.monitor.is_none() {
             let table = self.table.clone()?;
-            slot.monitor = Some(Box::new(
-                DamperMonitor::for_bogie(estimator, slot.id, table).map_err(rejection_of)?,
-            ));
+            let mut monitor =
+                DamperMonitor::for_bogie(estimator, slot.id, table).map_err(rejection_of)?;
+            // A new source while degraded: its filters start at the degraded count.
+            monitor
+                .set_particles(self.compute.particles())
+                .map_err(rejection_of)?;
+            slot.monitor = Some(Box::new(monitor));
         }
         Ok(slot.monitor.as_mut().expect("created above"))
     }
@@ -309,6 +337,8 @@ impl BogiePipeline {
             results[d.slot] = Some(d.outcome);
         }
         self.done = done;
+        let last_header = pending.last().map(|(h, _)| *h);
+        let mut last_stamp = None;
         for (header, p) in pending {
             match results[p.slot].take() {
                 Some(StepOutcome {
@@ -322,6 +352,7 @@ impl BogiePipeline {
                         done_at_ns,
                     });
                     let stamp = self.track.stamp(&header);
+                    last_stamp = Some(stamp);
                     self.slots[p.slot].last_stamp = Some(stamp);
                     self.follow(p.slot, &stamp);
                 }
@@ -334,6 +365,98 @@ impl BogiePipeline {
                     Rejection::new("estimator", "the bogie's worker thread stopped"),
                 )),
             }
+        }
+        if let Some(header) = last_header {
+            self.judge_compute(&header, last_stamp);
+        }
+    }
+
+    /// The load and lag after the batch ending with `header` (the stamp of its last estimate,
+    /// if one succeeded); once a second of samples, the compute controller's decision, applied
+    /// to every filter, with its event.
+    fn judge_compute(&mut self, header: &FrameHeader, stamp: Option<Stamp>) {
+        let busy_ns = std::mem::take(&mut self.busy_ns);
+        let (lag_ns, load) =
+            self.realtime
+                .observe(header.sample_time_ns, railmon_bus::monotonic_ns(), busy_ns);
+        let Some(load) = load else { return };
+        let window = ComputeWindow {
+            load,
+            lag_s: lag_ns as f64 * 1e-9,
+        };
+        let Some(change) = self.compute.observe(window) else {
+            return;
+        };
+        let particles = self.compute.particles();
+        for slot in &mut self.slots {
+            if let Some(m) = &mut slot.monitor {
+                if let Err(e) = m.set_particles(particles) {
+                    tracing::error!(bogie = slot.id, "set_particles({particles}): {e}");
+                }
+            }
+        }
+        let restored = matches!(change, ComputeChange::Raise { .. }) && !self.compute.degraded();
+        if let ComputeChange::Cut { .. } = change {
+            self.degradations.inc();
+            self.degradation_count += 1;
+        }
+        let kind = if restored {
+            "compute_restored"
+        } else {
+            "compute_degraded"
+        };
+        let configured = self.compute.configured();
+        tracing::warn!(
+            particles,
+            configured,
+            realtime_load = window.load,
+            lag_s = window.lag_s,
+            "{kind}"
+        );
+        let stamp = stamp.unwrap_or_else(|| self.track.stamp(header));
+        self.compute_changed_time_s = Some(stamp.time_s);
+        let detail = ComputeEventDetail {
+            particles,
+            configured_particles: configured,
+            realtime_load: window.load,
+            lag_s: window.lag_s,
+        };
+        self.track
+            .push_event(&stamp, kind, "compute".into(), &detail, None);
+    }
+
+    /// [`Pipeline::step`], timed there.
+    fn step_timed(
+        &mut self,
+        header: &FrameHeader,
+        input: CheckedBogieSample,
+    ) -> Result<(), Rejection> {
+        let k = input.slot;
+        if self.pending.iter().any(|(_, p)| p.slot == k) {
+            self.flush();
+        }
+        self.monitor(k)?;
+        if let Some(w) = &self.warmer {
+            w.follow(input.sample.speed_m_s);
+        }
+        self.pending.push((*header, input));
+        if self.pending.len() == self.slots.len() {
+            self.flush();
+        }
+        Ok(())
+    }
+
+    fn compute_view(&self) -> ComputeView {
+        ComputeView {
+            mode: if self.compute.degraded() {
+                "degraded"
+            } else {
+                "full"
+            }
+            .into(),
+            particles: self.compute.particles(),
+            degradations: self.degradation_count,
+            changed_time_s: self.compute_changed_time_s,
         }
     }
 
@@ -480,6 +603,7 @@ impl BogiePipeline {
                             .unwrap_or(self.config.estimator.vehicle.half_body_mass_kg)
                     }),
                     noise_std_ratio: estimate.map(|e| e.noise_std_ratio.into()),
+                    particles: s.monitor.as_ref().map(|m| m.particles()),
                 }
             })
             .collect();
@@ -490,6 +614,7 @@ impl BogiePipeline {
             run_time_s: stamp.map(|s| s.run_time_s),
             sequence: stamp.map(|s| s.header.sequence),
             particles: self.config.estimator.rbpf.particles,
+            compute: self.compute_view(),
             bogies,
         }
     }
@@ -523,6 +648,8 @@ impl BogiePipeline {
                 gauge.set(i64::from(b.paused.as_deref() == Some(reason.as_str())));
             }
             slot.speed.set(b.speed_m_s.unwrap_or(f64::NAN));
+            slot.particles
+                .set(b.particles.unwrap_or(self.compute.particles()) as i64);
         }
     }
 }
@@ -610,6 +737,9 @@ impl Pipeline for BogiePipeline {
         self.flush();
         // Health flags carry over (never a silent clear): the new filter's estimates clear
         // them, with an event, once they say so.
+        // The new source's clock has another offset; the compute stays as it is (its filters
+        // start at the current count, `monitor`).
+        self.realtime.restart();
         for slot in &mut self.slots {
             slot.monitor = None;
             slot.last_stamp = None;
@@ -624,31 +754,24 @@ impl Pipeline for BogiePipeline {
     /// configured bogie has a frame) or the batch ends; a deferred step that fails is counted
     /// through [`Pipeline::take_rejections`].
     fn step(&mut self, header: &FrameHeader, input: CheckedBogieSample) -> Result<(), Rejection> {
-        let k = input.slot;
-        if self.pending.iter().any(|(_, p)| p.slot == k) {
-            self.flush();
-        }
-        self.monitor(k)?;
-        if let Some(w) = &self.warmer {
-            w.follow(input.sample.speed_m_s);
-        }
-        self.pending.push((*header, input));
-        if self.pending.len() == self.slots.len() {
-            self.flush();
-        }
-        Ok(())
+        let start = std::time::Instant::now();
+        let stepped = self.step_timed(header, input);
+        self.busy_ns += start.elapsed().as_nanos() as u64;
+        stepped
     }
 
     /// Every bogie's monitor settles its states again before it learns (`DamperMonitor::bridge`).
     /// The frames waiting for the rest of their sample time belong before the gap: stepped
     /// first.
     fn bridge(&mut self, skipped_periods: u64) {
+        let start = std::time::Instant::now();
         self.flush();
         for slot in &mut self.slots {
             if let Some(m) = &mut slot.monitor {
                 m.bridge(skipped_periods);
             }
         }
+        self.busy_ns += start.elapsed().as_nanos() as u64;
     }
 
     fn take_rejections(&mut self) -> Vec<(FrameHeader, Rejection)> {
@@ -691,10 +814,15 @@ impl Pipeline for BogiePipeline {
                 .find(|(id, _)| *id == slot.id)
                 .and_then(|(_, m)| m.clone());
             monitors.push(match state {
-                Some(state) => Some(Box::new(
-                    DamperMonitor::resume(&self.config.estimator, table.clone(), state)
-                        .map_err(|e| format!("bogie {}: {e}", slot.id))?,
-                )),
+                Some(state) => {
+                    let mut m = DamperMonitor::resume(&self.config.estimator, table.clone(), state)
+                        .map_err(|e| format!("bogie {}: {e}", slot.id))?;
+                    // A state saved while degraded resumes at its own count; the filters run
+                    // the controller's (the configured count at start) from here.
+                    m.set_particles(self.compute.particles())
+                        .map_err(|e| format!("bogie {}: {e}", slot.id))?;
+                    Some(Box::new(m))
+                }
                 None => None,
             });
         }
@@ -714,13 +842,14 @@ impl Pipeline for BogiePipeline {
     }
 
     fn publish(&mut self) {
+        let start = std::time::Instant::now();
         self.flush();
-        let Some(stamp) = self.track.flush(&self.shared) else {
-            return;
-        };
-        let view = self.view(Some(&stamp));
-        self.set_gauges(&view);
-        self.shared.snapshot.store(Arc::new(view));
+        if let Some(stamp) = self.track.flush(&self.shared) {
+            let view = self.view(Some(&stamp));
+            self.set_gauges(&view);
+            self.shared.snapshot.store(Arc::new(view));
+        }
+        self.busy_ns += start.elapsed().as_nanos() as u64;
     }
 }
 

@@ -8,8 +8,8 @@ use serde::Serialize;
 use utoipa::{OpenApi, ToSchema};
 
 use super::view::{
-    BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, DamperEventDetail,
-    DamperTrendView, DamperView, SensorNoiseView,
+    BogieHistoryEntry, BogieHistoryPoint, BogieShared, BogieView, BogiesView, ComputeEventDetail,
+    ComputeView, DamperEventDetail, DamperTrendView, DamperView, SensorNoiseView,
 };
 use crate::http::events::{self, EventsPage, EventsQuery, Scope};
 use crate::http::{require_stream, ApiPath, ApiQuery, AppError, ErrorBody, HistoryQuery};
@@ -29,7 +29,9 @@ use crate::AppState;
         BogieHistoryEntry,
         BogieHistoryEntryAt,
         BogieHistoryPoint,
-        DamperEventDetail
+        DamperEventDetail,
+        ComputeView,
+        ComputeEventDetail
     ))
 )]
 pub struct BogieApi;

@@ -114,6 +114,9 @@ pub struct BogieView {
     /// The sensors' noise as the filter estimates it online; null before the monitor exists
     /// (its first frame).
     pub noise_std_ratio: Option<SensorNoiseView>,
+    /// Particles its filter runs now (fewer than configured while the compute is degraded);
+    /// null before the monitor exists.
+    pub particles: Option<usize>,
 }
 
 /// Each sensor's noise standard deviation as a ratio of the configured one
@@ -154,9 +157,39 @@ pub struct BogiesView {
     pub run: u32,
     pub run_time_s: Option<f64>,
     pub sequence: Option<u64>,
-    /// Particles per bogie.
+    /// Particles per bogie, as configured (`estimator.rbpf.particles`).
     pub particles: usize,
+    /// Whether the filters run their configured particles or fewer to keep up with real time.
+    pub compute: ComputeView,
     pub bogies: Vec<BogieView>,
+}
+
+/// The bogies' compute (`bogie.realtime`, docs/damper.md "Degraded compute"): `full`, or
+/// `degraded` while the filters cannot keep up with real time at the configured particles and
+/// run `particles` each instead (their 90 % intervals honestly wider).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, ToSchema)]
+pub struct ComputeView {
+    /// `full` or `degraded`.
+    pub mode: String,
+    /// Particles each bogie's filter runs now.
+    pub particles: usize,
+    /// Cuts so far (`compute_degraded` events) since the service started.
+    pub degradations: u64,
+    /// Stream time of the last change, s; null before one.
+    pub changed_time_s: Option<f64>,
+}
+
+/// The bogie stream's fields of a `compute_degraded` / `compute_restored` event (subject
+/// `compute`): the particles every bogie's filter runs from then on, and what the window
+/// that decided measured.
+#[derive(Clone, Debug, PartialEq, Serialize, ToSchema)]
+pub struct ComputeEventDetail {
+    pub particles: usize,
+    pub configured_particles: usize,
+    /// Compute time over sample time over that second of samples.
+    pub realtime_load: f64,
+    /// How far the estimates were behind the samples' clock, s.
+    pub lag_s: f64,
 }
 
 /// One bogie in a history point.

@@ -46,6 +46,9 @@ pub async fn status(State(state): State<AppState>) -> Json<StatusView> {
                 if s.kind == railmon_bus::StreamKind::Drive {
                     view.reference = state.drive.snapshot.load().reference.clone();
                 }
+                if s.kind == railmon_bus::StreamKind::Bogie {
+                    view.compute = Some(state.bogie.snapshot.load().compute.clone());
+                }
                 view
             })
             .collect(),

@@ -141,6 +141,11 @@ pub struct StreamStatusView {
     /// in `/api/v1/drives`; absent for the other streams and before the first estimate.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reference: Option<String>,
+    /// The bogie stream only: whether its filters run their configured particles (`full`) or
+    /// fewer to keep up with real time (`degraded`), as `compute` in `/api/v1/bogies`; absent
+    /// for the other streams.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub compute: Option<crate::bogie::ComputeView>,
 }
 
 impl StreamStatus {
@@ -305,6 +310,7 @@ impl StreamStatus {
             lagging: self.lagging.load(Ordering::Relaxed),
             last_error: self.last_error.load_full().map(|e| (*e).clone()),
             reference: None,
+            compute: None,
         }
     }
 
