@@ -307,6 +307,19 @@ fn filters_that_cannot_keep_up_say_so() {
     });
     assert!(status["realtime_load"].as_f64().unwrap() > 1.0, "{status}");
     assert_eq!(status["sequence_gaps"], 0, "lossless, only late: {status}");
+    // And it does not only say so: it runs fewer particles (issue 28 item 3), and says that.
+    let status = service.wait_for_status("bogie", Duration::from_secs(60), "degraded", |s| {
+        s["compute"]["mode"] == "degraded"
+    });
+    let particles = status["compute"]["particles"].as_u64().unwrap();
+    assert!((200..20_000).contains(&particles), "{status}");
+    let events = service.get_json("/api/v1/bogies/events");
+    assert!(
+        events["events"]
+            .as_array()
+            .is_some_and(|e| e.iter().any(|e| e["kind"] == "compute_degraded")),
+        "{events}"
+    );
     replay.terminate(Duration::from_secs(10));
     let exit = service.process.terminate(Duration::from_secs(20));
     assert!(exit.success(), "railmon serve exited with {exit}");
