@@ -29,6 +29,7 @@ pub mod estimate;
 mod forecast;
 mod kernel;
 pub mod kinematic;
+pub mod merge;
 pub mod mixture;
 pub mod monitor;
 pub mod predictive;

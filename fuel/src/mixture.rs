@@ -611,6 +611,93 @@ impl Mixture {
         Ok(())
     }
 
+    /// Merges, in each group of components (the components of one regime given), the first
+    /// pair whose fuel regressions the data say are one: `ln` Bayes factor of one component for
+    /// both above 0 ([`crate::merge::log_merge_factor`]), both with at least `min_samples`
+    /// weighted samples (a slot freed by a merge must learn before it is judged). The lower
+    /// index keeps the pooled statistics (regression, levels, categorical counts; eq. 10-12)
+    /// and the pointer's weight of both; the other goes back to its prior with no weight and
+    /// learns again from what the kept one explains worst. The switching counts stay: the kept
+    /// component's rows are its own history, the freed one's are forgotten as it learns.
+    /// Deterministic (groups and pairs in order). Returns the number of merges; on error
+    /// nothing changes.
+    pub fn merge_indistinguishable(
+        &mut self,
+        groups: &[Vec<usize>],
+        min_samples: f64,
+    ) -> Result<usize, FuelError> {
+        let kappa0 = self.spec.prior_kappa;
+        let settled = |c: &RegressionStats| c.kappa() - kappa0 >= min_samples;
+        let mut pairs = Vec::new();
+        for group in groups {
+            'group: for (x, &a) in group.iter().enumerate() {
+                for &b in &group[x + 1..] {
+                    let (ca, cb) = (&self.components[a], &self.components[b]);
+                    if !(settled(ca) && settled(cb)) {
+                        continue;
+                    }
+                    let regression = crate::merge::log_merge_factor(
+                        (ca.v(), ca.kappa()),
+                        (cb.v(), cb.kappa()),
+                        (&self.v0, kappa0),
+                        1,
+                    );
+                    // With levels the pointer tells the components apart by them alone: two
+                    // with one regression but apart in levels are two regimes of the pointer.
+                    let levels = match self.levels.get(a).zip(self.levels.get(b)) {
+                        None => Some(1.0),
+                        Some((la, lb)) => crate::merge::log_merge_factor(
+                            (la.v(), la.kappa()),
+                            (lb.v(), lb.kappa()),
+                            (&level_v0(&self.spec, la.k_y()), kappa0),
+                            la.k_y(),
+                        ),
+                    };
+                    if regression.is_some_and(|f| f > 0.0) && levels.is_some_and(|f| f > 0.0) {
+                        pairs.push((a.min(b), a.max(b)));
+                        break 'group;
+                    }
+                }
+            }
+        }
+        if pairs.is_empty() {
+            return Ok(0);
+        }
+        let mut next = self.clone();
+        for &(a, b) in &pairs {
+            let freed = RegressionStats::new(
+                self.spec.k_y,
+                self.v0.clone(),
+                kappa0,
+                self.spec.min_noise_variance,
+            )?;
+            let other = std::mem::replace(&mut next.components[b], freed);
+            next.components[a].pool_with(&other, &self.v0, kappa0)?;
+            if !next.levels.is_empty() {
+                let n = self.spec.level_channels.len();
+                let other = std::mem::replace(&mut next.levels[b], level_prior(&self.spec, n)?);
+                next.levels[a].pool_with(&other, &level_v0(&self.spec, n), kappa0)?;
+            }
+            if !next.categorical.is_empty() {
+                let (low, high) = next.categorical.split_at_mut(b);
+                low[a].absorb(&mut high[0]);
+            }
+            for w in [&mut next.log_w, &mut next.log_ungiven] {
+                if w.len() > b {
+                    w[a] = log_sum_exp(&[w[a], w[b]]);
+                    w[b] = f64::NEG_INFINITY;
+                }
+            }
+        }
+        // The pointer and alpha's cache are as the step left them but for the merged weights.
+        self.components = next.components;
+        self.levels = next.levels;
+        self.categorical = next.categorical;
+        self.log_w = next.log_w;
+        self.log_ungiven = next.log_ungiven;
+        Ok(pairs.len())
+    }
+
     /// Initial statistics from a batch of prior data (Algorithm 3.4, initial part; section 4.3):
     /// starting from the hard partition `labels`, `iterations` rounds of EM for a static mixture
     /// of the regression components, then the statistics are the prior plus `weight` times the
