@@ -92,19 +92,6 @@ impl CountTable {
     }
 }
 
-impl CountTable {
-    /// Adds `other`'s counts beyond its prior to these and puts `other` back at its prior (a
-    /// merge of two components, `crate::merge`). Both must have the same shape.
-    pub(crate) fn absorb(&mut self, other: &mut CountTable) {
-        for ((c, o), p) in self.counts.iter_mut().zip(&other.counts).zip(&other.prior) {
-            *c += o - p;
-        }
-        other.counts.clone_from(&other.prior);
-        self.refresh_row_sums();
-        other.refresh_row_sums();
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

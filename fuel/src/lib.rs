@@ -29,7 +29,6 @@ pub mod estimate;
 mod forecast;
 mod kernel;
 pub mod kinematic;
-pub mod merge;
 pub mod mixture;
 pub mod monitor;
 pub mod predictive;

@@ -600,13 +600,6 @@ impl FuelMonitor {
         };
         let mixture = self.mixture.as_mut().expect("checked above");
         mixture.step_predicted(&input, predictions)?;
-        // With every regime given, how many of a regime's components the data need is not a
-        // constant of the route: two the data cannot tell apart are merged, and the freed one
-        // learns again (`crate::merge`). After the step, so the same on every path.
-        if self.config.pointer_regimes {
-            let groups = crate::regime::regime_groups(m);
-            mixture.merge_indistinguishable(&groups, self.config.naming.min_samples)?;
-        }
         if baseline.is_some() {
             self.baseline = baseline;
         }

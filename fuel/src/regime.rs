@@ -113,20 +113,6 @@ pub fn given_regime(i: usize, components: usize) -> RegimeName {
     }
 }
 
-/// The components of each moving regime of [`GIVEN_REGIMES`] (by [`given_regime`]) where a
-/// regime has more than one: the groups within which components may merge (`crate::merge`).
-pub fn regime_groups(components: usize) -> Vec<Vec<usize>> {
-    GIVEN_REGIMES
-        .iter()
-        .map(|&r| {
-            (0..components)
-                .filter(|&i| given_regime(i, components) == r)
-                .collect::<Vec<_>>()
-        })
-        .filter(|g| g.len() > 1)
-        .collect()
-}
-
 /// What one sample says the vehicle does ([`RegimeNaming::physical_regime`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Motion {

@@ -158,23 +158,6 @@ impl RegressionStats {
         self.min_variance = other.min_variance;
     }
 
-    /// Makes `self` the statistics of the data of both `self` and `other`, each from the prior
-    /// `(v0, kappa0)`: `V_i + V_j - V_0`, `kappa_i + kappa_j - kappa_0` (eq. 10-11; a merge,
-    /// `crate::merge`), point estimates recomputed. On error `self` is unchanged.
-    pub(crate) fn pool_with(
-        &mut self,
-        other: &RegressionStats,
-        v0: &DMatrix<f64>,
-        kappa0: f64,
-    ) -> Result<(), FuelError> {
-        let mut pooled = self.clone();
-        pooled.v += &other.v - v0;
-        pooled.kappa += other.kappa - kappa0;
-        pooled.recompute()?;
-        *self = pooled;
-        Ok(())
-    }
-
     /// Adds `w d d'` without recomputing the point estimates (batch initialisation).
     pub(crate) fn accumulate(&mut self, d: &DVector<f64>, weight: f64) {
         self.v.syger(weight, d, d, 1.0);
