@@ -117,7 +117,9 @@ fn main() {
             })
             .collect();
         let whole_s = cpu_seconds(|| {
-            let mut pipe = MultiMethodPipeline::new(&config, n).expect("pipeline");
+            let mut pipe =
+                MultiMethodPipeline::with_methods(&config, n, &[AdhesionMethod::Temporal])
+                    .expect("pipeline");
             for f in &frames {
                 pipe.step(f).expect("step");
             }
