@@ -117,9 +117,7 @@ fn main() {
             })
             .collect();
         let whole_s = cpu_seconds(|| {
-            let mut pipe =
-                MultiMethodPipeline::with_methods(&config, n, &[AdhesionMethod::Temporal])
-                    .expect("pipeline");
+            let mut pipe = MultiMethodPipeline::new(&config, n).expect("pipeline");
             for f in &frames {
                 pipe.step(f).expect("step");
             }

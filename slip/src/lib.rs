@@ -16,7 +16,6 @@ pub mod alarm;
 pub mod bound;
 pub mod ekf;
 pub mod error;
-pub mod innovation;
 pub mod model;
 pub mod monitor;
 pub mod pipeline;

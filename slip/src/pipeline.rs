@@ -33,7 +33,6 @@ pub struct MultiMethodPipeline {
     references: Vec<SpeedReference>,
     /// Whether the last step had a train speed.
     train_steps: bool,
-    innovation: Option<crate::innovation::InnovationBank>,
 }
 
 impl MultiMethodPipeline {
@@ -70,7 +69,6 @@ impl MultiMethodPipeline {
             combined: vec![vec![0.0; n_drives]; methods.len()],
             references: vec![SpeedReference::Group; methods.len()],
             train_steps: false,
-            innovation: crate::innovation::InnovationBank::from_env(n_drives),
         })
     }
 
@@ -120,9 +118,6 @@ impl MultiMethodPipeline {
         }
         for e in &mut self.estimators {
             e.estimate(&self.torque)?;
-            if let (Some(innovation), AdhesionEstimator::Temporal(t)) = (&mut self.innovation, e) {
-                innovation.step(&self.bank, samples, t);
-            }
         }
         let Some(v) = train_speed_m_s else {
             if self.train_steps {

@@ -400,13 +400,6 @@ impl TemporalEstimator {
         &self.out
     }
 
-    /// Raises drive `k`'s output probability to at least `p` for this step (the chain's own
-    /// state is untouched): another test's finding.
-    pub fn raise_probability(&mut self, k: usize, p: f64) {
-        let o = &mut self.out.slip_probability[k];
-        *o = o.max(p);
-    }
-
     /// The EKFs relocked ([`crate::ekf::EkfBank::relock`]): their torque estimates are the
     /// guesses of a start again, so the warm-up runs again and the reference is found afresh;
     /// what was learnt about each drive (offset, spread, correlation) is kept. (Holding the
