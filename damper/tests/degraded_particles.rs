@@ -6,24 +6,14 @@
 
 use railmon_damper::*;
 
-/// `damper-seed` with `C_sy` falling linearly from nominal to 0.4 x over 120 s from 20 s (as
-/// `tests/ramp.rs`), N = 300 cut to `MIN_DEGRADED_PARTICLES` at 40 s and restored at 100 s.
+mod common;
+
+/// [`common::csy_ramp_on_seed`] (N = 300) cut to `MIN_DEGRADED_PARTICLES` at 40 s and restored at 100 s.
 /// Coverage (every 10 ms) 20-40 s / 40-100 s / 100-130 s: 0.953 / 0.919 / 0.860, without the
 /// cut 0.953 / 0.913 / 0.859; cut to 150 0.846 on the degraded stretch, to 100 0.804.
 #[test]
 fn a_filter_cut_to_the_floor_and_restored_still_covers_a_ramp() {
-    let text = include_str!("../../config/scenarios/damper-seed.toml");
-    let mut scenario = DamperScenario::from_toml_str(text).unwrap();
-    scenario.duration_s = 130.0;
-    scenario.faults = vec![DamperFault {
-        damper: DamperId::Csy,
-        kind: FaultKind::Ramp,
-        at_s: 20.0,
-        end_s: Some(140.0),
-        ratio: 0.4,
-    }];
-    let mut config = scenario.monitor_config();
-    config.rbpf.particles = 300;
+    let (scenario, config) = common::csy_ramp_on_seed();
     let mut monitor = DamperMonitor::new(&config, config.rbpf.seed).unwrap();
     let mut sim = BogieSimulator::new(&scenario).unwrap();
     let nominal = config.filter_model().nominal.csy_ns_per_m;

@@ -4,8 +4,9 @@
 
 use railmon_damper::*;
 
-/// `damper-seed` (30 m/s, white track) with `C_sy` falling linearly from nominal to 0.4 x over
-/// 120 s from 20 s (crossing 0.7 at 80 s), N = 300, run to 130 s: the 90 % interval covers the
+mod common;
+
+/// [`common::csy_ramp_on_seed`] (`C_sy` crossing 0.7 at 80 s, N = 300): the 90 % interval covers the
 /// truth >= 85 % of the ramp (every 10 ms), `damper_degraded` comes within 10 s of the
 /// crossing, none on `C_say`, and the trend of `C_sy` at the end is significantly negative.
 /// Without the drift and its random walk (the plain Liu-West kernel and the fixed
@@ -13,18 +14,7 @@ use railmon_damper::*;
 /// crossing (docs/notes/damper-log.md, 28 Nov).
 #[test]
 fn a_ramp_is_followed_and_flagged_within_10_s_of_the_crossing() {
-    let text = include_str!("../../config/scenarios/damper-seed.toml");
-    let mut scenario = DamperScenario::from_toml_str(text).unwrap();
-    scenario.duration_s = 130.0;
-    scenario.faults = vec![DamperFault {
-        damper: DamperId::Csy,
-        kind: FaultKind::Ramp,
-        at_s: 20.0,
-        end_s: Some(140.0),
-        ratio: 0.4,
-    }];
-    let mut config = scenario.monitor_config();
-    config.rbpf.particles = 300;
+    let (scenario, config) = common::csy_ramp_on_seed();
     let mut monitor = DamperMonitor::new(&config, config.rbpf.seed).unwrap();
     let mut alarms = DamperAlarm::pair(&config.alarm, &config.filter_model(), [false; 2]);
     let mut sim = BogieSimulator::new(&scenario).unwrap();
