@@ -48,6 +48,11 @@ pub fn run<A: Analysis + clap::Args>(many: Many<A>, shown: Shown<A::Report>) -> 
     };
     let (jobs, unreadable) = split_into_parts(&args, jobs);
     let total = jobs.len() + unreadable.len();
+    // A recording split into its bogies makes several runs of one input: count runs then.
+    let what = match jobs.iter().any(|j| j.part.is_some()) {
+        true => "runs",
+        false => "inputs",
+    };
     let mut failed = Vec::new();
     for (job, e) in unreadable {
         report_failure(&job, e.into(), &mut failed);
@@ -74,7 +79,7 @@ pub fn run<A: Analysis + clap::Args>(many: Many<A>, shown: Shown<A::Report>) -> 
     });
     printed?;
     crate::print_out(&format!(
-        "analysed {total} inputs in {:.1} s on {threads} threads: {} done, {} failed\n",
+        "analysed {total} {what} in {:.1} s on {threads} threads: {} done, {} failed\n",
         clock.elapsed().as_secs_f64(),
         total - failed.len(),
         failed.len()
@@ -82,7 +87,7 @@ pub fn run<A: Analysis + clap::Args>(many: Many<A>, shown: Shown<A::Report>) -> 
     match failed.is_empty() {
         true => Ok(()),
         false => Err(anyhow!(
-            "{} of {total} inputs failed: {}",
+            "{} of {total} {what} failed: {}",
             failed.len(),
             failed.join(", ")
         )),

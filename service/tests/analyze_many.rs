@@ -273,7 +273,12 @@ fn every_bogie_of_a_recording_is_analysed_as_its_own_run() {
     ]);
     let stdout = text(&out.stdout);
     assert!(out.status.success(), "{}", text(&out.stderr));
-    for part in ["(bogie-1)", "(bogie-2)", "2 done, 0 failed"] {
+    for part in [
+        "(bogie-1)",
+        "(bogie-2)",
+        "analysed 2 runs",
+        "2 done, 0 failed",
+    ] {
         assert!(stdout.contains(part), "no {part} in:\n{stdout}");
     }
     // Each bogie's folder holds what `--bogie N` writes (its seed, its rows), to the byte but
