@@ -7,6 +7,7 @@
 //! are smooth functions of `theta` that can be tabulated once. The fast filter then carries
 //! only the 17-vector state per particle.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, TryLockError};
 
 use serde::{Deserialize, Serialize};
@@ -265,6 +266,9 @@ pub struct GainTable {
     /// solved: a second filter (or a warming thread, [`GainTable::missing_near`]) asking for
     /// the same node waits for that solution instead of solving it again.
     nodes: Vec<Mutex<Option<Arc<GainGrid>>>>,
+    /// Time filters spent waiting for or solving a node they reached unsolved
+    /// ([`GainTable::filter_stall_ns`]), summed over the threads.
+    filter_stall_ns: AtomicU64,
 }
 
 impl GainTable {
@@ -332,6 +336,7 @@ impl GainTable {
             n_speed,
             j_range,
             nodes: (0..n_speed * n_mass).map(|_| Mutex::new(None)).collect(),
+            filter_stall_ns: AtomicU64::new(0),
         }
     }
 
@@ -558,6 +563,33 @@ impl GainTable {
         })
     }
 
+    /// [`GainTable::grid_at`] for a filter's step: the time it stalls on a node not yet
+    /// solved (solving it, or waiting for the thread solving it) is added to
+    /// [`GainTable::filter_stall_ns`]. A solved node costs what it did.
+    pub fn grid_for_filter(&self, node: usize) -> Result<Arc<GainGrid>, DamperError> {
+        // Not blocking: a node being solved is a stall too.
+        let solved = match self.nodes[node].try_lock() {
+            Ok(cell) => cell.clone(),
+            Err(TryLockError::Poisoned(p)) => p.into_inner().clone(),
+            Err(TryLockError::WouldBlock) => None,
+        };
+        if let Some(grid) = solved {
+            return Ok(grid);
+        }
+        let start = std::time::Instant::now();
+        let grid = self.grid_at(node);
+        let stalled = u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        self.filter_stall_ns.fetch_add(stalled, Ordering::Relaxed);
+        grid
+    }
+
+    /// The time (ns, summed over threads) filters stalled on nodes not yet solved
+    /// ([`GainTable::grid_for_filter`]): a one-off of reaching a new speed or mass, which a
+    /// caller measuring the steps' cost keeps apart from it.
+    pub fn filter_stall_ns(&self) -> u64 {
+        self.filter_stall_ns.load(Ordering::Relaxed)
+    }
+
     /// Whether node `node`'s grid has been solved (false while it is being solved).
     pub fn is_solved(&self, node: usize) -> bool {
         match self.nodes[node].try_lock() {
@@ -615,6 +647,27 @@ mod tests {
     /// The mass axis: the design mass's nodes are the speed nodes as they were (index and
     /// fingerprint), every other mass node is its own solution with its own key, nearest in
     /// `ln m`, clamped to the range.
+    /// A filter that reaches an unsolved node stalls, and says so; on a solved node it does
+    /// not (the service keeps the stalls out of its compute load).
+    #[test]
+    fn a_filter_stalls_only_on_a_node_not_yet_solved() {
+        let c = small();
+        let t = Rbpf::gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
+        let node = t.configured_node();
+        t.grid_for_filter(node).unwrap();
+        assert_eq!(
+            t.filter_stall_ns(),
+            0,
+            "the configured node is solved with the table"
+        );
+        let first = t.grid_for_filter(node + 1).unwrap();
+        let stalled = t.filter_stall_ns();
+        assert!(stalled > 0);
+        let again = t.grid_for_filter(node + 1).unwrap();
+        assert!(Arc::ptr_eq(&first, &again));
+        assert_eq!(t.filter_stall_ns(), stalled);
+    }
+
     #[test]
     fn mass_nodes_are_scheduled_like_the_speed_nodes() {
         let c = small();

@@ -302,7 +302,7 @@ impl Bank {
                 b.prop.set_speed(&b.model);
                 let node = b.table.node_at(speed_m_s, half_body_mass_kg);
                 if node != b.grid_node {
-                    b.grid = b.table.grid_at(node)?;
+                    b.grid = b.table.grid_for_filter(node)?;
                     b.grid_node = node;
                     b.node_theta.fill([f64::NAN; 2]);
                 }

@@ -179,6 +179,9 @@ pub struct BogiePipeline {
     compute: ComputeController,
     realtime: RealTimeTracker,
     busy_ns: u64,
+    /// Time spent building filters (a new source's or a restarted bogie's) since the last
+    /// step's timing: a one-off, kept out of the load (`count_busy`).
+    build_ns: u64,
     degradations: IntCounter,
     degradation_count: u64,
     compute_changed_time_s: Option<f64>,
@@ -269,6 +272,7 @@ impl BogiePipeline {
             compute,
             realtime: RealTimeTracker::default(),
             busy_ns: 0,
+            build_ns: 0,
             degradations: metrics.bogie.compute_degradations.clone(),
             degradation_count: 0,
             compute_changed_time_s: None,
@@ -299,6 +303,7 @@ impl BogiePipeline {
         let estimator = &self.config.estimator;
         let slot = &mut self.slots[k];
         if slot.monitor.is_none() {
+            let start = std::time::Instant::now();
             let table = self.table.clone()?;
             let mut monitor =
                 DamperMonitor::for_bogie(estimator, slot.id, table).map_err(rejection_of)?;
@@ -307,8 +312,29 @@ impl BogiePipeline {
                 .set_particles(self.compute.particles())
                 .map_err(rejection_of)?;
             slot.monitor = Some(Box::new(monitor));
+            self.build_ns += start.elapsed().as_nanos() as u64;
         }
         Ok(slot.monitor.as_mut().expect("created above"))
+    }
+
+    /// The filters' stalls on unsolved gain nodes so far (ns, summed over the workers).
+    fn filter_stall_ns(&self) -> u64 {
+        match &self.table {
+            Ok(Some(table)) => table.filter_stall_ns(),
+            _ => 0,
+        }
+    }
+
+    /// Adds the compute time since `start` to the window's, but for the one-offs in it: the
+    /// filters built and their stalls on gain nodes since `stalled_before` (their sum over
+    /// the workers, at most the time elapsed: the workers stall side by side). Neither scales
+    /// with the particles, so a cut would not remove them: counted, the first second after a
+    /// start (every bogie waiting for its speed's node) read a load of 11 and cut every filter
+    /// to the floor (`scripts/bogie-realtime`, 16 bogies, 28 Nov). The lag still sees them.
+    fn count_busy(&mut self, start: std::time::Instant, stalled_before: u64) {
+        let one_off = std::mem::take(&mut self.build_ns)
+            + self.filter_stall_ns().saturating_sub(stalled_before);
+        self.busy_ns += (start.elapsed().as_nanos() as u64).saturating_sub(one_off);
     }
 
     /// Steps the pending frames, the bogies in parallel (each bogie's frames in order), then
@@ -384,6 +410,7 @@ impl BogiePipeline {
             load,
             lag_s: lag_ns as f64 * 1e-9,
         };
+        tracing::debug!(load, lag_s = window.lag_s, "bogie compute window");
         let Some(change) = self.compute.observe(window) else {
             return;
         };
@@ -755,8 +782,9 @@ impl Pipeline for BogiePipeline {
     /// through [`Pipeline::take_rejections`].
     fn step(&mut self, header: &FrameHeader, input: CheckedBogieSample) -> Result<(), Rejection> {
         let start = std::time::Instant::now();
+        let stalled_before = self.filter_stall_ns();
         let stepped = self.step_timed(header, input);
-        self.busy_ns += start.elapsed().as_nanos() as u64;
+        self.count_busy(start, stalled_before);
         stepped
     }
 
@@ -765,13 +793,14 @@ impl Pipeline for BogiePipeline {
     /// first.
     fn bridge(&mut self, skipped_periods: u64) {
         let start = std::time::Instant::now();
+        let stalled_before = self.filter_stall_ns();
         self.flush();
         for slot in &mut self.slots {
             if let Some(m) = &mut slot.monitor {
                 m.bridge(skipped_periods);
             }
         }
-        self.busy_ns += start.elapsed().as_nanos() as u64;
+        self.count_busy(start, stalled_before);
     }
 
     fn take_rejections(&mut self) -> Vec<(FrameHeader, Rejection)> {
