@@ -846,7 +846,10 @@ fn alarms_query_breakdown(url: &str, vehicles: u64) {
             let listed = page["state"]["subjects"].as_object().map_or(0, |s| s.len());
             assert_eq!(listed as u64, vehicles * 3);
             if one_page.is_empty() {
-                println!("  one STREAM.INFO page: {listed} subjects, total {}", page["total"]);
+                println!(
+                    "  one STREAM.INFO page: {listed} subjects, total {}",
+                    page["total"]
+                );
             }
             one_page.push(start.elapsed().as_secs_f64() * 1e3);
             let start_time = *stored.iter().min().unwrap() - Duration::from_secs(30);
@@ -865,12 +868,26 @@ fn alarms_query_breakdown(url: &str, vehicles: u64) {
             let (p50, p99, max) = percentiles(samples);
             println!("  {what}: p50 {p50:.2} ms, p99 {p99:.2} ms, max {max:.2} ms");
         };
-        println!("the active alarms, step by step ({SAMPLES} samples, a client of the test's own):");
-        show("(1) consumer on railmon.*.*.alarms, last per subject: created", snap_create);
+        println!(
+            "the active alarms, step by step ({SAMPLES} samples, a client of the test's own):"
+        );
+        show(
+            "(1) consumer on railmon.*.*.alarms, last per subject: created",
+            snap_create,
+        );
         show(&format!("(1) its {vehicles} snapshots fetched"), snap_fetch);
-        show("(2) the event subjects (stream info, subjects filter)", subjects);
-        show("(2) one STREAM.INFO request of those (its first page alone)", one_page);
-        show("(3) consumer on railmon.*.*.*.events from the oldest snapshot - 30 s: created", recent_create);
+        show(
+            "(2) the event subjects (stream info, subjects filter)",
+            subjects,
+        );
+        show(
+            "(2) one STREAM.INFO request of those (its first page alone)",
+            one_page,
+        );
+        show(
+            "(3) consumer on railmon.*.*.*.events from the oldest snapshot - 30 s: created",
+            recent_create,
+        );
         show("(3) its messages fetched", recent_fetch);
         show("plain stream info (no subjects), for comparison", info);
     });
