@@ -625,6 +625,7 @@ fn fleet_queries_at_1000_vehicles() {
     }
     let (p50, p99, max) = percentiles(alarms);
     println!("active alarms, {VEHICLES} vehicles with snapshots: p50 {p50:.1} ms, p99 {p99:.1} ms, max {max:.1} ms ({QUERIES} queries)");
+    alarms_query_breakdown(&url, VEHICLES);
 
     let mut day = Vec::new();
     for q in 0..QUERIES {
@@ -757,6 +758,138 @@ fn day_query_breakdown(url: &str, vehicles: u64, events_per_day: u64) {
             lit_fetch,
         );
         show("decoding the 200 payloads and encoding the answer", decode);
+    });
+}
+
+/// Where the active-alarms query goes, read with a client of its own: the server round trips
+/// `railmon fleet` makes (the last alarm snapshot per subject, the stream's event subjects, a
+/// consumer over every vehicle's events from the oldest snapshot minus 30 s), timed one by one,
+/// and the plain stream info for comparison.
+fn alarms_query_breakdown(url: &str, vehicles: u64) {
+    use async_nats::jetstream::consumer::{pull, AckPolicy, DeliverPolicy};
+    use futures_util::StreamExt;
+    const SAMPLES: usize = 50;
+    with_client(url, async |client| {
+        let js = jetstream::new(client);
+        let stream = js.get_stream(STREAM).await.unwrap();
+        let mut for_info = stream.clone();
+        // (create, fetch) ms of a consumer on `filter` read to its end, and the messages'
+        // stored times.
+        let read = async |filter: &str, deliver_policy: DeliverPolicy| {
+            let start = Instant::now();
+            let consumer: jetstream::consumer::Consumer<pull::Config> = stream
+                .create_consumer(pull::Config {
+                    filter_subject: filter.into(),
+                    deliver_policy,
+                    ack_policy: AckPolicy::None,
+                    inactive_threshold: Duration::from_secs(30),
+                    memory_storage: true,
+                    num_replicas: 1,
+                    ..Default::default()
+                })
+                .await
+                .unwrap();
+            let created = start.elapsed().as_secs_f64() * 1e3;
+            let start = Instant::now();
+            let mut stored = Vec::new();
+            let mut pending = consumer.cached_info().num_pending;
+            while pending > 0 {
+                let mut batch = consumer
+                    .fetch()
+                    .max_messages(1000)
+                    .messages()
+                    .await
+                    .unwrap();
+                while let Some(message) = batch.next().await {
+                    let message = message.unwrap();
+                    let info = message.info().unwrap();
+                    pending = info.pending;
+                    stored.push(info.published);
+                    if pending == 0 {
+                        break;
+                    }
+                }
+            }
+            let fetched = start.elapsed().as_secs_f64() * 1e3;
+            let name = consumer.cached_info().name.clone();
+            stream.delete_consumer(&name).await.unwrap();
+            (created, fetched, stored)
+        };
+        let (mut snap_create, mut snap_fetch, mut subjects) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut recent_create, mut recent_fetch, mut info) = (Vec::new(), Vec::new(), Vec::new());
+        let mut one_page = Vec::new();
+        for _ in 0..SAMPLES {
+            let (c, f, stored) = read("railmon.*.*.alarms", DeliverPolicy::LastPerSubject).await;
+            assert_eq!(stored.len() as u64, vehicles);
+            snap_create.push(c);
+            snap_fetch.push(f);
+            let start = Instant::now();
+            let n = stream
+                .info_with_subjects("railmon.*.*.*.events")
+                .await
+                .unwrap()
+                .count()
+                .await;
+            assert_eq!(n as u64, vehicles * 3);
+            subjects.push(start.elapsed().as_secs_f64() * 1e3);
+            let start = Instant::now();
+            let page: jetstream::response::Response<Value> = js
+                .request(
+                    format!("STREAM.INFO.{STREAM}"),
+                    &json!({"subjects_filter": "railmon.*.*.*.events"}),
+                )
+                .await
+                .unwrap();
+            let jetstream::response::Response::Ok(page) = page else {
+                panic!("stream info: {page:?}");
+            };
+            let listed = page["state"]["subjects"].as_object().map_or(0, |s| s.len());
+            assert_eq!(listed as u64, vehicles * 3);
+            if one_page.is_empty() {
+                println!(
+                    "  one STREAM.INFO page: {listed} subjects, total {}",
+                    page["total"]
+                );
+            }
+            one_page.push(start.elapsed().as_secs_f64() * 1e3);
+            let start_time = *stored.iter().min().unwrap() - Duration::from_secs(30);
+            let (c, f, _) = read(
+                "railmon.*.*.*.events",
+                DeliverPolicy::ByStartTime { start_time },
+            )
+            .await;
+            recent_create.push(c);
+            recent_fetch.push(f);
+            let start = Instant::now();
+            for_info.info().await.unwrap();
+            info.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+        let show = |what: &str, samples: Vec<f64>| {
+            let (p50, p99, max) = percentiles(samples);
+            println!("  {what}: p50 {p50:.2} ms, p99 {p99:.2} ms, max {max:.2} ms");
+        };
+        println!(
+            "the active alarms, step by step ({SAMPLES} samples, a client of the test's own):"
+        );
+        show(
+            "(1) consumer on railmon.*.*.alarms, last per subject: created",
+            snap_create,
+        );
+        show(&format!("(1) its {vehicles} snapshots fetched"), snap_fetch);
+        show(
+            "(2) the event subjects (stream info, subjects filter)",
+            subjects,
+        );
+        show(
+            "(2) one STREAM.INFO request of those (its first page alone)",
+            one_page,
+        );
+        show(
+            "(3) consumer on railmon.*.*.*.events from the oldest snapshot - 30 s: created",
+            recent_create,
+        );
+        show("(3) its messages fetched", recent_fetch);
+        show("plain stream info (no subjects), for comparison", info);
     });
 }
 

@@ -125,7 +125,10 @@ pub struct VehicleAlarms {
 /// The stream, through one NATS connection.
 #[derive(Clone)]
 pub struct Fleet {
+    js: jetstream::Context,
     stream: jetstream::stream::Stream,
+    /// `fleet.stream`.
+    name: String,
     prefix: String,
 }
 
@@ -169,7 +172,9 @@ impl Fleet {
             }
         };
         Ok(Self {
+            js,
             stream,
+            name: config.stream.clone(),
             prefix: config.subject_prefix.clone(),
         })
     }
@@ -257,17 +262,53 @@ impl Fleet {
     /// The subjects in the stream that match `pattern` (wildcards allowed), from the stream's
     /// per-subject counts: no message is read.
     pub async fn subjects(&self, pattern: &str) -> Result<Vec<String>, ReadError> {
-        let subjects = self
-            .stream
-            .info_with_subjects(pattern)
-            .await
-            .map_err(|e| read_error("stream info", e))?;
-        let mut subjects = std::pin::pin!(subjects);
-        let mut found = Vec::new();
-        while let Some(subject) = subjects.next().await {
-            found.push(subject.map_err(|e| read_error("stream info", e))?.0);
+        Ok(self
+            .subject_counts(pattern)
+            .await?
+            .into_iter()
+            .map(|(subject, _)| subject)
+            .collect())
+    }
+
+    /// The subjects in the stream that match `pattern` and their message counts: one
+    /// `STREAM.INFO` request per page of subjects (100,000 in a 2.9 server, so one). Not
+    /// async-nats' `info_with_subjects`: it asks for one more page after the last (to learn that
+    /// there is none), and the server computes the whole filtered list again for that empty
+    /// page, which was half of this lookup's time (docs/fleet.md, "Measured").
+    async fn subject_counts(&self, pattern: &str) -> Result<Vec<(String, u64)>, ReadError> {
+        #[derive(Deserialize)]
+        struct Page {
+            state: PageState,
+            /// The filter's subjects in all pages (absent when there are none).
+            #[serde(default)]
+            total: usize,
         }
-        Ok(found)
+        #[derive(Deserialize)]
+        struct PageState {
+            #[serde(default)]
+            subjects: Option<std::collections::HashMap<String, u64>>,
+        }
+        let mut found = Vec::new();
+        loop {
+            let request = serde_json::json!({"subjects_filter": pattern, "offset": found.len()});
+            let page: jetstream::response::Response<Page> = self
+                .js
+                .request(format!("STREAM.INFO.{}", self.name), &request)
+                .await
+                .map_err(|e| read_error("stream info", e))?;
+            let page = match page {
+                jetstream::response::Response::Ok(page) => page,
+                jetstream::response::Response::Err { error } => {
+                    return Err(read_error("stream info", error))
+                }
+            };
+            let subjects = page.state.subjects.unwrap_or_default();
+            let got = subjects.len();
+            found.extend(subjects);
+            if got == 0 || found.len() >= page.total {
+                return Ok(found);
+            }
+        }
     }
 
     /// A page of one vehicle's events, in stream order (= id order per vehicle).
@@ -379,136 +420,69 @@ impl Fleet {
         &self,
     ) -> Result<BTreeMap<(String, String), BTreeMap<String, u64>>, ReadError> {
         let filter = format!("{}.*.*.*.events", self.prefix);
-        let subjects = self
-            .stream
-            .info_with_subjects(&filter)
-            .await
-            .map_err(|e| read_error("stream info", e))?;
-        let mut subjects = std::pin::pin!(subjects);
         let mut vehicles: BTreeMap<(String, String), BTreeMap<String, u64>> = BTreeMap::new();
-        while let Some(subject) = subjects.next().await {
-            let (subject, count) = subject.map_err(|e| read_error("stream info", e))?;
+        for (subject, count) in self.subject_counts(&filter).await? {
             if let Some((fleet, vehicle, rest)) = tokens(&self.prefix, &subject) {
                 let stream = rest.strip_suffix(".events").unwrap_or(rest);
                 vehicles
                     .entry((fleet.to_string(), vehicle.to_string()))
                     .or_default()
-                    .insert(stream.to_string(), count as u64);
+                    .insert(stream.to_string(), count);
             }
         }
         Ok(vehicles)
     }
 
     /// The alarms active on every vehicle (see the module documentation).
+    ///
+    /// Two chains of server requests run at once: the last alarm snapshot per vehicle, then
+    /// the events stored since the oldest recent one; and the stream's event subjects (for the
+    /// vehicles without a recent snapshot, whose events are read afterwards, subject by
+    /// subject). Neither needs the other's answer: a vehicle that has events and no recent
+    /// snapshot is never in the first chain's read (`recent` holds only vehicles with one).
     pub async fn active_alarms(&self) -> Result<Vec<VehicleAlarms>, ReadError> {
-        struct Vehicle {
-            state: AlarmState,
-            after_id: u64,
-            /// Read its events stored from here (None: all).
-            start: Option<time::OffsetDateTime>,
-            snapshot_stored: Option<time::OffsetDateTime>,
-        }
-        let mut vehicles: BTreeMap<(String, String), Vehicle> = BTreeMap::new();
-        let mut bad = 0usize;
-        let prefix = self.prefix.clone();
-        self.read(
-            format!("{prefix}.*.*.alarms"),
-            DeliverPolicy::LastPerSubject,
-            |m| {
-                let Some((fleet, vehicle, _)) = tokens(&prefix, m.subject) else {
-                    return ControlFlow::Continue(());
-                };
-                match serde_json::from_slice::<AlarmSnapshot>(m.payload) {
-                    Ok(snapshot) => {
-                        vehicles.insert(
-                            (fleet.to_string(), vehicle.to_string()),
-                            Vehicle {
-                                state: AlarmState::from_snapshot(&snapshot.alarms),
-                                after_id: snapshot.last_event_id,
-                                start: Some(m.stored - SNAPSHOT_MARGIN),
-                                snapshot_stored: Some(m.stored),
-                            },
-                        );
-                    }
-                    Err(_) => bad += 1,
-                }
-                ControlFlow::Continue(())
-            },
-        )
-        .await?;
-        // The event streams of each vehicle: its literal subjects for the reads of its own.
-        let event_streams = self.vehicles().await?;
-        for key in event_streams.keys().cloned() {
-            vehicles.entry(key).or_insert(Vehicle {
-                state: AlarmState::default(),
-                after_id: 0,
-                start: None,
-                snapshot_stored: None,
-            });
-        }
-        let cutoff = time::OffsetDateTime::now_utc() - RECENT_WINDOW;
-        let recent: BTreeSet<(String, String)> = vehicles
-            .iter()
-            .filter(|(_, v)| v.start.is_some_and(|s| s >= cutoff))
-            .map(|(k, _)| k.clone())
-            .collect();
-        let shared_start = vehicles
-            .iter()
-            .filter(|(k, _)| recent.contains(*k))
-            .filter_map(|(_, v)| v.start)
-            .min();
-        // (fleet, vehicle) and the events after its snapshot, in stream order.
-        type Found = Vec<((String, String), AlarmEvent)>;
-        let after: BTreeMap<(String, String), u64> = vehicles
-            .iter()
-            .map(|(k, v)| (k.clone(), v.after_id))
-            .collect();
-        let collect = |found: &mut Found,
-                       bad: &mut usize,
-                       m: Read<'_>,
-                       only: Option<&BTreeSet<(String, String)>>| {
-            let Some((fleet, vehicle, _)) = tokens(&prefix, m.subject) else {
-                return;
-            };
-            let key = (fleet.to_string(), vehicle.to_string());
-            if only.is_some_and(|only| !only.contains(&key)) {
-                return;
-            }
-            match serde_json::from_slice::<EventHead>(m.payload) {
-                Ok(e)
-                    if e.id > after.get(&key).copied().unwrap_or(0)
-                        && alarms::alarm_of(&e.kind).is_some() =>
-                {
-                    found.push((
-                        key,
-                        AlarmEvent {
-                            id: e.id,
-                            kind: e.kind.into_owned(),
-                            subject: e.subject.into_owned(),
-                            time_utc: e.time_utc.into_owned(),
-                        },
-                    ))
-                }
-                Ok(_) => {}
-                Err(_) => *bad += 1,
-            }
-        };
-        let shared = async {
+        let prefix = self.prefix.as_str();
+        let from_snapshots = async {
+            let (mut vehicles, mut bad) = self.alarm_snapshots().await?;
+            let cutoff = time::OffsetDateTime::now_utc() - RECENT_WINDOW;
+            let recent: BTreeSet<VehicleKey> = vehicles
+                .iter()
+                .filter(|(_, v)| v.start.is_some_and(|s| s >= cutoff))
+                .map(|(k, _)| k.clone())
+                .collect();
+            let shared_start = recent.iter().filter_map(|k| vehicles[k].start).min();
             let mut found = Found::new();
-            let mut bad = 0;
             if let Some(start) = shared_start {
                 self.read(
                     format!("{prefix}.*.*.*.events"),
                     DeliverPolicy::ByStartTime { start_time: start },
                     |m| {
-                        collect(&mut found, &mut bad, m, Some(&recent));
+                        if let Some(key) = vehicle_of(prefix, &m).filter(|k| recent.contains(k)) {
+                            let after = vehicles[&key].after_id;
+                            collect_alarm_event(key, after, &m, &mut found, &mut bad);
+                        }
                         ControlFlow::Continue(())
                     },
                 )
                 .await?;
             }
-            Ok::<_, ReadError>((found, bad))
+            for (key, event) in found {
+                if let Some(v) = vehicles.get_mut(&key) {
+                    v.events.push(event);
+                }
+            }
+            Ok::<_, ReadError>((vehicles, recent, bad))
         };
+        // The event subjects on a connection's requests of their own would not make the server
+        // answer them sooner: a 2.9 server handles a client's JetStream API requests one after
+        // the other (in the connection's read loop); what runs at once here is the client's
+        // waiting and decoding.
+        let (from_snapshots, event_streams) = tokio::join!(from_snapshots, self.vehicles());
+        let (mut vehicles, recent, mut bad) = from_snapshots?;
+        let event_streams = event_streams?;
+        for key in event_streams.keys() {
+            vehicles.entry(key.clone()).or_default();
+        }
         // A read per literal subject, not one on `<fleet>.<vehicle>.*.events`: see `events`.
         let alone: Vec<_> = vehicles
             .iter()
@@ -519,44 +493,34 @@ impl Fleet {
                     None => DeliverPolicy::All,
                 };
                 let (fleet, vehicle) = key;
-                let prefix = &prefix;
                 let streams = event_streams.get(key).into_iter().flat_map(|s| s.keys());
                 streams.map(move |stream| {
-                    (
-                        format!("{prefix}.{fleet}.{vehicle}.{stream}.events"),
-                        deliver,
-                    )
+                    let filter = format!("{prefix}.{fleet}.{vehicle}.{stream}.events");
+                    (key.clone(), v.after_id, filter, deliver)
                 })
             })
-            .map(|(filter, deliver)| {
-                let collect = &collect;
-                async move {
-                    let mut found = Found::new();
-                    let mut bad = 0;
-                    self.read(filter, deliver, |m| {
-                        collect(&mut found, &mut bad, m, None);
-                        ControlFlow::Continue(())
-                    })
-                    .await?;
-                    Ok::<_, ReadError>((found, bad))
-                }
+            .map(|(key, after, filter, deliver)| async move {
+                let mut found = Found::new();
+                let mut bad = 0;
+                self.read(filter, deliver, |m| {
+                    collect_alarm_event(key.clone(), after, &m, &mut found, &mut bad);
+                    ControlFlow::Continue(())
+                })
+                .await?;
+                Ok::<_, ReadError>((found, bad))
             })
             .collect();
         let alone = futures_util::stream::iter(alone)
             .buffer_unordered(PARALLEL_READS)
-            .collect::<Vec<_>>();
-        let (shared, alone) = tokio::join!(shared, alone);
-        let mut all = Found::new();
-        for result in std::iter::once(shared).chain(alone) {
+            .collect::<Vec<_>>()
+            .await;
+        for result in alone {
             let (found, n) = result?;
             bad += n;
-            all.extend(found);
-        }
-        // Each vehicle's events in id order: its streams were read apart.
-        all.sort_by(|(a, x), (b, y)| a.cmp(b).then(x.id.cmp(&y.id)));
-        for (key, event) in all {
-            if let Some(v) = vehicles.get_mut(&key) {
-                v.state.apply(&event);
+            for (key, event) in found {
+                if let Some(v) = vehicles.get_mut(&key) {
+                    v.events.push(event);
+                }
             }
         }
         if bad > 0 {
@@ -567,13 +531,103 @@ impl Fleet {
         }
         Ok(vehicles
             .into_iter()
-            .map(|((fleet, vehicle_id), v)| VehicleAlarms {
-                fleet,
-                vehicle_id,
-                alarms: v.state.active(),
-                snapshot_stored: v.snapshot_stored,
+            .map(|((fleet, vehicle_id), mut v)| {
+                // In id order: a vehicle's streams were read apart.
+                v.events.sort_by_key(|e| e.id);
+                v.events.iter().for_each(|e| v.state.apply(e));
+                VehicleAlarms {
+                    fleet,
+                    vehicle_id,
+                    alarms: v.state.active(),
+                    snapshot_stored: v.snapshot_stored,
+                }
             })
             .collect())
+    }
+
+    /// The last alarm snapshot of every vehicle that has one (`<prefix>.*.*.alarms`, one
+    /// consumer delivering the last message per subject), and how many were not JSON.
+    async fn alarm_snapshots(&self) -> Result<(BTreeMap<VehicleKey, Vehicle>, usize), ReadError> {
+        let mut vehicles = BTreeMap::new();
+        let mut bad = 0;
+        let prefix = self.prefix.as_str();
+        self.read(
+            format!("{prefix}.*.*.alarms"),
+            DeliverPolicy::LastPerSubject,
+            |m| {
+                let Some(key) = vehicle_of(prefix, &m) else {
+                    return ControlFlow::Continue(());
+                };
+                match serde_json::from_slice::<AlarmSnapshot>(m.payload) {
+                    Ok(snapshot) => {
+                        vehicles.insert(
+                            key,
+                            Vehicle {
+                                state: AlarmState::from_snapshot(&snapshot.alarms),
+                                after_id: snapshot.last_event_id,
+                                start: Some(m.stored - SNAPSHOT_MARGIN),
+                                snapshot_stored: Some(m.stored),
+                                events: Vec::new(),
+                            },
+                        );
+                    }
+                    Err(_) => bad += 1,
+                }
+                ControlFlow::Continue(())
+            },
+        )
+        .await?;
+        Ok((vehicles, bad))
+    }
+}
+
+/// `(fleet, vehicle)`.
+type VehicleKey = (String, String);
+
+/// Alarm events and the vehicle each belongs to.
+type Found = Vec<(VehicleKey, AlarmEvent)>;
+
+/// A vehicle while its active alarms are derived.
+#[derive(Default)]
+struct Vehicle {
+    /// From its snapshot (or none).
+    state: AlarmState,
+    /// Its snapshot's last event id: only later events change the state.
+    after_id: u64,
+    /// Read its events stored from here (None: all).
+    start: Option<time::OffsetDateTime>,
+    snapshot_stored: Option<time::OffsetDateTime>,
+    /// Its alarm events after `after_id`, as read (not yet in id order).
+    events: Vec<AlarmEvent>,
+}
+
+/// The vehicle a message under `prefix` belongs to.
+fn vehicle_of(prefix: &str, m: &Read<'_>) -> Option<VehicleKey> {
+    let (fleet, vehicle, _) = tokens(prefix, m.subject)?;
+    Some((fleet.to_string(), vehicle.to_string()))
+}
+
+/// Adds the event of `m` to `found` if it raises or clears an alarm and is newer than `after`
+/// (its vehicle's snapshot); counts it in `bad` if it is not an event.
+fn collect_alarm_event(
+    key: VehicleKey,
+    after: u64,
+    m: &Read<'_>,
+    found: &mut Found,
+    bad: &mut usize,
+) {
+    match serde_json::from_slice::<EventHead>(m.payload) {
+        Ok(e) if e.id > after && alarms::alarm_of(&e.kind).is_some() => found.push((
+            key,
+            AlarmEvent {
+                id: e.id,
+                kind: e.kind.into_owned(),
+                subject: e.subject.into_owned(),
+                time_utc: e.time_utc.into_owned(),
+            },
+        )),
+        Ok(_) => {}
+        Err(_) => *bad += 1,
     }
 }
 
