@@ -651,59 +651,21 @@ fn fleet_queries_at_1000_vehicles() {
 /// wildcards (`railmon.*.<vehicle>.*.events`) and for each literal subject of the vehicle; and
 /// the decoding of the payloads.
 fn day_query_breakdown(url: &str, vehicles: u64, events_per_day: u64) {
-    use async_nats::jetstream::consumer::{pull, AckPolicy, DeliverPolicy};
+    use async_nats::jetstream::consumer::DeliverPolicy;
     use futures_util::StreamExt;
     const SAMPLES: u64 = 50;
     let start_time = time_of("2026-11-26T23:55:00Z");
     with_client(url, async |client| {
         let js = jetstream::new(client);
         let stream = js.get_stream(STREAM).await.unwrap();
-        // (create, fetch) ms of a consumer on `filter` read to its end, and the payloads.
-        let read = async |filter: String| {
-            let start = Instant::now();
-            let consumer: jetstream::consumer::Consumer<pull::Config> = stream
-                .create_consumer(pull::Config {
-                    filter_subject: filter,
-                    deliver_policy: DeliverPolicy::ByStartTime { start_time },
-                    ack_policy: AckPolicy::None,
-                    inactive_threshold: Duration::from_secs(30),
-                    memory_storage: true,
-                    num_replicas: 1,
-                    ..Default::default()
-                })
-                .await
-                .unwrap();
-            let created = start.elapsed().as_secs_f64() * 1e3;
-            let start = Instant::now();
-            let mut payloads = Vec::new();
-            let mut pending = consumer.cached_info().num_pending;
-            while pending > 0 {
-                let mut batch = consumer
-                    .fetch()
-                    .max_messages(1000)
-                    .messages()
-                    .await
-                    .unwrap();
-                while let Some(message) = batch.next().await {
-                    let message = message.unwrap();
-                    pending = message.info().unwrap().pending;
-                    payloads.push(message.payload.clone());
-                    if pending == 0 {
-                        break;
-                    }
-                }
-            }
-            let fetched = start.elapsed().as_secs_f64() * 1e3;
-            let name = consumer.cached_info().name.clone();
-            stream.delete_consumer(&name).await.unwrap();
-            (created, fetched, payloads)
-        };
+        let start_policy = || DeliverPolicy::ByStartTime { start_time };
         let (mut info, mut wc_create, mut wc_fetch) = (Vec::new(), Vec::new(), Vec::new());
         let (mut lit_create, mut lit_fetch, mut decode) = (Vec::new(), Vec::new(), Vec::new());
         for q in 0..SAMPLES {
             let vehicle = format!("sim-{:04}", (q * 7919) % vehicles);
-            let (created, fetched, payloads) = read(format!("railmon.*.{vehicle}.*.events")).await;
-            assert_eq!(payloads.len() as u64, events_per_day);
+            let filter = format!("railmon.*.{vehicle}.*.events");
+            let (created, fetched, messages) = read_to_end(&stream, &filter, start_policy()).await;
+            assert_eq!(messages.len() as u64, events_per_day);
             wc_create.push(created);
             wc_fetch.push(fetched);
             let start = Instant::now();
@@ -717,25 +679,21 @@ fn day_query_breakdown(url: &str, vehicles: u64, events_per_day: u64) {
             info.push(start.elapsed().as_secs_f64() * 1e3);
             let (mut created, mut fetched, mut n) = (0.0, 0.0, 0);
             for subject in subjects {
-                let (c, f, p) = read(subject).await;
+                let (c, f, p) = read_to_end(&stream, &subject, start_policy()).await;
                 (created, fetched, n) = (created + c, fetched + f, n + p.len());
             }
             assert_eq!(n as u64, events_per_day);
             lit_create.push(created);
             lit_fetch.push(fetched);
             let start = Instant::now();
-            let events: Vec<Value> = payloads
+            let events: Vec<Value> = messages
                 .iter()
-                .map(|p| serde_json::from_slice(p).unwrap())
+                .map(|m| serde_json::from_slice(&m.payload).unwrap())
                 .collect();
             let body = serde_json::to_vec(&events).unwrap();
             assert!(!body.is_empty());
             decode.push(start.elapsed().as_secs_f64() * 1e3);
         }
-        let show = |what: &str, samples: Vec<f64>| {
-            let (p50, p99, max) = percentiles(samples);
-            println!("  {what}: p50 {p50:.2} ms, p99 {p99:.2} ms, max {max:.2} ms");
-        };
         println!("a vehicle's day, step by step ({SAMPLES} vehicles, a client of the test's own):");
         show(
             "consumer on railmon.*.<vehicle>.*.events: created",
@@ -766,61 +724,21 @@ fn day_query_breakdown(url: &str, vehicles: u64, events_per_day: u64) {
 /// consumer over every vehicle's events from the oldest snapshot minus 30 s), timed one by one,
 /// and the plain stream info for comparison.
 fn alarms_query_breakdown(url: &str, vehicles: u64) {
-    use async_nats::jetstream::consumer::{pull, AckPolicy, DeliverPolicy};
+    use async_nats::jetstream::consumer::DeliverPolicy;
     use futures_util::StreamExt;
     const SAMPLES: usize = 50;
     with_client(url, async |client| {
         let js = jetstream::new(client);
         let stream = js.get_stream(STREAM).await.unwrap();
         let mut for_info = stream.clone();
-        // (create, fetch) ms of a consumer on `filter` read to its end, and the messages'
-        // stored times.
-        let read = async |filter: &str, deliver_policy: DeliverPolicy| {
-            let start = Instant::now();
-            let consumer: jetstream::consumer::Consumer<pull::Config> = stream
-                .create_consumer(pull::Config {
-                    filter_subject: filter.into(),
-                    deliver_policy,
-                    ack_policy: AckPolicy::None,
-                    inactive_threshold: Duration::from_secs(30),
-                    memory_storage: true,
-                    num_replicas: 1,
-                    ..Default::default()
-                })
-                .await
-                .unwrap();
-            let created = start.elapsed().as_secs_f64() * 1e3;
-            let start = Instant::now();
-            let mut stored = Vec::new();
-            let mut pending = consumer.cached_info().num_pending;
-            while pending > 0 {
-                let mut batch = consumer
-                    .fetch()
-                    .max_messages(1000)
-                    .messages()
-                    .await
-                    .unwrap();
-                while let Some(message) = batch.next().await {
-                    let message = message.unwrap();
-                    let info = message.info().unwrap();
-                    pending = info.pending;
-                    stored.push(info.published);
-                    if pending == 0 {
-                        break;
-                    }
-                }
-            }
-            let fetched = start.elapsed().as_secs_f64() * 1e3;
-            let name = consumer.cached_info().name.clone();
-            stream.delete_consumer(&name).await.unwrap();
-            (created, fetched, stored)
-        };
         let (mut snap_create, mut snap_fetch, mut subjects) = (Vec::new(), Vec::new(), Vec::new());
         let (mut recent_create, mut recent_fetch, mut info) = (Vec::new(), Vec::new(), Vec::new());
         let mut one_page = Vec::new();
         for _ in 0..SAMPLES {
-            let (c, f, stored) = read("railmon.*.*.alarms", DeliverPolicy::LastPerSubject).await;
-            assert_eq!(stored.len() as u64, vehicles);
+            let (c, f, snapshots) =
+                read_to_end(&stream, "railmon.*.*.alarms", DeliverPolicy::LastPerSubject).await;
+            assert_eq!(snapshots.len() as u64, vehicles);
+            let stored = snapshots.iter().map(|m| m.info().unwrap().published);
             snap_create.push(c);
             snap_fetch.push(f);
             let start = Instant::now();
@@ -852,8 +770,9 @@ fn alarms_query_breakdown(url: &str, vehicles: u64) {
                 );
             }
             one_page.push(start.elapsed().as_secs_f64() * 1e3);
-            let start_time = *stored.iter().min().unwrap() - Duration::from_secs(30);
-            let (c, f, _) = read(
+            let start_time = stored.min().unwrap() - Duration::from_secs(30);
+            let (c, f, _) = read_to_end(
+                &stream,
                 "railmon.*.*.*.events",
                 DeliverPolicy::ByStartTime { start_time },
             )
@@ -864,10 +783,6 @@ fn alarms_query_breakdown(url: &str, vehicles: u64) {
             for_info.info().await.unwrap();
             info.push(start.elapsed().as_secs_f64() * 1e3);
         }
-        let show = |what: &str, samples: Vec<f64>| {
-            let (p50, p99, max) = percentiles(samples);
-            println!("  {what}: p50 {p50:.2} ms, p99 {p99:.2} ms, max {max:.2} ms");
-        };
         println!(
             "the active alarms, step by step ({SAMPLES} samples, a client of the test's own):"
         );
@@ -891,6 +806,60 @@ fn alarms_query_breakdown(url: &str, vehicles: u64) {
         show("(3) its messages fetched", recent_fetch);
         show("plain stream info (no subjects), for comparison", info);
     });
+}
+
+/// A step's samples (ms) as the breakdowns print them.
+fn show(what: &str, samples: Vec<f64>) {
+    let (p50, p99, max) = percentiles(samples);
+    println!("  {what}: p50 {p50:.2} ms, p99 {p99:.2} ms, max {max:.2} ms");
+}
+
+/// A consumer on `filter` from `deliver_policy` read to its end, then deleted: the ms to
+/// create it, the ms to fetch its messages, and the messages.
+async fn read_to_end(
+    stream: &jetstream::stream::Stream,
+    filter: &str,
+    deliver_policy: async_nats::jetstream::consumer::DeliverPolicy,
+) -> (f64, f64, Vec<jetstream::Message>) {
+    use async_nats::jetstream::consumer::{pull, AckPolicy};
+    use futures_util::StreamExt;
+    let start = Instant::now();
+    let consumer: jetstream::consumer::Consumer<pull::Config> = stream
+        .create_consumer(pull::Config {
+            filter_subject: filter.into(),
+            deliver_policy,
+            ack_policy: AckPolicy::None,
+            inactive_threshold: Duration::from_secs(30),
+            memory_storage: true,
+            num_replicas: 1,
+            ..Default::default()
+        })
+        .await
+        .unwrap();
+    let created = start.elapsed().as_secs_f64() * 1e3;
+    let start = Instant::now();
+    let mut messages = Vec::new();
+    let mut pending = consumer.cached_info().num_pending;
+    while pending > 0 {
+        let mut batch = consumer
+            .fetch()
+            .max_messages(1000)
+            .messages()
+            .await
+            .unwrap();
+        while let Some(message) = batch.next().await {
+            let message = message.unwrap();
+            pending = message.info().unwrap().pending;
+            messages.push(message);
+            if pending == 0 {
+                break;
+            }
+        }
+    }
+    let fetched = start.elapsed().as_secs_f64() * 1e3;
+    let name = consumer.cached_info().name.clone();
+    stream.delete_consumer(&name).await.unwrap();
+    (created, fetched, messages)
 }
 
 fn time_of(rfc3339: &str) -> time::OffsetDateTime {
