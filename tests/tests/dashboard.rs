@@ -18,9 +18,10 @@ use serde_json::Value;
 const VEHICLES: [&str; 2] = ["tram-1", "tram-2"];
 
 /// Units of Grafana's unit picker that the dashboard may use (custom units: `suffix:`).
-const GRAFANA_UNITS: [&str; 11] = [
+const GRAFANA_UNITS: [&str; 12] = [
     "none",
     "s",
+    "h",
     "cps",
     "percentunit",
     "torqueNm",
@@ -125,6 +126,9 @@ fn start_vehicle(bus: &PrivateBus, vehicle: &str) -> (Service, Vec<Process>) {
                 "config/scenarios/damper-fault.toml",
                 "--bogies",
                 "2",
+                // 4x real time: the damper trend needs two operating minutes (its panels).
+                "--speed",
+                "4",
                 "--loop",
             ],
         ),
