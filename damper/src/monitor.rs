@@ -38,9 +38,7 @@ impl DamperMonitorState {
     /// 4: the settling after a pause judged on the innovations (`PauseState`).
     /// 5: jump hypotheses on probation, not yet published (`RbpfState`).
     /// 6: each damper's degradation trend (`trends`).
-    /// 7: the published posterior held while only jump hypotheses are left, and the fit of
-    /// the data that publishes them (`RbpfState`).
-    pub const STATE_FORMAT_VERSION: u32 = 7;
+    pub const STATE_FORMAT_VERSION: u32 = 6;
 }
 
 /// Where a monitor is with respect to its valid speed range.

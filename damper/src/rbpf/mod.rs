@@ -162,12 +162,6 @@ pub struct RbpfState {
     /// Per damper, steps its hypotheses on probation have held a decisive posterior mass in
     /// a row.
     decisive_steps: [u64; 2],
-    /// The published posterior held while only hypotheses on probation are left (per damper
-    /// mean, 5 % and 95 % quantiles, N s/m), if it is.
-    held: Option<[[f64; 3]; 2]>,
-    /// The weighted mean NIS over about `jump::FIT_WINDOW_S`, and the steps it holds.
-    fit_nis: f64,
-    fit_steps: u64,
 }
 
 /// Whether a particle holds a jump hypothesis not yet published, and of which damper.
@@ -221,16 +215,6 @@ pub struct Rbpf {
     decisive_steps: [u64; 2],
     /// Jump hypotheses adopted so far (published).
     adoptions: u64,
-    /// The published posterior held while no published particle is left and the jump
-    /// hypotheses that took the cloud do not explain the data ([`Rbpf::judge_probation`]):
-    /// per damper (`C_sy`, `C_say`) its mean, 5 % and 95 % quantiles (N s/m) when the last
-    /// published particles were resampled away.
-    held: Option<[[f64; 3]; 2]>,
-    /// The weighted mean NIS averaged over about `jump::FIT_WINDOW_S` of weighted steps
-    /// (NaN before the first, and after a pause's settling restarts it) and how many
-    /// steps it holds so far (for a plain mean until it holds a window).
-    fit_nis: f64,
-    fit_steps: u64,
     /// The time constant of the model's slowest mode (s; [`slowest_time_constant_s`]), with
     /// the jump search (the only part that needs it).
     slowest_time_constant_s: Option<f64>,
@@ -391,9 +375,6 @@ impl Rbpf {
             on_probation: Vec::new(),
             decisive_steps: [0; 2],
             adoptions: 0,
-            held: None,
-            fit_nis: f64::NAN,
-            fit_steps: 0,
             slowest_time_constant_s,
             max_resume_settle_s,
             design_half_body_mass_kg: filter_model.vehicle.half_body_mass_kg,
@@ -427,9 +408,6 @@ impl Rbpf {
                 })
                 .collect(),
             decisive_steps: self.decisive_steps,
-            held: self.held,
-            fit_nis: self.fit_nis,
-            fit_steps: self.fit_steps,
         }
     }
 
@@ -505,20 +483,6 @@ impl Rbpf {
             })
             .collect();
         f.decisive_steps = state.decisive_steps;
-        if state
-            .held
-            .iter()
-            .flatten()
-            .flatten()
-            .any(|v| !v.is_finite())
-        {
-            return Err(DamperError::NonFinite {
-                what: "snapshot held estimate",
-            });
-        }
-        f.held = state.held;
-        f.fit_nis = state.fit_nis;
-        f.fit_steps = state.fit_steps;
         f.sorted.stale = true;
         Ok(f)
     }
@@ -571,16 +535,6 @@ impl Rbpf {
             }
         }
         self.nis_mean = nis_mean;
-        if nis_mean.is_finite() {
-            self.fit_steps += 1;
-            let window = (jump::FIT_WINDOW_S / self.dt_s).max(1.0);
-            let gain = (1.0 / self.fit_steps as f64).max(1.0 / window);
-            self.fit_nis = if self.fit_nis.is_finite() {
-                self.fit_nis + gain * (nis_mean - self.fit_nis)
-            } else {
-                nis_mean
-            };
-        }
         if every_step {
             for (((next, w), l), pen) in self
                 .log_w_next
@@ -615,7 +569,21 @@ impl Rbpf {
         self.ess = effective_sample_size(&self.log_w);
         let resample = self.ess < self.config.resample_ess_fraction * n as f64;
         if resample {
-            self.resample();
+            systematic_resample(&self.log_w, &mut self.indices, &mut self.rng);
+            self.bank.resample(&self.indices);
+            if !self.on_probation.is_empty() {
+                let before = self.on_probation.clone();
+                for (dst, &i) in self.on_probation.iter_mut().zip(&self.indices) {
+                    *dst = before[i];
+                }
+            }
+            for (dst, &i) in self.ln_theta_next.iter_mut().zip(&self.indices) {
+                *dst = self.ln_theta[i];
+            }
+            std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
+            self.log_w.fill(-(n as f64).ln());
+            self.resamples += 1;
+            self.sorted.stale = true;
         }
         if self.config.kernel == KernelSchedule::AtResampling && resample {
             self.move_after_resampling()?;
@@ -629,38 +597,6 @@ impl Rbpf {
         }
         self.judge_probation();
         Ok(())
-    }
-
-    /// Systematic resampling of the cloud (equal weights after it); when it keeps only jump
-    /// hypotheses on probation, the published posterior's summary is kept first (`held`).
-    fn resample(&mut self) {
-        let n = self.n_particles();
-        systematic_resample(&self.log_w, &mut self.indices, &mut self.rng);
-        // The last published particles about to go: their summary is kept to publish
-        // while the hypotheses that took the cloud do not explain the data.
-        if self.held.is_none()
-            && !self.on_probation.is_empty()
-            && self
-                .indices
-                .iter()
-                .all(|&i| self.on_probation[i] != Probation::None)
-        {
-            self.held = Some(self.published_summary());
-        }
-        self.bank.resample(&self.indices);
-        if !self.on_probation.is_empty() {
-            let before = self.on_probation.clone();
-            for (dst, &i) in self.on_probation.iter_mut().zip(&self.indices) {
-                *dst = before[i];
-            }
-        }
-        for (dst, &i) in self.ln_theta_next.iter_mut().zip(&self.indices) {
-            *dst = self.ln_theta[i];
-        }
-        std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
-        self.log_w.fill(-(n as f64).ln());
-        self.resamples += 1;
-        self.sorted.stale = true;
     }
 
     /// The Liu-West move that follows a resampling with `KernelSchedule::AtResampling`: the
@@ -744,10 +680,8 @@ impl Rbpf {
     /// posterior mass (`jump::ADOPT_POSTERIOR_MASS`) for `jump::ADOPT_TIME_CONSTANTS` time
     /// constants of the model's slowest mode; and when nothing else is left to publish (the
     /// resampling kept only particles on probation), the damper's whose hypotheses hold the
-    /// most mass, the other's staying on probation, once they have held the decisive mass for
-    /// `jump::FIT_WINDOW_S` and explain the data (`jump::FIT_NIS_RATIO`), the last published
-    /// posterior held until then. Forgets them once no particle holds them (`jump` module
-    /// docs, "Publishing a jump", "When nothing published is left").
+    /// most mass, the other's staying on probation. Forgets them once no particle holds them
+    /// (`jump` module docs, "Publishing a jump").
     fn judge_probation(&mut self) {
         if self.on_probation.is_empty() {
             return;
@@ -769,23 +703,12 @@ impl Rbpf {
             .iter()
             .zip(&self.log_w)
             .all(|(p, w)| *p != Probation::None || *w == f64::NEG_INFINITY);
-        // Nothing published is left (the resampling kept only hypotheses on probation): the
-        // damper's whose hypotheses hold the most mass are published once they have held a
-        // decisive mass for one fit window and explain the data over it
-        // (`jump::FIT_NIS_RATIO`); until then (or the rule above) the last published
-        // posterior is held (`held`).
         if rest_empty {
-            let k = usize::from(mass[1] > mass[0]);
-            let explains = self.fit_nis <= jump::FIT_NIS_RATIO * N_OUTPUTS as f64
-                && self.decisive_steps[k] as f64 * self.dt_s >= jump::FIT_WINDOW_S;
-            if explains || self.held.is_none() {
-                self.adopt(k);
-            }
+            self.adopt(usize::from(mass[1] > mass[0]));
         }
         if self.on_probation.iter().all(|p| *p == Probation::None) {
             self.on_probation.clear();
             self.decisive_steps = [0; 2];
-            self.held = None;
         }
     }
 
@@ -799,9 +722,6 @@ impl Rbpf {
         }
         self.adoptions += u64::from(adopted);
         self.decisive_steps[k] = 0;
-        if adopted {
-            self.held = None;
-        }
     }
 
     /// The weights the published posterior uses: the particles', those on probation left out
@@ -822,25 +742,6 @@ impl Rbpf {
             }
         }
         w
-    }
-
-    /// The published posterior's mean, 5 % and 95 % quantiles (N s/m) of each damper, from
-    /// the particles as they stand (for `held`).
-    fn published_summary(&mut self) -> [[f64; 3]; 2] {
-        if self.sorted.stale {
-            self.sorted.refresh(&self.ln_theta);
-        }
-        let w = self.published_weights();
-        [0, 1].map(|k| {
-            let p = self.sorted.posterior(k, &w, 1.0);
-            [p.mean_ns_per_m, p.q05_ns_per_m, p.q95_ns_per_m]
-        })
-    }
-
-    /// Whether the published posterior is held (nothing published left and the hypotheses
-    /// on probation do not explain the data yet).
-    pub fn published_held(&self) -> bool {
-        self.held.is_some()
     }
 
     /// Jump hypotheses adopted into the published posterior so far.
@@ -1047,9 +948,6 @@ impl Rbpf {
             s.step_states(y, &whiten)?;
         }
         self.bank.commit();
-        // The fit is judged again on the data after the settling.
-        self.fit_nis = f64::NAN;
-        self.fit_steps = 0;
         Ok(())
     }
 
@@ -1151,19 +1049,6 @@ impl Rbpf {
     /// particles). O(N); the particles are sorted (O(N log N)) only after their parameters
     /// changed.
     pub fn estimate(&mut self) -> RbpfEstimate {
-        if let Some(h) = self.held {
-            let post = |h: [f64; 3], nominal: f64| DamperPosterior {
-                mean_ns_per_m: h[0],
-                q05_ns_per_m: h[1],
-                q95_ns_per_m: h[2],
-                health_ratio: h[0] / nominal,
-            };
-            return RbpfEstimate {
-                csy: post(h[0], self.nominal.csy_ns_per_m),
-                csay: post(h[1], self.nominal.csay_ns_per_m),
-                effective_sample_size: self.ess,
-            };
-        }
         if self.sorted.stale {
             self.sorted.refresh(&self.ln_theta);
         }
@@ -1179,12 +1064,6 @@ impl Rbpf {
     /// Published posterior mean of the coefficients (O(N), no sorting; as [`Rbpf::estimate`]:
     /// jump hypotheses on probation left out).
     pub fn mean(&self) -> Dampers {
-        if let Some(h) = self.held {
-            return Dampers {
-                csy_ns_per_m: h[0][0],
-                csay_ns_per_m: h[1][0],
-            };
-        }
         let mut m = [0.0; 2];
         for (th, w) in self.ln_theta.iter().zip(self.published_weights()) {
             m[0] += w * th[0].exp();
@@ -1383,62 +1262,6 @@ mod tests {
             Probation::Jump(0),
             "the other damper's waits"
         );
-        let published = f.estimate().csay.mean_ns_per_m / nominal;
-        assert!(published < 0.6, "adopted: {published}");
-    }
-
-    /// When a resampling keeps only jump hypotheses on probation (the data favoured them over
-    /// every published particle, as in a transient after a step fault or a resume: held-out
-    /// draw 5011, tuning draw 5010), the published posterior is not theirs until they have
-    /// held a decisive mass for `jump::FIT_WINDOW_S` and explain the data (weighted NIS over
-    /// that window at most `jump::FIT_NIS_RATIO` x 5): meanwhile the last published posterior
-    /// is held. Before, such a resampling published them at once (here about 0.45 x nominal).
-    #[test]
-    fn hypotheses_left_alone_by_a_resampling_are_published_only_once_they_explain_the_data() {
-        let mut f = seed_filter_with_a_silent_search();
-        let nominal = f.nominal.csay_ns_per_m;
-        let before = f.estimate();
-        // A C_say hypothesis (sentinel 6, -0.8 in ln C) becomes particles and takes all but
-        // 1e-30 of the posterior.
-        let sentinels = f.sentinels.as_mut().unwrap();
-        sentinels.ln_odds_mut().fill(f64::NEG_INFINITY);
-        sentinels.ln_odds_mut()[6] = 0.25f64.ln();
-        f.materialise(0.25).unwrap();
-        for i in 0..64 {
-            if f.on_probation[i] == Probation::None {
-                f.log_w[i] -= 80.0;
-            }
-        }
-        normalize_log_weights(&mut f.log_w).unwrap();
-        f.sorted.stale = true;
-        // The data over the last window: twice what the model expects.
-        f.fit_nis = 10.0;
-        f.resample();
-        assert!(f.on_probation.iter().all(|p| *p == Probation::Jump(1)));
-        let window = (jump::FIT_WINDOW_S / f.dt_s).round() as usize;
-        for step in 0..3 * window {
-            f.judge_probation();
-            assert_eq!(f.jump_adoptions(), 0, "step {step}");
-            // The same particles in the same proportions: equal up to rounding.
-            let now = f.estimate();
-            let same = |a: f64, b: f64| (a / b - 1.0).abs() < 1e-12;
-            assert!(same(now.csay.mean_ns_per_m, before.csay.mean_ns_per_m));
-            assert!(same(now.csay.q95_ns_per_m, before.csay.q95_ns_per_m));
-            assert!(same(now.csy.mean_ns_per_m, before.csy.mean_ns_per_m));
-            assert!(same(f.mean().csay_ns_per_m, before.csay.mean_ns_per_m));
-        }
-        assert!(before.csay.health_ratio > 0.9, "{:?}", before.csay);
-        // They explain the data: published once they have held the posterior a whole window.
-        f.fit_nis = 5.0;
-        f.decisive_steps = [0; 2];
-        for step in 0..window - 1 {
-            f.judge_probation();
-            assert_eq!(f.jump_adoptions(), 0, "step {step}");
-        }
-        f.judge_probation();
-        f.judge_probation();
-        assert_eq!(f.jump_adoptions(), 1);
-        assert!(!f.published_held());
         let published = f.estimate().csay.mean_ns_per_m / nominal;
         assert!(published < 0.6, "adopted: {published}");
     }
