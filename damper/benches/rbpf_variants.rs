@@ -13,6 +13,11 @@
 //!   (`[monitor.rbpf.jump_search]`; the variants above have it off);
 //! - `monitor`: `DamperMonitor::step` of the default configuration on the ramp (adds the EKF,
 //!   the consistency check and the posterior summary).
+//! - `monitor:no-mass`: the same with the samples' body mass withheld, the particles carrying
+//!   their own (`[monitor.rbpf.unmeasured_mass]`: a third parameter, per-particle body row and
+//!   gains of its mass node);
+//! - `monitor:no-mass:design`: withheld, the design mass assumed (`unmeasured_mass.enabled =
+//!   false`: the cost of `monitor`).
 //!
 //! Every filter first runs 3 s of its data (posterior narrowed, as in service; the speed
 //! nodes the ramp visits are solved before timing), then all variants run alternately in
@@ -147,6 +152,15 @@ fn main() -> ExitCode {
         profile_m_s: vec![[0.0, 9.0], [n as f64 * config.dt_s, 11.0]],
     };
     let (_, slow) = samples(n, Some(slow_ramp));
+    let no_mass: Vec<BogieSample> = ramped
+        .iter()
+        .map(|s| BogieSample {
+            half_body_mass_kg: None,
+            ..*s
+        })
+        .collect();
+    let mut design_mass = default;
+    design_mass.rbpf.unmeasured_mass.enabled = false;
     let mut default = config;
     default.rbpf.particles = particles;
     let mut with_noise = default;
@@ -182,6 +196,11 @@ fn main() -> ExitCode {
         ),
         scheduled,
     };
+    let monitor = |c: &DamperMonitorConfig| {
+        Runner::Monitor(Box::new(
+            DamperMonitor::with_gain_table(c, c.rbpf.seed, Some(table.clone())).expect("monitor"),
+        ))
+    };
     let mut variants: Vec<(&str, Runner, &[BogieSample])> = vec![
         ("plain", rbpf(&fixed, false), &constant),
         ("+noise", rbpf(&with_noise, false), &constant),
@@ -189,14 +208,9 @@ fn main() -> ExitCode {
         ("+speed+noise", rbpf(&with_noise, true), &ramped),
         ("+speed+noise@10", rbpf(&with_noise, true), &slow),
         ("+speed+noise+jump", rbpf(&with_jump, true), &ramped),
-        (
-            "monitor",
-            Runner::Monitor(Box::new(
-                DamperMonitor::with_gain_table(&default, default.rbpf.seed, Some(table.clone()))
-                    .expect("monitor"),
-            )),
-            &ramped,
-        ),
+        ("monitor", monitor(&default), &ramped),
+        ("monitor:no-mass", monitor(&default), &no_mass),
+        ("monitor:no-mass:design", monitor(&design_mass), &no_mass),
     ];
     if let Some(o) = only
         .iter()

@@ -258,7 +258,7 @@ impl DamperMonitor {
             return Ok(&self.estimate);
         }
         self.rbpf.set_speed(speed_m_s)?;
-        self.rbpf.set_half_body_mass_kg(Some(mass_kg))?;
+        self.rbpf.set_half_body_mass_kg(sample.half_body_mass_kg)?;
         if self.pause.settled {
             self.rbpf.step(&y)?;
             self.pause.reason = None;
