@@ -151,3 +151,30 @@ fn a_mass_out_of_range_is_refused_and_none_is_the_design_mass() {
         assert_eq!(a, b, "step {k}");
     }
 }
+
+/// Without a load signal the particles' masses are part of the saved state: a resumed monitor
+/// goes on exactly as the one that saved it (mass estimate included).
+#[test]
+fn a_resumed_monitor_keeps_the_particles_masses() {
+    let s = loaded(1.3, 6.0);
+    let mut c = s.monitor_config();
+    c.rbpf.particles = 100;
+    c.ekf.enabled = false;
+    let mut sim = BogieSimulator::new(&s).unwrap().with_mass_input(false);
+    let samples: Vec<BogieSample> = std::iter::from_fn(|| sim.step().map(|(y, _)| *y)).collect();
+    let (before, after) = samples.split_at(5_000);
+    let mut running = DamperMonitor::new(&c, 4).unwrap();
+    for y in before {
+        running.step(y).unwrap();
+    }
+    assert!(running.rbpf().estimated_half_body_mass_kg().is_some());
+    let bytes = bincode::serialize(&running.state()).unwrap();
+    let mut resumed = DamperMonitor::resume(&c, None, bincode::deserialize(&bytes).unwrap()).unwrap();
+    for y in after {
+        assert_eq!(*running.step(y).unwrap(), *resumed.step(y).unwrap());
+    }
+    assert_eq!(
+        running.rbpf().estimated_half_body_mass_kg(),
+        resumed.rbpf().estimated_half_body_mass_kg()
+    );
+}

@@ -162,6 +162,11 @@ pub struct RbpfState {
     /// Per damper, steps its hypotheses on probation have held a decisive posterior mass in
     /// a row.
     decisive_steps: [u64; 2],
+    /// Per particle `ln (m_bd / design)` while no mass is measured (`unmeasured_mass`); empty
+    /// otherwise.
+    ln_mass: Vec<f64>,
+    /// The sentinels' body mass then (kg).
+    sentinel_mass_kg: Option<f64>,
 }
 
 /// Whether a particle holds a jump hypothesis not yet published, and of which damper.
@@ -418,6 +423,8 @@ impl Rbpf {
                 })
                 .collect(),
             decisive_steps: self.decisive_steps,
+            ln_mass: self.ln_mass.clone(),
+            sentinel_mass_kg: self.sentinel_mass_kg,
         }
     }
 
@@ -456,7 +463,14 @@ impl Rbpf {
                 state.on_probation.len()
             )));
         }
+        if !(state.ln_mass.is_empty() || state.ln_mass.len() == n) {
+            return Err(DamperError::Config(format!(
+                "snapshot: ln_mass of {} entries, 0 or {n} expected",
+                state.ln_mass.len()
+            )));
+        }
         if state.ln_theta.iter().flatten().any(|v| !v.is_finite())
+            || state.ln_mass.iter().any(|v| !v.is_finite())
             || state.log_w.iter().any(|v| v.is_nan())
         {
             return Err(DamperError::NonFinite {
@@ -493,6 +507,9 @@ impl Rbpf {
             })
             .collect();
         f.decisive_steps = state.decisive_steps;
+        f.ln_mass_next.clone_from(&state.ln_mass);
+        f.ln_mass = state.ln_mass;
+        f.sentinel_mass_kg = state.sentinel_mass_kg;
         f.sorted.stale = true;
         Ok(f)
     }
