@@ -1083,7 +1083,11 @@ impl Rbpf {
         // jitter is drawn as without the mass and the mass's adds the third row `mass_row`.
         let mass = (!self.ln_mass.is_empty()).then(|| {
             let (m, c, v) = self.mass_moments(mean);
-            let l0 = if chol[(0, 0)] > 0.0 { c[0] / chol[(0, 0)] } else { 0.0 };
+            let l0 = if chol[(0, 0)] > 0.0 {
+                c[0] / chol[(0, 0)]
+            } else {
+                0.0
+            };
             let l1 = if chol[(1, 1)] > 0.0 {
                 (c[1] - chol[(1, 0)] * l0) / chol[(1, 1)]
             } else {
