@@ -1080,8 +1080,9 @@ impl Rbpf {
         let ln_regen_weight = self.config.regeneration_weight.ln();
         // With the mass a parameter the kernel is eq. 24 on (ln C_sy, ln C_say, ln m) with the
         // joint covariance: its Cholesky factor's first two rows are `chol`'s, so the dampers'
-        // jitter is drawn as without the mass, and the mass adds the third row (`row`: `L_20, L_21,
-        // L_22` from `L_00 L_20 = c_0`, `L_10 L_20 + L_11 L_21 = c_1`, `L_2. L_2. = v`).
+        // jitter is drawn as without the mass, and the mass adds the third row (`row`:
+        // `L_20, L_21, L_22` from `L_00 L_20 = c_0`, `L_10 L_20 + L_11 L_21 = c_1`,
+        // `L_20^2 + L_21^2 + L_22^2 = v`).
         let mass = (!self.ln_mass.is_empty()).then(|| {
             let (m, c, v) = self.mass_moments(mean);
             let l0 = if chol[(0, 0)] > 0.0 {
