@@ -13,6 +13,11 @@
 //!   (`[monitor.rbpf.jump_search]`; the variants above have it off);
 //! - `monitor`: `DamperMonitor::step` of the default configuration on the ramp (adds the EKF,
 //!   the consistency check and the posterior summary).
+//! - `monitor:no-mass`: the same with the samples' body mass withheld, the particles carrying
+//!   their own (`[monitor.rbpf.unmeasured_mass]`: a third parameter, per-particle body row and
+//!   gains of its mass node);
+//! - `monitor:no-mass:design`: withheld, the design mass assumed (`unmeasured_mass.enabled =
+//!   false`: the cost of `monitor`).
 //!
 //! Every filter first runs 3 s of its data (posterior narrowed, as in service; the speed
 //! nodes the ramp visits are solved before timing), then all variants run alternately in
@@ -147,12 +152,21 @@ fn main() -> ExitCode {
         profile_m_s: vec![[0.0, 9.0], [n as f64 * config.dt_s, 11.0]],
     };
     let (_, slow) = samples(n, Some(slow_ramp));
+    let no_mass: Vec<BogieSample> = ramped
+        .iter()
+        .map(|s| BogieSample {
+            half_body_mass_kg: None,
+            ..*s
+        })
+        .collect();
     let mut default = config;
     default.rbpf.particles = particles;
     let mut with_noise = default;
     with_noise.rbpf.jump_search.enabled = false;
     let mut with_jump = with_noise;
     with_jump.rbpf.jump_search.enabled = true;
+    let mut design_mass = default;
+    design_mass.rbpf.unmeasured_mass.enabled = false;
     let mut fixed = with_noise;
     fixed.rbpf.noise_scale.enabled = false;
     let start = Instant::now();
@@ -169,6 +183,16 @@ fn main() -> ExitCode {
     for node in table.node_of(9.0)..=table.node_of(11.0) {
         table.grid_at(node).expect("grid");
     }
+    // And the mass nodes the particles of `monitor:no-mass` reach (0.82-1.48 of the design
+    // mass, beyond the prior's 0.85-1.4 by the kernel's spread), at the ramp's speeds.
+    let design_kg = config.vehicle.half_body_mass_kg;
+    for node in lo..=hi {
+        for j in -4..=8 {
+            let mass_kg = design_kg * railmon_damper::gain_table::MASS_GRID_RATIO.powi(j);
+            let node = table.node_at(table.node_speed_m_s(node), mass_kg);
+            table.grid_at(node).expect("grid");
+        }
+    }
     println!(
         "gain table: the configured speed's grid {first_s:.3} s (with the table), then \
          {per_node_s:.3} s per speed node ({} nodes over the speed range: {:.1} s for all)",
@@ -182,6 +206,11 @@ fn main() -> ExitCode {
         ),
         scheduled,
     };
+    let monitor = |c: &DamperMonitorConfig| {
+        Runner::Monitor(Box::new(
+            DamperMonitor::with_gain_table(c, c.rbpf.seed, Some(table.clone())).expect("monitor"),
+        ))
+    };
     let mut variants: Vec<(&str, Runner, &[BogieSample])> = vec![
         ("plain", rbpf(&fixed, false), &constant),
         ("+noise", rbpf(&with_noise, false), &constant),
@@ -189,14 +218,9 @@ fn main() -> ExitCode {
         ("+speed+noise", rbpf(&with_noise, true), &ramped),
         ("+speed+noise@10", rbpf(&with_noise, true), &slow),
         ("+speed+noise+jump", rbpf(&with_jump, true), &ramped),
-        (
-            "monitor",
-            Runner::Monitor(Box::new(
-                DamperMonitor::with_gain_table(&default, default.rbpf.seed, Some(table.clone()))
-                    .expect("monitor"),
-            )),
-            &ramped,
-        ),
+        ("monitor", monitor(&default), &ramped),
+        ("monitor:no-mass", monitor(&default), &no_mass),
+        ("monitor:no-mass:design", monitor(&design_mass), &no_mass),
     ];
     if let Some(o) = only
         .iter()

@@ -104,7 +104,10 @@ fn usage() -> String {
          \u{20}                  until N such draws\n\
          --with-stops       only draws whose speed profile has a stop\n\
          --verbose          print each damper_degraded event\n\
-         --withhold-mass    the samples carry no body mass (the filter assumes the design one)\n\
+         --withhold-mass    the samples carry no body mass (the particles carry their own,\n\
+         \u{20}                  rbpf.unmeasured_mass)\n\
+         --design-mass      without a measured mass assume the design one\n\
+         \u{20}                  (rbpf.unmeasured_mass.enabled = false)\n\
          --help             this text",
         particles = DamperMonitorConfig::default().rbpf.particles,
         min = sampler::MIN_MAX_DURATION_S,
@@ -160,6 +163,7 @@ fn parse_args() -> Result<Args, String> {
             }
             "--with-stops" => args.with_stops = true,
             "--withhold-mass" => args.withhold_mass = true,
+            "--design-mass" => args.config.rbpf.unmeasured_mass.enabled = false,
             other => return Err(format!("unknown flag {other}")),
         }
     }
@@ -232,6 +236,9 @@ struct Outcome {
     error_sum: [f64; 2],
     detections: Vec<Detection>,
     diverged_at_s: Option<f64>,
+    /// The filter's posterior mean body mass at the end over the design's, when the particles
+    /// carried it (`Rbpf::estimated_half_body_mass_kg`).
+    mass_estimate_ratio: Option<f64>,
     seconds: f64,
 }
 
@@ -286,9 +293,11 @@ impl Outcome {
         let pct = |x: f64| format!("{:.1}", 100.0 * x);
         let detections: Vec<String> = self.detections.iter().map(Detection::text).collect();
         format!(
-            "| {} | {}{} | {} | {} / {} | {:.2} s, {} ({} after a jump) | {} / {} / {} | {} | {} / {} | {} | {:+.1} / {:+.1} | {} | {:.0} |",
+            "| {} | {}{}{} | {} | {} / {} | {:.2} s, {} ({} after a jump) | {} / {} / {} | {} | {} / {} | {} | {:+.1} / {:+.1} | {} | {:.0} |",
             self.draw.seed,
             self.draw.short(),
+            self.mass_estimate_ratio
+                .map_or(String::new(), |m| format!(", mass read {m:.2}")),
             self.diverged_at_s
                 .map_or(String::new(), |t| format!(" (plant diverged at {t:.1} s)")),
             self.false_degraded,
@@ -363,6 +372,7 @@ fn run(
         error_sum: [0.0; 2],
         detections: vec![],
         diverged_at_s: None,
+        mass_estimate_ratio: None,
         seconds: 0.0,
     };
     // Judged time as the alarm counts it (not paused, no mismatch), for its warm-up.
@@ -481,6 +491,10 @@ fn run(
         .filter(|(_, before, lowest)| (0..2).any(|k| before[k] - lowest[k] > JUMP_MOVE))
         .count();
     o.detections = detections;
+    o.mass_estimate_ratio = monitor
+        .rbpf()
+        .estimated_half_body_mass_kg()
+        .map(|m| m / config.vehicle.half_body_mass_kg);
     o.seconds = started.elapsed().as_secs_f64();
     o
 }
@@ -659,15 +673,17 @@ fn report(args: &Args, outcomes: &[Outcome], threshold: f64, wall_s: f64) {
     println!();
     println!(
         "By body mass ({}):",
-        if args.withhold_mass {
+        if args.withhold_mass && args.config.rbpf.unmeasured_mass.enabled {
+            "withheld: the particles carry the mass"
+        } else if args.withhold_mass {
             "withheld: the filter assumes the design mass"
         } else {
             "given to the filter as the measured load"
         }
     );
     println!();
-    println!("| mass x | draws | false degraded draws | healthy ratio below {threshold} | median both within 5 % [%] | median mean error csy / csay [%] | mean error csy / csay [%] | 90 % coverage csy / csay [%] |");
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("| mass x | draws | false degraded draws | healthy ratio below {threshold} | median both within 5 % [%] | median mean error csy / csay [%] | mean error csy / csay [%] | 90 % coverage csy / csay [%] | both within 5 % [%] | model_mismatch [%] |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
     for (lo, hi) in [(0.0, 0.95), (0.95, 1.05), (1.05, 1.2), (1.2, 2.0)] {
         let group: Vec<&Outcome> = outcomes
             .iter()
@@ -687,7 +703,7 @@ fn report(args: &Args, outcomes: &[Outcome], threshold: f64, wall_s: f64) {
             100.0 * group.iter().map(|o| f(o)).sum::<f64>() / judged as f64
         };
         println!(
-            "| {lo:.2}-{hi:.2} | {} | {} | {} | {:.1} | {:+.1} / {:+.1} | {:+.2} / {:+.2} | {:.1} / {:.1} |",
+            "| {lo:.2}-{hi:.2} | {} | {} | {} | {:.1} | {:+.1} / {:+.1} | {:+.2} / {:+.2} | {:.1} / {:.1} | {:.1} | {:.1} |",
             group.len(),
             group.iter().filter(|o| o.false_degraded > 0).count(),
             group
@@ -701,6 +717,8 @@ fn report(args: &Args, outcomes: &[Outcome], threshold: f64, wall_s: f64) {
             pooled(&|o| o.error_sum[1]),
             pooled(&|o| o.covered[0] as f64),
             pooled(&|o| o.covered[1] as f64),
+            pooled(&|o| o.within as f64),
+            pooled(&|o| o.mismatch as f64),
         );
     }
     println!();

@@ -226,6 +226,18 @@ mod tests {
             "rbpf.ln_diffusion_per_sqrt_s",
         );
         rejects(
+            with_rbpf(|r| r.unmeasured_mass.min_ratio = 0.5),
+            "rbpf.unmeasured_mass.min_ratio",
+        );
+        rejects(
+            with_rbpf(|r| r.unmeasured_mass.max_ratio = f64::NAN),
+            "rbpf.unmeasured_mass.max_ratio",
+        );
+        rejects(
+            with_rbpf(|r| r.unmeasured_mass.max_ratio = 0.8),
+            "rbpf.unmeasured_mass.max_ratio",
+        );
+        rejects(
             with_rbpf(|r| r.regeneration_weight = 0.0),
             "rbpf.regeneration_weight",
         );

@@ -51,7 +51,7 @@ pub use noise_scale::{NoiseScale, NoiseScaleConfig};
 pub use params::{BogieParams, Dampers, DEFAULT_SPEED_M_S};
 pub use rbpf::{
     slowest_time_constant_s, DamperPosterior, JumpSearchConfig, KernelSchedule, Propagation, Rbpf,
-    RbpfConfig, RbpfEstimate, RbpfState, MIN_DEGRADED_PARTICLES, N_SENTINELS,
+    RbpfConfig, RbpfEstimate, RbpfState, UnmeasuredMassConfig, MIN_DEGRADED_PARTICLES, N_SENTINELS,
 };
 pub use sample::{BogieSample, SampleRanges, SensorNoise};
 pub use scenario::DamperScenario;

@@ -38,7 +38,8 @@ impl DamperMonitorState {
     /// 4: the settling after a pause judged on the innovations (`PauseState`).
     /// 5: jump hypotheses on probation, not yet published (`RbpfState`).
     /// 6: each damper's degradation trend (`trends`).
-    pub const STATE_FORMAT_VERSION: u32 = 6;
+    /// 7: the particles' body masses while none is measured (`RbpfState`).
+    pub const STATE_FORMAT_VERSION: u32 = 7;
 }
 
 /// Where a monitor is with respect to its valid speed range.
@@ -258,7 +259,7 @@ impl DamperMonitor {
             return Ok(&self.estimate);
         }
         self.rbpf.set_speed(speed_m_s)?;
-        self.rbpf.set_half_body_mass_kg(Some(mass_kg))?;
+        self.rbpf.set_half_body_mass_kg(sample.half_body_mass_kg)?;
         if self.pause.settled {
             self.rbpf.step(&y)?;
             self.pause.reason = None;

@@ -108,9 +108,11 @@ fn a_healthy_bogie_comes_through_a_stop_without_an_alarm() {
 /// Passengers board at the stop (issue 24 item 1): the body above the bogie goes from the
 /// design 13 t to 16.9 t (1.3 x) at 14 s, the train standing. With the mass measured the
 /// filter follows it: no alarm, and `C_sy` within 3 % of the truth at the end, 11 s after
-/// moving off. Withheld (the filter keeps the design mass) the heavier body's slower sway
-/// reads as a weaker `C_sy`: more than 3 % off, so the test fails if the input stops
-/// mattering.
+/// moving off. Withheld, the particles carrying the mass (`rbpf.unmeasured_mass`), it is
+/// found again after the stop by the particles regenerated from the mass prior: `C_sy` within
+/// 3 % (measured +1.40 %) and no alarm. Withheld with the design mass kept (that setting
+/// off) the heavier body's slower sway reads as a weaker `C_sy` (-22.8 % on 27 Nov): more
+/// than 3 % off, so the test fails if the input stops mattering.
 #[test]
 fn a_load_change_at_a_stop_is_followed_when_measured() {
     let mut s = scenario("[load]\nchanges_kg = [[14.0, 16900.0]]");
@@ -139,12 +141,24 @@ fn a_load_change_at_a_stop_is_followed_when_measured() {
     assert_eq!(e.measured_half_body_mass_kg, Some(16900.0));
     assert!(error(&e).abs() < 0.03, "C_sy measured: {:+.3}", error(&e));
     s.load.measured = false;
-    let (_, _, _, withheld) = run_to_end(&s);
+    let (_, _, degraded, withheld) = run_to_end(&s);
     eprintln!("withheld: C_sy {:+.2} %", 100.0 * error(&withheld));
     assert_eq!(withheld.measured_half_body_mass_kg, None);
+    assert!(degraded.is_empty(), "withheld: {degraded:?}");
     assert!(
-        error(&withheld).abs() > 0.03,
+        error(&withheld).abs() < 0.03,
         "C_sy withheld: {:+.3}",
         error(&withheld)
+    );
+    s.monitor.rbpf.unmeasured_mass.enabled = false;
+    let (_, _, _, design) = run_to_end(&s);
+    eprintln!(
+        "withheld, design mass: C_sy {:+.2} %",
+        100.0 * error(&design)
+    );
+    assert!(
+        error(&design).abs() > 0.03,
+        "C_sy withheld, design mass: {:+.3}",
+        error(&design)
     );
 }

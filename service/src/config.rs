@@ -712,10 +712,12 @@ mod tests {
                 "a fuel threshold, either sign",
             ),
         ];
-        const DEPENDENT: [&str; 9] = [
+        const DEPENDENT: [&str; 11] = [
             "drive.estimator.alarm.on_probability",
             "drive.estimator.alarm.off_probability",
             "bogie.estimator.rbpf.gain_grid.max_ratio",
+            "bogie.estimator.rbpf.unmeasured_mass.min_ratio",
+            "bogie.estimator.rbpf.unmeasured_mass.max_ratio",
             "bogie.estimator.rbpf.noise_scale.max_std_ratio",
             "bogie.estimator.speed.max_m_s",
             "bogie.estimator.alarm.degraded_below_ratio",

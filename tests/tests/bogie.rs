@@ -33,12 +33,16 @@ fn reference(record: &Path) -> DamperEstimate {
     let mut reader = BogieCsvReader::open(record).unwrap().only_bogie(1);
     let mut monitor = monitor(1);
     while let Some(r) = reader.next_record().unwrap() {
-        monitor
-            .step(&BogieSample::from_vector(
+        // The record's measured mass, as the replay sends it (without it the particles would
+        // carry the mass, `rbpf.unmeasured_mass`).
+        let sample = BogieSample {
+            half_body_mass_kg: r.half_body_mass_kg,
+            ..BogieSample::from_vector(
                 &r.sensors.into(),
                 r.speed_m_s.expect("recordings carry the speed"),
-            ))
-            .unwrap();
+            )
+        };
+        monitor.step(&sample).unwrap();
     }
     *monitor.estimate()
 }

@@ -145,8 +145,11 @@ impl Bank {
                     next: vec![Row::ZERO; N_STATES * blocks],
                     yaw: vec![Row::ZERO; blocks],
                     series: vec![Row::ZERO; blocks],
+                    body: vec![Row::ONE; blocks],
                     nodes: vec![Row::ZERO; NODE_LEN * blocks],
                     node_theta: vec![[f64::NAN; 2]; n],
+                    node_ln_mass: vec![0.0; n],
+                    mass_grids: Vec::new(),
                     block: Block::new(),
                 }))
             }
@@ -192,11 +195,18 @@ pub(super) struct SteadyBank {
     /// The damper entries (`DamperEntries`), one row per block.
     yaw: Vec<Row>,
     series: Vec<Row>,
+    /// The scale of the body's acceleration row, `m_model / m_i`, one row per block (1: every
+    /// particle at the model's mass).
+    body: Vec<Row>,
     /// Per particle: the interpolated gain node, blocked like `x`
-    /// (`at(&nodes, NODE_LEN, value, particle)`), and the `ln theta` it was computed for
-    /// (recomputed only when the particle's parameters changed).
+    /// (`at(&nodes, NODE_LEN, value, particle)`), and the `ln theta` and `ln (m_i / m_model)`
+    /// it was computed for (recomputed only when the particle's parameters changed).
     nodes: Vec<Row>,
     node_theta: Vec<[f64; 2]>,
+    node_ln_mass: Vec<f64>,
+    /// The grids of the other mass nodes the particles' own masses fell in, at the current
+    /// speed node (`(node, grid)`; emptied when the schedule's node changes).
+    mass_grids: Vec<(usize, Arc<GainGrid>)>,
     block: Box<Block>,
 }
 
@@ -228,10 +238,13 @@ pub(super) struct StepOutput<'a> {
 
 impl Bank {
     /// Runs predict + update of every particle with its new parameters, weighing the
-    /// innovations with `whiten`. Nothing is committed (see `commit`).
+    /// innovations with `whiten`. `ln_mass`: each particle's body mass as `ln (m_i /
+    /// m_model)` (the model's: [`Bank::set_schedule`]); empty, every particle at the model's.
+    /// Nothing is committed (see `commit`).
     pub(super) fn step(
         &mut self,
         ln_theta: &[[f64; 2]],
+        ln_mass: &[f64],
         y: &Vector5,
         whiten: &Whitening,
         out: StepOutput<'_>,
@@ -241,12 +254,21 @@ impl Bank {
                 let n = ln_theta.len();
                 let g = b.model.g_matrix();
                 let w = Vector5::from(whiten.inv_sqrt);
+                let mut own = b.model.clone();
                 for (i, th) in ln_theta.iter().enumerate() {
                     let d = Dampers::from_ln(*th);
-                    let disc = discretize(&b.model.a_matrix(&d), &g, b.dt_s)?;
+                    let (model, h) = match ln_mass.get(i) {
+                        Some(lm) => {
+                            let m = b.model.params().half_body_mass_kg * lm.exp();
+                            own.set_half_body_mass_kg(m)?;
+                            (&own, own.h_matrix())
+                        }
+                        None => (&b.model, b.h),
+                    };
+                    let disc = discretize(&model.a_matrix(&d), &g, b.dt_s)?;
                     let pred = kalman::predict(&b.est[i], &disc, &b.noise);
-                    let e = y - b.h * pred.x;
-                    let s_cov = b.h * pred.p * b.h.transpose() + b.noise.q_v;
+                    let e = y - h * pred.x;
+                    let s_cov = h * pred.p * h.transpose() + b.noise.q_v;
                     let ew = e.component_mul(&w);
                     let (nis_raw, nis_w) = s_cov.cholesky().map_or((f64::NAN, f64::NAN), |c| {
                         (e.dot(&c.solve(&e)), ew.dot(&c.solve(&ew)))
@@ -254,7 +276,7 @@ impl Bank {
                     for (ch, z) in out.z.iter_mut().skip(i).step_by(n).enumerate() {
                         *z = e[ch] * e[ch] / s_cov[(ch, ch)];
                     }
-                    let (post, l) = kalman::update(&pred, y, &b.h, &b.noise.q_v)?;
+                    let (post, l) = kalman::update(&pred, y, &h, &b.noise.q_v)?;
                     b.next[i] = post;
                     // ln N(e; 0, D^1/2 S D^1/2) from the update's ln N(e; 0, S); the
                     // correction is exactly 0 at D = I.
@@ -263,7 +285,7 @@ impl Bank {
                 }
                 check_finite(out.ll)
             }
-            Bank::Steady(b) => b.step(ln_theta, y, whiten, out),
+            Bank::Steady(b) => b.step(ln_theta, ln_mass, y, whiten, out),
         }
     }
 
@@ -305,6 +327,7 @@ impl Bank {
                     b.grid = b.table.grid_for_filter(node)?;
                     b.grid_node = node;
                     b.node_theta.fill([f64::NAN; 2]);
+                    b.mass_grids.clear();
                 }
                 Ok(())
             }
@@ -370,8 +393,10 @@ impl Bank {
                 b.next = vec![Row::ZERO; N_STATES * blocks];
                 b.yaw = vec![Row::ZERO; blocks];
                 b.series = vec![Row::ZERO; blocks];
+                b.body = vec![Row::ONE; blocks];
                 b.nodes = vec![Row::ZERO; NODE_LEN * blocks];
                 b.node_theta = vec![[f64::NAN; 2]; n];
+                b.node_ln_mass = vec![0.0; n];
                 b.n = n;
             }
         }
@@ -427,6 +452,7 @@ impl SteadyBank {
     fn step(
         &mut self,
         ln_theta: &[[f64; 2]],
+        ln_mass: &[f64],
         y: &Vector5,
         whiten: &Whitening,
         mut out: StepOutput<'_>,
@@ -435,14 +461,18 @@ impl SteadyBank {
         // damper entries and the interpolated gain of the particles that moved.
         let mut node = [0.0; NODE_LEN];
         for (i, th) in ln_theta.iter().enumerate() {
-            if self.node_theta[i] != *th {
+            let lm = ln_mass.get(i).copied().unwrap_or(0.0);
+            if self.node_theta[i] != *th || self.node_ln_mass[i] != lm {
                 self.yaw[i / BLOCK][i % BLOCK] = self.csay_gain * th[1].exp();
                 self.series[i / BLOCK][i % BLOCK] = self.end_stiffness * (-th[0]).exp();
-                self.grid.interpolate(&self.grid.cell(*th), &mut node);
+                self.body[i / BLOCK][i % BLOCK] = (-lm).exp();
+                let grid = self.grid_of_mass(lm)?;
+                grid.interpolate(&grid.cell(*th), &mut node);
                 for (k, v) in node.iter().enumerate() {
                     *at_mut(&mut self.nodes, NODE_LEN, k, i) = *v;
                 }
                 self.node_theta[i] = *th;
+                self.node_ln_mass[i] = lm;
             }
         }
         #[cfg(target_arch = "x86_64")]
@@ -460,6 +490,27 @@ impl SteadyBank {
         }
         self.filter_all(y, whiten, &mut out);
         check_finite(out.ll)
+    }
+
+    /// The gain grid of the mass node nearest to `m_model exp(ln_mass)` at the current speed
+    /// node: the schedule's own at the model's mass.
+    fn grid_of_mass(&mut self, ln_mass: f64) -> Result<Arc<GainGrid>, DamperError> {
+        if ln_mass == 0.0 {
+            return Ok(self.grid.clone());
+        }
+        let p = self.model.params();
+        let node = self
+            .table
+            .node_at(p.speed_m_s, p.half_body_mass_kg * ln_mass.exp());
+        if node == self.grid_node {
+            return Ok(self.grid.clone());
+        }
+        if let Some((_, g)) = self.mass_grids.iter().find(|(k, _)| *k == node) {
+            return Ok(g.clone());
+        }
+        let g = self.table.grid_for_filter(node)?;
+        self.mass_grids.push((node, g.clone()));
+        Ok(g)
     }
 
     /// [`SteadyBank::filter_all`] compiled for AVX-512 (8-wide vectors). The particles are
@@ -492,9 +543,10 @@ impl SteadyBank {
             let x: &[Row; N_STATES] = self.x[states.clone()].try_into().expect("whole block");
             let acc: &mut [Row; N_STATES] =
                 (&mut self.next[states]).try_into().expect("whole block");
+            let body = &self.body[b];
             self.prop
-                .propagate_block(x, &self.yaw[b], &self.series[b], acc, blk);
-            self.prop.innovation_block(acc, &mut blk.e, y);
+                .propagate_block(x, &self.yaw[b], &self.series[b], body, acc, blk);
+            self.prop.innovation_block(acc, body, &mut blk.e, y);
             let nodes = &self.nodes[b * NODE_LEN..(b + 1) * NODE_LEN];
             let node = |k: usize| &nodes[k].0;
             let e = &blk.e;

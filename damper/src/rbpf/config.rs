@@ -4,7 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::gain_table::GainGridConfig;
 use crate::noise_scale::NoiseScaleConfig;
-use crate::params::{non_negative, positive};
+use crate::params::{non_negative, positive, HALF_BODY_MASS_RATIO};
 use crate::DamperError;
 
 use super::bank::Propagation;
@@ -81,6 +81,9 @@ pub struct RbpfConfig {
     pub gain_grid: GainGridConfig,
     /// The online estimate of the sensors' noise (issue 9 item 2).
     pub noise_scale: NoiseScaleConfig,
+    /// The body mass as a third parameter of the particles while the samples carry no measured
+    /// load (issue 24 item 1).
+    pub unmeasured_mass: UnmeasuredMassConfig,
     /// Seed of the filter's own random numbers (kernel moves, resampling).
     pub seed: u64,
 }
@@ -102,6 +105,7 @@ impl Default for RbpfConfig {
             taylor_order: 8,
             gain_grid: GainGridConfig::default(),
             noise_scale: NoiseScaleConfig::default(),
+            unmeasured_mass: UnmeasuredMassConfig::default(),
             seed: 0,
         }
     }
@@ -162,12 +166,71 @@ impl RbpfConfig {
             ));
         }
         self.jump_search.validate()?;
-        self.noise_scale.validate()
+        self.noise_scale.validate()?;
+        self.unmeasured_mass.validate()
     }
 
     /// Liu-West shrinkage `a` and kernel variance factor `h^2` (eq. 24).
     pub fn liu_west(&self) -> (f64, f64) {
         let a = (3.0 * self.delta - 1.0) / (2.0 * self.delta);
         (a, 1.0 - a * a)
+    }
+}
+
+/// The body mass above the bogie when a sample carries none (`BogieSample::half_body_mass_kg`
+/// = `None`): each particle carries its own `ln m_bd` beside `ln C`, drawn log-uniform over
+/// `[min_ratio, max_ratio]` of the design mass when the measurement first goes missing, moved
+/// by the same Liu-West kernel (jointly with `ln C`: the data confound a heavier body with a
+/// weaker `C_sy`, so the kernel keeps their correlation), and propagated at its own mass with
+/// the gains of its nearest mass node. The published dampers then marginalise the mass: where
+/// the data tell the mass (the body's sway frequency `sqrt(k / m_bd)`) the bias of assuming the
+/// design mass goes; where they do not, the interval widens. A measured mass ends it (every
+/// particle at the measured mass). Off: the design mass is assumed, as before.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct UnmeasuredMassConfig {
+    /// Whether the particles carry the mass while none is measured (off: the design mass is
+    /// assumed).
+    pub enabled: bool,
+    /// The lightest body the prior holds, as a ratio of the design mass (tare: 0.8-0.9).
+    #[schemars(range(min = *HALF_BODY_MASS_RATIO.start(), max = *HALF_BODY_MASS_RATIO.end()))]
+    pub min_ratio: f64,
+    /// The heaviest, as a ratio of the design mass (crush load: 1.2-1.4).
+    #[schemars(range(min = *HALF_BODY_MASS_RATIO.start(), max = *HALF_BODY_MASS_RATIO.end()))]
+    pub max_ratio: f64,
+}
+
+impl Default for UnmeasuredMassConfig {
+    fn default() -> Self {
+        UnmeasuredMassConfig {
+            enabled: true,
+            min_ratio: 0.85,
+            max_ratio: 1.4,
+        }
+    }
+}
+
+impl UnmeasuredMassConfig {
+    pub fn validate(&self) -> Result<(), DamperError> {
+        for (field, value) in [
+            ("rbpf.unmeasured_mass.min_ratio", self.min_ratio),
+            ("rbpf.unmeasured_mass.max_ratio", self.max_ratio),
+        ] {
+            if !HALF_BODY_MASS_RATIO.contains(&value) {
+                return Err(DamperError::InvalidParameter {
+                    field,
+                    value,
+                    reason: "must be in 0.7..=1.6 (params::HALF_BODY_MASS_RATIO)",
+                });
+            }
+        }
+        if self.max_ratio <= self.min_ratio {
+            return Err(DamperError::InvalidParameter {
+                field: "rbpf.unmeasured_mass.max_ratio",
+                value: self.max_ratio,
+                reason: "must exceed min_ratio",
+            });
+        }
+        Ok(())
     }
 }

@@ -259,6 +259,7 @@ impl Sentinels {
     pub(super) fn step(&mut self, y: &Vector5, whiten: &Whitening) -> Result<(), DamperError> {
         self.bank.step(
             &self.ln_theta,
+            &[],
             y,
             whiten,
             StepOutput {

@@ -30,7 +30,7 @@ use crate::filter_model::FilterModel;
 use crate::gain_table::{GainTable, MASS_GRID_RATIO};
 use crate::model::{Matrix17, Vector17, Vector5, N_OUTPUTS};
 use crate::noise_scale::NoiseScale;
-use crate::params::{checked_half_body_mass_kg, Dampers};
+use crate::params::{checked_half_body_mass_kg, Dampers, HALF_BODY_MASS_RATIO};
 use crate::speed::SpeedConfig;
 use crate::DamperError;
 use railmon_filter::logspace::{effective_sample_size, normalize_log_weights};
@@ -38,7 +38,7 @@ use railmon_filter::resample::systematic_resample;
 
 use bank::{Bank, StepOutput, Whitening};
 pub use bank::{BankState, Propagation};
-pub use config::{KernelSchedule, RbpfConfig};
+pub use config::{KernelSchedule, RbpfConfig, UnmeasuredMassConfig};
 use jump::Sentinels;
 pub use jump::{
     slowest_time_constant_s, JumpSearchConfig, SentinelState, N_SENTINELS, SENTINEL_LN_OFFSETS,
@@ -162,6 +162,11 @@ pub struct RbpfState {
     /// Per damper, steps its hypotheses on probation have held a decisive posterior mass in
     /// a row.
     decisive_steps: [u64; 2],
+    /// Per particle `ln (m_bd / design)` while no mass is measured (`unmeasured_mass`); empty
+    /// otherwise.
+    ln_mass: Vec<f64>,
+    /// The sentinels' body mass then (kg).
+    sentinel_mass_kg: Option<f64>,
 }
 
 /// Whether a particle holds a jump hypothesis not yet published, and of which damper.
@@ -186,6 +191,13 @@ pub struct Rbpf {
     wear: WearDrift,
     ln_theta: Vec<[f64; 2]>,
     ln_theta_next: Vec<[f64; 2]>,
+    /// Per particle `ln (m_bd / design)` while no mass is measured (`unmeasured_mass`; the
+    /// bank then runs at the design mass); empty: every particle at the scheduled mass.
+    ln_mass: Vec<f64>,
+    ln_mass_next: Vec<f64>,
+    /// The particles' mean body mass (kg) at the last kernel move while they carry it: the
+    /// sentinels' mass (`None`: the scheduled one).
+    sentinel_mass_kg: Option<f64>,
     log_w: Vec<f64>,
     log_w_next: Vec<f64>,
     ll: Vec<f64>,
@@ -353,6 +365,9 @@ impl Rbpf {
             wear: WearDrift::default(),
             ln_theta_next: ln_theta.clone(),
             ln_theta,
+            ln_mass: Vec::new(),
+            ln_mass_next: Vec::new(),
+            sentinel_mass_kg: None,
             log_w: vec![-(n as f64).ln(); n],
             log_w_next: vec![0.0; n],
             ll: vec![0.0; n],
@@ -408,6 +423,8 @@ impl Rbpf {
                 })
                 .collect(),
             decisive_steps: self.decisive_steps,
+            ln_mass: self.ln_mass.clone(),
+            sentinel_mass_kg: self.sentinel_mass_kg,
         }
     }
 
@@ -446,7 +463,14 @@ impl Rbpf {
                 state.on_probation.len()
             )));
         }
+        if !(state.ln_mass.is_empty() || state.ln_mass.len() == n) {
+            return Err(DamperError::Config(format!(
+                "snapshot: ln_mass of {} entries, 0 or {n} expected",
+                state.ln_mass.len()
+            )));
+        }
         if state.ln_theta.iter().flatten().any(|v| !v.is_finite())
+            || state.ln_mass.iter().any(|v| !v.is_finite())
             || state.log_w.iter().any(|v| v.is_nan())
         {
             return Err(DamperError::NonFinite {
@@ -483,6 +507,9 @@ impl Rbpf {
             })
             .collect();
         f.decisive_steps = state.decisive_steps;
+        f.ln_mass_next.clone_from(&state.ln_mass);
+        f.ln_mass = state.ln_mass;
+        f.sentinel_mass_kg = state.sentinel_mass_kg;
         f.sorted.stale = true;
         Ok(f)
     }
@@ -507,12 +534,14 @@ impl Rbpf {
             self.kernel_move();
         }
         let whiten = Whitening::new(&self.noise_scale.variance_scale());
+        let (ln_theta, ln_mass) = if every_step {
+            (&self.ln_theta_next, &self.ln_mass_next)
+        } else {
+            (&self.ln_theta, &self.ln_mass)
+        };
         self.bank.step(
-            if every_step {
-                &self.ln_theta_next
-            } else {
-                &self.ln_theta
-            },
+            ln_theta,
+            ln_mass,
             y,
             &whiten,
             StepOutput {
@@ -563,6 +592,7 @@ impl Rbpf {
         if every_step {
             self.sorted.stale = true;
             std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
+            std::mem::swap(&mut self.ln_mass, &mut self.ln_mass_next);
         }
         std::mem::swap(&mut self.log_w, &mut self.log_w_next);
         self.log_evidence += log_increment;
@@ -581,6 +611,10 @@ impl Rbpf {
                 *dst = self.ln_theta[i];
             }
             std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
+            for (dst, &i) in self.ln_mass_next.iter_mut().zip(&self.indices) {
+                *dst = self.ln_mass[i];
+            }
+            std::mem::swap(&mut self.ln_mass, &mut self.ln_mass_next);
             self.log_w.fill(-(n as f64).ln());
             self.resamples += 1;
             self.sorted.stale = true;
@@ -604,6 +638,7 @@ impl Rbpf {
     fn move_after_resampling(&mut self) -> Result<(), DamperError> {
         self.kernel_move();
         std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
+        std::mem::swap(&mut self.ln_mass, &mut self.ln_mass_next);
         for (w, pen) in self.log_w.iter_mut().zip(&self.regeneration_penalty) {
             *w += pen;
         }
@@ -614,6 +649,14 @@ impl Rbpf {
             let (mean, _) = self.ln_moments();
             if let Some(s) = &mut self.sentinels {
                 s.recentre(mean);
+            }
+            // The sentinels, one model each, run at the posterior mean's mass.
+            self.sentinel_mass_kg = self.estimated_half_body_mass_kg();
+            if let Some(m) = self.sentinel_mass_kg {
+                let (speed_m_s, _) = self.bank.schedule();
+                if let Some(s) = &mut self.sentinels {
+                    s.set_schedule(speed_m_s, m)?;
+                }
             }
         }
         Ok(())
@@ -638,6 +681,9 @@ impl Rbpf {
         systematic_resample(&self.log_w, &mut indices, &mut self.rng);
         self.bank.resize(&indices);
         self.ln_theta = indices.iter().map(|&i| self.ln_theta[i]).collect();
+        if !self.ln_mass.is_empty() {
+            self.ln_mass = indices.iter().map(|&i| self.ln_mass[i]).collect();
+        }
         if !self.on_probation.is_empty() {
             self.on_probation = indices.iter().map(|&i| self.on_probation[i]).collect();
         }
@@ -656,6 +702,7 @@ impl Rbpf {
     fn resize_buffers(&mut self) {
         let n = self.ln_theta.len();
         self.ln_theta_next.clone_from(&self.ln_theta);
+        self.ln_mass_next.clone_from(&self.ln_mass);
         self.log_w.resize(n, -(n as f64).ln());
         self.log_w_next = vec![0.0; n];
         self.ll = vec![0.0; n];
@@ -850,6 +897,15 @@ impl Rbpf {
         half_body_mass_kg: Option<f64>,
     ) -> Result<(), DamperError> {
         let mass_kg = self.checked_half_body_mass_kg(half_body_mass_kg)?;
+        let per_particle = half_body_mass_kg.is_none() && self.config.unmeasured_mass.enabled;
+        if per_particle && self.ln_mass.is_empty() {
+            self.draw_mass_prior();
+        } else if !per_particle && !self.ln_mass.is_empty() {
+            // Measured: every particle at that mass (their states and weights kept).
+            self.ln_mass.clear();
+            self.ln_mass_next.clear();
+            self.sentinel_mass_kg = None;
+        }
         let (speed_m_s, _) = self.bank.schedule();
         self.set_schedule(speed_m_s, mass_kg)?;
         if self.config.jump_search.enabled {
@@ -883,11 +939,43 @@ impl Rbpf {
         self.bank.schedule()
     }
 
+    /// The bank at `half_body_mass_kg` (the design mass while the particles carry their own),
+    /// the sentinels at the particles' posterior mean mass then.
     fn set_schedule(&mut self, speed_m_s: f64, half_body_mass_kg: f64) -> Result<(), DamperError> {
+        let sentinel_mass_kg = self.sentinel_mass_kg.unwrap_or(half_body_mass_kg);
         if let Some(s) = &mut self.sentinels {
-            s.set_schedule(speed_m_s, half_body_mass_kg)?;
+            s.set_schedule(speed_m_s, sentinel_mass_kg)?;
         }
         self.bank.set_schedule(speed_m_s, half_body_mass_kg)
+    }
+
+    /// Each particle's `ln (m_bd / design)` drawn log-uniform over the prior's range
+    /// (`unmeasured_mass`): the mass was not measured.
+    fn draw_mass_prior(&mut self) {
+        let c = self.config.unmeasured_mass;
+        let (lo, hi) = (c.min_ratio.ln(), c.max_ratio.ln());
+        let n = self.ln_theta.len();
+        self.ln_mass = (0..n)
+            .map(|_| lo + (hi - lo) * self.rng.random::<f64>())
+            .collect();
+        self.ln_mass_next.clone_from(&self.ln_mass);
+        self.sentinel_mass_kg = self.estimated_half_body_mass_kg();
+        self.sorted.stale = true;
+    }
+
+    /// The posterior mean of the body mass above the bogie (kg) while the particles carry it
+    /// (no mass measured, `unmeasured_mass`); `None` otherwise.
+    pub fn estimated_half_body_mass_kg(&self) -> Option<f64> {
+        if self.ln_mass.is_empty() {
+            return None;
+        }
+        let mean: f64 = self
+            .ln_mass
+            .iter()
+            .zip(self.published_weights())
+            .map(|(m, w)| w * m.exp())
+            .sum();
+        Some(self.design_half_body_mass_kg * mean)
     }
 
     /// The longest settling after a pause this filter may need (s; `speed.resume_settle_s`
@@ -936,6 +1024,7 @@ impl Rbpf {
         let whiten = Whitening::new(&self.noise_scale.variance_scale());
         self.bank.step(
             &self.ln_theta,
+            &self.ln_mass,
             y,
             &whiten,
             StepOutput {
@@ -989,11 +1078,39 @@ impl Rbpf {
             .unwrap_or_else(Matrix2::zeros);
         let (a, h) = (self.kernel_a, self.kernel_h);
         let ln_regen_weight = self.config.regeneration_weight.ln();
-        for ((dst, th), penalty) in self
+        // With the mass a parameter the kernel is eq. 24 on (ln C_sy, ln C_say, ln m) with the
+        // joint covariance: its Cholesky factor's first two rows are `chol`'s, so the dampers'
+        // jitter is drawn as without the mass, and the mass adds the third row (`row`:
+        // `L_20, L_21, L_22` from `L_00 L_20 = c_0`, `L_10 L_20 + L_11 L_21 = c_1`,
+        // `L_20^2 + L_21^2 + L_22^2 = v`).
+        let mass = (!self.ln_mass.is_empty()).then(|| {
+            let (m, c, v) = self.mass_moments(mean);
+            let l0 = if chol[(0, 0)] > 0.0 {
+                c[0] / chol[(0, 0)]
+            } else {
+                0.0
+            };
+            let l1 = if chol[(1, 1)] > 0.0 {
+                (c[1] - chol[(1, 0)] * l0) / chol[(1, 1)]
+            } else {
+                0.0
+            };
+            (m, [l0, l1, (v - l0 * l0 - l1 * l1).max(0.0).sqrt()])
+        });
+        let mass_bounds = (
+            HALF_BODY_MASS_RATIO.start().ln(),
+            HALF_BODY_MASS_RATIO.end().ln(),
+        );
+        let mass_prior = (
+            self.config.unmeasured_mass.min_ratio.ln(),
+            self.config.unmeasured_mass.max_ratio.ln(),
+        );
+        for (i, ((dst, th), penalty)) in self
             .ln_theta_next
             .iter_mut()
             .zip(&self.ln_theta)
             .zip(self.regeneration_penalty.iter_mut())
+            .enumerate()
         {
             *penalty = 0.0;
             let z0: f64 = self.rng.sample(StandardNormal);
@@ -1001,6 +1118,19 @@ impl Rbpf {
             for k in 0..2 {
                 let jitter = h * (chol[(k, 0)] * z0 + chol[(k, 1)] * z1);
                 dst[k] = a * th[k] + (1.0 - a) * mean[k] + jitter + shift[k];
+            }
+            if let Some((m, row)) = mass {
+                let z2: f64 = self.rng.sample(StandardNormal);
+                let jitter = h * (row[0] * z0 + row[1] * z1 + row[2] * z2);
+                let moved = a * self.ln_mass[i] + (1.0 - a) * m + jitter;
+                // A mass the gain table holds; a regenerated one from the prior (the load
+                // changes at stops: a newcomer finds the new one).
+                self.ln_mass_next[i] = if regen > 0.0 && self.rng.random::<f64>() < regen {
+                    *penalty = ln_regen_weight;
+                    mass_prior.0 + (mass_prior.1 - mass_prior.0) * self.rng.random::<f64>()
+                } else {
+                    moved.clamp(mass_bounds.0, mass_bounds.1)
+                };
             }
             for (k, dif) in dif.iter().enumerate() {
                 if *dif > 0.0 {
@@ -1019,6 +1149,27 @@ impl Rbpf {
                 }
             }
         }
+    }
+
+    /// Weighted mean of `ln m`, its covariance with `ln theta` (whose mean is `theta_mean`) and
+    /// its variance, accumulated about the first particle as [`Rbpf::ln_moments`].
+    fn mass_moments(&self, theta_mean: [f64; 2]) -> (f64, [f64; 2], f64) {
+        let origin = self.ln_mass[0];
+        let shift: f64 = self
+            .ln_mass
+            .iter()
+            .zip(&self.log_w)
+            .map(|(m, lw)| lw.exp() * (m - origin))
+            .sum();
+        let (mut cross, mut var) = ([0.0; 2], 0.0);
+        for ((m, th), lw) in self.ln_mass.iter().zip(&self.ln_theta).zip(&self.log_w) {
+            let w = lw.exp();
+            let d = m - origin - shift;
+            cross[0] += w * d * (th[0] - theta_mean[0]);
+            cross[1] += w * d * (th[1] - theta_mean[1]);
+            var += w * d * d;
+        }
+        (origin + shift, cross, var)
     }
 
     /// Weighted mean and covariance of `ln theta`, accumulated about the first particle so

@@ -159,7 +159,7 @@ impl SparsePropagator {
             let (mut yaw_blk, mut series_blk) = (Row::ZERO, Row::ZERO);
             yaw_blk[..len].copy_from_slice(&yaw[i0..i0 + len]);
             series_blk[..len].copy_from_slice(&series[i0..i0 + len]);
-            self.propagate_block(&x_blk, &yaw_blk, &series_blk, &mut acc, &mut blk);
+            self.propagate_block(&x_blk, &yaw_blk, &series_blk, &Row::ONE, &mut acc, &mut blk);
             for (s, row) in acc.iter().enumerate() {
                 out[s * n + i0..s * n + i0 + len].copy_from_slice(&row[..len]);
             }
@@ -167,7 +167,9 @@ impl SparsePropagator {
     }
 
     /// `acc = Phi_f(theta_j) x` for the particles of one block (`yaw`, `series`: their damper
-    /// entries), by the Taylor series `sum_k (A T)^k / k!` of the sparse `A(theta_j)`. Works on
+    /// entries; `body`: the scale of the body's acceleration row, `m_model / m_j`, 1 when
+    /// every particle runs at the model's body mass: `model::MASS_ENTRIES` are the whole row,
+    /// all `~ 1 / m_bd`), by the Taylor series `sum_k (A T)^k / k!` of the sparse `A(theta_j)`. Works on
     /// whole rows of [`BLOCK`] (padding columns hold zeros), the block's partial sums held in
     /// registers: each row of a term is summed over its non-zeros (in the order of `entries`,
     /// then the damper entry) and added to the sum in one pass; the first term is read from
@@ -178,6 +180,7 @@ impl SparsePropagator {
         x: &[Row; N_STATES],
         yaw: &Row,
         series: &Row,
+        body: &Row,
         acc: &mut [Row; N_STATES],
         blk: &mut Block,
     ) {
@@ -201,6 +204,8 @@ impl SparsePropagator {
                     state::YSR => term_row(s, row, src, acc, out, |j| {
                         s * series[j] * (src[state::YB][j] - src[state::YSR][j])
                     }),
+                    // x 1 is exact: at the model's mass the sum is bit for bit what it was.
+                    state::YBD_DOT => term_row_scaled(s, row, src, acc, out, body),
                     _ => term_row(s, row, src, acc, out, |_| 0.0),
                 }
             }
@@ -220,11 +225,13 @@ impl SparsePropagator {
         }
     }
 
-    /// `e = y - H x` for one block.
+    /// `e = y - H x` for one block, the body accelerometer's row scaled by `body` (as in
+    /// [`SparsePropagator::propagate_block`]: `H`'s rows are rows of `A`).
     #[inline(always)]
     pub(super) fn innovation_block(
         &self,
         x: &[Row; N_STATES],
+        body: &Row,
         e: &mut [Row; N_OUTPUTS],
         y: &Vector5,
     ) {
@@ -232,8 +239,14 @@ impl SparsePropagator {
             *row = Row([y[m]; BLOCK]);
         }
         for &(m, c, v) in &self.h_entries {
-            for (e, a) in e[m].iter_mut().zip(x[c].iter()) {
-                *e -= v * a;
+            if m == BODY_OUTPUT {
+                for ((e, a), b) in e[m].iter_mut().zip(x[c].iter()).zip(body.iter()) {
+                    *e -= v * a * b;
+                }
+            } else {
+                for (e, a) in e[m].iter_mut().zip(x[c].iter()) {
+                    *e -= v * a;
+                }
             }
         }
     }
@@ -269,6 +282,37 @@ fn term_row(
     }
 }
 
+/// [`term_row`] with the row's sum scaled per particle by `scale` before it is stored and
+/// added (the body's acceleration row at each particle's own mass).
+#[inline(always)]
+fn term_row_scaled(
+    s: f64,
+    row: &[(usize, f64)],
+    src: &[Row; N_STATES],
+    acc: &mut Row,
+    out: &mut Row,
+    scale: &Row,
+) {
+    let mut t = [0.0; BLOCK];
+    for &(c, v) in row {
+        let sv = s * v;
+        for (tj, x) in t.iter_mut().zip(src[c].iter()) {
+            *tj += sv * x;
+        }
+    }
+    for (tj, k) in t.iter_mut().zip(scale.iter()) {
+        *tj *= k;
+    }
+    out.0 = t;
+    for (a, tj) in acc.iter_mut().zip(&t) {
+        *a += tj;
+    }
+}
+
+/// The body accelerometer's place among the outputs (the `y_bd''` row of `A`).
+const BODY_OUTPUT: usize = 4;
+const _: () = assert!(OUTPUT_ROWS[BODY_OUTPUT] == state::YBD_DOT);
+
 /// Particles processed together: small enough for the level-1 cache (about 35 kB), long
 /// enough for the inner loops to vectorise.
 pub const BLOCK: usize = 64;
@@ -282,6 +326,7 @@ pub(super) struct Row(pub(super) [f64; BLOCK]);
 
 impl Row {
     pub(super) const ZERO: Row = Row([0.0; BLOCK]);
+    pub(super) const ONE: Row = Row([1.0; BLOCK]);
 }
 
 impl std::ops::Deref for Row {

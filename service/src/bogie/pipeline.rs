@@ -600,6 +600,11 @@ impl BogiePipeline {
                             .map(Into::into),
                     }
                 };
+                // Without a load signal the particles carry the mass (`rbpf.unmeasured_mass`).
+                let estimated_mass_kg = s
+                    .monitor
+                    .as_ref()
+                    .and_then(|m| m.rbpf().estimated_half_body_mass_kg());
                 BogieView {
                     bogie: s.id,
                     samples: s.monitor.as_ref().map_or(0, |m| m.steps()),
@@ -619,14 +624,16 @@ impl BogiePipeline {
                     paused: estimate.and_then(|e| e.paused).map(|r| r.as_str().into()),
                     speed_m_s: estimate.map(|e| e.speed_m_s),
                     mass_source: estimate.map(|e| {
-                        match e.measured_half_body_mass_kg {
-                            Some(_) => "measured",
-                            None => "design",
+                        match (e.measured_half_body_mass_kg, estimated_mass_kg) {
+                            (Some(_), _) => "measured",
+                            (None, Some(_)) => "estimated",
+                            (None, None) => "design",
                         }
                         .into()
                     }),
                     half_body_mass_kg: estimate.map(|e| {
                         e.measured_half_body_mass_kg
+                            .or(estimated_mass_kg)
                             .unwrap_or(self.config.estimator.vehicle.half_body_mass_kg)
                     }),
                     noise_std_ratio: estimate.map(|e| e.noise_std_ratio.into()),

@@ -105,9 +105,10 @@ pub struct BogieView {
     /// Vehicle speed of the last sample, m/s; null before the first.
     pub speed_m_s: Option<f64>,
     /// Which body mass above the bogie the filter takes: `measured` (the last frame's
-    /// `half_body_mass_kg`, its air springs' load) or `design` (the frame had none:
-    /// `estimator.vehicle.half_body_mass_kg`, also right after a restore from a snapshot,
-    /// until the next frame); null before the first sample.
+    /// `half_body_mass_kg`, its air springs' load), `estimated` (the frame had none and the
+    /// particles carry the mass, `estimator.rbpf.unmeasured_mass`: their posterior mean) or
+    /// `design` (none, and that setting off: `estimator.vehicle.half_body_mass_kg`; also right
+    /// after a restore from a snapshot, until the next frame); null before the first sample.
     pub mass_source: Option<String>,
     /// That mass, kg; null when `mass_source` is.
     pub half_body_mass_kg: Option<f64>,
