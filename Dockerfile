@@ -68,8 +68,10 @@ EXPOSE 8787
 # Read by `railmon serve` and `sensors-replay` (clap `env = "RAILMON_CONFIG"`), like --config.
 ENV RAILMON_CONFIG=/opt/railmon/config/railmon.toml
 ENV RAILMON_STORAGE__DATA_DIR=/var/lib/railmon
-# The damper filters' gain grids, solved here once (about 26 s of a core) instead of at every
-# service start: /var/lib/railmon/gain-cache, copied with the directory into a fresh volume.
+# The damper filters' gain grids, solved here once instead of at every service start: every
+# speed at the design mass and at the masses a filter without a load signal carries (550 nodes,
+# about 3 min of a core and 533 MB; docs/service.md): /var/lib/railmon/gain-cache, copied with
+# the directory into a fresh volume.
 RUN ["railmon", "damper", "warm-cache"]
 ENTRYPOINT []
 CMD ["railmon", "serve"]

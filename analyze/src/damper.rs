@@ -38,9 +38,9 @@ use railmon_damper::params::checked_half_body_mass_kg;
 use railmon_records::gain_cache::GainCache;
 
 use railmon_damper::{
-    BogieSample, BogieSimulator, BogieStatusEvent, BogieStatusWatch, DamperAlarm, DamperError,
-    DamperEstimate, DamperEvent, DamperFault, DamperId, DamperMonitor, DamperMonitorConfig,
-    DamperScenario, FaultKind, Propagation, Rbpf, SampleRanges,
+    BodyMass, BogieSample, BogieSimulator, BogieStatusEvent, BogieStatusWatch, DamperAlarm,
+    DamperError, DamperEstimate, DamperEvent, DamperFault, DamperId, DamperMonitor,
+    DamperMonitorConfig, DamperScenario, FaultKind, Propagation, Rbpf, SampleRanges,
 };
 use railmon_records::bogie::{BogieCsvReader, BogieCsvWriter, BogieRecord};
 use railmon_records::{write_csv_table, RecordError};
@@ -200,6 +200,8 @@ pub const REFUSAL_REASONS: [&str; 9] = [
 struct TracePoint {
     time_s: f64,
     estimate: DamperEstimate,
+    /// The body mass the filter ran at (`DamperMonitor::body_mass`).
+    body_mass: BodyMass,
     truth: Option<[f64; 2]>,
 }
 
@@ -622,6 +624,7 @@ fn run_monitor(
             trace.push(TracePoint {
                 time_s: estimate.time_s,
                 estimate,
+                body_mass: monitor.body_mass(),
                 truth,
             });
         }
@@ -822,6 +825,8 @@ fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), RecordError>
             "model_mismatch",
             "speed_m_s",
             "paused",
+            "half_body_mass_kg",
+            "mass_source",
         ]
         .map(str::to_owned),
     );
@@ -857,6 +862,8 @@ fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), RecordError>
         row.push(p.estimate.model_mismatch.to_string());
         row.push(format!("{:.3}", p.estimate.speed_m_s));
         row.push(p.estimate.paused.map_or("", |r| r.as_str()).to_owned());
+        row.push(format!("{:.1}", p.body_mass.half_body_mass_kg));
+        row.push(p.body_mass.source.as_str().to_owned());
         row
     });
     write_csv_table(path, &header, rows)

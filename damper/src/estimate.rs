@@ -38,3 +38,33 @@ pub struct DamperEstimate {
     /// and they assume the design mass (`vehicle.half_body_mass_kg`).
     pub measured_half_body_mass_kg: Option<f64>,
 }
+
+/// Which body mass above the bogie the filter takes (`DamperMonitor::body_mass`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MassSource {
+    /// The last sample's `half_body_mass_kg` (its air springs' load).
+    Measured,
+    /// The sample had none and the particles carry the mass (`rbpf.unmeasured_mass`): their
+    /// posterior mean.
+    Estimated,
+    /// None measured and that setting off: the design mass (`vehicle.half_body_mass_kg`).
+    Design,
+}
+
+impl MassSource {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            MassSource::Measured => "measured",
+            MassSource::Estimated => "estimated",
+            MassSource::Design => "design",
+        }
+    }
+}
+
+/// The body mass above the bogie the filter runs at, and where it comes from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BodyMass {
+    pub source: MassSource,
+    /// kg.
+    pub half_body_mass_kg: f64,
+}

@@ -7,6 +7,7 @@
 //! are smooth functions of `theta` that can be tabulated once. The fast filter then carries
 //! only the 17-vector state per particle.
 
+use std::ops::RangeInclusive;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, TryLockError};
 
@@ -475,9 +476,9 @@ impl GainTable {
     /// The node whose cell holds `speed_m_s` and `half_body_mass_kg` (each clamped to the
     /// table): [`GainTable::node_of`] itself at the design mass.
     pub fn node_at(&self, speed_m_s: f64, half_body_mass_kg: f64) -> usize {
-        let m0 = self.model.params().half_body_mass_kg;
-        let j = ((half_body_mass_kg / m0).ln() / MASS_GRID_RATIO.ln()).round();
-        let j = j.clamp(self.j_range.0 as f64, self.j_range.1 as f64) as i32;
+        let j = *self
+            .mass_node_js(half_body_mass_kg..=half_body_mass_kg)
+            .start();
         self.layer_of(j) * self.n_speed + self.node_of(speed_m_s)
     }
 
@@ -542,12 +543,24 @@ impl GainTable {
         Ok(built)
     }
 
-    /// The design-mass node nearest to `speed_m_s`'s own within `reach` nodes either side that is neither
-    /// solved nor being solved (nearest first, the slower side first on a tie), if any. For a
-    /// caller that solves nodes ahead of the filters ([`GainTable::grid_at`] on another
-    /// thread), so that a filter reaching a new speed does not stall for the solution.
-    pub fn missing_near(&self, speed_m_s: f64, reach: usize) -> Option<usize> {
+    /// The node nearest to `speed_m_s`'s own within `reach` speed nodes either side, at a mass
+    /// node within `half_body_masses_kg` (kg; the masses the filters run at: the measured one,
+    /// the span of the particles' own, or the design mass), that is neither solved nor being
+    /// solved, if any: nearest in speed first (the slower side first on a tie), then the
+    /// lightest mass. For a caller that solves nodes ahead of the filters
+    /// ([`GainTable::grid_at`] on another thread), so that a filter reaching a new speed or
+    /// mass does not stall for the solution.
+    pub fn missing_near(
+        &self,
+        speed_m_s: f64,
+        half_body_masses_kg: RangeInclusive<f64>,
+        reach: usize,
+    ) -> Option<usize> {
         let centre = self.node_of(speed_m_s);
+        let layer_nodes: Vec<usize> = self
+            .mass_node_js(half_body_masses_kg)
+            .map(|j| self.layer_of(j) * self.n_speed)
+            .collect();
         let unsolved = |node: usize| match self.nodes[node].try_lock() {
             Ok(cell) => cell.is_none(),
             Err(TryLockError::Poisoned(p)) => p.into_inner().is_none(),
@@ -558,9 +571,31 @@ impl GainTable {
             [centre.checked_sub(d), Some(centre + d)]
                 .into_iter()
                 .flatten()
-                .filter(|&node| node < self.n_speed)
+                .filter(|&speed_node| speed_node < self.n_speed)
+                .flat_map(|speed_node| layer_nodes.iter().map(move |&l| l + speed_node))
                 .find(|&node| unsolved(node))
         })
+    }
+
+    /// Every node (every speed) of the mass nodes whose cells meet `half_body_masses_kg`
+    /// (kg; clamped to the table), the lightest mass's first.
+    pub fn nodes_of_masses(&self, half_body_masses_kg: RangeInclusive<f64>) -> Vec<usize> {
+        self.mass_node_js(half_body_masses_kg)
+            .flat_map(|j| {
+                let first = self.layer_of(j) * self.n_speed;
+                first..first + self.n_speed
+            })
+            .collect()
+    }
+
+    /// `j` of the mass nodes whose cells meet `half_body_masses_kg` (clamped to the table).
+    fn mass_node_js(&self, half_body_masses_kg: RangeInclusive<f64>) -> RangeInclusive<i32> {
+        let m0 = self.model.params().half_body_mass_kg;
+        let j = |m: f64| {
+            let j = ((m / m0).ln() / MASS_GRID_RATIO.ln()).round();
+            j.clamp(self.j_range.0 as f64, self.j_range.1 as f64) as i32
+        };
+        j(*half_body_masses_kg.start())..=j(*half_body_masses_kg.end())
     }
 
     /// [`GainTable::grid_at`] for a filter's step: the time it stalls on a node not yet

@@ -42,7 +42,7 @@ pub use config::DamperMonitorConfig;
 pub use consistency::{ConsistencyCheck, ConsistencyConfig};
 pub use ekf::{AugmentedEkf, EkfConfig, EkfEstimate};
 pub use error::DamperError;
-pub use estimate::DamperEstimate;
+pub use estimate::{BodyMass, DamperEstimate, MassSource};
 pub use faults::{DamperFault, DamperId, FaultKind};
 pub use filter_model::FilterModel;
 pub use gain_table::GainGridConfig;

@@ -6,7 +6,7 @@ use std::sync::Arc;
 use crate::config::DamperMonitorConfig;
 use crate::consistency::ConsistencyCheck;
 use crate::ekf::{AugmentedEkf, EkfState};
-use crate::estimate::DamperEstimate;
+use crate::estimate::{BodyMass, DamperEstimate, MassSource};
 use crate::gain_table::GainTable;
 use crate::rbpf::{Propagation, Rbpf, RbpfConfig, RbpfState};
 use crate::sample::BogieSample;
@@ -454,6 +454,29 @@ impl DamperMonitor {
 
     pub fn rbpf(&self) -> &Rbpf {
         &self.rbpf
+    }
+
+    /// The body mass above the bogie the filter runs at after the last sample: measured,
+    /// the particles' posterior mean while none is measured (`rbpf.unmeasured_mass`; a pass
+    /// over the particles), or the design mass. What the service's view and `analyze`'s
+    /// `estimates.csv` publish.
+    pub fn body_mass(&self) -> BodyMass {
+        if let Some(m) = self.estimate.measured_half_body_mass_kg {
+            return BodyMass {
+                source: MassSource::Measured,
+                half_body_mass_kg: m,
+            };
+        }
+        match self.rbpf.estimated_half_body_mass_kg() {
+            Some(m) => BodyMass {
+                source: MassSource::Estimated,
+                half_body_mass_kg: m,
+            },
+            None => BodyMass {
+                source: MassSource::Design,
+                half_body_mass_kg: self.rbpf.design_half_body_mass_kg(),
+            },
+        }
     }
 
     /// Resamples the RBPF's cloud to `n` particles ([`Rbpf::set_particles`]): what a host that

@@ -231,22 +231,22 @@ fn with_the_jump_search_a_stop_settles_until_the_innovations_are_explained() {
 fn nodes_solved_ahead_are_named_nearest_first_and_shared() {
     let c = DamperMonitorConfig::default();
     let table = Rbpf::gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
-    let v0 = c.vehicle.speed_m_s;
+    let (v0, m0) = (c.vehicle.speed_m_s, c.vehicle.half_body_mass_kg);
     let k = table.node_of(v0);
     // Built with the table: the configured speed's node, and no other.
     assert!(table.is_solved(k));
     assert!(!table.is_solved(k - 1) && !table.is_solved(k + 1));
-    assert_eq!(table.missing_near(v0, 0), None);
-    assert_eq!(table.missing_near(v0, 2), Some(k - 1));
+    assert_eq!(table.missing_near(v0, m0..=m0, 0), None);
+    assert_eq!(table.missing_near(v0, m0..=m0, 2), Some(k - 1));
     let warmer = table.clone();
     let solved = std::thread::spawn(move || warmer.grid_at(k - 1).unwrap())
         .join()
         .unwrap();
     assert!(table.is_solved(k - 1));
-    assert_eq!(table.missing_near(v0, 2), Some(k + 1));
+    assert_eq!(table.missing_near(v0, m0..=m0, 2), Some(k + 1));
     // A slower speed: its own node is now solved, the next missing one is below it.
     let v_low = table.node_speed_m_s(k - 1);
-    assert_eq!(table.missing_near(v_low, 1), Some(k - 2));
+    assert_eq!(table.missing_near(v_low, m0..=m0, 1), Some(k - 2));
     assert!(std::sync::Arc::ptr_eq(
         &table.grid_at(k - 1).unwrap(),
         &solved
@@ -254,7 +254,29 @@ fn nodes_solved_ahead_are_named_nearest_first_and_shared() {
     // The range ends: nothing beyond the last node is named.
     let last = table.n_nodes() - 1;
     let top = table.node_speed_m_s(last);
-    assert!(table.missing_near(top * 10.0, 0).is_some_and(|n| n == last));
+    assert!(table
+        .missing_near(top * 10.0, m0..=m0, 0)
+        .is_some_and(|n| n == last));
+    // A span of masses (the particles' own while no load is measured): the nodes of every
+    // mass node in it at the speed, lightest first, before the next speed; beyond the
+    // table's mass range, its last mass node.
+    let (light, heavy) = (m0 / 1.05, m0 * 1.05);
+    let at = |m: f64| table.node_at(v0, m);
+    assert_eq!(table.missing_near(v0, light..=heavy, 0), Some(at(light)));
+    table.grid_at(at(light)).unwrap();
+    assert_eq!(table.missing_near(v0, light..=heavy, 0), Some(at(heavy)));
+    table.grid_at(at(heavy)).unwrap();
+    assert_eq!(table.missing_near(v0, light..=heavy, 0), None);
+    // One speed node further: the slower one first, at the lightest mass (the design
+    // mass's own was solved above).
+    assert_eq!(
+        table.missing_near(v0, light..=heavy, 1),
+        Some(table.node_at(table.node_speed_m_s(k - 1), light))
+    );
+    assert_eq!(
+        table.missing_near(v0, m0 * 10.0..=m0 * 10.0, 0),
+        Some(at(m0 * 1.6))
+    );
 }
 
 /// The speeds the low-speed measurements below are taken at (m/s).

@@ -94,11 +94,14 @@ impl GainCache {
             .map_err(|e| self.refuse(&path, e.to_string()))
     }
 
-    /// [`GainCache::load`] of every node, the configured speed's first.
+    /// [`GainCache::load`] of every node stored, the configured speed's first, then the design
+    /// mass's, then the other masses' (those a run without a load signal, or at another
+    /// measured mass, solved and stored).
     pub fn load_all(&self, table: &GainTable) -> LoadReport {
         let mut report = LoadReport::default();
         let first = table.configured_node();
-        let order = std::iter::once(first).chain((0..table.n_nodes()).filter(|&n| n != first));
+        let all = table.n_nodes() * table.n_mass_nodes();
+        let order = std::iter::once(first).chain((0..all).filter(|&n| n != first));
         for node in order {
             match self.load(table, node) {
                 Ok(true) => report.loaded.push(node),
@@ -133,7 +136,7 @@ impl GainCache {
     /// Stores every solved node not stored yet; how many were written.
     pub fn store_all(&self, table: &GainTable) -> Result<usize, RecordError> {
         let mut written = 0;
-        for node in 0..table.n_nodes() {
+        for node in 0..table.n_nodes() * table.n_mass_nodes() {
             if table.is_solved(node) && self.store(table, node)? {
                 written += 1;
             }

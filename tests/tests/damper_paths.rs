@@ -169,6 +169,21 @@ fn service_and_both_analyze_paths_follow_a_measured_load_alike() {
     let bogie = &bogies["bogies"][0];
     assert_eq!(bogie["mass_source"], "measured", "{bogie}");
     assert_eq!(bogie["half_body_mass_kg"], 16900.0, "{bogie}");
+    // And `analyze` says the same in its estimates (the last row, 8 s).
+    for path in ["load-scenario", "load-input"] {
+        let estimates = std::env::temp_dir()
+            .join(format!(
+                "railmon-damper-paths-{}-{path}",
+                std::process::id()
+            ))
+            .join("estimates.csv");
+        let mut reader = csv::Reader::from_path(&estimates).unwrap();
+        let header = reader.headers().unwrap().clone();
+        let last = reader.records().last().unwrap().unwrap();
+        let column = |name: &str| &last[header.iter().position(|h| h == name).unwrap()];
+        assert_eq!(column("mass_source"), "measured", "{path}");
+        assert_eq!(column("half_body_mass_kg"), "16900.0", "{path}");
+    }
 }
 
 /// 45 s of damper-fault (C_say steps to 40 % at 30 s; at N = 100 the filter takes up to 8 s to

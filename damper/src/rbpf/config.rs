@@ -211,6 +211,18 @@ impl Default for UnmeasuredMassConfig {
 }
 
 impl UnmeasuredMassConfig {
+    /// The masses the prior spans (kg) for a design mass of `design_half_body_mass_kg`: those
+    /// a filter runs at when a sample carries no mass; `None` when disabled (the design
+    /// mass).
+    pub fn prior_masses_kg(
+        &self,
+        design_half_body_mass_kg: f64,
+    ) -> Option<std::ops::RangeInclusive<f64>> {
+        self.enabled.then_some(
+            design_half_body_mass_kg * self.min_ratio..=design_half_body_mass_kg * self.max_ratio,
+        )
+    }
+
     pub fn validate(&self) -> Result<(), DamperError> {
         for (field, value) in [
             ("rbpf.unmeasured_mass.min_ratio", self.min_ratio),

@@ -963,6 +963,12 @@ impl Rbpf {
         self.sorted.stale = true;
     }
 
+    /// The vehicle's design body mass above the bogie (kg, `vehicle.half_body_mass_kg`): the
+    /// mass assumed when none is measured nor carried by the particles.
+    pub fn design_half_body_mass_kg(&self) -> f64 {
+        self.design_half_body_mass_kg
+    }
+
     /// The posterior mean of the body mass above the bogie (kg) while the particles carry it
     /// (no mass measured, `unmeasured_mass`); `None` otherwise.
     pub fn estimated_half_body_mass_kg(&self) -> Option<f64> {
@@ -976,6 +982,22 @@ impl Rbpf {
             .map(|(m, w)| w * m.exp())
             .sum();
         Some(self.design_half_body_mass_kg * mean)
+    }
+
+    /// The lightest and heaviest body mass above the bogie (kg) a particle carries while no
+    /// mass is measured (`unmeasured_mass`), whatever its weight: the masses whose gain grids
+    /// the next steps use (`GainTable::node_at`); `None` otherwise. For a caller that solves
+    /// those grids ahead (`GainTable::missing_near`).
+    pub fn particle_mass_span_kg(&self) -> Option<std::ops::RangeInclusive<f64>> {
+        let (lo, hi) =
+            self.ln_mass
+                .iter()
+                .fold(None, |span: Option<(f64, f64)>, &m| match span {
+                    None => Some((m, m)),
+                    Some((lo, hi)) => Some((lo.min(m), hi.max(m))),
+                })?;
+        let m0 = self.design_half_body_mass_kg;
+        Some(m0 * lo.exp()..=m0 * hi.exp())
     }
 
     /// The longest settling after a pause this filter may need (s; `speed.resume_settle_s`

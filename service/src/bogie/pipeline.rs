@@ -4,6 +4,7 @@
 //! All bogies of a vehicle come from one publisher (frames interleaved, each with its bogie
 //! id): a new publisher or run restarts every bogie's monitor.
 
+use std::ops::RangeInclusive;
 use std::sync::Arc;
 
 use prometheus::{IntCounter, IntGauge};
@@ -64,7 +65,14 @@ struct BogieSlot {
     speed: EstimateGauge,
     /// Particles its filter runs now.
     particles: IntGauge,
+    /// The body masses its filter runs at (kg), for the gain-node thread: the measured one,
+    /// or the span of the particles' own; updated every [`MASS_FOLLOW_STEPS`].
+    masses_kg: Option<RangeInclusive<f64>>,
 }
+
+/// How often (steps of a bogie) the masses its filter runs at are passed to the gain-node
+/// thread (`super::warm`): a second at 1 kHz; the particles' span is a pass over them.
+const MASS_FOLLOW_STEPS: u64 = 1000;
 
 impl BogieSlot {
     fn new(id: u32, metrics: &Metrics, alarms: [DamperAlarm; 2]) -> Self {
@@ -114,6 +122,7 @@ impl BogieSlot {
             }),
             speed: metrics.bogie.speed.with_label_values(&[bogie.as_str()]),
             particles: metrics.bogie.particles.with_label_values(&[bogie.as_str()]),
+            masses_kg: None,
         }
     }
 }
@@ -466,11 +475,44 @@ impl BogiePipeline {
         if let Some(w) = &self.warmer {
             w.follow(input.sample.speed_m_s);
         }
+        self.follow_masses(k, input.sample.half_body_mass_kg);
         self.pending.push((*header, input));
         if self.pending.len() == self.slots.len() {
             self.flush();
         }
         Ok(())
+    }
+
+    /// Every [`MASS_FOLLOW_STEPS`] of bogie `k` (and at its first), the masses its filter
+    /// runs at for a frame with `half_body_mass_kg`, and the span over every bogie to the
+    /// gain-node thread: a filter without a load signal needs the gains of each mass its
+    /// particles carry (`Rbpf::particle_mass_span_kg`), up to 11 mass nodes per speed.
+    fn follow_masses(&mut self, k: usize, half_body_mass_kg: Option<f64>) {
+        let Some(warmer) = &self.warmer else { return };
+        let slot = &mut self.slots[k];
+        let Some(monitor) = &slot.monitor else { return };
+        if slot.masses_kg.is_some() && monitor.steps() % MASS_FOLLOW_STEPS != 0 {
+            return;
+        }
+        let estimator = &self.config.estimator;
+        let design_kg = estimator.vehicle.half_body_mass_kg;
+        slot.masses_kg = Some(match half_body_mass_kg {
+            Some(m) => m..=m,
+            // Before the particles have drawn theirs: the prior's.
+            None => monitor
+                .rbpf()
+                .particle_mass_span_kg()
+                .or_else(|| estimator.rbpf.unmeasured_mass.prior_masses_kg(design_kg))
+                .unwrap_or(design_kg..=design_kg),
+        });
+        let (lo, hi) = self
+            .slots
+            .iter()
+            .filter_map(|s| s.masses_kg.as_ref())
+            .fold((f64::INFINITY, 0.0_f64), |(lo, hi), m| {
+                (lo.min(*m.start()), hi.max(*m.end()))
+            });
+        warmer.follow_masses(lo..=hi);
     }
 
     fn compute_view(&self) -> ComputeView {
@@ -600,11 +642,7 @@ impl BogiePipeline {
                             .map(Into::into),
                     }
                 };
-                // Without a load signal the particles carry the mass (`rbpf.unmeasured_mass`).
-                let estimated_mass_kg = s
-                    .monitor
-                    .as_ref()
-                    .and_then(|m| m.rbpf().estimated_half_body_mass_kg());
+                let body_mass = estimate.and(s.monitor.as_ref()).map(|m| m.body_mass());
                 BogieView {
                     bogie: s.id,
                     samples: s.monitor.as_ref().map_or(0, |m| m.steps()),
@@ -623,19 +661,8 @@ impl BogiePipeline {
                     .into(),
                     paused: estimate.and_then(|e| e.paused).map(|r| r.as_str().into()),
                     speed_m_s: estimate.map(|e| e.speed_m_s),
-                    mass_source: estimate.map(|e| {
-                        match (e.measured_half_body_mass_kg, estimated_mass_kg) {
-                            (Some(_), _) => "measured",
-                            (None, Some(_)) => "estimated",
-                            (None, None) => "design",
-                        }
-                        .into()
-                    }),
-                    half_body_mass_kg: estimate.map(|e| {
-                        e.measured_half_body_mass_kg
-                            .or(estimated_mass_kg)
-                            .unwrap_or(self.config.estimator.vehicle.half_body_mass_kg)
-                    }),
+                    mass_source: body_mass.map(|m| m.source.as_str().into()),
+                    half_body_mass_kg: body_mass.map(|m| m.half_body_mass_kg),
                     noise_std_ratio: estimate.map(|e| e.noise_std_ratio.into()),
                     particles: s.monitor.as_ref().map(|m| m.particles()),
                 }
