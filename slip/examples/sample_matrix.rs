@@ -27,6 +27,7 @@
 //! `railmon analyze adhesion --scenario`.
 
 use railmon_slip::bound::{f1_bound, losses_at_bound, LoadChangeInformation};
+use railmon_slip::fixed_lag::{CentredMean, FixedLagEstimator, CENTRED_HALF_WINDOW_STEPS};
 use railmon_slip::model::DriveState;
 use railmon_slip::sampler::{draw_kind, is_held_out, Draw, DrawKind};
 use railmon_slip::{
@@ -666,14 +667,12 @@ fn release_delays(flags: &[bool], truth: &[bool]) -> Vec<f64> {
         .collect()
 }
 
-/// A centred boxcar of `2 half + 1` steps of the torque estimates and the method on it: its
+/// A centred mean of `2 half + 1` steps of the torque estimates and the method on it: its
 /// flag for step `t` is known at `t + half`.
 struct Centred {
     half: usize,
+    mean: CentredMean,
     est: AdhesionEstimator,
-    ring: Vec<Vec<f64>>,
-    sum: Vec<f64>,
-    seen: usize,
     flags: Vec<Vec<bool>>,
 }
 
@@ -681,31 +680,22 @@ impl Centred {
     fn new(cfg: &railmon_slip::SlipMonitorConfig, n: usize, half: usize) -> Self {
         Centred {
             half,
+            mean: CentredMean::new(half, n),
             est: AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
-            ring: vec![vec![0.0; n]; 2 * half + 1],
-            sum: vec![0.0; n],
-            seen: 0,
             flags: vec![Vec::new(); n],
         }
     }
 
     fn push(&mut self, x: &[f64]) {
-        let w = 2 * self.half + 1;
-        let slot = self.seen % w;
-        for (k, &xk) in x.iter().enumerate() {
-            self.sum[k] += xk - self.ring[slot][k];
-            self.ring[slot][k] = xk;
-        }
-        self.seen += 1;
-        if self.seen >= w {
-            let mean: Vec<f64> = self.sum.iter().map(|s| s / w as f64).collect();
-            let p = &self.est.estimate(&mean).expect("box").slip_probability;
+        if let Some(m) = self.mean.push(x) {
+            if self.flags[0].is_empty() {
+                for f in &mut self.flags {
+                    f.resize(self.half, false);
+                }
+            }
+            let p = &self.est.estimate(m).expect("centred").slip_probability;
             for (f, &pk) in self.flags.iter_mut().zip(p) {
                 f.push(pk > 0.5);
-            }
-        } else if self.seen > self.half {
-            for f in &mut self.flags {
-                f.push(false);
             }
         }
     }
@@ -723,6 +713,9 @@ struct LagRunner {
     raw: Vec<Vec<bool>>,
     ema: Vec<Vec<bool>>,
     centred: Vec<Centred>,
+    /// The library's stage (`railmon_slip::fixed_lag`), its flags dated back by its lag.
+    stage: FixedLagEstimator,
+    stage_flags: Vec<Vec<bool>>,
     truth: Vec<Vec<bool>>,
 }
 
@@ -737,6 +730,10 @@ impl LagRunner {
                 .iter()
                 .map(|&h| Centred::new(cfg, n, h))
                 .collect(),
+            stage: FixedLagEstimator::new(
+                AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
+            ),
+            stage_flags: vec![Vec::new(); n],
             truth: vec![Vec::new(); n],
         }
     }
@@ -762,6 +759,14 @@ impl LagRunner {
         for c in &mut self.centred {
             c.push(x);
         }
+        if let Some(p) = self.stage.estimate(x).expect("stage") {
+            for (f, &pk) in self.stage_flags.iter_mut().zip(p) {
+                if f.is_empty() {
+                    f.resize(CENTRED_HALF_WINDOW_STEPS, false);
+                }
+                f.push(pk > 0.5);
+            }
+        }
     }
 
     fn finish(self) -> LagViews {
@@ -776,6 +781,11 @@ impl LagRunner {
             }
             views.push((format!("centred {}", 2 * c.half + 1), c.flags));
         }
+        let mut stage = self.stage_flags;
+        for f in &mut stage {
+            f.resize(len, false);
+        }
+        views.push(("library stage".to_owned(), stage));
         LagViews {
             views,
             truth: self.truth,
