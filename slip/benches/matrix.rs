@@ -107,9 +107,10 @@ fn main() {
                     if at == CENTRED_HALF_WINDOW_STEPS {
                         // No probability for the steps before the first centred mean.
                         for (s, tr) in truths.iter().enumerate().take(at) {
-                            for k in 0..n {
-                                c.probability[k].push(s, false, tr[k]);
-                                c.alarm[k].push(s, false, tr[k]);
+                            for ((cp, ca), &t) in c.probability.iter_mut().zip(&mut c.alarm).zip(tr)
+                            {
+                                cp.push(s, false, t);
+                                ca.push(s, false, t);
                             }
                         }
                     }

@@ -743,8 +743,8 @@ impl LagRunner {
         if self.ema_x.is_empty() {
             self.ema_x = x.to_vec();
         }
-        for k in 0..n {
-            self.ema_x[k] += EMA_ALPHA * (x[k] - self.ema_x[k]);
+        for (e, &xk) in self.ema_x.iter_mut().zip(x) {
+            *e += EMA_ALPHA * (xk - *e);
         }
         let p = &self
             .ema_est
@@ -841,10 +841,11 @@ fn print_lag_study(outcomes: &[Outcome]) {
     println!();
     println!("Fixed-lag study (F1 >= 0.95 of the slipping drives above the bound; resolved / not; draws with a healthy drive over 0.1 %; draws with a healthy run over 50 steps)");
     println!();
-    println!("| view, edges back-dated (onset/release) | F1 >= 0.95 | resolved | not resolved | false draws | long-run draws |");
-    println!("|---|---|---|---|---|---|");
+    println!("| view, edges back-dated (onset/release) | F1 >= 0.95 | resolved | not resolved | false draws | long-run draws | worst healthy false % (seed) | longest healthy run |");
+    println!("|---|---|---|---|---|---|---|---|");
     for (v, (name, _, _, _)) in first.iter().enumerate() {
         let (mut n, mut met, mut met_r, mut n_r, mut fd, mut rd) = (0, 0, 0, 0, 0, 0);
+        let (mut worst_all, mut worst_seed, mut longest) = (0.0, 0, 0);
         for o in outcomes {
             let Some((scores, _)) = &o.lag else { continue };
             let (_, f1s, h, _) = &scores[v];
@@ -863,10 +864,14 @@ fn print_lag_study(outcomes: &[Outcome]) {
                 .map(|x| 100.0 * x.0 as f64 / o.steps as f64)
                 .fold(0.0, f64::max);
             fd += usize::from(worst > FALSE_SHARE_MAX_PCT);
+            if worst > worst_all {
+                (worst_all, worst_seed) = (worst, o.draw.seed);
+            }
+            longest = longest.max(h.iter().map(|x| x.1).max().unwrap_or(0));
             rd += usize::from(h.iter().any(|x| x.1 > RUN_MAX_STEPS));
         }
         println!(
-            "| {name} | {met} of {n} ({:.1} %) | {met_r} of {n_r} | {} of {} | {fd} | {rd} |",
+            "| {name} | {met} of {n} ({:.1} %) | {met_r} of {n_r} | {} of {} | {fd} | {rd} | {worst_all:.3} ({worst_seed}) | {longest} |",
             100.0 * met as f64 / n.max(1) as f64,
             met - met_r,
             n - n_r

@@ -72,7 +72,7 @@ impl CentredMean {
             return None;
         }
         // Re-summed from the ring once per window so that rounding cannot drift.
-        if self.seen % w == 0 {
+        if self.seen.is_multiple_of(w) {
             self.sum.fill(0.0);
             for r in self.ring.chunks_exact(n) {
                 for (s, v) in self.sum.iter_mut().zip(r) {
@@ -248,7 +248,7 @@ mod tests {
     }
 
     #[test]
-    fn the_stage_answers_after_its_lag_and_rejects_bad_input_unchanged() {
+    fn the_stage_answers_after_its_lag_and_rejects_bad_input() {
         let est = AdhesionEstimator::new(AdhesionMethod::Temporal, &AdhesionConfig::default(), 3)
             .unwrap();
         let mut s = FixedLagEstimator::new(est);
