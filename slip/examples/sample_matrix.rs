@@ -563,7 +563,7 @@ fn main() {
 
 /// Half-widths of the centred boxcars: 2 H + 1 = 63 steps has the variance of an EMA of
 /// `alpha` 1/32 on white noise (`alpha / (2 - alpha)` = 1/63).
-const BOX_HALVES: [usize; 1] = [47];
+const BOX_HALVES: [usize; 2] = [31, 47];
 const EMA_ALPHA: f64 = 1.0 / 32.0;
 
 /// Edge moves: (name, back-date of onsets, back-date of releases); `None` = the oracle.
@@ -701,46 +701,6 @@ impl Centred {
     }
 }
 
-const CHANGE_POINT_BACK: [usize; 4] = [0, 8, 16, 24];
-
-/// The change point of a mean in `x`: the split `k` (1..len) maximising the two-segment
-/// fit, `|S_k - k S_n / n|^2 / (k (n - k))` (the likelihood ratio for a shift of unknown
-/// size in Gaussian noise).
-fn change_point(x: &[f64]) -> usize {
-    let n = x.len();
-    let total: f64 = x.iter().sum();
-    let (mut best, mut arg, mut s) = (f64::NEG_INFINITY, n / 2, 0.0);
-    for (k, &v) in x.iter().enumerate().take(n.saturating_sub(1)) {
-        s += v;
-        let k1 = (k + 1) as f64;
-        let d = s - k1 * total / n as f64;
-        let stat = d * d / (k1 * (n as f64 - k1));
-        if stat > best {
-            (best, arg) = (stat, k + 1);
-        }
-    }
-    arg
-}
-
-/// Every episode `[a, b)` becomes `[cp(a) - c, cp(b) - c)`, `cp(e)` the change point of `x`
-/// in `[e - w, e + w]`; kept as it was when that would leave it empty.
-fn change_point_edges(flags: &[bool], x: &[f64], w: usize, c: usize) -> Vec<bool> {
-    let mut out = vec![false; flags.len()];
-    let cp = |e: usize| {
-        let lo = e.saturating_sub(w);
-        let hi = (e + w + 1).min(x.len());
-        (lo + change_point(&x[lo..hi])).saturating_sub(c)
-    };
-    for (a, b) in runs(flags) {
-        let (a2, b2) = (cp(a), if b < flags.len() { cp(b) } else { b });
-        let (a, b) = if a2 < b2 { (a2, b2) } else { (a, b) };
-        for f in &mut out[a..b] {
-            *f = true;
-        }
-    }
-    out
-}
-
 /// Per-drive flags of the views.
 struct LagViews {
     views: Vec<(String, Vec<Vec<bool>>)>,
@@ -757,7 +717,6 @@ struct LagRunner {
     stage: FixedLagEstimator,
     stage_flags: Vec<Vec<bool>>,
     truth: Vec<Vec<bool>>,
-    torque: Vec<Vec<f64>>,
 }
 
 impl LagRunner {
@@ -776,7 +735,6 @@ impl LagRunner {
             ),
             stage_flags: vec![Vec::new(); n],
             truth: vec![Vec::new(); n],
-            torque: vec![Vec::new(); n],
         }
     }
 
@@ -797,7 +755,6 @@ impl LagRunner {
             self.raw[k].push(p_raw[k] > 0.5);
             self.ema[k].push(p[k] > 0.5);
             self.truth[k].push(truth[k]);
-            self.torque[k].push(x[k]);
         }
         for c in &mut self.centred {
             c.push(x);
@@ -829,21 +786,6 @@ impl LagRunner {
             f.resize(len, false);
         }
         views.push(("library stage".to_owned(), stage));
-        // Edges placed by a change-point fit of the raw estimates around each crossing of the
-        // centred view (what the centred mean's look-ahead already holds), minus `c` steps.
-        let centred: Vec<Vec<bool>> = views
-            .iter()
-            .find(|v| v.0 == "centred 95")
-            .map(|v| v.1.clone())
-            .unwrap_or_default();
-        for c in CHANGE_POINT_BACK {
-            let flags = centred
-                .iter()
-                .zip(&self.torque)
-                .map(|(f, x)| change_point_edges(f, x, 47, c))
-                .collect();
-            views.push((format!("centred 95, change point -{c}"), flags));
-        }
         LagViews {
             views,
             truth: self.truth,
