@@ -563,7 +563,7 @@ fn main() {
 
 /// Half-widths of the centred boxcars: 2 H + 1 = 63 steps has the variance of an EMA of
 /// `alpha` 1/32 on white noise (`alpha / (2 - alpha)` = 1/63).
-const BOX_HALVES: [usize; 3] = [15, 31, 47];
+const BOX_HALVES: [usize; 2] = [31, 47];
 const EMA_ALPHA: f64 = 1.0 / 32.0;
 
 /// Edge moves: (name, back-date of onsets, back-date of releases); `None` = the oracle.
@@ -701,27 +701,6 @@ impl Centred {
     }
 }
 
-/// Every episode `[a, b)` of `wide` takes its onset from the first flag of `narrow` in
-/// `[a - w, a + w]` and its release from the last in `[b - w, b + w]` (else keeps its own).
-fn sharper_edges(wide: &[bool], narrow: &[bool], w: usize) -> Vec<bool> {
-    let mut out = vec![false; wide.len()];
-    let len = wide.len();
-    for (a, b) in runs(wide) {
-        let lo = |e: usize| e.saturating_sub(w);
-        let hi = |e: usize| (e + w + 1).min(len);
-        let a2 = (lo(a)..hi(a)).find(|&t| narrow[t]).unwrap_or(a);
-        let b2 = (lo(b)..hi(b))
-            .rev()
-            .find(|&t| narrow[t])
-            .map_or(b, |t| t + 1);
-        let (a, b) = if a2 < b2 { (a2, b2) } else { (a, b) };
-        for f in &mut out[a..b] {
-            *f = true;
-        }
-    }
-    out
-}
-
 /// Per-drive flags of the views.
 struct LagViews {
     views: Vec<(String, Vec<Vec<bool>>)>,
@@ -807,23 +786,6 @@ impl LagRunner {
             f.resize(len, false);
         }
         views.push(("library stage".to_owned(), stage));
-        // Episodes of the 95-step view, edges from a narrower view's crossing within 47 steps.
-        let find = |views: &[(String, Vec<Vec<bool>>)], name: &str| {
-            views.iter().find(|v| v.0 == name).map(|v| v.1.clone())
-        };
-        if let Some(wide) = find(&views, "centred 95") {
-            for narrow_name in ["centred 31", "centred 63"] {
-                let Some(narrow) = find(&views, narrow_name) else {
-                    continue;
-                };
-                let flags = wide
-                    .iter()
-                    .zip(&narrow)
-                    .map(|(w, s)| sharper_edges(w, s, 47))
-                    .collect();
-                views.push((format!("centred 95, edges of {narrow_name}"), flags));
-            }
-        }
         LagViews {
             views,
             truth: self.truth,
