@@ -12,7 +12,7 @@
 //! ```text
 //! cargo run --release -p railmon-slip --example sample_matrix -- [--draws 200] [--first-seed 1000]
 //!     [--split held-out|tuning|all] [--method temporal] [--worst 10] [--list]
-//!     [--kind ordinary|train-speed|all-at-once]
+//!     [--kind ordinary|train-speed|all-at-once] [--lag-study]
 //! cargo run --release -p railmon-slip --example sample_matrix -- --seed N [--write FILE.toml]
 //!     [--kind ...]
 //! ```
@@ -24,7 +24,10 @@
 //! `--split` keeps the seeds of one side of the split (held-out: odd seeds, tuning: even) from
 //! `--first-seed` on until `--draws` are run; `--list` prints one row per draw; `--seed` runs
 //! one draw and prints its drives; `--write` also writes it as a scenario file for
-//! `railmon analyze adhesion --scenario`.
+//! `railmon analyze adhesion --scenario`. `--lag-study` also scores the method published a
+//! fixed lag late (`railmon_slip::fixed_lag`) and the views it was chosen among: a causal EMA,
+//! centred means, edges back-dated or on the truth's (docs/adhesion.md, "Fixed-lag
+//! publication").
 
 use railmon_slip::bound::{f1_bound, losses_at_bound, LoadChangeInformation};
 use railmon_slip::fixed_lag::{CentredMean, FixedLagEstimator, CENTRED_HALF_WINDOW_STEPS};
@@ -64,7 +67,7 @@ fn usage() -> ! {
     eprintln!(
         "usage: sample_matrix [--draws N] [--first-seed S] [--split held-out|tuning|all] \
          [--method NAME] [--worst N] [--list] | --seed N [--write FILE.toml] [--method NAME]; \
-         [--kind ordinary|train-speed|all-at-once]"
+         [--kind ordinary|train-speed|all-at-once] [--lag-study]"
     );
     std::process::exit(2);
 }
