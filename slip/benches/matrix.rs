@@ -11,20 +11,23 @@
 //!
 //! `cargo bench -p railmon-slip --bench matrix [-- [--confirm=N] [--hold=N] NAME]`
 //! (NAME: run only scenarios whose file name contains it; `--confirm`, `--hold`: the alarm's
-//! `confirm_steps`, `release_hold_steps`). Takes a minute or two in release on one core.
+//! `confirm_steps`, `release_hold_steps`; `--fixed-lag`: also the temporal method behind the
+//! fixed-lag stage, `railmon_slip::fixed_lag`, scored at the steps it dates its probabilities
+//! to). Takes a minute or two in release on one core.
 
 use std::time::Instant;
 
 mod scenarios_dir;
 use scenarios_dir::scenario_paths;
 
+use railmon_slip::fixed_lag::{FixedLagEstimator, CENTRED_HALF_WINDOW_STEPS};
 use railmon_slip::{
-    AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveSimulator,
-    MultiMethodPipeline,
+    AdhesionEstimator, AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore,
+    DriveSimulator, MultiMethodPipeline, SlipAlarm,
 };
 
 struct MethodCounters {
-    method: AdhesionMethod,
+    method: String,
     probability: Vec<DetectionCounter>,
     alarm: Vec<DetectionCounter>,
 }
@@ -39,7 +42,12 @@ fn main() {
     let mut healthy = Vec::new();
     // Per method (in `AdhesionMethod::ALL` order): true losses, alarm starts on slipping
     // drives, false alarm episodes on slipping drives, on healthy drives.
-    let mut episodes = vec![[0usize; 4]; AdhesionMethod::ALL.len()];
+    let fixed_lag = std::env::args().any(|a| a == "--fixed-lag");
+    let mut labels: Vec<String> = AdhesionMethod::ALL.iter().map(|m| m.to_string()).collect();
+    if fixed_lag {
+        labels.push("temporal, fixed lag".to_owned());
+    }
+    let mut episodes = vec![[0usize; 4]; labels.len()];
     for path in scenario_paths(filter.as_deref()) {
         let text = std::fs::read_to_string(&path).expect("scenario file");
         let scenario = AdhesionScenario::from_toml_str(&text)
@@ -57,14 +65,26 @@ fn main() {
             }
         }
         let mut pipe = MultiMethodPipeline::new(&cfg, n).expect("pipeline");
-        let mut counters: Vec<MethodCounters> = AdhesionMethod::ALL
+        let mut counters: Vec<MethodCounters> = labels
             .iter()
-            .map(|&method| MethodCounters {
-                method,
+            .map(|method| MethodCounters {
+                method: method.clone(),
                 probability: vec![DetectionCounter::default(); n],
                 alarm: vec![DetectionCounter::default(); n],
             })
             .collect();
+        // The stage dates its probabilities `FIXED_LAG_STEPS` back: scored against the truth
+        // of the step it names, with the alarm on what it publishes.
+        let mut lagged = fixed_lag.then(|| {
+            let est = AdhesionEstimator::new(AdhesionMethod::Temporal, &cfg.adhesion, n)
+                .expect("estimator");
+            (
+                FixedLagEstimator::new(est),
+                SlipAlarm::new(cfg.alarm, n).expect("alarm"),
+                Vec::new(),
+                Vec::<Vec<bool>>::new(),
+            )
+        });
         let mut step = 0;
         let mut pipeline_s = 0.0;
         while let Some((samples, truth)) = sim.step() {
@@ -77,6 +97,29 @@ fn main() {
                 for k in 0..n {
                     c.probability[k].push(step, out.slip_probability[k] > 0.5, truth[k].slipping);
                     c.alarm[k].push(step, flags[k], truth[k].slipping);
+                }
+            }
+            if let Some((stage, alarm, events, truths)) = &mut lagged {
+                truths.push(truth.iter().map(|t| t.slipping).collect());
+                if let Some(p) = stage.estimate(pipe.torque_nm()).expect("stage") {
+                    let c = counters.last_mut().expect("the stage's counters");
+                    let at = truths.len() - 1 - railmon_slip::fixed_lag::FIXED_LAG_STEPS;
+                    if at == CENTRED_HALF_WINDOW_STEPS {
+                        // No probability for the steps before the first centred mean.
+                        for (s, tr) in truths.iter().enumerate().take(at) {
+                            for ((cp, ca), &t) in c.probability.iter_mut().zip(&mut c.alarm).zip(tr)
+                            {
+                                cp.push(s, false, t);
+                                ca.push(s, false, t);
+                            }
+                        }
+                    }
+                    events.clear();
+                    alarm.update(p, events);
+                    for k in 0..n {
+                        c.probability[k].push(at, p[k] > 0.5, truths[at][k]);
+                        c.alarm[k].push(at, alarm.slipping()[k], truths[at][k]);
+                    }
                 }
             }
             step += 1;
@@ -152,9 +195,7 @@ fn main() {
     println!();
     println!("| method | true losses | alarm starts on slipping drives | starts per loss | false alarm episodes, slipping drives | false alarm episodes, healthy drives |");
     println!("|---|---|---|---|---|---|");
-    for (method, [losses, starts, false_slipping, false_healthy]) in
-        AdhesionMethod::ALL.iter().zip(&episodes)
-    {
+    for (method, [losses, starts, false_slipping, false_healthy]) in labels.iter().zip(&episodes) {
         println!(
             "| {method} | {losses} | {starts} | {:.2} | {false_slipping} | {false_healthy} |",
             *starts as f64 / (*losses).max(1) as f64

@@ -10,6 +10,9 @@
 //! - what the service runs: the EKFs and the default method (`SlipMonitor`, temporal),
 //! - the same with a train speed on every frame (`step_with_train_speed`, a constant 5.75 m/s:
 //!   the cost of the train-speed reference),
+//! - the temporal method behind the fixed-lag stage (`railmon_slip::fixed_lag`, library only:
+//!   the service does not run it) over the same torque estimates, alone and summed with the
+//!   EKF bank,
 //!
 //! printed as drive-steps per second of CPU time (one core), with the sum of the sections next
 //! to the measured whole. CPU time (`railmon_bench_support`) instead of wall clock: on the
@@ -25,6 +28,7 @@ use scenarios_dir::scenario_paths;
 
 use railmon_bench_support::thread_cpu_time;
 use railmon_slip::ekf::{ekf_step, ekf_step_dense};
+use railmon_slip::fixed_lag::FixedLagEstimator;
 use railmon_slip::model::DriveMatrix;
 use railmon_slip::{
     AdhesionEstimator, AdhesionMethod, AdhesionScenario, DriveSample, DriveSimulator, EkfBank,
@@ -53,9 +57,9 @@ fn main() {
         print!(" {m} |");
     }
     println!(
-        " sum of sections | whole pipeline | EKFs + temporal (service) | service with a train speed | EKF step sparse / dense |"
+        " sum of sections | whole pipeline | EKFs + temporal (service) | service with a train speed | EKF step sparse / dense | temporal, fixed lag | EKF bank + temporal, fixed lag (sum) |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for path in scenario_paths(filter.as_deref()) {
         let text = std::fs::read_to_string(&path).expect("scenario file");
         let scenario = AdhesionScenario::from_toml_str(&text)
@@ -116,6 +120,14 @@ fn main() {
                 })
             })
             .collect();
+        let lagged_s = cpu_seconds(|| {
+            let e = AdhesionEstimator::new(AdhesionMethod::Temporal, &config.adhesion, n)
+                .expect("method");
+            let mut stage = FixedLagEstimator::new(e);
+            for t in torque.chunks_exact(n) {
+                black_box(stage.estimate(t).expect("estimate").map(|p| p[0]));
+            }
+        });
         let whole_s = cpu_seconds(|| {
             let mut pipe = MultiMethodPipeline::new(&config, n).expect("pipeline");
             for f in &frames {
@@ -142,12 +154,14 @@ fn main() {
             print!(" {} |", rate(*s));
         }
         println!(
-            " {} | {} | {} | {} | {:.2} |",
+            " {} | {} | {} | {} | {:.2} | {} | {} |",
             rate(ekf_s + method_s.iter().sum::<f64>()),
             rate(whole_s),
             rate(service_s),
             rate(service_train_s),
-            dense_s / sparse_s
+            dense_s / sparse_s,
+            rate(lagged_s),
+            rate(ekf_s + lagged_s)
         );
     }
     println!();

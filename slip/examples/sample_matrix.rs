@@ -12,7 +12,7 @@
 //! ```text
 //! cargo run --release -p railmon-slip --example sample_matrix -- [--draws 200] [--first-seed 1000]
 //!     [--split held-out|tuning|all] [--method temporal] [--worst 10] [--list]
-//!     [--kind ordinary|train-speed|all-at-once]
+//!     [--kind ordinary|train-speed|all-at-once] [--lag-study]
 //! cargo run --release -p railmon-slip --example sample_matrix -- --seed N [--write FILE.toml]
 //!     [--kind ...]
 //! ```
@@ -24,13 +24,18 @@
 //! `--split` keeps the seeds of one side of the split (held-out: odd seeds, tuning: even) from
 //! `--first-seed` on until `--draws` are run; `--list` prints one row per draw; `--seed` runs
 //! one draw and prints its drives; `--write` also writes it as a scenario file for
-//! `railmon analyze adhesion --scenario`.
+//! `railmon analyze adhesion --scenario`. `--lag-study` also scores the method published a
+//! fixed lag late (`railmon_slip::fixed_lag`) and the views it was chosen among: a causal EMA,
+//! centred means, edges back-dated or on the truth's (docs/adhesion.md, "Fixed-lag
+//! publication").
 
 use railmon_slip::bound::{f1_bound, losses_at_bound, LoadChangeInformation};
+use railmon_slip::fixed_lag::{CentredMean, FixedLagEstimator, CENTRED_HALF_WINDOW_STEPS};
 use railmon_slip::model::DriveState;
 use railmon_slip::sampler::{draw_kind, is_held_out, Draw, DrawKind};
 use railmon_slip::{
-    AdhesionMethod, DetectionCounter, DriveModel, DriveSimulator, MultiMethodPipeline,
+    AdhesionEstimator, AdhesionMethod, DetectionCounter, DriveModel, DriveSimulator,
+    MultiMethodPipeline,
 };
 
 /// The bars of issue 23.
@@ -48,6 +53,7 @@ struct Args {
     seed: Option<u64>,
     write: Option<String>,
     kind: DrawKind,
+    lag_study: bool,
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -61,7 +67,7 @@ fn usage() -> ! {
     eprintln!(
         "usage: sample_matrix [--draws N] [--first-seed S] [--split held-out|tuning|all] \
          [--method NAME] [--worst N] [--list] | --seed N [--write FILE.toml] [--method NAME]; \
-         [--kind ordinary|train-speed|all-at-once]"
+         [--kind ordinary|train-speed|all-at-once] [--lag-study]"
     );
     std::process::exit(2);
 }
@@ -77,6 +83,7 @@ fn parse_args() -> Args {
         seed: None,
         write: None,
         kind: DrawKind::Ordinary,
+        lag_study: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -98,6 +105,7 @@ fn parse_args() -> Args {
             "--seed" => a.seed = Some(value().parse().unwrap_or_else(|_| usage())),
             "--write" => a.write = Some(value()),
             "--kind" => a.kind = value().parse().unwrap_or_else(|_| usage()),
+            "--lag-study" => a.lag_study = true,
             _ => usage(),
         }
     }
@@ -127,6 +135,7 @@ struct Outcome {
     /// Drives whose drawn loss the slip rule never flags (scored neither way).
     sub_rule: usize,
     steps: usize,
+    lag: Option<(LagScores, Vec<Vec<f64>>)>,
 }
 
 impl Outcome {
@@ -208,7 +217,7 @@ impl Outcome {
     }
 }
 
-fn run(draw: Draw, method: Option<AdhesionMethod>) -> Outcome {
+fn run(draw: Draw, method: Option<AdhesionMethod>, lag_study: bool) -> Outcome {
     let scenario = &draw.scenario;
     let n = scenario.n_drives();
     let mut cfg = scenario.monitor_config();
@@ -243,12 +252,17 @@ fn run(draw: Draw, method: Option<AdhesionMethod>) -> Outcome {
     let mut adhering_error = vec![(0.0, 0usize); n];
     let (mut run_now, mut run_max) = (vec![0usize; n], vec![0usize; n]);
     let mut run_start = vec![0usize; n];
+    let mut lag = lag_study.then(|| LagRunner::new(&cfg, n));
     let mut step = 0;
     while let Some((samples, truth, train_speed)) = sim.step_with_train_speed() {
         pipe.step_with_train_speed(samples, train_speed)
             .expect("pipeline step");
         let (_, probability_now) = pipe.slip_probability().next().expect("one method");
         let (_, flags) = pipe.slipping().next().expect("one method");
+        if let Some(l) = &mut lag {
+            let t: Vec<bool> = truth.iter().map(|t| t.slipping).collect();
+            l.push(pipe.torque_nm(), probability_now, &t);
+        }
         for k in 0..n {
             let flagged = probability_now[k] > 0.5;
             probability[k].push(step, flagged, truth[k].slipping);
@@ -312,12 +326,18 @@ fn run(draw: Draw, method: Option<AdhesionMethod>) -> Outcome {
             None => healthy.push((k, p.false_pos, run_max[k], a.false_pos, run_start[k])),
         }
     }
+    let lag = lag.map(|l| {
+        let ks: Vec<usize> = slipping.iter().map(|s| s.drive).collect();
+        let hs: Vec<usize> = healthy.iter().map(|h| h.0).collect();
+        lag_scores(&l.finish(), &ks, &hs)
+    });
     Outcome {
         draw,
         slipping,
         healthy,
         sub_rule,
         steps: step,
+        lag,
     }
 }
 
@@ -349,7 +369,7 @@ fn main() {
             std::fs::write(path, header + &text).expect("write the scenario");
             eprintln!("wrote {path}");
         }
-        let o = run(d, args.method);
+        let o = run(d, args.method, args.lag_study);
         println!("{}", o.draw.scenario.description);
         println!("{HEADER}");
         println!("{}", o.summary());
@@ -384,7 +404,7 @@ fn main() {
         .take(args.draws);
     let mut outcomes = Vec::new();
     for seed in seeds {
-        let o = run(draw_kind(seed, args.kind), args.method);
+        let o = run(draw_kind(seed, args.kind), args.method, args.lag_study);
         if args.list {
             if outcomes.is_empty() {
                 println!("{HEADER}");
@@ -523,6 +543,9 @@ fn main() {
         over(&|o| o.right_drives_flagged()),
         outcomes.len()
     );
+    if args.lag_study {
+        print_lag_study(&outcomes);
+    }
     println!();
     let mut ranked: Vec<&Outcome> = outcomes.iter().collect();
     ranked.sort_by(|a, b| b.badness().total_cmp(&a.badness()));
@@ -531,5 +554,357 @@ fn main() {
     println!("{HEADER}");
     for o in ranked.iter().take(args.worst) {
         println!("{} badness {:.2}", o.summary(), o.badness());
+    }
+}
+
+// Fixed-lag study (issue 23 item 1, eighth round): what a slip probability published L steps
+// late could gain. Per drive the flags "p > 0.5" of the shipped method on the raw torque
+// estimates, on a causal EMA (alpha 1/32, sixth round) and on a centred boxcar of the same
+// white-noise variance (63 steps, published 31 late), each scored as it is and with its
+// episodes' edges moved: back by a fixed number of steps (realisable with that look-ahead) or
+// onto the truth's (an oracle).
+
+/// Half-widths of the centred boxcars: 2 H + 1 = 63 steps has the variance of an EMA of
+/// `alpha` 1/32 on white noise (`alpha / (2 - alpha)` = 1/63).
+const BOX_HALVES: [usize; 2] = [31, 47];
+const EMA_ALPHA: f64 = 1.0 / 32.0;
+
+/// Edge moves: (name, back-date of onsets, back-date of releases); `None` = the oracle.
+const EDGES: [(&str, Option<(usize, usize)>); 14] = [
+    ("as is", Some((0, 0))),
+    ("-8/0", Some((8, 0))),
+    ("-16/0", Some((16, 0))),
+    ("-24/0", Some((24, 0))),
+    ("-32/0", Some((32, 0))),
+    ("-16/-8", Some((16, 8))),
+    ("-24/-8", Some((24, 8))),
+    ("-24/-16", Some((24, 16))),
+    ("-32/-16", Some((32, 16))),
+    ("-24/-24", Some((24, 24))),
+    ("-24/-32", Some((24, 32))),
+    ("-24/-48", Some((24, 48))),
+    ("-32/-48", Some((32, 48))),
+    ("oracle", None),
+];
+
+fn runs(flags: &[bool]) -> Vec<(usize, usize)> {
+    let mut out = Vec::new();
+    let mut start = None;
+    for (t, &f) in flags.iter().enumerate() {
+        match (start, f) {
+            (None, true) => start = Some(t),
+            (Some(a), false) => {
+                out.push((a, t));
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    if let Some(a) = start {
+        out.push((a, flags.len()));
+    }
+    out
+}
+
+/// Every episode `[a, b)` becomes `[a - on, b - off)` (dropped when empty).
+fn back_date(flags: &[bool], on: usize, off: usize) -> Vec<bool> {
+    let mut out = vec![false; flags.len()];
+    for (a, b) in runs(flags) {
+        let (a, b) = (a.saturating_sub(on), b.saturating_sub(off));
+        for f in out.iter_mut().take(b).skip(a) {
+            *f = true;
+        }
+    }
+    out
+}
+
+/// Every episode that overlaps a true loss becomes the true losses it overlaps.
+fn oracle(flags: &[bool], truth: &[bool]) -> Vec<bool> {
+    let mut out = vec![false; flags.len()];
+    let true_runs = runs(truth);
+    for (a, b) in runs(flags) {
+        let hit: Vec<_> = true_runs.iter().filter(|r| r.0 < b && a < r.1).collect();
+        if hit.is_empty() {
+            for f in &mut out[a..b] {
+                *f = true;
+            }
+        }
+        for r in hit {
+            for f in &mut out[r.0..r.1] {
+                *f = true;
+            }
+        }
+    }
+    out
+}
+
+/// (F1, false steps, longest run of flags outside a loss).
+fn score_flags(flags: &[bool], truth: &[bool]) -> (f64, usize, usize, Option<f64>) {
+    let mut c = DetectionCounter::default();
+    let (mut run, mut longest) = (0, 0);
+    for (t, (&f, &tr)) in flags.iter().zip(truth).enumerate() {
+        c.push(t, f, tr);
+        run = if f && !tr { run + 1 } else { 0 };
+        longest = longest.max(run);
+    }
+    let s = c.score();
+    (
+        s.f1.unwrap_or(0.0),
+        s.false_pos,
+        longest,
+        s.median_delay_steps,
+    )
+}
+
+/// Median steps from each true loss's end to the end of the detected episode over it.
+fn release_delays(flags: &[bool], truth: &[bool]) -> Vec<f64> {
+    let det = runs(flags);
+    runs(truth)
+        .into_iter()
+        .filter_map(|(_, e)| {
+            det.iter()
+                .find(|d| d.0 < e && e <= d.1)
+                .or_else(|| det.iter().rev().find(|d| d.1 <= e && d.1 + 200 > e))
+                .map(|d| d.1 as f64 - e as f64)
+        })
+        .collect()
+}
+
+/// A centred mean of `2 half + 1` steps of the torque estimates and the method on it: its
+/// flag for step `t` is known at `t + half`.
+struct Centred {
+    half: usize,
+    mean: CentredMean,
+    est: AdhesionEstimator,
+    flags: Vec<Vec<bool>>,
+}
+
+impl Centred {
+    fn new(cfg: &railmon_slip::SlipMonitorConfig, n: usize, half: usize) -> Self {
+        Centred {
+            half,
+            mean: CentredMean::new(half, n),
+            est: AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
+            flags: vec![Vec::new(); n],
+        }
+    }
+
+    fn push(&mut self, x: &[f64]) {
+        if let Some(m) = self.mean.push(x) {
+            if self.flags[0].is_empty() {
+                for f in &mut self.flags {
+                    f.resize(self.half, false);
+                }
+            }
+            let p = &self.est.estimate(m).expect("centred").slip_probability;
+            for (f, &pk) in self.flags.iter_mut().zip(p) {
+                f.push(pk > 0.5);
+            }
+        }
+    }
+}
+
+/// Per-drive flags of the views.
+struct LagViews {
+    views: Vec<(String, Vec<Vec<bool>>)>,
+    truth: Vec<Vec<bool>>,
+}
+
+struct LagRunner {
+    ema_est: AdhesionEstimator,
+    ema_x: Vec<f64>,
+    raw: Vec<Vec<bool>>,
+    ema: Vec<Vec<bool>>,
+    centred: Vec<Centred>,
+    /// The library's stage (`railmon_slip::fixed_lag`), its flags dated back by its lag.
+    stage: FixedLagEstimator,
+    stage_flags: Vec<Vec<bool>>,
+    truth: Vec<Vec<bool>>,
+}
+
+impl LagRunner {
+    fn new(cfg: &railmon_slip::SlipMonitorConfig, n: usize) -> Self {
+        LagRunner {
+            ema_est: AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
+            ema_x: Vec::new(),
+            raw: vec![Vec::new(); n],
+            ema: vec![Vec::new(); n],
+            centred: BOX_HALVES
+                .iter()
+                .map(|&h| Centred::new(cfg, n, h))
+                .collect(),
+            stage: FixedLagEstimator::new(
+                AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
+            ),
+            stage_flags: vec![Vec::new(); n],
+            truth: vec![Vec::new(); n],
+        }
+    }
+
+    fn push(&mut self, x: &[f64], p_raw: &[f64], truth: &[bool]) {
+        let n = x.len();
+        if self.ema_x.is_empty() {
+            self.ema_x = x.to_vec();
+        }
+        for (e, &xk) in self.ema_x.iter_mut().zip(x) {
+            *e += EMA_ALPHA * (xk - *e);
+        }
+        let p = &self
+            .ema_est
+            .estimate(&self.ema_x)
+            .expect("ema")
+            .slip_probability;
+        for k in 0..n {
+            self.raw[k].push(p_raw[k] > 0.5);
+            self.ema[k].push(p[k] > 0.5);
+            self.truth[k].push(truth[k]);
+        }
+        for c in &mut self.centred {
+            c.push(x);
+        }
+        if let Some(p) = self.stage.estimate(x).expect("stage") {
+            for (f, &pk) in self.stage_flags.iter_mut().zip(p) {
+                if f.is_empty() {
+                    f.resize(CENTRED_HALF_WINDOW_STEPS, false);
+                }
+                f.push(pk > 0.5);
+            }
+        }
+    }
+
+    fn finish(self) -> LagViews {
+        let len = self.raw.first().map_or(0, Vec::len);
+        let mut views = vec![
+            ("raw".to_owned(), self.raw),
+            ("ema 1/32".to_owned(), self.ema),
+        ];
+        for mut c in self.centred {
+            for f in &mut c.flags {
+                f.resize(len, false);
+            }
+            views.push((format!("centred {}", 2 * c.half + 1), c.flags));
+        }
+        let mut stage = self.stage_flags;
+        for f in &mut stage {
+            f.resize(len, false);
+        }
+        views.push(("library stage".to_owned(), stage));
+        LagViews {
+            views,
+            truth: self.truth,
+        }
+    }
+}
+
+/// Per variant (view x edge move): per slipping drive its F1, per healthy drive (false
+/// steps, longest run).
+type LagScores = Vec<(String, Vec<f64>, Vec<(usize, usize)>, Vec<Option<f64>>)>;
+
+fn lag_scores(v: &LagViews, slipping: &[usize], healthy: &[usize]) -> (LagScores, Vec<Vec<f64>>) {
+    let mut out = Vec::new();
+    for (view, flags) in &v.views {
+        for (edge, mv) in EDGES {
+            let moved = |k: usize| match mv {
+                Some((on, off)) => back_date(&flags[k], on, off),
+                None => oracle(&flags[k], &v.truth[k]),
+            };
+            let sc: Vec<_> = slipping
+                .iter()
+                .map(|&k| score_flags(&moved(k), &v.truth[k]))
+                .collect();
+            let f1s = sc.iter().map(|s| s.0).collect();
+            let delays = sc.iter().map(|s| s.3).collect();
+            let h = healthy
+                .iter()
+                .map(|&k| {
+                    let s = score_flags(&moved(k), &v.truth[k]);
+                    (s.1, s.2)
+                })
+                .collect();
+            out.push((format!("{view}, {edge}"), f1s, h, delays));
+        }
+    }
+    let rel = v
+        .views
+        .iter()
+        .map(|(_, flags)| {
+            slipping
+                .iter()
+                .flat_map(|&k| release_delays(&flags[k], &v.truth[k]))
+                .collect()
+        })
+        .collect();
+    (out, rel)
+}
+
+fn print_lag_study(outcomes: &[Outcome]) {
+    let Some((first, _)) = outcomes.iter().find_map(|o| o.lag.as_ref()) else {
+        return;
+    };
+    println!();
+    println!("Fixed-lag study (F1 >= 0.95 of the slipping drives above the bound; resolved / not; draws with a healthy drive over 0.1 %; draws with a healthy run over 50 steps)");
+    println!();
+    println!("| view, edges back-dated (onset/release) | F1 >= 0.95 | resolved | not resolved | false draws | long-run draws | worst healthy false % (seed) | longest healthy run |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for (v, (name, _, _, _)) in first.iter().enumerate() {
+        let (mut n, mut met, mut met_r, mut n_r, mut fd, mut rd) = (0, 0, 0, 0, 0, 0);
+        let (mut worst_all, mut worst_seed, mut longest) = (0.0, 0, 0);
+        for o in outcomes {
+            let Some((scores, _)) = &o.lag else { continue };
+            let (_, f1s, h, _) = &scores[v];
+            for (s, &f1) in o.slipping.iter().zip(f1s) {
+                if s.bound_f1 >= F1_TARGET {
+                    n += 1;
+                    met += usize::from(f1 >= F1_TARGET);
+                    if s.resolvable {
+                        n_r += 1;
+                        met_r += usize::from(f1 >= F1_TARGET);
+                    }
+                }
+            }
+            let worst = h
+                .iter()
+                .map(|x| 100.0 * x.0 as f64 / o.steps as f64)
+                .fold(0.0, f64::max);
+            fd += usize::from(worst > FALSE_SHARE_MAX_PCT);
+            if worst > worst_all {
+                (worst_all, worst_seed) = (worst, o.draw.seed);
+            }
+            longest = longest.max(h.iter().map(|x| x.1).max().unwrap_or(0));
+            rd += usize::from(h.iter().any(|x| x.1 > RUN_MAX_STEPS));
+        }
+        println!(
+            "| {name} | {met} of {n} ({:.1} %) | {met_r} of {n_r} | {} of {} | {fd} | {rd} | {worst_all:.3} ({worst_seed}) | {longest} |",
+            100.0 * met as f64 / n.max(1) as f64,
+            met - met_r,
+            n - n_r
+        );
+    }
+    println!();
+    println!("| view | onset delay [steps], per drive median, above the bound | release delay [steps], truth's end to the episode's end |");
+    println!("|---|---|---|");
+    for (v, (name, _, _, _)) in first
+        .iter()
+        .enumerate()
+        .filter(|(_, x)| x.0.ends_with("as is"))
+    {
+        let i = v / EDGES.len();
+        let rel: Vec<f64> = outcomes
+            .iter()
+            .filter_map(|o| o.lag.as_ref())
+            .flat_map(|l| l.1[i].clone())
+            .collect();
+        let on: Vec<f64> = outcomes
+            .iter()
+            .filter_map(|o| o.lag.as_ref().map(|l| (o, l)))
+            .flat_map(|(o, l)| {
+                o.slipping
+                    .iter()
+                    .zip(&l.0[v].3)
+                    .filter(|(s, _)| s.bound_f1 >= F1_TARGET)
+                    .filter_map(|(_, d)| *d)
+            })
+            .collect();
+        println!("| {name} | {} | {} |", quantiles(on), quantiles(rel));
     }
 }

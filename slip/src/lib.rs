@@ -16,6 +16,7 @@ pub mod alarm;
 pub mod bound;
 pub mod ekf;
 pub mod error;
+pub mod fixed_lag;
 pub mod model;
 pub mod monitor;
 pub mod pipeline;
