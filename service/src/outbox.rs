@@ -142,6 +142,11 @@ impl<P: Clone> Track<P> {
 
     /// Whether a history point is due at `time_s` (one per history interval); if so, the
     /// caller pushes one ([`Self::push_history`]).
+    /// The stamp of the newest frame, if one came since the start (or the last restart).
+    pub fn last_stamp(&self) -> Option<Stamp> {
+        self.last
+    }
+
     pub fn history_due(&mut self, time_s: f64) -> bool {
         let due = time_s >= self.next_history_s;
         if due {

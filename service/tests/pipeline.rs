@@ -187,11 +187,12 @@ fn the_train_speed_of_the_frames_is_the_reference_once_calibrated() {
         let header = header(step, harness.dt_ns);
         let input = harness.pipeline.check(&header, &frame).unwrap();
         harness.pipeline.step(&header, input).unwrap();
+        // Both publish the step FIXED_LAG_STEPS back, from the 63rd frame on.
         let want = reference
             .step_with_train_speed(&samples, Some(5.75))
             .unwrap()
-            .clone();
-        if step.is_multiple_of(250) || step == 1_999 {
+            .cloned();
+        if let Some(want) = want.filter(|_| step.is_multiple_of(250) || step == 1_999) {
             let view = harness.view();
             for (got, want) in view.drives.iter().zip(&want.drives) {
                 assert_eq!(got.slip_probability, want.slip_probability);

@@ -26,6 +26,10 @@ pub enum SlipError {
     /// A TOML document (scenario, monitor settings) could not be parsed.
     #[error("TOML: {0}")]
     Toml(String),
+
+    /// A gap the EKFs relock after, with steps still behind the fixed lag (drain them first).
+    #[error("{pending} steps still behind the fixed lag before a gap the EKFs relock after")]
+    PendingBeforeGap { pending: u64 },
     /// The EKF of one drive failed (e.g. innovation covariance lost positive definiteness);
     /// the monitor state is left as it was before the frame.
     #[error("drive {drive}: EKF update failed: {source}")]
