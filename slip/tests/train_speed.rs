@@ -297,7 +297,7 @@ fn the_pipeline_judges_each_method_as_its_monitor_does() {
         // The frames, then the steps still behind the lag: both paths drain the same way.
         let frame = frames.next();
         let published = match &frame {
-            Some((samples, train)) => pipe.step_with_train_speed(&samples, *train).unwrap(),
+            Some((samples, train)) => pipe.step_with_train_speed(samples, *train).unwrap(),
             None => pipe.drain().unwrap(),
         };
         if frame.is_none() && !published {
