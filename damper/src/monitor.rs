@@ -39,9 +39,7 @@ impl DamperMonitorState {
     /// 5: jump hypotheses on probation, not yet published (`RbpfState`).
     /// 6: each damper's degradation trend (`trends`).
     /// 7: the particles' body masses while none is measured (`RbpfState`).
-    /// 8: the published posterior held while only jump hypotheses are left, and the fit of
-    /// the data that publishes them (`RbpfState`).
-    pub const STATE_FORMAT_VERSION: u32 = 8;
+    pub const STATE_FORMAT_VERSION: u32 = 7;
 }
 
 /// Where a monitor is with respect to its valid speed range.

@@ -50,18 +50,6 @@
 //! constant. The window costs a real failure that much more before it is published (the
 //! alarm's interval test needs 95 % of the mass below its threshold anyway).
 //!
-//! **When nothing published is left.** A resampling may keep only particles on probation:
-//! the data favoured the hypotheses over every published particle by tens of nats. That
-//! favour is relative: in the transient after a step fault or after a stop's resume a
-//! hypothesis of the *wrong* damper can take the cloud for a few tenths of a second (held-out
-//! draw 5011: the healthy `C_say` published at 0.29 x nominal for 0.04 s, 2 ms after the
-//! `C_sy` failure's own hypothesis; tuning draw 5010: the healthy `C_sy` at 0.26 for 0.89 s,
-//! 0.17 s after the resume, before the failed `C_say`'s hypothesis took over). They were
-//! then published at once. Now they are published only once their damper's hypotheses have
-//! held [`ADOPT_POSTERIOR_MASS`] for [`FIT_WINDOW_S`] and explain the data absolutely (the
-//! weighted NIS over that window within [`FIT_NIS_RATIO`] of its expectation); meanwhile the
-//! last published posterior is held (or the rule above adopts them first).
-//!
 //! What is approximate (each a choice of the proposal, not of the weights' bookkeeping,
 //! except the last two): the jump targets are the sentinels' values, not a continuum; the
 //! sentinel's Kalman state and likelihood stand for those of a filter whose parameter jumped
@@ -101,18 +89,6 @@ pub const ADOPT_POSTERIOR_MASS: f64 = 0.95;
 /// mass's node ([`slowest_time_constant_s`], 2.07 s at the design mass): longer than a
 /// transient of the plant's own dynamics lasts.
 pub const ADOPT_TIME_CONSTANTS: f64 = 1.0;
-
-/// When the resampling keeps only jump hypotheses on probation (the data favoured them over
-/// every published particle), they are published at once only if they also explain the data:
-/// the cloud's weighted mean NIS over about [`FIT_WINDOW_S`] at most this ratio of its
-/// expectation (5), as the settling after a pause judges the states
-/// (`monitor::SETTLED_NIS_RATIO`). Else the favour is relative only (a transient after a
-/// step or a resume, the plant off the model) and the last published posterior is held until
-/// the hypotheses have held [`ADOPT_POSTERIOR_MASS`] for [`ADOPT_TIME_CONSTANTS`].
-pub const FIT_NIS_RATIO: f64 = 1.2;
-
-/// The window of that fit (s; `monitor::SETTLE_WINDOW_S`).
-pub const FIT_WINDOW_S: f64 = 0.5;
 
 /// The sentinels: each offset for each damper.
 pub const N_SENTINELS: usize = 2 * SENTINEL_LN_OFFSETS.len();
