@@ -178,45 +178,6 @@ enum Probation {
     Jump(u8),
 }
 
-/// One group's Liu-West kernel (eq. 24): its weighted mean of `ln theta`, the Cholesky
-/// factor of its covariance, and with the mass a parameter the mass's mean and the third row
-/// of the joint factor ([`Rbpf::kernel_move`]).
-#[derive(Debug, Clone, Copy)]
-struct KernelGroup {
-    mean: [f64; 2],
-    chol: Matrix2<f64>,
-    mass: Option<(f64, [f64; 3])>,
-}
-
-impl KernelGroup {
-    /// From the mean and covariance of `ln theta` and, with the mass a parameter, the mass's
-    /// mean, covariance with `ln theta` and variance. The joint covariance's Cholesky factor's
-    /// first two rows are `chol`'s, so the dampers' jitter is drawn as without the mass, and
-    /// the mass adds the third row: `L_20, L_21, L_22` from `L_00 L_20 = c_0`,
-    /// `L_10 L_20 + L_11 L_21 = c_1`, `L_20^2 + L_21^2 + L_22^2 = v`.
-    fn new(mean: [f64; 2], cov: Matrix2<f64>, mass: Option<(f64, [f64; 2], f64)>) -> Self {
-        // A collapsed cloud (all particles equal) has V = 0: then there is nothing to smooth.
-        let chol = (cov + Matrix2::identity() * 1e-300)
-            .cholesky()
-            .map(|c| c.l())
-            .unwrap_or_else(Matrix2::zeros);
-        let mass = mass.map(|(m, c, v)| {
-            let l0 = if chol[(0, 0)] > 0.0 {
-                c[0] / chol[(0, 0)]
-            } else {
-                0.0
-            };
-            let l1 = if chol[(1, 1)] > 0.0 {
-                (c[1] - chol[(1, 0)] * l0) / chol[(1, 1)]
-            } else {
-                0.0
-            };
-            (m, [l0, l1, (v - l0 * l0 - l1 * l1).max(0.0).sqrt()])
-        });
-        KernelGroup { mean, chol, mass }
-    }
-}
-
 /// The filter.
 #[derive(Debug, Clone)]
 pub struct Rbpf {
@@ -759,8 +720,7 @@ impl Rbpf {
         self.ess = effective_sample_size(&self.log_w);
         self.sorted.stale = true;
         if self.sentinels.is_some() {
-            // On the published posterior: the hypotheses on probation are the sentinels' own.
-            let (mean, _) = self.published_ln_moments();
+            let (mean, _) = self.ln_moments();
             if let Some(s) = &mut self.sentinels {
                 s.recentre(mean);
             }
@@ -1192,14 +1152,15 @@ impl Rbpf {
             self.config.gain_grid.max_ratio.ln(),
         );
         let nominal = self.nominal.ln();
-        // The drift and the evolution follow the published posterior: a jump hypothesis on
-        // probation gaining mass is not wear (its pull on the pooled mean would shift every
-        // particle, the published ones too, without evidence for them).
-        let (mean, std) = self.published_ln_moments();
+        let (mean, cov) = self.ln_moments();
         self.wear.observe(mean, since_move_s);
         let (shift, dif) = {
             let evolution = [0, 1].map(|k| {
-                wear_evolution(self.wear.ln_per_s[k], std[k], (mean[k] - nominal[k]).exp())
+                wear_evolution(
+                    self.wear.ln_per_s[k],
+                    cov[(k, k)].max(0.0).sqrt(),
+                    (mean[k] - nominal[k]).exp(),
+                )
             });
             let q0 = self.config.ln_diffusion_per_sqrt_s.powi(2);
             (
@@ -1207,27 +1168,32 @@ impl Rbpf {
                 evolution.map(|(_, var)| ((q0 + var) * since_move_s).sqrt()),
             )
         };
+        // A collapsed cloud (all particles equal) has V = 0: then there is nothing to smooth.
+        let chol = (cov + Matrix2::identity() * 1e-300)
+            .cholesky()
+            .map(|c| c.l())
+            .unwrap_or_else(Matrix2::zeros);
         let (a, h) = (self.kernel_a, self.kernel_h);
         let ln_regen_weight = self.config.regeneration_weight.ln();
-        // Eq. 24 for the published particles with their own moments (their weights
-        // renormalised among them): with the pooled moments a jump hypothesis on probation
-        // pulled them towards it by `(1 - a)` of its distance times its mass and spread them
-        // by it, moving the published posterior without evidence for them. The particles on
-        // probation keep the pooled moments: so they can fall back towards the published
-        // cloud when their hypothesis loses (the cascade after a resume at 6 m/s, held-out
-        // draw 5007, ends that way). A cloud without published weight takes the pooled ones.
-        let pooled = {
-            let (mean, cov) = self.ln_moments();
-            let mass = (!self.ln_mass.is_empty()).then(|| self.mass_moments(mean));
-            KernelGroup::new(mean, cov, mass)
-        };
-        let published = if self.on_probation.is_empty() {
-            pooled
-        } else {
-            let probation = &self.on_probation;
-            self.kernel_group(|i| probation[i] == Probation::None)
-                .unwrap_or(pooled)
-        };
+        // With the mass a parameter the kernel is eq. 24 on (ln C_sy, ln C_say, ln m) with the
+        // joint covariance: its Cholesky factor's first two rows are `chol`'s, so the dampers'
+        // jitter is drawn as without the mass, and the mass adds the third row (`row`:
+        // `L_20, L_21, L_22` from `L_00 L_20 = c_0`, `L_10 L_20 + L_11 L_21 = c_1`,
+        // `L_20^2 + L_21^2 + L_22^2 = v`).
+        let mass = (!self.ln_mass.is_empty()).then(|| {
+            let (m, c, v) = self.mass_moments(mean);
+            let l0 = if chol[(0, 0)] > 0.0 {
+                c[0] / chol[(0, 0)]
+            } else {
+                0.0
+            };
+            let l1 = if chol[(1, 1)] > 0.0 {
+                (c[1] - chol[(1, 0)] * l0) / chol[(1, 1)]
+            } else {
+                0.0
+            };
+            (m, [l0, l1, (v - l0 * l0 - l1 * l1).max(0.0).sqrt()])
+        });
         let mass_bounds = (
             HALF_BODY_MASS_RATIO.start().ln(),
             HALF_BODY_MASS_RATIO.end().ln(),
@@ -1244,8 +1210,6 @@ impl Rbpf {
             .enumerate()
         {
             *penalty = 0.0;
-            let on_probation = self.on_probation.get(i).is_some_and(|p| *p != Probation::None);
-            let KernelGroup { mean, chol, mass } = if on_probation { pooled } else { published };
             let z0: f64 = self.rng.sample(StandardNormal);
             let z1: f64 = self.rng.sample(StandardNormal);
             for k in 0..2 {
@@ -1282,101 +1246,6 @@ impl Rbpf {
                 }
             }
         }
-    }
-
-    /// The Liu-West kernel of the particles `in_group` (their weights renormalised among
-    /// them), `None` when they weigh nothing.
-    fn kernel_group(&self, in_group: impl Fn(usize) -> bool) -> Option<KernelGroup> {
-        let (mean, cov) = self.ln_moments_where(&in_group)?;
-        let top = self.top_log_weight(&in_group);
-        let mass = (!self.ln_mass.is_empty()).then(|| {
-            let (mut total, mut sum) = (0.0, 0.0);
-            for (i, (m, lw)) in self.ln_mass.iter().zip(&self.log_w).enumerate() {
-                if in_group(i) {
-                    total += (lw - top).exp();
-                    sum += (lw - top).exp() * m;
-                }
-            }
-            let m_mean = sum / total;
-            let (mut cross, mut var) = ([0.0; 2], 0.0);
-            for (i, ((m, th), lw)) in self
-                .ln_mass
-                .iter()
-                .zip(&self.ln_theta)
-                .zip(&self.log_w)
-                .enumerate()
-            {
-                if in_group(i) {
-                    let (w, d) = ((lw - top).exp() / total, m - m_mean);
-                    cross[0] += w * d * (th[0] - mean[0]);
-                    cross[1] += w * d * (th[1] - mean[1]);
-                    var += w * d * d;
-                }
-            }
-            (m_mean, cross, var)
-        });
-        Some(KernelGroup::new(mean, cov, mass))
-    }
-
-    /// Weighted mean and covariance of `ln theta` over the particles `in_group`, their weights
-    /// renormalised among them, accumulated about the first of them as [`Rbpf::ln_moments`];
-    /// `None` when they weigh nothing.
-    fn ln_moments_where(
-        &self,
-        in_group: impl Fn(usize) -> bool,
-    ) -> Option<([f64; 2], Matrix2<f64>)> {
-        let first = (0..self.ln_theta.len()).find(|&i| in_group(i))?;
-        // Relative to the group's largest weight: it may hold e^-800 of the posterior.
-        let top = self.top_log_weight(&in_group);
-        let origin = self.ln_theta[first];
-        let (mut total, mut shift) = (0.0, [0.0; 2]);
-        for (i, (th, lw)) in self.ln_theta.iter().zip(&self.log_w).enumerate() {
-            if in_group(i) {
-                let w = (lw - top).exp();
-                total += w;
-                shift[0] += w * (th[0] - origin[0]);
-                shift[1] += w * (th[1] - origin[1]);
-            }
-        }
-        if !(total > 0.0) {
-            return None;
-        }
-        shift = shift.map(|v| v / total);
-        let mut cov = Matrix2::zeros();
-        for (i, (th, lw)) in self.ln_theta.iter().zip(&self.log_w).enumerate() {
-            if in_group(i) {
-                let w = (lw - top).exp() / total;
-                let d = [th[0] - origin[0] - shift[0], th[1] - origin[1] - shift[1]];
-                for r in 0..2 {
-                    for c in 0..2 {
-                        cov[(r, c)] += w * d[r] * d[c];
-                    }
-                }
-            }
-        }
-        Some(([origin[0] + shift[0], origin[1] + shift[1]], cov))
-    }
-
-    /// The largest log-weight among the particles `in_group` (`-inf`: none).
-    fn top_log_weight(&self, in_group: impl Fn(usize) -> bool) -> f64 {
-        (0..self.log_w.len())
-            .filter(|&i| in_group(i))
-            .map(|i| self.log_w[i])
-            .fold(f64::NEG_INFINITY, f64::max)
-    }
-
-    /// The published posterior's weighted mean and, per damper, standard deviation of
-    /// `ln C` (the particles on probation left out; all of them when nothing else is left):
-    /// what the wear drift follows and the sentinels are centred on.
-    fn published_ln_moments(&self) -> ([f64; 2], [f64; 2]) {
-        let probation = &self.on_probation;
-        let (mean, cov) = if probation.is_empty() {
-            self.ln_moments()
-        } else {
-            self.ln_moments_where(|i| probation[i] == Probation::None)
-                .unwrap_or_else(|| self.ln_moments())
-        };
-        (mean, [0, 1].map(|k| cov[(k, k)].max(0.0).sqrt()))
     }
 
     /// Weighted mean of `ln m`, its covariance with `ln theta` (whose mean is `theta_mean`) and
