@@ -90,6 +90,11 @@ pub const ADOPT_POSTERIOR_MASS: f64 = 0.95;
 /// transient of the plant's own dynamics lasts.
 pub const ADOPT_TIME_CONSTANTS: f64 = 1.0;
 
+/// The share of the particles kept for the published posterior (those not on probation) at
+/// a resampling while jump hypotheses hold more than `1 -` this share of the posterior
+/// (`Rbpf::resample_indices`): 50 of 500 particles, enough for its 5 % and 95 % quantiles.
+pub const MIN_PUBLISHED_SHARE: f64 = 0.1;
+
 /// The sentinels: each offset for each damper.
 pub const N_SENTINELS: usize = 2 * SENTINEL_LN_OFFSETS.len();
 
