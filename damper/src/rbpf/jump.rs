@@ -88,12 +88,7 @@ pub const ADOPT_POSTERIOR_MASS: f64 = 0.95;
 /// How long they must hold it, in time constants of the model's slowest mode at the body
 /// mass's node ([`slowest_time_constant_s`], 2.07 s at the design mass): longer than a
 /// transient of the plant's own dynamics lasts.
-pub const ADOPT_TIME_CONSTANTS: f64 = 0.5;
-
-/// The share of the particles kept for the published posterior (those not on probation) at
-/// a resampling while jump hypotheses hold more than `1 -` this share of the posterior
-/// (`Rbpf::resample_indices`): 50 of 500 particles, enough for its 5 % and 95 % quantiles.
-pub const MIN_PUBLISHED_SHARE: f64 = 0.1;
+pub const ADOPT_TIME_CONSTANTS: f64 = 1.0;
 
 /// The sentinels: each offset for each damper.
 pub const N_SENTINELS: usize = 2 * SENTINEL_LN_OFFSETS.len();
