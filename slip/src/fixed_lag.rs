@@ -13,7 +13,7 @@
 //! Pure maths, no allocation per step. A fleet dashboard or a maintenance event cannot tell
 //! 7.9 ms; a traction controller's anti-slip loop would need the causal probability.
 
-use crate::adhesion::AdhesionEstimator;
+use crate::adhesion::{check_torques, AdhesionEstimator};
 use crate::error::SlipError;
 
 /// Half-width of the centred mean of the torque estimates (95 steps in all, 11.9 ms at 8 kHz).
@@ -171,19 +171,7 @@ impl FixedLagEstimator {
     /// `CENTRED_HALF_WINDOW_STEPS`). Bad input is rejected before anything changes.
     pub fn estimate(&mut self, torque_nm: &[f64]) -> Result<Option<&[f64]>, SlipError> {
         let n = self.estimator.n_drives();
-        if torque_nm.len() != n {
-            return Err(SlipError::WrongDriveCount {
-                expected: n,
-                got: torque_nm.len(),
-            });
-        }
-        if let Some((k, t)) = torque_nm.iter().enumerate().find(|(_, t)| !t.is_finite()) {
-            return Err(SlipError::NonFiniteSample {
-                drive: k + 1,
-                field: "torque_nm",
-                value: *t,
-            });
-        }
+        check_torques(torque_nm, n)?;
         let Some(mean) = self.window.push(torque_nm) else {
             return Ok(None);
         };

@@ -214,19 +214,7 @@ impl AdhesionEstimator {
     pub fn estimate(&mut self, torque_nm: &[f64]) -> Result<&AdhesionOutput, SlipError> {
         let method = self.method();
         let n = self.n_drives();
-        if torque_nm.len() != n {
-            return Err(SlipError::WrongDriveCount {
-                expected: n,
-                got: torque_nm.len(),
-            });
-        }
-        if let Some((k, t)) = torque_nm.iter().enumerate().find(|(_, t)| !t.is_finite()) {
-            return Err(SlipError::NonFiniteSample {
-                drive: k + 1,
-                field: "torque_nm",
-                value: *t,
-            });
-        }
+        check_torques(torque_nm, n)?;
         let out = match self {
             AdhesionEstimator::Vb(e) => e.estimate(torque_nm),
             AdhesionEstimator::Vmp(e) => e.estimate(torque_nm),
@@ -260,4 +248,23 @@ impl AdhesionEstimator {
             AdhesionEstimator::Temporal(e) => e.output(),
         }
     }
+}
+
+/// One torque estimate per drive of `n_drives`, every one finite; else the error naming the
+/// drive and value (what every consumer of a step's torque estimates checks first).
+pub(crate) fn check_torques(torque_nm: &[f64], n_drives: usize) -> Result<(), SlipError> {
+    if torque_nm.len() != n_drives {
+        return Err(SlipError::WrongDriveCount {
+            expected: n_drives,
+            got: torque_nm.len(),
+        });
+    }
+    if let Some((k, t)) = torque_nm.iter().enumerate().find(|(_, t)| !t.is_finite()) {
+        return Err(SlipError::NonFiniteSample {
+            drive: k + 1,
+            field: "torque_nm",
+            value: *t,
+        });
+    }
+    Ok(())
 }
