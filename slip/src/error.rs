@@ -23,6 +23,14 @@ pub enum SlipError {
         field: &'static str,
         value: f64,
     },
+    /// A torque estimate beyond [`crate::adhesion::MAX_TORQUE_ESTIMATE_NM`]: an EKF that has
+    /// diverged, not a drive; refused before any method sees it.
+    #[error("drive {drive}: torque estimate {value_nm} N m is beyond +-{limit_nm} N m")]
+    TorqueBeyondRange {
+        drive: usize,
+        value_nm: f64,
+        limit_nm: f64,
+    },
     /// A TOML document (scenario, monitor settings) could not be parsed.
     #[error("TOML: {0}")]
     Toml(String),

@@ -212,6 +212,12 @@ impl SlipMonitor {
         &self.estimate
     }
 
+    /// Whether an estimate has been published (`FIXED_LAG_STEPS` frames in; before, `last`
+    /// is zeros).
+    pub fn has_published(&self) -> bool {
+        self.line.published() > 0
+    }
+
     /// The EKF bank (states and covariances of every drive).
     pub fn bank(&self) -> &EkfBank {
         &self.bank

@@ -233,6 +233,8 @@ impl DrivePipeline {
 struct SavedDrive {
     monitor: SlipMonitor,
     clock: crate::outbox::TrackClock,
+    /// The last frame, which dates the steps the monitor still holds behind its fixed lag.
+    last_frame: Option<crate::outbox::SavedStamp>,
 }
 
 /// The layout of [`SavedDrive`] around the monitor, and the monitor's own (its crate's
@@ -243,7 +245,8 @@ const SAVED_DRIVES: StateFormat = StateFormat {
     magic: b"railmon-drives\0",
     // 3: the EKF bank lost the load-jump test's state (the rejected `[ekf.jump]`, issue 27).
     // 4: the monitor's layout has its own version (`estimator_version`), its crate's.
-    version: 4,
+    // 5: the last frame's stamp (the fixed lag's held steps are dated from it).
+    version: 5,
     estimator_version: SlipMonitor::STATE_FORMAT_VERSION,
     what: "drive state",
 };
@@ -402,6 +405,7 @@ impl Pipeline for DrivePipeline {
         let saved = SavedDrive {
             monitor: self.monitor.clone()?,
             clock: self.track.clock(),
+            last_frame: self.track.last_stamp().map(Into::into),
         };
         SAVED_DRIVES.encode(&saved)
     }
@@ -412,6 +416,7 @@ impl Pipeline for DrivePipeline {
             .map_err(|r| r.message)?;
         self.monitor = Some(saved.monitor);
         self.track.resume_clock(saved.clock);
+        self.track.resume_last(saved.last_frame.map(Into::into));
         Ok(())
     }
 
@@ -423,10 +428,26 @@ impl Pipeline for DrivePipeline {
         self.shared.store.append(vec![event]);
     }
 
+    /// The source is silent (or the service stops): the steps behind the fixed lag are
+    /// published from the frames there are, dated from the last frame.
+    fn end_of_data(&mut self) {
+        if let Some(mut m) = self.monitor.take() {
+            if m.pending() > 0 {
+                self.drain_monitor(&mut m);
+                self.track.touch();
+            }
+            self.monitor = Some(m);
+        }
+    }
+
     fn publish(&mut self) {
         let (Some(stamp), Some(monitor)) = (self.track.flush(&self.shared), &self.monitor) else {
             return;
         };
+        if !monitor.has_published() {
+            // The first FIXED_LAG_STEPS frames: no estimate yet, and the view says so.
+            return;
+        }
         let estimate = monitor.last();
         // The view is of the step the estimate names (FIXED_LAG_STEPS periods back).
         let stamp = self.dated(&stamp, estimate);
@@ -472,6 +493,16 @@ mod tests {
                 last_time_s: Some(2.5),
                 next_history_s: 2.6,
             },
+            last_frame: Some(crate::outbox::SavedStamp {
+                run: 1,
+                publisher_instance: 7,
+                sequence: 19_999,
+                sample_time_ns: 2_499_875_000,
+                acquired_utc_ns: 1_700_000_002_499_875_000,
+                time_s: 2.5,
+                run_time_s: 2.499875,
+                utc_ns: 1_700_000_002_499_875_000,
+            }),
         };
         railmon_golden::check_state_layout(
             "state-layout-service-drive.txt",
