@@ -1,9 +1,15 @@
 //! `railmon analyze adhesion`: the drive EKFs and every adhesion-loss method (issue 2) over a
 //! simulated scenario or a recorded drive CSV.
 //!
+//! Every method runs behind the fixed lag (`railmon_slip::fixed_lag`, as the service): the
+//! values of step `t` come out at frame `t + FIXED_LAG_STEPS` (63), the run's last steps
+//! drained at its end (and before a gap the EKFs relock after), so every row, score and event
+//! is of the step it names.
+//!
 //! Writes into `--out`:
 //! - `estimates.csv`: per step and drive (numbered from 1): EKF speed and torque, the truth
-//!   when known, and per method the global torque `M_z^(G)` and the slip probability;
+//!   when known, and per method the global torque `M_z^(G)` and the slip probability, all of
+//!   that step; `published_step` (added with the fixed lag) the frame that published them;
 //! - `table1.csv`: `method,drive,min,q1,median,q3,max,mean,std,iqr` of `M_z,i - M_z^(G)`,
 //!   the paper's Table 1;
 //! - `detection.csv` (when the truth is known): per method and drive, precision, recall and
@@ -11,10 +17,12 @@
 //!   then the same for the alarm rule (`railmon_slip::SlipAlarm`, what the service raises) in
 //!   the `alarm_*` columns; `rule` and `alarm_rule` say which rule each group scores;
 //!   `reference` (added by issue 23 item 2) what the method's last step was judged against,
-//!   `group` or `train_speed`;
+//!   `group` or `train_speed`; `fixed_lag_steps` (added with the fixed lag) how many frames
+//!   after its step each probability was published (scored at its step);
 //! - `events.csv`: the `slip_started` / `slip_ended` events the configured method's alarm
 //!   raises (the service's events on the same data): `id,kind,stream_time_s,subject,detail,
-//!   step,method`, stream time `step x dt` in whole nanoseconds as on the bus;
+//!   step,method`, stream time `step x dt` in whole nanoseconds as on the bus, of the step
+//!   the event names (63 sample periods before the frame that raised it);
 //! - `drives.csv` (scenarios only): the simulated record, in the layout `--input` reads
 //!   (`railmon_records::drive`), so a scenario run can be replayed from its file;
 //! - PNG plots after the paper's figures 5-9 (see [`plots`]).
@@ -34,6 +42,8 @@ use std::path::Path;
 use railmon_filter::stats::Summary;
 use railmon_records::drive::{DriveCsvReader, DriveCsvWriter, DriveTruth};
 use railmon_records::{create_csv, finish_csv, RecordError};
+use railmon_slip::fixed_lag::FIXED_LAG_STEPS;
+use railmon_slip::model::idx;
 use railmon_slip::{
     AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveRanges, DriveSample,
     DriveSimulator, MultiMethodPipeline, SlipAlarmEvent, SlipError, SlipMonitorConfig,
@@ -346,6 +356,8 @@ fn analyse(
     let mut first_refusal: Option<AdhesionAnalysisError> = None;
     let mut read = 0u64;
     let mut step = 0usize;
+    // The run's step of the current pipeline's step 0 (a new timeline starts a new one).
+    let mut base = 0usize;
     while let Some(frame) = source.next()? {
         let time_ns = match frame.time_s {
             Some(t) => TimeJudge::ns_of(t).ok_or_else(|| {
@@ -360,7 +372,12 @@ fn analyse(
         // restarts the estimator), then its content.
         let refusal = match clock.time(time_ns) {
             Ok(new_timeline) => {
-                if new_timeline && pipeline.take().is_some() {
+                let old = if new_timeline { pipeline.take() } else { None };
+                if let Some(mut old) = old {
+                    // The steps still behind the fixed lag are published, not dropped.
+                    while old.drain().map_err(pipeline_error(&label))? {
+                        publish(&old, base, &mut run, &mut est).map_err(write_err)?;
+                    }
                     run.timeline.new_timelines_s.push(time_s);
                     eprintln!(
                         "railmon analyze adhesion: {label}: the sample clock jumped to {time_s} s \
@@ -413,6 +430,8 @@ fn analyse(
                 };
                 let mut p =
                     MultiMethodPipeline::new(config, run.n_drives).map_err(estimator_error)?;
+                // The pipeline numbers its steps from 0: this run's step of its first.
+                base = step;
                 p.set_speed_reference(speed_reference)
                     .map_err(estimator_error)?;
                 pipeline.insert(p)
@@ -421,7 +440,13 @@ fn analyse(
         // Periods no frame covered: the EKFs are carried over them, as the service does.
         let skipped = clock.skipped_periods(time_ns);
         if skipped > 0 {
-            pipe.bridge(skipped);
+            // Before a gap the EKFs relock after, the steps behind the lag are published.
+            if pipe.relocks_after(skipped) {
+                while pipe.drain().map_err(pipeline_error(&label))? {
+                    publish(pipe, base, &mut run, &mut est).map_err(write_err)?;
+                }
+            }
+            pipe.bridge(skipped).map_err(pipeline_error(&label))?;
             run.timeline.skipped_periods += skipped;
         }
         if let Some(w) = record.as_mut() {
@@ -433,56 +458,32 @@ fn analyse(
                 frame.train_speed_m_s,
             )?;
         }
-        pipe.step_with_train_speed(&frame.samples, frame.train_speed_m_s)
+        let published = pipe
+            .step_with_train_speed(&frame.samples, frame.train_speed_m_s)
             .map_err(|source| AdhesionAnalysisError::Estimator {
                 file: format!("{label}: step {step}"),
                 source,
             })?;
         clock.used(time_ns);
-        for (k, f) in pipe.bank().filters().iter().enumerate() {
-            run.ekf_torque_nm[k].push(f.torque_nm());
-            let mut fields = vec![
-                step.to_string(),
-                (k + 1).to_string(),
-                fmt(f.speed_rad_s()),
-                fmt(f.torque_nm()),
-            ];
-            if let (Some(truth), Some(t)) = (run.truth.as_mut(), frame.truth.as_ref()) {
-                truth[k].push((t[k].torque_nm, t[k].slipping));
-                fields.push(fmt(t[k].torque_nm));
-                fields.push(u8::from(t[k].slipping).to_string());
-            }
-            for ((_, out), (_, p)) in pipe.outputs().zip(pipe.slip_probability()) {
-                fields.push(fmt(out.global_torque_nm));
-                fields.push(fmt(p[k]));
-            }
-            est.write_record(&fields).map_err(write_err)?;
-        }
-        for ((((trace, (_, out)), (_, flags)), (_, probability)), (_, reference)) in run
-            .methods
-            .iter_mut()
-            .zip(pipe.outputs())
-            .zip(pipe.slipping())
-            .zip(pipe.slip_probability())
-            .zip(pipe.references())
-        {
-            trace.global_torque_nm.push(out.global_torque_nm);
-            trace.reference = reference;
-            for (p, &v) in trace.slip_probability.iter_mut().zip(probability) {
-                p.push(v);
-            }
-            for (a, &f) in trace.alarm_slipping.iter_mut().zip(flags) {
-                a.push(f);
+        // The truth of this frame's step, for the estimate that names it later.
+        if let (Some(truth), Some(t)) = (run.truth.as_mut(), frame.truth.as_ref()) {
+            for (k, t) in t.iter().enumerate() {
+                truth[k].push((t.torque_nm, t.slipping));
             }
         }
-        if let Some((_, events)) = pipe.events().find(|(m, _)| *m == run.method) {
-            run.events
-                .extend(events.iter().map(|&event| EventRow { step, event }));
+        if published {
+            publish(pipe, base, &mut run, &mut est).map_err(write_err)?;
         }
         step += 1;
         bar.inc(1);
     }
     bar.finish_and_clear();
+    // The end of the run: the last steps behind the fixed lag are published, not dropped.
+    if let Some(pipe) = pipeline.as_mut() {
+        while pipe.drain().map_err(pipeline_error(&label))? {
+            publish(pipe, base, &mut run, &mut est).map_err(write_err)?;
+        }
+    }
     if let Some(mut error) = first_refusal.filter(|_| run.refused.total() > step as u64) {
         // Mostly refused: not glitches but another rate, other units or a broken file.
         let counts = format!(
@@ -508,6 +509,70 @@ fn analyse(
         w.finish()?;
     }
     Ok(run)
+}
+
+/// An estimator error of the run named `label`.
+fn pipeline_error(label: &str) -> impl Fn(SlipError) -> AdhesionAnalysisError + '_ {
+    move |source| AdhesionAnalysisError::Estimator {
+        file: label.to_owned(),
+        source,
+    }
+}
+
+/// The step `pipe` just published (`base` + its own step number: the step its values name,
+/// `FIXED_LAG_STEPS` frames before the one that published it): its rows of `estimates.csv`
+/// and the traces, the configured method's events dated at it.
+fn publish<W: std::io::Write>(
+    pipe: &MultiMethodPipeline,
+    base: usize,
+    run: &mut AdhesionRun,
+    est: &mut csv::Writer<W>,
+) -> Result<(), csv::Error> {
+    let step = base + pipe.step_index() as usize;
+    let published_step = step + pipe.lag_steps() as usize;
+    for (k, x) in pipe.published_states().iter().enumerate() {
+        let (speed, torque) = (x[idx::OMEGA], x[idx::TORQUE]);
+        run.ekf_torque_nm[k].push(torque);
+        let mut fields = vec![
+            step.to_string(),
+            (k + 1).to_string(),
+            fmt(speed),
+            fmt(torque),
+        ];
+        if let Some(truth) = &run.truth {
+            let (t, slipping) = truth[k][step];
+            fields.push(fmt(t));
+            fields.push(u8::from(slipping).to_string());
+        }
+        for ((_, g), (_, p)) in pipe.global_torque_nm().zip(pipe.slip_probability()) {
+            fields.push(fmt(g));
+            fields.push(fmt(p[k]));
+        }
+        fields.push(published_step.to_string());
+        est.write_record(&fields)?;
+    }
+    for ((((trace, (_, global)), (_, flags)), (_, probability)), (_, reference)) in run
+        .methods
+        .iter_mut()
+        .zip(pipe.global_torque_nm())
+        .zip(pipe.slipping())
+        .zip(pipe.slip_probability())
+        .zip(pipe.references())
+    {
+        trace.global_torque_nm.push(global);
+        trace.reference = reference;
+        for (p, &v) in trace.slip_probability.iter_mut().zip(probability) {
+            p.push(v);
+        }
+        for (a, &f) in trace.alarm_slipping.iter_mut().zip(flags) {
+            a.push(f);
+        }
+    }
+    if let Some((_, events)) = pipe.events().find(|(m, _)| *m == run.method) {
+        run.events
+            .extend(events.iter().map(|&event| EventRow { step, event }));
+    }
+    Ok(())
 }
 
 /// A frame refused for its time as an error: `file:line: field "time_s" = "value": reason`
@@ -587,6 +652,9 @@ fn estimates_header(with_truth: bool) -> Vec<String> {
         h.push(format!("{m}_global_torque_nm"));
         h.push(format!("{m}_slip_probability"));
     }
+    // Added with the fixed lag: the frame that published this step's values (`step` +
+    // FIXED_LAG_STEPS in a run, fewer for the last steps, drained at its end or a long gap).
+    h.push("published_step".to_owned());
     h
 }
 
@@ -693,6 +761,9 @@ fn write_tables(
             "alarm_false_episodes",
             // Added by issue 23 item 2: `group` or `train_speed`, the method's last step's.
             "reference",
+            // Added with the fixed lag: every step is scored at the step its probability
+            // names, published this many frames after it.
+            "fixed_lag_steps",
         ])
         .map_err(|e| write_error(&path, e))?;
         for r in &report.detection {
@@ -711,6 +782,7 @@ fn write_tables(
                 r.alarm.detection_episodes.to_string(),
                 r.alarm.false_episodes.to_string(),
                 r.reference.name().to_owned(),
+                FIXED_LAG_STEPS.to_string(),
             ]);
             w.write_record(&row).map_err(|e| write_error(&path, e))?;
         }

@@ -60,6 +60,54 @@ impl Stamp {
     }
 }
 
+/// A [`Stamp`] saved with an estimator whose estimates trail its frames (the drive stream's
+/// fixed lag): the steps it still holds are dated from the last frame after a restart, as
+/// they would have been before it. The header's fields that dating reads.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
+pub struct SavedStamp {
+    pub run: u32,
+    pub publisher_instance: u64,
+    pub sequence: u64,
+    pub sample_time_ns: u64,
+    pub acquired_utc_ns: i64,
+    pub time_s: f64,
+    pub run_time_s: f64,
+    pub utc_ns: i64,
+}
+
+impl From<Stamp> for SavedStamp {
+    fn from(s: Stamp) -> Self {
+        SavedStamp {
+            run: s.header.run,
+            publisher_instance: s.header.publisher_instance,
+            sequence: s.header.sequence,
+            sample_time_ns: s.header.sample_time_ns,
+            acquired_utc_ns: s.header.acquired_utc_ns,
+            time_s: s.time_s,
+            run_time_s: s.run_time_s,
+            utc_ns: s.utc_ns,
+        }
+    }
+}
+
+impl From<SavedStamp> for Stamp {
+    fn from(s: SavedStamp) -> Self {
+        Stamp {
+            header: FrameHeader {
+                run: s.run,
+                publisher_instance: s.publisher_instance,
+                sequence: s.sequence,
+                sample_time_ns: s.sample_time_ns,
+                acquired_utc_ns: s.acquired_utc_ns,
+                ..FrameHeader::default()
+            },
+            time_s: s.time_s,
+            run_time_s: s.run_time_s,
+            utc_ns: s.utc_ns,
+        }
+    }
+}
+
 /// Where a stream's time stands ([`Track::clock`]), saved with an estimator's state.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct TrackClock {
@@ -116,6 +164,18 @@ impl<P: Clone> Track<P> {
         self.next_history_s = clock.next_history_s;
     }
 
+    /// The last frame before a restart of the service (saved with the estimator), so that
+    /// what the estimator still holds is dated from it.
+    pub fn resume_last(&mut self, last: Option<Stamp>) {
+        self.last = last;
+    }
+
+    /// Marks the view as due at the next flush (estimates published without a new frame:
+    /// the end of a stream's data).
+    pub fn touch(&mut self) {
+        self.dirty = self.last.is_some();
+    }
+
     /// A new source: its run time 0 comes one step after the last frame of the previous one.
     pub fn restart(&mut self) {
         self.run_offset_s = self.last_time_s.map_or(0.0, |t| t + self.period_s);
@@ -142,6 +202,11 @@ impl<P: Clone> Track<P> {
 
     /// Whether a history point is due at `time_s` (one per history interval); if so, the
     /// caller pushes one ([`Self::push_history`]).
+    /// The stamp of the newest frame, if one came since the start (or the last restart).
+    pub fn last_stamp(&self) -> Option<Stamp> {
+        self.last
+    }
+
     pub fn history_due(&mut self, time_s: f64) -> bool {
         let due = time_s >= self.next_history_s;
         if due {

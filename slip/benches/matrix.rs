@@ -11,19 +11,18 @@
 //!
 //! `cargo bench -p railmon-slip --bench matrix [-- [--confirm=N] [--hold=N] NAME]`
 //! (NAME: run only scenarios whose file name contains it; `--confirm`, `--hold`: the alarm's
-//! `confirm_steps`, `release_hold_steps`; `--fixed-lag`: also the temporal method behind the
-//! fixed-lag stage, `railmon_slip::fixed_lag`, scored at the steps it dates its probabilities
-//! to). Takes a minute or two in release on one core.
+//! `confirm_steps`, `release_hold_steps`). Every method is behind the fixed lag
+//! (`railmon_slip::fixed_lag`, as the service and `analyze` run it), scored at the steps its
+//! probabilities name. Takes a minute or two in release on one core.
 
 use std::time::Instant;
 
 mod scenarios_dir;
 use scenarios_dir::scenario_paths;
 
-use railmon_slip::fixed_lag::{FixedLagEstimator, CENTRED_HALF_WINDOW_STEPS};
 use railmon_slip::{
-    AdhesionEstimator, AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore,
-    DriveSimulator, MultiMethodPipeline, SlipAlarm,
+    AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveSimulator,
+    MultiMethodPipeline,
 };
 
 struct MethodCounters {
@@ -42,11 +41,7 @@ fn main() {
     let mut healthy = Vec::new();
     // Per method (in `AdhesionMethod::ALL` order): true losses, alarm starts on slipping
     // drives, false alarm episodes on slipping drives, on healthy drives.
-    let fixed_lag = std::env::args().any(|a| a == "--fixed-lag");
-    let mut labels: Vec<String> = AdhesionMethod::ALL.iter().map(|m| m.to_string()).collect();
-    if fixed_lag {
-        labels.push("temporal, fixed lag".to_owned());
-    }
+    let labels: Vec<String> = AdhesionMethod::ALL.iter().map(|m| m.to_string()).collect();
     let mut episodes = vec![[0usize; 4]; labels.len()];
     for path in scenario_paths(filter.as_deref()) {
         let text = std::fs::read_to_string(&path).expect("scenario file");
@@ -73,56 +68,37 @@ fn main() {
                 alarm: vec![DetectionCounter::default(); n],
             })
             .collect();
-        // The stage dates its probabilities `FIXED_LAG_STEPS` back: scored against the truth
-        // of the step it names, with the alarm on what it publishes.
-        let mut lagged = fixed_lag.then(|| {
-            let est = AdhesionEstimator::new(AdhesionMethod::Temporal, &cfg.adhesion, n)
-                .expect("estimator");
-            (
-                FixedLagEstimator::new(est),
-                SlipAlarm::new(cfg.alarm, n).expect("alarm"),
-                Vec::new(),
-                Vec::<Vec<bool>>::new(),
-            )
-        });
+        // Every method is behind the fixed lag: each published step is scored against the
+        // truth of the step it names, the run's last steps drained at its end.
+        let mut truths: Vec<Vec<bool>> = Vec::new();
+        let score =
+            |pipe: &MultiMethodPipeline, truths: &[Vec<bool>], counters: &mut [MethodCounters]| {
+                let at = pipe.step_index() as usize;
+                for ((c, (_, p)), (_, flags)) in counters
+                    .iter_mut()
+                    .zip(pipe.method_probability())
+                    .zip(pipe.slipping())
+                {
+                    for k in 0..n {
+                        c.probability[k].push(at, p[k] > 0.5, truths[at][k]);
+                        c.alarm[k].push(at, flags[k], truths[at][k]);
+                    }
+                }
+            };
         let mut step = 0;
         let mut pipeline_s = 0.0;
         while let Some((samples, truth)) = sim.step() {
+            truths.push(truth.iter().map(|t| t.slipping).collect());
             let t0 = Instant::now();
-            pipe.step(samples).expect("pipeline step");
+            let published = pipe.step(samples).expect("pipeline step");
             pipeline_s += t0.elapsed().as_secs_f64();
-            for ((c, (_, out)), (_, flags)) in
-                counters.iter_mut().zip(pipe.outputs()).zip(pipe.slipping())
-            {
-                for k in 0..n {
-                    c.probability[k].push(step, out.slip_probability[k] > 0.5, truth[k].slipping);
-                    c.alarm[k].push(step, flags[k], truth[k].slipping);
-                }
-            }
-            if let Some((stage, alarm, events, truths)) = &mut lagged {
-                truths.push(truth.iter().map(|t| t.slipping).collect());
-                if let Some(p) = stage.estimate(pipe.torque_nm()).expect("stage") {
-                    let c = counters.last_mut().expect("the stage's counters");
-                    let at = truths.len() - 1 - railmon_slip::fixed_lag::FIXED_LAG_STEPS;
-                    if at == CENTRED_HALF_WINDOW_STEPS {
-                        // No probability for the steps before the first centred mean.
-                        for (s, tr) in truths.iter().enumerate().take(at) {
-                            for ((cp, ca), &t) in c.probability.iter_mut().zip(&mut c.alarm).zip(tr)
-                            {
-                                cp.push(s, false, t);
-                                ca.push(s, false, t);
-                            }
-                        }
-                    }
-                    events.clear();
-                    alarm.update(p, events);
-                    for k in 0..n {
-                        c.probability[k].push(at, p[k] > 0.5, truths[at][k]);
-                        c.alarm[k].push(at, alarm.slipping()[k], truths[at][k]);
-                    }
-                }
+            if published {
+                score(&pipe, &truths, &mut counters);
             }
             step += 1;
+        }
+        while pipe.drain().expect("drain") {
+            score(&pipe, &truths, &mut counters);
         }
         let name = scenario.name.clone();
         eprintln!(

@@ -138,14 +138,14 @@ fn main() {
         let service_s = cpu_seconds(|| {
             let mut monitor = SlipMonitor::new(&config, n).expect("monitor");
             for f in &frames {
-                black_box(monitor.step(f).expect("step").global_torque_nm);
+                black_box(monitor.step(f).expect("step").map(|e| e.global_torque_nm));
             }
         });
         let service_train_s = cpu_seconds(|| {
             let mut monitor = SlipMonitor::new(&config, n).expect("monitor");
             for f in &frames {
                 let e = monitor.step_with_train_speed(f, Some(5.75)).expect("step");
-                black_box(e.global_torque_nm);
+                black_box(e.map(|e| e.global_torque_nm));
             }
         });
         let rate = |s: f64| format!("{:.2}", drive_steps / s / 1e6);

@@ -419,12 +419,18 @@ impl EkfBank {
         &self.model
     }
 
+    /// Whether [`EkfBank::bridge`] over `missing_steps` relocks the filters (longer than
+    /// [`MAX_PREDICTED_GAP_S`]).
+    pub fn relocks_after(&self, missing_steps: u64) -> bool {
+        missing_steps as f64 * self.model.dt_s > MAX_PREDICTED_GAP_S
+    }
+
     /// Carries every filter over `missing_steps` sample periods that no frame covered (a
     /// sample lost at the source, a restart of the service): predicted through them (eq. 3-4,
     /// the voltage held in the rotor's frame) up to [`MAX_PREDICTED_GAP_S`], else relocked
     /// ([`EkfBank::relock`]). Returns whether the filters relocked.
     pub fn bridge(&mut self, missing_steps: u64) -> bool {
-        if missing_steps as f64 * self.model.dt_s > MAX_PREDICTED_GAP_S {
+        if self.relocks_after(missing_steps) {
             self.relock();
             return true;
         }

@@ -23,9 +23,21 @@ pub enum SlipError {
         field: &'static str,
         value: f64,
     },
+    /// A torque estimate beyond [`crate::adhesion::MAX_TORQUE_ESTIMATE_NM`]: an EKF that has
+    /// diverged, not a drive; refused before any method sees it.
+    #[error("drive {drive}: torque estimate {value_nm} N m is beyond +-{limit_nm} N m")]
+    TorqueBeyondRange {
+        drive: usize,
+        value_nm: f64,
+        limit_nm: f64,
+    },
     /// A TOML document (scenario, monitor settings) could not be parsed.
     #[error("TOML: {0}")]
     Toml(String),
+
+    /// A gap the EKFs relock after, with steps still behind the fixed lag (drain them first).
+    #[error("{pending} steps still behind the fixed lag before a gap the EKFs relock after")]
+    PendingBeforeGap { pending: u64 },
     /// The EKF of one drive failed (e.g. innovation covariance lost positive definiteness);
     /// the monitor state is left as it was before the frame.
     #[error("drive {drive}: EKF update failed: {source}")]

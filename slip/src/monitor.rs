@@ -8,6 +8,7 @@ use crate::adhesion::{AdhesionConfig, AdhesionEstimator, AdhesionMethod};
 use crate::alarm::SlipAlarmConfig;
 use crate::ekf::{EkfBank, EkfConfig};
 use crate::error::{check_positive, SlipError};
+use crate::fixed_lag::FixedLagLine;
 use crate::model::{DriveModel, MotorParams};
 use crate::sample::{validate_frame, DriveSample};
 use crate::speed_reference::{
@@ -110,9 +111,18 @@ pub struct DriveEstimate {
     pub slip_probability: f64,
 }
 
-/// The monitor's output for one step.
+/// The monitor's output for one step: the whole estimate of step `step`, published
+/// `lag_steps` frames after it (the fixed lag, [`crate::fixed_lag`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SlipEstimate {
+    /// The step (frames since the monitor started, from 0) every value here belongs to.
+    #[serde(default)]
+    pub step: u64,
+    /// Frames stepped after `step` when it was published: `FIXED_LAG_STEPS` (63) in a run,
+    /// fewer for the steps drained at its end or before a long gap. Its time is the newest
+    /// frame's minus this many sample periods.
+    #[serde(default)]
+    pub lag_steps: u64,
     /// `M_z^(G)`.
     pub global_torque_nm: f64,
     pub method: AdhesionMethod,
@@ -129,7 +139,8 @@ pub struct SlipEstimate {
 pub struct SlipMonitor {
     bank: EkfBank,
     backup: EkfBank,
-    estimator: AdhesionEstimator,
+    /// The method behind the fixed lag, with the steps not yet published.
+    line: FixedLagLine,
     torque: Vec<f64>,
     estimate: SlipEstimate,
     /// The train-speed test, from the first frame with a train speed (or
@@ -147,8 +158,10 @@ impl SlipMonitor {
     /// `[ekf.jump]`, issue 27). 4: the train-speed reference (its settings and per-drive
     /// filters, the estimate's `reference`, issue 23 item 2). 5: the EKF bank keeps its
     /// initial filter, to relock after a gap (issue 26 item 3). 6: the temporal method's
-    /// excess evidence per drive (a majority dragging the reference, issue 23 item 1).
-    pub const STATE_FORMAT_VERSION: u32 = 6;
+    /// excess evidence per drive (a majority dragging the reference, issue 23 item 1). 7: the
+    /// method behind the fixed lag (its centred window, edge line and the pending steps' EKF
+    /// states; the estimate's `step` and `lag_steps`, issue 23 item 1).
+    pub const STATE_FORMAT_VERSION: u32 = 7;
 
     pub fn new(config: &SlipMonitorConfig, n_drives: usize) -> Result<Self, SlipError> {
         config.validate()?;
@@ -163,9 +176,11 @@ impl SlipMonitor {
         Ok(SlipMonitor {
             backup: bank.clone(),
             bank,
-            estimator,
+            line: FixedLagLine::new(vec![estimator], n_drives),
             torque: vec![0.0; n_drives],
             estimate: SlipEstimate {
+                step: 0,
+                lag_steps: 0,
                 global_torque_nm: 0.0,
                 method: config.method,
                 drives: vec![drive; n_drives],
@@ -192,9 +207,15 @@ impl SlipMonitor {
         self.bank.n_drives()
     }
 
-    /// The last estimate (zeros before the first frame).
+    /// The last estimate published (zeros before the first, `FIXED_LAG_STEPS` frames in).
     pub fn last(&self) -> &SlipEstimate {
         &self.estimate
+    }
+
+    /// Whether an estimate has been published (`FIXED_LAG_STEPS` frames in; before, `last`
+    /// is zeros).
+    pub fn has_published(&self) -> bool {
+        self.line.published() > 0
     }
 
     /// The EKF bank (states and covariances of every drive).
@@ -203,25 +224,55 @@ impl SlipMonitor {
     }
 
     /// Carries the estimator over `missing_steps` sample periods no frame covered, before the
-    /// next frame is stepped ([`EkfBank::bridge`]): a short gap is predicted through; after a
-    /// longer one the EKFs relock from the back-EMF, the adhesion method's warm-up runs again
-    /// and the train-speed test restarts its filters, as at start (the slip probabilities and
-    /// what the method learnt about each drive are kept).
-    pub fn bridge(&mut self, missing_steps: u64) {
-        if missing_steps == 0 || !self.bank.bridge(missing_steps) {
-            return;
+    /// next frame is stepped ([`EkfBank::bridge`]): a short gap is predicted through (the
+    /// fixed lag's window spans it); after a longer one the steps still behind the lag are
+    /// published first (`published`, as at the end of a run: [`SlipMonitor::drain`]), then
+    /// the EKFs relock from the back-EMF, the adhesion method's warm-up and the lag start
+    /// again and the train-speed test restarts its filters, as at start (what the method
+    /// learnt about each drive is kept).
+    pub fn bridge(
+        &mut self,
+        missing_steps: u64,
+        published: &mut dyn FnMut(&SlipEstimate),
+    ) -> Result<(), SlipError> {
+        if missing_steps == 0 || !self.bank.relocks_after(missing_steps) {
+            self.bank.bridge(missing_steps);
+            return Ok(());
         }
-        self.estimator.ekfs_relocked();
+        while let Some(e) = self.drain()? {
+            published(e);
+        }
+        self.bank.bridge(missing_steps);
+        self.line.ekfs_relocked();
         if let Some(t) = &mut self.train {
             t.reset();
         }
+        Ok(())
     }
 
+    /// Publishes the oldest step still behind the lag from the frames there are after it:
+    /// call until `None` at the end of a run, so that every step stepped is published.
+    pub fn drain(&mut self) -> Result<Option<&SlipEstimate>, SlipError> {
+        if !self.line.drain()? {
+            return Ok(None);
+        }
+        self.publish();
+        Ok(Some(&self.estimate))
+    }
+
+    /// Frames stepped whose estimate is not yet published.
+    pub fn pending(&self) -> u64 {
+        self.line.pending()
+    }
+
+    /// Steps one frame; returns the estimate it publishes, that of the step
+    /// `FIXED_LAG_STEPS` (63) frames before ([`crate::fixed_lag`]; `None` in the first 63:
+    /// [`SlipMonitor::drain`] gives the last ones at the end of a run).
     /// Validates the whole frame first (length == n_drives, all finite): on error nothing
     /// changes. An EKF failure of any drive also leaves every filter as it was. Judged against
     /// the group only ([`SpeedReference::Group`]); the same as
     /// [`SlipMonitor::step_with_train_speed`] without a train speed.
-    pub fn step(&mut self, samples: &[DriveSample]) -> Result<&SlipEstimate, SlipError> {
+    pub fn step(&mut self, samples: &[DriveSample]) -> Result<Option<&SlipEstimate>, SlipError> {
         self.step_with_train_speed(samples, None)
     }
 
@@ -237,7 +288,7 @@ impl SlipMonitor {
         &mut self,
         samples: &[DriveSample],
         train_speed_m_s: Option<f64>,
-    ) -> Result<&SlipEstimate, SlipError> {
+    ) -> Result<Option<&SlipEstimate>, SlipError> {
         validate_frame(samples, self.n_drives())?;
         if let Some(v) = train_speed_m_s {
             validate_train_speed(v)?;
@@ -252,52 +303,65 @@ impl SlipMonitor {
         for (k, f) in self.bank.filters().iter().enumerate() {
             self.torque[k] = f.torque_nm();
         }
-        let out = match self.estimator.estimate(&self.torque) {
-            Ok(out) => out,
+        match self.line.push(&self.bank, &self.torque, train_speed_m_s) {
+            Ok(false) => Ok(None),
+            Ok(true) => {
+                self.publish();
+                Ok(Some(&self.estimate))
+            }
             Err(e) => {
                 std::mem::swap(&mut self.bank, &mut self.backup);
-                return Err(e);
+                Err(e)
             }
-        };
-        self.estimate.global_torque_nm = out.global_torque_nm;
-        for ((d, f), p) in self
+        }
+    }
+
+    /// The estimate of the step the line just published: its EKF states, the method's
+    /// probabilities and, with that step's train speed, the train-speed test on them.
+    fn publish(&mut self) {
+        let lagged = self.line.last();
+        let model = self.bank.model();
+        self.estimate.step = lagged.step;
+        self.estimate.lag_steps = lagged.lag_steps;
+        self.estimate.global_torque_nm = self.line.global_torque_nm(0);
+        for ((d, x), p) in self
             .estimate
             .drives
             .iter_mut()
-            .zip(self.bank.filters())
-            .zip(&out.slip_probability)
+            .zip(lagged.states)
+            .zip(self.line.probability(0))
         {
             *d = DriveEstimate {
-                speed_rad_s: f.speed_rad_s(),
-                angle_rad: f.angle_rad(),
-                torque_nm: f.torque_nm(),
+                speed_rad_s: x[crate::model::idx::OMEGA],
+                angle_rad: x[crate::model::idx::THETA],
+                torque_nm: x[crate::model::idx::TORQUE],
                 slip_probability: *p,
             };
         }
-        self.estimate.reference = match train_speed_m_s {
+        self.estimate.reference = match lagged.train_speed_m_s {
             None => {
                 if let Some(t) = &mut self.train {
                     t.reset();
                 }
                 SpeedReference::Group
             }
-            Some(v) => match &mut self.train {
-                Some(t) => {
-                    let p = self
-                        .estimate
-                        .drives
-                        .iter_mut()
-                        .map(|d| &mut d.slip_probability);
-                    if t.update(&self.bank, v, p) {
-                        SpeedReference::TrainSpeed
-                    } else {
-                        SpeedReference::Group
-                    }
+            Some(v) => {
+                let t = self.train.get_or_insert_with(|| {
+                    TrainSpeedCheck::new(SpeedReferenceConfig::default(), lagged.states.len())
+                        .expect("the default train-speed settings are valid")
+                });
+                let p = self
+                    .estimate
+                    .drives
+                    .iter_mut()
+                    .map(|d| &mut d.slip_probability);
+                if t.update_states(model, lagged.states, v, p) {
+                    SpeedReference::TrainSpeed
+                } else {
+                    SpeedReference::Group
                 }
-                None => SpeedReference::Group,
-            },
+            }
         };
-        Ok(&self.estimate)
     }
 }
 

@@ -2,23 +2,27 @@
 //! methods see the same torque estimates (what `railmon analyze adhesion` and the benches run),
 //! each with its own slip alarm.
 
-use crate::adhesion::{AdhesionEstimator, AdhesionMethod, AdhesionOutput};
+use crate::adhesion::{AdhesionEstimator, AdhesionMethod};
 use crate::alarm::{SlipAlarm, SlipAlarmEvent};
 use crate::ekf::EkfBank;
 use crate::error::SlipError;
+use crate::fixed_lag::FixedLagLine;
 use crate::monitor::SlipMonitorConfig;
 use crate::sample::{validate_frame, DriveSample};
 use crate::speed_reference::{
     validate_train_speed, SpeedReference, SpeedReferenceConfig, TrainSpeedCheck,
 };
 
-/// EKF bank plus one estimator and one alarm per method.
+/// EKF bank plus, behind the fixed lag ([`FixedLagLine`]), one estimator and one alarm per
+/// method: every value a step publishes belongs to the step [`MultiMethodPipeline::step_index`]
+/// names, `FIXED_LAG_STEPS` frames back.
 #[derive(Debug, Clone)]
 pub struct MultiMethodPipeline {
     bank: EkfBank,
-    estimators: Vec<AdhesionEstimator>,
+    line: FixedLagLine,
+    methods: Vec<AdhesionMethod>,
     alarms: Vec<SlipAlarm>,
-    /// Per method, the alarm's events of the last step.
+    /// Per method, the alarm's events of the last step published.
     events: Vec<Vec<SlipAlarmEvent>>,
     torque: Vec<f64>,
     /// Per method, its own train-speed test, as a [`crate::SlipMonitor`] of that method runs
@@ -26,12 +30,12 @@ pub struct MultiMethodPipeline {
     /// stands where the wheel has left the train): each method's probabilities, alarm and
     /// events are then those of the monitor, and `railmon analyze` raises the service's.
     train: Vec<TrainSpeedCheck>,
-    /// Per method, its probability or, for the drives the train-speed test judges, the test's
-    /// (steps with a train speed only).
+    /// Per method, its probability or, for the drives the train-speed test judges, the test's,
+    /// of the last step published.
     combined: Vec<Vec<f64>>,
-    /// Per method, what its last step was judged against.
+    /// Per method, what its last step published was judged against.
     references: Vec<SpeedReference>,
-    /// Whether the last step had a train speed.
+    /// Whether the last step published had a train speed.
     train_steps: bool,
 }
 
@@ -58,7 +62,8 @@ impl MultiMethodPipeline {
             .collect::<Result<_, _>>()?;
         Ok(MultiMethodPipeline {
             bank,
-            estimators,
+            line: FixedLagLine::new(estimators, n_drives),
+            methods: methods.to_vec(),
             alarms,
             events: vec![Vec::new(); methods.len()],
             torque: vec![0.0; n_drives],
@@ -81,22 +86,39 @@ impl MultiMethodPipeline {
         Ok(())
     }
 
+    /// Whether a gap of `missing_steps` relocks the EKFs: then [`MultiMethodPipeline::drain`]
+    /// every pending step before [`MultiMethodPipeline::bridge`].
+    pub fn relocks_after(&self, missing_steps: u64) -> bool {
+        missing_steps > 0 && self.bank.relocks_after(missing_steps)
+    }
+
     /// Carries every method over `missing_steps` periods no frame covered, as
-    /// [`crate::SlipMonitor::bridge`].
-    pub fn bridge(&mut self, missing_steps: u64) {
-        if missing_steps == 0 || !self.bank.bridge(missing_steps) {
-            return;
+    /// [`crate::SlipMonitor::bridge`]. After a gap the EKFs relock after
+    /// ([`MultiMethodPipeline::relocks_after`]) the pending steps must have been drained: an
+    /// error otherwise, not a silent loss.
+    pub fn bridge(&mut self, missing_steps: u64) -> Result<(), SlipError> {
+        if missing_steps == 0 {
+            return Ok(());
         }
-        for e in &mut self.estimators {
-            e.ekfs_relocked();
+        if self.relocks_after(missing_steps) && self.line.pending() > 0 {
+            return Err(SlipError::PendingBeforeGap {
+                pending: self.line.pending(),
+            });
         }
+        if !self.bank.bridge(missing_steps) {
+            return Ok(());
+        }
+        self.line.ekfs_relocked();
         for t in &mut self.train {
             t.reset();
         }
+        Ok(())
     }
 
-    /// One frame through the EKFs and every estimator. A bad frame changes nothing.
-    pub fn step(&mut self, samples: &[DriveSample]) -> Result<(), SlipError> {
+    /// One frame through the EKFs and every estimator; whether it published a step (that
+    /// `FIXED_LAG_STEPS` before; not in the first `FIXED_LAG_STEPS`). A bad frame changes
+    /// nothing.
+    pub fn step(&mut self, samples: &[DriveSample]) -> Result<bool, SlipError> {
         self.step_with_train_speed(samples, None)
     }
 
@@ -107,19 +129,58 @@ impl MultiMethodPipeline {
         &mut self,
         samples: &[DriveSample],
         train_speed_m_s: Option<f64>,
-    ) -> Result<(), SlipError> {
+    ) -> Result<bool, SlipError> {
+        validate_frame(samples, self.bank.n_drives())?;
         if let Some(v) = train_speed_m_s {
-            validate_frame(samples, self.bank.n_drives())?;
             validate_train_speed(v)?;
         }
         self.bank.step(samples)?;
         for (t, f) in self.torque.iter_mut().zip(self.bank.filters()) {
             *t = f.torque_nm();
         }
-        for e in &mut self.estimators {
-            e.estimate(&self.torque)?;
+        let published = self.line.push(&self.bank, &self.torque, train_speed_m_s)?;
+        if published {
+            self.publish();
         }
-        let Some(v) = train_speed_m_s else {
+        Ok(published)
+    }
+
+    /// Publishes the oldest step still behind the lag from the frames after it: call until
+    /// `false` at the end of a run (and before a gap the EKFs relock after).
+    pub fn drain(&mut self) -> Result<bool, SlipError> {
+        let published = self.line.drain()?;
+        if published {
+            self.publish();
+        }
+        Ok(published)
+    }
+
+    /// Frames stepped whose step is not yet published.
+    pub fn pending(&self) -> u64 {
+        self.line.pending()
+    }
+
+    /// The step (frames since the start, from 0) the last published values belong to.
+    pub fn step_index(&self) -> u64 {
+        self.line.last().step
+    }
+
+    /// Frames stepped after the step last published when it was: `FIXED_LAG_STEPS` in a run,
+    /// fewer for the steps drained.
+    pub fn lag_steps(&self) -> u64 {
+        self.line.last().lag_steps
+    }
+
+    /// The EKF states of the step last published, one per drive.
+    pub fn published_states(&self) -> &[crate::model::DriveState] {
+        self.line.last().states
+    }
+
+    /// Alarms and train-speed tests over the step the line just published.
+    fn publish(&mut self) {
+        let lagged = self.line.last();
+        let model = self.bank.model();
+        let Some(v) = lagged.train_speed_m_s else {
             if self.train_steps {
                 for t in &mut self.train {
                     t.reset();
@@ -127,29 +188,24 @@ impl MultiMethodPipeline {
                 self.references.fill(SpeedReference::Group);
                 self.train_steps = false;
             }
-            for ((e, alarm), events) in self
-                .estimators
-                .iter()
-                .zip(&mut self.alarms)
-                .zip(&mut self.events)
-            {
+            for (i, (alarm, events)) in self.alarms.iter_mut().zip(&mut self.events).enumerate() {
                 events.clear();
-                alarm.update(&e.output().slip_probability, events);
+                alarm.update(self.line.probability(i), events);
             }
-            return Ok(());
+            return;
         };
         self.train_steps = true;
-        for ((((e, alarm), events), combined), (train, reference)) in self
-            .estimators
-            .iter()
-            .zip(&mut self.alarms)
+        for (i, (((alarm, events), combined), (train, reference))) in self
+            .alarms
+            .iter_mut()
             .zip(&mut self.events)
             .zip(&mut self.combined)
             .zip(self.train.iter_mut().zip(&mut self.references))
+            .enumerate()
         {
             // The method's probability, replaced by the test's for the drives it judges.
-            combined.copy_from_slice(&e.output().slip_probability);
-            *reference = if train.update(&self.bank, v, combined.iter_mut()) {
+            combined.copy_from_slice(self.line.probability(i));
+            *reference = if train.update_states(model, lagged.states, v, combined.iter_mut()) {
                 SpeedReference::TrainSpeed
             } else {
                 SpeedReference::Group
@@ -157,70 +213,75 @@ impl MultiMethodPipeline {
             events.clear();
             alarm.update(combined, events);
         }
-        Ok(())
     }
 
     /// `(method, what its last step's probabilities were judged against)` of every method.
     pub fn references(&self) -> impl Iterator<Item = (AdhesionMethod, SpeedReference)> + '_ {
-        self.estimators
+        self.methods
             .iter()
-            .zip(&self.references)
-            .map(|(e, r)| (e.method(), *r))
+            .copied()
+            .zip(self.references.iter().copied())
     }
 
     /// `(method, its train-speed test)` (the low-passed slip velocities) of every method.
     pub fn train_speed_checks(&self) -> impl Iterator<Item = (AdhesionMethod, &TrainSpeedCheck)> {
-        self.estimators
-            .iter()
-            .zip(&self.train)
-            .map(|(e, t)| (e.method(), t))
+        self.methods.iter().copied().zip(&self.train)
     }
 
-    /// `(method, slip probability per drive)` of every method after the last step: the
-    /// method's own ([`MultiMethodPipeline::outputs`]) without a train speed, the train-speed
-    /// test's for the drives it judges with one.
+    /// `(method, slip probability per drive)` of every method for the step last published: the
+    /// method's own without a train speed, the train-speed test's for the drives it judges
+    /// with one.
     pub fn slip_probability(&self) -> impl Iterator<Item = (AdhesionMethod, &[f64])> {
         let train = self.train_steps;
-        self.estimators
-            .iter()
-            .zip(&self.combined)
-            .map(move |(e, c)| {
-                let p = if train {
-                    c.as_slice()
-                } else {
-                    e.output().slip_probability.as_slice()
-                };
-                (e.method(), p)
-            })
+        self.methods.iter().enumerate().map(move |(i, &m)| {
+            let p = if train {
+                self.combined[i].as_slice()
+            } else {
+                self.line.probability(i)
+            };
+            (m, p)
+        })
     }
 
+    /// `(method, the method's own probabilities)` for the step last published.
+    pub fn method_probability(&self) -> impl Iterator<Item = (AdhesionMethod, &[f64])> {
+        self.methods
+            .iter()
+            .enumerate()
+            .map(|(i, &m)| (m, self.line.probability(i)))
+    }
+
+    /// `(method, global torque M_z^(G))` for the step last published.
+    pub fn global_torque_nm(&self) -> impl Iterator<Item = (AdhesionMethod, f64)> + '_ {
+        self.methods
+            .iter()
+            .enumerate()
+            .map(|(i, &m)| (m, self.line.global_torque_nm(i)))
+    }
+
+    /// The EKF bank (of the newest frame, not of the step published).
     pub fn bank(&self) -> &EkfBank {
         &self.bank
     }
 
-    /// The EKF torque estimates of the last step.
+    /// The EKF torque estimates of the newest frame.
     pub fn torque_nm(&self) -> &[f64] {
         &self.torque
     }
 
-    /// `(method, output)` of every estimator for the last step.
-    pub fn outputs(&self) -> impl Iterator<Item = (AdhesionMethod, &AdhesionOutput)> {
-        self.estimators.iter().map(|e| (e.method(), e.output()))
-    }
-
-    /// `(method, slipping flag per drive)` of every method's alarm after the last step.
+    /// `(method, slipping flag per drive)` of every method's alarm after the step published.
     pub fn slipping(&self) -> impl Iterator<Item = (AdhesionMethod, &[bool])> {
-        self.estimators
+        self.methods
             .iter()
-            .zip(&self.alarms)
-            .map(|(e, a)| (e.method(), a.slipping()))
+            .copied()
+            .zip(self.alarms.iter().map(SlipAlarm::slipping))
     }
 
-    /// `(method, alarm events of the last step)` of every method.
+    /// `(method, alarm events of the step published)` of every method.
     pub fn events(&self) -> impl Iterator<Item = (AdhesionMethod, &[SlipAlarmEvent])> {
-        self.estimators
+        self.methods
             .iter()
-            .zip(&self.events)
-            .map(|(e, v)| (e.method(), v.as_slice()))
+            .copied()
+            .zip(self.events.iter().map(Vec::as_slice))
     }
 }

@@ -38,7 +38,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::ekf::EkfBank;
 use crate::error::{check_in, check_non_negative, check_positive, SlipError};
-use crate::model::idx;
+use crate::model::{idx, DriveModel, DriveState};
 
 /// Lowest and highest plausible train speed, m/s (0 to 360 km/h; a reading outside is a
 /// sensor fault, refused like a non-finite current). The speed is a magnitude: the direction
@@ -236,7 +236,20 @@ impl TrainSpeedCheck {
         train_speed_m_s: f64,
         p: impl IntoIterator<Item = &'a mut f64>,
     ) -> bool {
-        let model = bank.model();
+        let states = bank.filters().iter().map(|f| &f.x);
+        self.update_states(bank.model(), states, train_speed_m_s, p)
+    }
+
+    /// [`TrainSpeedCheck::update`] on the EKF states of the step the probabilities `p` belong
+    /// to: behind the fixed lag ([`crate::fixed_lag::FixedLagLine`]) the test runs on the
+    /// states of the published step, so that it judges the same step as the method.
+    pub fn update_states<'a, 's>(
+        &mut self,
+        model: &DriveModel,
+        states: impl IntoIterator<Item = &'s DriveState>,
+        train_speed_m_s: f64,
+        p: impl IntoIterator<Item = &'a mut f64>,
+    ) -> bool {
         let pole_pairs = model.params.pole_pairs;
         let k_t = model.params.torque_constant_nm_per_a();
         let c = &self.config;
@@ -255,16 +268,15 @@ impl TrainSpeedCheck {
         let judge_after = (c.calibration_min_s / model.dt_s).round() as u64;
         // Below 1 m/s the ratio is mostly the sensor's noise: learnt only above.
         let learn = train_speed_m_s >= 1.0;
-        for (((((s, f), p), ratio), n), judged_now) in self
+        for (((((s, x), p), ratio), n), judged_now) in self
             .slip_m_s
             .iter_mut()
-            .zip(bank.filters())
+            .zip(states)
             .zip(p)
             .zip(&mut self.ratio)
             .zip(&mut self.calibrated)
             .zip(&mut self.judged)
         {
-            let x = &f.x;
             let omega = x[idx::OMEGA];
             let (sin, cos) = x[idx::THETA].sin_cos();
             let i_q = -x[idx::I_ALPHA] * sin + x[idx::I_BETA] * cos;

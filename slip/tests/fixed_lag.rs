@@ -3,7 +3,7 @@
 //! 531-step losses, F1 0.947-0.950 causal against 0.990 at the information bound;
 //! docs/adhesion.md, "Fixed-lag publication").
 
-use railmon_slip::fixed_lag::{FixedLagEstimator, CENTRED_HALF_WINDOW_STEPS, FIXED_LAG_STEPS};
+use railmon_slip::fixed_lag::FIXED_LAG_STEPS;
 use railmon_slip::sampler::draw;
 use railmon_slip::{
     AdhesionEstimator, AdhesionMethod, DetectionCounter, DriveSimulator, MultiMethodPipeline,
@@ -15,29 +15,40 @@ fn the_fixed_lag_lifts_draw_1002s_slipping_drives_over_the_target_without_false_
     let n = d.scenario.n_drives();
     let cfg = d.scenario.monitor_config();
     assert_eq!(cfg.method, AdhesionMethod::Temporal);
+    // The product path (behind the fixed lag) against the same method run causally on the
+    // same EKF torque estimates.
     let mut pipe = MultiMethodPipeline::with_methods(&cfg, n, &[cfg.method]).unwrap();
-    let mut stage =
-        FixedLagEstimator::new(AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).unwrap());
+    let mut causal_method = AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).unwrap();
     let mut sim = DriveSimulator::new(&d.scenario).unwrap();
     let mut causal = vec![DetectionCounter::default(); n];
     let mut lagged = vec![DetectionCounter::default(); n];
     let mut truths: Vec<Vec<bool>> = Vec::new();
-    while let Some((samples, truth)) = sim.step() {
-        pipe.step(samples).unwrap();
-        let step = truths.len();
-        truths.push(truth.iter().map(|t| t.slipping).collect());
-        let (_, p) = pipe.slip_probability().next().unwrap();
-        for k in 0..n {
-            causal[k].push(step, p[k] > 0.5, truths[step][k]);
-        }
-        if let Some(q) = stage.estimate(pipe.torque_nm()).unwrap() {
-            // The stage's answer names the step `FIXED_LAG_STEPS` back.
-            let at = step - FIXED_LAG_STEPS;
-            assert!(at >= CENTRED_HALF_WINDOW_STEPS);
+    let score =
+        |pipe: &MultiMethodPipeline, truths: &[Vec<bool>], lagged: &mut [DetectionCounter]| {
+            let at = pipe.step_index() as usize;
+            let (_, q) = pipe.slip_probability().next().unwrap();
             for k in 0..n {
                 lagged[k].push(at, q[k] > 0.5, truths[at][k]);
             }
+        };
+    while let Some((samples, truth)) = sim.step() {
+        let step = truths.len();
+        truths.push(truth.iter().map(|t| t.slipping).collect());
+        if pipe.step(samples).unwrap() {
+            // The answer names the step `FIXED_LAG_STEPS` back.
+            assert_eq!(pipe.step_index() as usize, step - FIXED_LAG_STEPS);
+            score(&pipe, &truths, &mut lagged);
         }
+        let p = &causal_method
+            .estimate(pipe.torque_nm())
+            .unwrap()
+            .slip_probability;
+        for k in 0..n {
+            causal[k].push(step, p[k] > 0.5, truths[step][k]);
+        }
+    }
+    while pipe.drain().unwrap() {
+        score(&pipe, &truths, &mut lagged);
     }
     for k in 0..n {
         let (c, l) = (causal[k].score(), lagged[k].score());

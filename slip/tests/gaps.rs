@@ -39,7 +39,10 @@ fn run_with_gap(
     let mut monitor = SlipMonitor::new(&d.scenario.monitor_config(), n).unwrap();
     let mut counters = vec![DetectionCounter::default(); n];
     let mut speed_error = f64::NAN;
+    // Behind the fixed lag an estimate names its frame: the frames' steps and truths.
+    let mut frames: Vec<(usize, Vec<railmon_slip::DriveTruth>)> = Vec::new();
     let mut step = 0;
+    let mut published: Vec<railmon_slip::SlipEstimate> = Vec::new();
     while let Some((samples, truth)) = sim.step() {
         step += 1;
         let step = step - 1;
@@ -47,9 +50,26 @@ fn run_with_gap(
             continue;
         }
         if step == gap_end && bridge {
-            monitor.bridge(gap_steps as u64);
+            monitor
+                .bridge(gap_steps as u64, &mut |e| published.push(e.clone()))
+                .unwrap();
         }
-        let estimate = monitor.step(samples).unwrap();
+        frames.push((step, truth.to_vec()));
+        if let Some(e) = monitor.step(samples).unwrap() {
+            published.push(e.clone());
+        }
+    }
+    while let Some(e) = monitor.drain().unwrap() {
+        published.push(e.clone());
+    }
+    assert_eq!(
+        published.len(),
+        frames.len(),
+        "every frame's step is published"
+    );
+    for estimate in &published {
+        let (step, truth) = &frames[estimate.step as usize];
+        let step = *step;
         for (k, (drive, truth)) in estimate.drives.iter().zip(truth).enumerate() {
             counters[k].push(step, drive.slip_probability > 0.5, truth.slipping);
             if check.contains(&step) && !truth.slipping {

@@ -2,10 +2,11 @@
 //! adhesion at once is seen (which no comparison between drives can see), healthy drives stay
 //! unflagged under the sensor's noise, and without it the estimate says it judged by the group.
 
+use railmon_slip::fixed_lag::FIXED_LAG_STEPS;
 use railmon_slip::sampler::{draw_kind, is_held_out, DrawKind};
 use railmon_slip::{
     AdhesionMethod, AdhesionScenario, DetectionCounter, DetectionScore, DriveSimulator,
-    MultiMethodPipeline, SlipAlarm, SlipMonitor, SpeedReference,
+    MultiMethodPipeline, SlipAlarm, SlipEstimate, SlipMonitor, SpeedReference,
 };
 
 /// `n` drives at `load_nm` (negative: braking), every one losing `depth` of it on
@@ -58,19 +59,28 @@ fn run(s: &AdhesionScenario) -> (Vec<DetectionScore>, Vec<usize>, Vec<SpeedRefer
     let mut counters = vec![DetectionCounter::default(); n];
     let (mut run, mut longest) = (vec![0; n], vec![0; n]);
     let mut references = Vec::new();
-    let mut step = 0;
-    while let Some((samples, truth, train)) = sim.step_with_train_speed() {
-        let e = monitor.step_with_train_speed(samples, train).unwrap();
+    // Behind the fixed lag each estimate is scored on the truth of the step it names.
+    let mut truths = Vec::new();
+    let mut score = |e: &SlipEstimate, truths: &[Vec<railmon_slip::DriveTruth>]| {
+        let step = e.step as usize;
         if !references.contains(&e.reference) {
             references.push(e.reference);
         }
         for k in 0..n {
             let flagged = e.drives[k].slip_probability > 0.5;
-            counters[k].push(step, flagged, truth[k].slipping);
+            counters[k].push(step, flagged, truths[step][k].slipping);
             run[k] = if flagged { run[k] + 1 } else { 0 };
             longest[k] = longest[k].max(run[k]);
         }
-        step += 1;
+    };
+    while let Some((samples, truth, train)) = sim.step_with_train_speed() {
+        truths.push(truth.to_vec());
+        if let Some(e) = monitor.step_with_train_speed(samples, train).unwrap() {
+            score(e, &truths);
+        }
+    }
+    while let Some(e) = monitor.drain().unwrap() {
+        score(e, &truths);
     }
     (
         counters.iter().map(DetectionCounter::score).collect(),
@@ -134,14 +144,15 @@ fn healthy_drives_under_a_noisy_train_speed_are_not_flagged() {
         let (mut added, mut flagged) = (0, 0);
         while let Some((samples, truth, train)) = sim.step_with_train_speed() {
             assert!(train.is_some() && truth.iter().all(|t| !t.slipping));
-            let g: Vec<bool> = group
+            // Both publish the same step at the same frame (the fixed lag).
+            let g: Option<Vec<bool>> = group
                 .step(samples)
                 .unwrap()
-                .drives
-                .iter()
-                .map(|d| d.slip_probability > 0.5)
-                .collect();
+                .map(|g| g.drives.iter().map(|d| d.slip_probability > 0.5).collect());
             let e = with.step_with_train_speed(samples, train).unwrap();
+            let (Some(g), Some(e)) = (g, e) else {
+                continue;
+            };
             for (d, g) in e.drives.iter().zip(g) {
                 let f = d.slip_probability > 0.5;
                 flagged += usize::from(f);
@@ -195,16 +206,42 @@ fn a_train_speed_out_of_range_is_refused_and_changes_nothing() {
         assert_eq!(monitor.bank().filters()[0].frames, 0);
     }
     // Warming up and calibrating, the group still judges; then the train speed.
-    let e = monitor.step_with_train_speed(samples, Some(5.75)).unwrap();
-    assert_eq!(e.reference, SpeedReference::Group);
-    for _ in 1..1_200 {
+    // The first frames publish nothing (the fixed lag).
+    assert!(monitor
+        .step_with_train_speed(samples, Some(5.75))
+        .unwrap()
+        .is_none());
+    for _ in 1..FIXED_LAG_STEPS {
+        let (samples, _, train) = sim.step_with_train_speed().unwrap();
+        assert!(monitor
+            .step_with_train_speed(samples, train)
+            .unwrap()
+            .is_none());
+    }
+    let (samples, _, train) = sim.step_with_train_speed().unwrap();
+    let e = monitor
+        .step_with_train_speed(samples, train)
+        .unwrap()
+        .unwrap();
+    assert_eq!((e.step, e.reference), (0, SpeedReference::Group));
+    // The test judges from 0.15 s (1,200 steps) on: published 63 frames later.
+    for _ in FIXED_LAG_STEPS + 1..1_200 + FIXED_LAG_STEPS {
         let (samples, _, train) = sim.step_with_train_speed().unwrap();
         monitor.step_with_train_speed(samples, train).unwrap();
     }
     let (samples, _) = sim.step().unwrap();
-    let e = monitor.step_with_train_speed(samples, Some(5.75)).unwrap();
+    let e = monitor
+        .step_with_train_speed(samples, Some(5.75))
+        .unwrap()
+        .unwrap();
     assert_eq!(e.reference, SpeedReference::TrainSpeed);
-    let e = monitor.step(samples).unwrap();
+    // Frames without the train speed: the steps published still had it, until the first
+    // frame without it comes out of the lag.
+    for _ in 0..FIXED_LAG_STEPS {
+        let e = monitor.step(samples).unwrap().unwrap();
+        assert_eq!(e.reference, SpeedReference::TrainSpeed);
+    }
+    let e = monitor.step(samples).unwrap().unwrap();
     assert_eq!(e.reference, SpeedReference::Group);
 }
 
@@ -252,15 +289,33 @@ fn the_pipeline_judges_each_method_as_its_monitor_does() {
         })
         .collect();
     let (mut events, mut started) = (Vec::new(), 0);
-    while let Some((samples, _, train)) = sim.step_with_train_speed() {
-        pipe.step_with_train_speed(samples, train).unwrap();
+    let frames: Vec<_> =
+        std::iter::from_fn(|| sim.step_with_train_speed().map(|(x, _, t)| (x.to_vec(), t)))
+            .collect();
+    let mut frames = frames.into_iter();
+    loop {
+        // The frames, then the steps still behind the lag: both paths drain the same way.
+        let frame = frames.next();
+        let published = match &frame {
+            Some((samples, train)) => pipe.step_with_train_speed(samples, *train).unwrap(),
+            None => pipe.drain().unwrap(),
+        };
+        if frame.is_none() && !published {
+            break;
+        }
         for ((((m, alarm), (_, p)), (_, r)), (_, e)) in monitors
             .iter_mut()
             .zip(pipe.slip_probability())
             .zip(pipe.references())
             .zip(pipe.events())
         {
-            let est = m.step_with_train_speed(samples, train).unwrap();
+            let est = match &frame {
+                Some((samples, train)) => m.step_with_train_speed(samples, *train).unwrap(),
+                None => m.drain().unwrap(),
+            };
+            assert_eq!(est.is_some(), published);
+            let Some(est) = est else { continue };
+            assert_eq!(est.step, pipe.step_index());
             let q: Vec<f64> = est.drives.iter().map(|d| d.slip_probability).collect();
             assert_eq!(q, p);
             assert_eq!(est.reference, r);

@@ -74,7 +74,7 @@ const STREAMS: [Stream; 3] = [
         ],
         steps: 2000,
         state_magic: b"railmon-drives\0",
-        format: 4,
+        format: 5,
         events: "/api/v1/drives/events",
     },
     Stream {

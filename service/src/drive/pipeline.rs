@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use railmon_bus::{DriveFrame, FrameHeader};
 use railmon_slip::{
-    DriveRanges, DriveSample, SlipAlarm, SlipAlarmEvent, SlipAlarmKind, SlipMonitor,
+    DriveRanges, DriveSample, SlipAlarm, SlipAlarmEvent, SlipAlarmKind, SlipEstimate, SlipMonitor,
 };
 
 use railmon_bus::StreamKind;
@@ -93,13 +93,9 @@ impl DrivePipeline {
         }
     }
 
-    fn drive_views(&self) -> Vec<DriveView> {
-        let Some(monitor) = &self.monitor else {
-            return Vec::new();
-        };
+    fn drive_views(&self, estimate: &SlipEstimate) -> Vec<DriveView> {
         let pole_pairs = self.config.estimator.motor.pole_pairs;
-        monitor
-            .last()
+        estimate
             .drives
             .iter()
             .zip(self.alarm.slipping())
@@ -143,21 +139,32 @@ impl DrivePipeline {
         Ok(())
     }
 
-    /// The slip alarm over this step's probabilities; its crossings become events.
-    fn update_slipping(&mut self, stamp: &Stamp) {
-        let Some(monitor) = &self.monitor else { return };
+    /// The stamp of the step `estimate` names: `lag_steps` sample periods before `newest`,
+    /// the frame that published it (the fixed lag, `railmon_slip::fixed_lag`).
+    fn dated(&self, newest: &Stamp, estimate: &SlipEstimate) -> Stamp {
+        // In whole nanoseconds, as the bus stamps samples: the step's own sample time.
+        let back_ns = estimate.lag_steps * self.sample_period_ns();
+        let run_time_ns = newest.header.sample_time_ns.saturating_sub(back_ns);
+        let run_time_s = run_time_ns as f64 / 1e9;
+        Stamp {
+            time_s: (newest.time_s - newest.run_time_s) + run_time_s,
+            run_time_s,
+            utc_ns: newest.utc_ns - back_ns as i64,
+            ..*newest
+        }
+    }
+
+    /// A published estimate: the slip alarm over its probabilities (its crossings become
+    /// events) and the history, dated at the step it names.
+    fn on_estimate(&mut self, estimate: &SlipEstimate, newest: &Stamp) {
+        let stamp = self.dated(newest, estimate);
         let dt_s = self.config.estimator.dt_s;
         for (gauges, &slipping) in self.gauges.iter().zip(self.alarm.slipping()) {
             if slipping {
                 gauges.slip_seconds.inc_by(dt_s);
             }
         }
-        let probabilities: Vec<f64> = monitor
-            .last()
-            .drives
-            .iter()
-            .map(|d| d.slip_probability)
-            .collect();
+        let probabilities: Vec<f64> = estimate.drives.iter().map(|d| d.slip_probability).collect();
         self.alarm_events.clear();
         self.alarm.update(&probabilities, &mut self.alarm_events);
         for event in &self.alarm_events {
@@ -180,7 +187,43 @@ impl DrivePipeline {
                 slip_probability: event.slip_probability,
             };
             self.track
-                .push_event(stamp, kind, id, &detail, Some(("slipping", started)));
+                .push_event(&stamp, kind, id, &detail, Some(("slipping", started)));
+        }
+        if self.track.history_due(stamp.time_s) {
+            let drives = self.drive_views(estimate);
+            self.track.push_history(HistoryPoint {
+                time_s: stamp.time_s,
+                run: stamp.header.run,
+                run_time_s: stamp.run_time_s,
+                drives,
+            });
+        }
+    }
+
+    /// Publishes the steps still behind the fixed lag (before a gap the EKFs relock after,
+    /// and before a new source), dated from the last frame: nothing accepted is dropped.
+    fn drain_monitor(&mut self, monitor: &mut SlipMonitor) {
+        let Some(newest) = self.track.last_stamp() else {
+            if monitor.pending() > 0 {
+                tracing::warn!(
+                    pending = monitor.pending(),
+                    "drive steps behind the fixed lag with no frame to date them by: not published"
+                );
+            }
+            return;
+        };
+        loop {
+            match monitor.drain() {
+                Ok(Some(e)) => {
+                    let e = e.clone();
+                    self.on_estimate(&e, &newest);
+                }
+                Ok(None) => break,
+                Err(e) => {
+                    tracing::error!("drive estimator failed draining the fixed lag: {e}");
+                    break;
+                }
+            }
         }
     }
 }
@@ -190,6 +233,8 @@ impl DrivePipeline {
 struct SavedDrive {
     monitor: SlipMonitor,
     clock: crate::outbox::TrackClock,
+    /// The last frame, which dates the steps the monitor still holds behind its fixed lag.
+    last_frame: Option<crate::outbox::SavedStamp>,
 }
 
 /// The layout of [`SavedDrive`] around the monitor, and the monitor's own (its crate's
@@ -200,7 +245,8 @@ const SAVED_DRIVES: StateFormat = StateFormat {
     magic: b"railmon-drives\0",
     // 3: the EKF bank lost the load-jump test's state (the rejected `[ekf.jump]`, issue 27).
     // 4: the monitor's layout has its own version (`estimator_version`), its crate's.
-    version: 4,
+    // 5: the last frame's stamp (the fixed lag's held steps are dated from it).
+    version: 5,
     estimator_version: SlipMonitor::STATE_FORMAT_VERSION,
     what: "drive state",
 };
@@ -283,7 +329,9 @@ impl Pipeline for DrivePipeline {
     }
 
     fn restart(&mut self) {
-        self.monitor = None;
+        if let Some(mut m) = self.monitor.take() {
+            self.drain_monitor(&mut m);
+        }
         self.track.restart();
     }
 
@@ -295,21 +343,23 @@ impl Pipeline for DrivePipeline {
         if self.monitor.is_none() {
             self.start_monitor(samples.len())?;
         }
-        let monitor = self.monitor.as_mut().expect("started above");
-        monitor
+        let mut monitor = self.monitor.take().expect("started above");
+        let published = monitor
             .step_with_train_speed(&samples, train_speed_m_s)
-            .map_err(|e| Rejection::new("estimator", e.to_string()))?;
+            .map(|e| e.is_some());
+        let published = match published {
+            Ok(p) => p,
+            Err(e) => {
+                self.monitor = Some(monitor);
+                return Err(Rejection::new("estimator", e.to_string()));
+            }
+        };
         let stamp = self.track.stamp(header);
-        self.update_slipping(&stamp);
-        if self.track.history_due(stamp.time_s) {
-            let drives = self.drive_views();
-            self.track.push_history(HistoryPoint {
-                time_s: stamp.time_s,
-                run: header.run,
-                run_time_s: stamp.run_time_s,
-                drives,
-            });
+        if published {
+            // The estimate of the step FIXED_LAG_STEPS frames back, dated at that step.
+            self.on_estimate(monitor.last(), &stamp);
         }
+        self.monitor = Some(monitor);
         Ok(())
     }
 
@@ -318,9 +368,26 @@ impl Pipeline for DrivePipeline {
     /// Short gaps are predicted through; after a longer one (a restart of the service) the
     /// EKFs relock from the back-EMF as at start (`SlipMonitor::bridge`).
     fn bridge(&mut self, skipped_periods: u64) {
-        if let Some(m) = &mut self.monitor {
-            m.bridge(skipped_periods);
+        let Some(mut m) = self.monitor.take() else {
+            return;
+        };
+        // After a gap the EKFs relock after, the steps behind the fixed lag are published
+        // first (`SlipMonitor::bridge` hands them over), dated from the last frame.
+        let mut drained = Vec::new();
+        if let Err(e) = m.bridge(skipped_periods, &mut |e| drained.push(e.clone())) {
+            tracing::error!("drive estimator failed draining the fixed lag: {e}");
         }
+        if let Some(newest) = self.track.last_stamp() {
+            for e in &drained {
+                self.on_estimate(e, &newest);
+            }
+        } else if !drained.is_empty() {
+            tracing::warn!(
+                steps = drained.len(),
+                "drive steps behind the fixed lag with no frame to date them by: not published"
+            );
+        }
+        self.monitor = Some(m);
     }
 
     fn settings(&self) -> String {
@@ -338,6 +405,7 @@ impl Pipeline for DrivePipeline {
         let saved = SavedDrive {
             monitor: self.monitor.clone()?,
             clock: self.track.clock(),
+            last_frame: self.track.last_stamp().map(Into::into),
         };
         SAVED_DRIVES.encode(&saved)
     }
@@ -348,6 +416,7 @@ impl Pipeline for DrivePipeline {
             .map_err(|r| r.message)?;
         self.monitor = Some(saved.monitor);
         self.track.resume_clock(saved.clock);
+        self.track.resume_last(saved.last_frame.map(Into::into));
         Ok(())
     }
 
@@ -359,11 +428,29 @@ impl Pipeline for DrivePipeline {
         self.shared.store.append(vec![event]);
     }
 
+    /// The source is silent (or the service stops): the steps behind the fixed lag are
+    /// published from the frames there are, dated from the last frame.
+    fn end_of_data(&mut self) {
+        if let Some(mut m) = self.monitor.take() {
+            if m.pending() > 0 {
+                self.drain_monitor(&mut m);
+                self.track.touch();
+            }
+            self.monitor = Some(m);
+        }
+    }
+
     fn publish(&mut self) {
         let (Some(stamp), Some(monitor)) = (self.track.flush(&self.shared), &self.monitor) else {
             return;
         };
+        if !monitor.has_published() {
+            // The first FIXED_LAG_STEPS frames: no estimate yet, and the view says so.
+            return;
+        }
         let estimate = monitor.last();
+        // The view is of the step the estimate names (FIXED_LAG_STEPS periods back).
+        let stamp = self.dated(&stamp, estimate);
         let view = DrivesView {
             method: Some(estimate.method.to_string()),
             reference: Some(estimate.reference.name().to_owned()),
@@ -373,7 +460,7 @@ impl Pipeline for DrivePipeline {
             run: stamp.header.run,
             run_time_s: Some(stamp.run_time_s),
             sequence: Some(stamp.header.sequence),
-            drives: self.drive_views(),
+            drives: self.drive_views(estimate),
         };
         // Gauges and the JSON snapshot come from the same estimate: /metrics and the API agree.
         for (gauges, drive) in self.gauges.iter().zip(&view.drives) {
@@ -406,6 +493,16 @@ mod tests {
                 last_time_s: Some(2.5),
                 next_history_s: 2.6,
             },
+            last_frame: Some(crate::outbox::SavedStamp {
+                run: 1,
+                publisher_instance: 7,
+                sequence: 19_999,
+                sample_time_ns: 2_499_875_000,
+                acquired_utc_ns: 1_700_000_002_499_875_000,
+                time_s: 2.5,
+                run_time_s: 2.499875,
+                utc_ns: 1_700_000_002_499_875_000,
+            }),
         };
         railmon_golden::check_state_layout(
             "state-layout-service-drive.txt",

@@ -53,6 +53,11 @@ pub trait Pipeline {
     /// stepped. The default does nothing: the next frame is stepped as if it followed the last
     /// one (the vehicle stream's mixture reads the gap from its samples' times itself).
     fn bridge(&mut self, _skipped_periods: u64) {}
+    /// The source has sent nothing for the stream's staleness limit, or the service stops:
+    /// publish what the estimator still holds back from the frames it has (the drive
+    /// stream's fixed lag), so that nothing accepted waits for a frame that may not come.
+    /// Called once per silence, then `publish`. The default holds nothing back.
+    fn end_of_data(&mut self) {}
     /// Makes the latest results visible (HTTP snapshot, gauges); called once per batch.
     fn publish(&mut self);
     /// Frames whose step was deferred (`step` accepted them, a later call stepped them) and
@@ -337,6 +342,13 @@ fn estimate_batch<P: Pipeline>(
     Ok(handled)
 }
 
+/// The source is silent (or the service stops): what the estimator holds back is published.
+fn end_of_data<P: Pipeline>(pipeline: &mut P, status: &StreamStatus) {
+    pipeline.end_of_data();
+    pipeline.publish();
+    record_deferred(pipeline, status);
+}
+
 fn ingest_loop<P: Pipeline>(
     bus: &BusConfig,
     ingest: &IngestConfig,
@@ -382,6 +394,8 @@ fn ingest_loop<P: Pipeline>(
         resume_snapshot(file, policy.max_age_s, pipeline, &mut source, kind);
     }
     let mut last_snapshot = Instant::now();
+    // When the last frame came, while the estimator may still hold some back.
+    let mut data_since: Option<Instant> = None;
     while !shutdown.load(Ordering::Relaxed) {
         waitset
             .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, wake_interval)
@@ -402,9 +416,16 @@ fn ingest_loop<P: Pipeline>(
         loop {
             let handled =
                 estimate_batch(&subscriber, ingest.max_batch, pipeline, &mut source, status)?;
+            if handled > 0 {
+                data_since = Some(Instant::now());
+            }
             if handled < ingest.max_batch || shutdown.load(Ordering::Relaxed) {
                 break;
             }
+        }
+        if data_since.is_some_and(|t| t.elapsed() >= status.stale_after) {
+            end_of_data(pipeline, status);
+            data_since = None;
         }
         if let (Some(file), Some(policy)) = (&snapshot_file, snapshots) {
             if last_snapshot.elapsed() >= policy.interval {
@@ -441,6 +462,9 @@ fn ingest_loop<P: Pipeline>(
     }
     if drained > 0 {
         tracing::info!(stream = %kind, frames = drained, "estimated the frames held at shutdown");
+    }
+    if data_since.is_some() || drained > 0 {
+        end_of_data(pipeline, status);
     }
     if let Some(file) = &snapshot_file {
         save_snapshot(file, pipeline, &source);

@@ -250,8 +250,15 @@ impl AdhesionEstimator {
     }
 }
 
-/// One torque estimate per drive of `n_drives`, every one finite; else the error naming the
-/// drive and value (what every consumer of a step's torque estimates checks first).
+/// The largest torque estimate a method is given, N m: 10^5 times a traction motor's
+/// (~10^4 N m), so never a drive's; it keeps every sum, square and mean a method or the
+/// fixed lag's window forms finite, so that a method cannot fail on checked input and a
+/// failure cannot leave the fixed lag's buffers half-advanced (`fixed_lag::FixedLagLine::push`).
+pub const MAX_TORQUE_ESTIMATE_NM: f64 = 1e9;
+
+/// One torque estimate per drive of `n_drives`, every one finite and within
+/// +-[`MAX_TORQUE_ESTIMATE_NM`]; else the error naming the drive and value (what every
+/// consumer of a step's torque estimates checks first).
 pub(crate) fn check_torques(torque_nm: &[f64], n_drives: usize) -> Result<(), SlipError> {
     if torque_nm.len() != n_drives {
         return Err(SlipError::WrongDriveCount {
@@ -264,6 +271,17 @@ pub(crate) fn check_torques(torque_nm: &[f64], n_drives: usize) -> Result<(), Sl
             drive: k + 1,
             field: "torque_nm",
             value: *t,
+        });
+    }
+    if let Some((k, t)) = torque_nm
+        .iter()
+        .enumerate()
+        .find(|(_, t)| t.abs() > MAX_TORQUE_ESTIMATE_NM)
+    {
+        return Err(SlipError::TorqueBeyondRange {
+            drive: k + 1,
+            value_nm: *t,
+            limit_nm: MAX_TORQUE_ESTIMATE_NM,
         });
     }
     Ok(())
