@@ -184,18 +184,31 @@ impl SparsePropagator {
         acc: &mut [Row; N_STATES],
         blk: &mut Block,
     ) {
-        // The first term writes `acc = x + term` itself: bit for bit `acc = x; acc += term`
-        // without copying the block's states first (a memcpy of 8.7 kB per block, 3-4 % of
-        // the monitor's step).
-        self.term_rows::<true>(1, x, yaw, series, body, acc, &mut blk.term[0]);
-        for k in 2..=self.order {
+        *acc = *x;
+        for k in 1..=self.order {
+            let s = self.dt_s / k as f64;
             let (first, second) = blk.term.split_at_mut(1);
-            let (src, dst) = if k % 2 == 0 {
-                (&first[0], &mut second[0])
-            } else {
-                (&second[0], &mut first[0])
+            let (src, dst) = match k {
+                1 => (x, &mut first[0]),
+                _ if k % 2 == 0 => (&first[0], &mut second[0]),
+                _ => (&second[0], &mut first[0]),
             };
-            self.term_rows::<false>(k, src, yaw, series, body, acc, dst);
+            for r in 0..N_STATES {
+                let row = &self.rows[self.row_start[r]..self.row_start[r + 1]];
+                let (acc, out) = (&mut acc[r], &mut dst[r]);
+                match r {
+                    // The two damper rows, per particle.
+                    state::PSIB_DOT => term_row(s, row, src, acc, out, |j| {
+                        s * yaw[j] * src[state::PSIB_DOT][j]
+                    }),
+                    state::YSR => term_row(s, row, src, acc, out, |j| {
+                        s * series[j] * (src[state::YB][j] - src[state::YSR][j])
+                    }),
+                    // x 1 is exact: at the model's mass the sum is bit for bit what it was.
+                    state::YBD_DOT => term_row_scaled(s, row, src, acc, out, body),
+                    _ => term_row(s, row, src, acc, out, |_| 0.0),
+                }
+            }
         }
         // Drift leak: acc += (exp(-eps T) - 1) V W acc (A and V W commute).
         let mut w0 = [0.0; BLOCK];
@@ -208,39 +221,6 @@ impl SparsePropagator {
             let (v0, v1) = (self.drift_basis[(r, 0)], self.drift_basis[(r, 1)]);
             for ((a, p), q) in acc[r].iter_mut().zip(&w0).zip(&w1) {
                 *a += v0 * p + v1 * q;
-            }
-        }
-    }
-
-    /// Term `k` of the series for one block, `dst = (T / k) A(theta_j) src`, added to `acc`
-    /// (`FIRST`: `acc = src + dst`, `src` being `x`).
-    #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
-    fn term_rows<const FIRST: bool>(
-        &self,
-        k: usize,
-        src: &[Row; N_STATES],
-        yaw: &Row,
-        series: &Row,
-        body: &Row,
-        acc: &mut [Row; N_STATES],
-        dst: &mut [Row; N_STATES],
-    ) {
-        let s = self.dt_s / k as f64;
-        for r in 0..N_STATES {
-            let row = &self.rows[self.row_start[r]..self.row_start[r + 1]];
-            let (acc, out) = (&mut acc[r], &mut dst[r]);
-            match r {
-                // The two damper rows, per particle.
-                state::PSIB_DOT => term_row::<FIRST>(s, row, src, r, acc, out, |j| {
-                    s * yaw[j] * src[state::PSIB_DOT][j]
-                }),
-                state::YSR => term_row::<FIRST>(s, row, src, r, acc, out, |j| {
-                    s * series[j] * (src[state::YB][j] - src[state::YSR][j])
-                }),
-                // x 1 is exact: at the model's mass the sum is bit for bit what it was.
-                state::YBD_DOT => term_row_scaled::<FIRST>(s, row, src, r, acc, out, body),
-                _ => term_row::<FIRST>(s, row, src, r, acc, out, |_| 0.0),
             }
         }
     }
@@ -278,11 +258,10 @@ impl SparsePropagator {
 /// vectors: eight independent dependency chains; measured, chunks of 16 particles, two
 /// chains, ran at half the speed).
 #[inline(always)]
-fn term_row<const FIRST: bool>(
+fn term_row(
     s: f64,
     row: &[(usize, f64)],
     src: &[Row; N_STATES],
-    r: usize,
     acc: &mut Row,
     out: &mut Row,
     extra: impl Fn(usize) -> f64,
@@ -298,17 +277,18 @@ fn term_row<const FIRST: bool>(
         *tj += extra(j);
     }
     out.0 = t;
-    add_term::<FIRST>(src, r, acc, &t);
+    for (a, tj) in acc.iter_mut().zip(&t) {
+        *a += tj;
+    }
 }
 
 /// [`term_row`] with the row's sum scaled per particle by `scale` before it is stored and
 /// added (the body's acceleration row at each particle's own mass).
 #[inline(always)]
-fn term_row_scaled<const FIRST: bool>(
+fn term_row_scaled(
     s: f64,
     row: &[(usize, f64)],
     src: &[Row; N_STATES],
-    r: usize,
     acc: &mut Row,
     out: &mut Row,
     scale: &Row,
@@ -324,20 +304,8 @@ fn term_row_scaled<const FIRST: bool>(
         *tj *= k;
     }
     out.0 = t;
-    add_term::<FIRST>(src, r, acc, &t);
-}
-
-/// `acc += t`, or for the first term (`src` is then `x`) `acc = x_r + t`.
-#[inline(always)]
-fn add_term<const FIRST: bool>(src: &[Row; N_STATES], r: usize, acc: &mut Row, t: &[f64; BLOCK]) {
-    if FIRST {
-        for ((a, x), tj) in acc.iter_mut().zip(src[r].iter()).zip(t) {
-            *a = x + tj;
-        }
-    } else {
-        for (a, tj) in acc.iter_mut().zip(t) {
-            *a += tj;
-        }
+    for (a, tj) in acc.iter_mut().zip(&t) {
+        *a += tj;
     }
 }
 
