@@ -59,7 +59,7 @@ pub(super) fn normalize_log_weights(
         });
     }
     let max = log_w.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let total = if max == f64::NEG_INFINITY || max == f64::INFINITY {
+    let total = if max.is_infinite() {
         max
     } else {
         scratch.clear();
