@@ -17,7 +17,6 @@ pub mod ekf;
 pub mod error;
 pub mod estimate;
 pub mod expm;
-mod fast_exp;
 pub mod faults;
 pub mod filter_model;
 pub mod fingerprint;

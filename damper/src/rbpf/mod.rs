@@ -205,8 +205,6 @@ pub struct Rbpf {
     log_w_next: Vec<f64>,
     /// `exp(log_w)`, kept from the end of a step to the next (`LinearWeights`).
     w: LinearWeights,
-    /// Room for a step's exponentials (`weights::normalize_log_weights`).
-    exp_scratch: Vec<f64>,
     ll: Vec<f64>,
     /// Per particle, this step's normalised innovation squared `e' S^-1 e`.
     nis: Vec<f64>,
@@ -378,7 +376,6 @@ impl Rbpf {
             log_w: vec![-(n as f64).ln(); n],
             log_w_next: vec![0.0; n],
             w: LinearWeights::default(),
-            exp_scratch: Vec::with_capacity(n),
             ll: vec![0.0; n],
             nis: vec![0.0; n],
             nis_mean: f64::NAN,
@@ -589,8 +586,7 @@ impl Rbpf {
                 *next = w + l;
             }
         }
-        let log_increment =
-            weights::normalize_log_weights(&mut self.log_w_next, &mut self.exp_scratch)?;
+        let log_increment = normalize_log_weights(&mut self.log_w_next)?;
         if let Some(s) = &mut self.sentinels {
             s.step(y, &whiten)?;
         }
@@ -607,7 +603,7 @@ impl Rbpf {
         }
         std::mem::swap(&mut self.log_w, &mut self.log_w_next);
         self.log_evidence += log_increment;
-        self.ess = weights::effective_sample_size(&self.log_w, &mut self.exp_scratch);
+        self.ess = effective_sample_size(&self.log_w);
         let resample = self.ess < self.config.resample_ess_fraction * n as f64;
         if resample {
             systematic_resample(&self.log_w, &mut self.indices, &mut self.rng);
