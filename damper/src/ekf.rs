@@ -75,6 +75,54 @@ pub struct EkfState {
     p: Matrix19,
 }
 
+/// `f p f'` with the sums of nalgebra's `f * p * f.transpose()`: each entry of `f p`, then of
+/// `(f p) f'`, summed over the inner index in increasing order from its first term. `f` is
+/// sparse (`I + A T` of the 44-non-zero `A`, two parameter columns): the terms with a zero
+/// factor of `f` are left out, as adding `0 * p` leaves a finite sum as it was (issue 28:
+/// the dense products were most of the EKF's share of the monitor step). A row of `f` of
+/// zeros does not occur (`f`'s diagonal is `1 + A_ii T`, or 1: checked).
+fn congruence(f: &Matrix19, p: &Matrix19) -> Matrix19 {
+    // Per row of `f`, its non-zero columns in increasing order.
+    let mut cols = [[0u8; N_AUG]; N_AUG];
+    let mut len = [0usize; N_AUG];
+    for i in 0..N_AUG {
+        for k in 0..N_AUG {
+            if f[(i, k)] != 0.0 {
+                cols[i][len[i]] = k as u8;
+                len[i] += 1;
+            }
+        }
+        if len[i] == 0 {
+            return f * p * f.transpose();
+        }
+    }
+    // (f p)_ij = sum_k f_ik p_kj, and (f p f')_ij = sum_k (f p)_ik f_jk: over the non-zero
+    // f_ik, f_jk of row i, j, the first term taken as it is (nalgebra's `gemv` too).
+    let mut fp = Matrix19::zeros();
+    for j in 0..N_AUG {
+        for i in 0..N_AUG {
+            let ks = &cols[i][..len[i]];
+            let mut sum = f[(i, ks[0] as usize)] * p[(ks[0] as usize, j)];
+            for &k in &ks[1..] {
+                sum += f[(i, k as usize)] * p[(k as usize, j)];
+            }
+            fp[(i, j)] = sum;
+        }
+    }
+    let mut out = Matrix19::zeros();
+    for j in 0..N_AUG {
+        let ks = &cols[j][..len[j]];
+        for i in 0..N_AUG {
+            let mut sum = fp[(i, ks[0] as usize)] * f[(j, ks[0] as usize)];
+            for &k in &ks[1..] {
+                sum += fp[(i, k as usize)] * f[(j, k as usize)];
+            }
+            out[(i, j)] = sum;
+        }
+    }
+    out
+}
+
 #[derive(Debug, Clone)]
 pub struct AugmentedEkf {
     model: BogieModel,
@@ -175,7 +223,7 @@ impl AugmentedEkf {
             .copy_from(&(dax * self.dt_s));
         let mut xi_pred = self.xi;
         xi_pred.fixed_rows_mut::<N_STATES>(0).copy_from(&(phi * x));
-        let p_pred = f * self.p * f.transpose() + self.q;
+        let p_pred = congruence(&f, &self.p) + self.q;
         let innovation = y - self.h * xi_pred;
         let u = update_joseph(&xi_pred, &p_pred, &innovation, &self.h, &self.q_v)?;
         if u.p.iter().any(|v| !v.is_finite()) {
@@ -220,5 +268,46 @@ impl AugmentedEkf {
     /// The full augmented covariance (for invariant checks).
     pub fn covariance(&self) -> &Matrix19 {
         &self.p
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::params::BogieParams;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// The sparse `f p f'` is bit for bit nalgebra's dense product, for the EKF's own `f`
+    /// (at two speeds and off-nominal dampers) and seeded symmetric `p`.
+    #[test]
+    fn sparse_congruence_is_the_dense_product_bit_for_bit() {
+        let mut rng = ChaCha8Rng::seed_from_u64(28);
+        for (speed_m_s, ratio) in [(45.3, 1.0), (12.0, 0.4)] {
+            let mut model = BogieModel::new(&BogieParams::default(), 0.1).unwrap();
+            model.set_speed(speed_m_s).unwrap();
+            let d = Dampers {
+                csy_ns_per_m: ratio * Dampers::NOMINAL.csy_ns_per_m,
+                csay_ns_per_m: Dampers::NOMINAL.csay_ns_per_m / ratio,
+            };
+            let x = Vector19::from_fn(|_, _| rng.random::<f64>() - 0.5);
+            let x17 = x.fixed_rows::<N_STATES>(0).into_owned();
+            let mut f = Matrix19::identity();
+            f.fixed_view_mut::<N_STATES, N_STATES>(0, 0)
+                .copy_from(&(Matrix17::identity() + model.a_matrix(&d) * 1e-3));
+            f.fixed_view_mut::<N_STATES, 2>(0, N_STATES)
+                .copy_from(&(model.a_x_parameter_jacobian(&d, &x17) * 1e-3));
+            let zeros = f.iter().filter(|v| **v == 0.0).count();
+            assert!(zeros > 200, "f is sparse: {zeros} zeros of 361");
+            for _ in 0..20 {
+                let l = Matrix19::from_fn(|_, _| rng.random::<f64>() - 0.5);
+                let p = l * l.transpose();
+                let (sparse, dense) = (congruence(&f, &p), f * p * f.transpose());
+                assert!(sparse
+                    .iter()
+                    .zip(dense.iter())
+                    .all(|(a, b)| a.to_bits() == b.to_bits()));
+            }
+        }
     }
 }

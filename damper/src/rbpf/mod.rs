@@ -17,7 +17,9 @@ mod config;
 mod jump;
 mod posterior;
 mod propagator;
+mod weights;
 
+use std::borrow::Cow;
 use std::sync::Arc;
 
 use nalgebra::Matrix2;
@@ -46,6 +48,7 @@ pub use jump::{
 use posterior::SortedParticles;
 pub use posterior::{DamperPosterior, RbpfEstimate};
 pub use propagator::{SparsePropagator, BLOCK};
+use weights::LinearWeights;
 
 /// The fastest wear the filter follows without lagging (1/s of nominal): a damper losing 80 %
 /// of its damping (the sampler's deepest ramp, `sampler::FAULT_RATIO`) in one minute, the
@@ -200,6 +203,8 @@ pub struct Rbpf {
     sentinel_mass_kg: Option<f64>,
     log_w: Vec<f64>,
     log_w_next: Vec<f64>,
+    /// `exp(log_w)`, kept from the end of a step to the next (`LinearWeights`).
+    w: LinearWeights,
     ll: Vec<f64>,
     /// Per particle, this step's normalised innovation squared `e' S^-1 e`.
     nis: Vec<f64>,
@@ -370,6 +375,7 @@ impl Rbpf {
             sentinel_mass_kg: None,
             log_w: vec![-(n as f64).ln(); n],
             log_w_next: vec![0.0; n],
+            w: LinearWeights::default(),
             ll: vec![0.0; n],
             nis: vec![0.0; n],
             nis_mean: f64::NAN,
@@ -556,8 +562,9 @@ impl Rbpf {
         let n = self.n_particles();
         let mut nis_mean = 0.0;
         let mut z_mean = [0.0; N_OUTPUTS];
-        for (i, (lw, q)) in self.log_w.iter().zip(&self.nis).enumerate() {
-            let w = lw.exp();
+        // exp(log_w) as the last step left it (`LinearWeights`): no exp here.
+        for (i, (w, q)) in self.w.of(&self.log_w).iter().zip(&self.nis).enumerate() {
+            let w = *w;
             nis_mean += w * q;
             for (ch, zm) in z_mean.iter_mut().enumerate() {
                 *zm += w * self.z[ch * n + i];
@@ -630,6 +637,9 @@ impl Rbpf {
             self.sorted.stale = true;
         }
         self.judge_probation();
+        // The weights' exponentials once, for the summary after this step and the
+        // predictive weights of the next.
+        self.w.of(&self.log_w);
         Ok(())
     }
 
@@ -773,22 +783,24 @@ impl Rbpf {
 
     /// The weights the published posterior uses: the particles', those on probation left out
     /// (the others renormalised).
-    fn published_weights(&self) -> Vec<f64> {
-        let mut w: Vec<f64> = self.log_w.iter().map(|v| v.exp()).collect();
-        if !self.on_probation.is_empty() {
-            for (w, p) in w.iter_mut().zip(&self.on_probation) {
-                if *p != Probation::None {
-                    *w = 0.0;
-                }
-            }
-            let total: f64 = w.iter().sum();
-            if total > 0.0 {
-                w.iter_mut().for_each(|w| *w /= total);
-            } else {
-                w = self.log_w.iter().map(|v| v.exp()).collect();
+    fn published_weights(&self) -> Cow<'_, [f64]> {
+        let linear = self.w.get(&self.log_w);
+        if self.on_probation.is_empty() {
+            return linear;
+        }
+        let mut w = linear.into_owned();
+        for (w, p) in w.iter_mut().zip(&self.on_probation) {
+            if *p != Probation::None {
+                *w = 0.0;
             }
         }
-        w
+        let total: f64 = w.iter().sum();
+        if total > 0.0 {
+            w.iter_mut().for_each(|w| *w /= total);
+        } else {
+            w = self.log_w.iter().map(|v| v.exp()).collect();
+        }
+        Cow::Owned(w)
     }
 
     /// Jump hypotheses adopted into the published posterior so far.
@@ -978,7 +990,7 @@ impl Rbpf {
         let mean: f64 = self
             .ln_mass
             .iter()
-            .zip(self.published_weights())
+            .zip(self.published_weights().iter())
             .map(|(m, w)| w * m.exp())
             .sum();
         Some(self.design_half_body_mass_kg * mean)
@@ -1238,7 +1250,7 @@ impl Rbpf {
     /// jump hypotheses on probation left out).
     pub fn mean(&self) -> Dampers {
         let mut m = [0.0; 2];
-        for (th, w) in self.ln_theta.iter().zip(self.published_weights()) {
+        for (th, w) in self.ln_theta.iter().zip(self.published_weights().iter()) {
             m[0] += w * th[0].exp();
             m[1] += w * th[1].exp();
         }

@@ -44,24 +44,30 @@ impl SortedParticles {
 }
 
 impl SortedParticles {
-    /// Weighted mean, 5% and 95% quantiles of coefficient `k` (weights `w`, normalised).
+    /// Weighted mean, 5% and 95% quantiles of coefficient `k` (weights `w`, normalised), in
+    /// one pass over the sorted particles: each quantile is the first value whose cumulative
+    /// weight (summed from the smallest) reaches it, the last value when rounding leaves the
+    /// total short; the mean is summed in the same order (from `-0.0`, as `Iterator::sum`).
     pub(super) fn posterior(&self, k: usize, w: &[f64], nominal: f64) -> DamperPosterior {
         let (order, values) = (&self.order[k], &self.values[k]);
-        let mean: f64 = order.iter().zip(values).map(|(&i, v)| w[i] * v).sum();
-        let quantile = |q: f64| {
-            let mut cum = 0.0;
-            for (&i, v) in order.iter().zip(values) {
-                cum += w[i];
-                if cum >= q {
-                    return *v;
-                }
+        let last = values[values.len() - 1];
+        let (mut mean, mut cum) = (-0.0, 0.0);
+        let (mut q05, mut q95) = (None, None);
+        for (&i, &v) in order.iter().zip(values) {
+            mean += w[i] * v;
+            cum += w[i];
+            if q05.is_none() && cum >= 0.05 {
+                q05 = Some(v);
             }
-            values[values.len() - 1]
-        };
+            if q95.is_none() && cum >= 0.95 {
+                q95 = Some(v);
+            }
+        }
+        let (q05, q95) = (q05.unwrap_or(last), q95.unwrap_or(last));
         DamperPosterior {
             mean_ns_per_m: mean,
-            q05_ns_per_m: quantile(0.05),
-            q95_ns_per_m: quantile(0.95),
+            q05_ns_per_m: q05,
+            q95_ns_per_m: q95,
             health_ratio: mean / nominal,
         }
     }
