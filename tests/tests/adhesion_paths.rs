@@ -1,7 +1,9 @@
 //! Same data, same answer (issue 8): one drive recording through the three paths gives the same
 //! slip events — the service (replayed over the bus, events from the HTTP API), `railmon
 //! analyze adhesion --input` on the file, and `railmon analyze adhesion --scenario` that wrote
-//! it. 13,000 steps (1.6 s of data) of the seed scenario: drive 1's first two losses. And with
+//! it. 13,000 steps (1.6 s of data) of the seed scenario: drive 1's first two losses; the
+//! service publishes the steps its fixed lag holds once the stream has been silent for
+//! `stale_after_ms` (the ingest loop's timer), and those are `analyze`'s last rows. And with
 //! the train's measured speed (issue 23 item 2): every drive losing adhesion at once
 //! (`config/scenarios/adhesion-all-at-once.toml`) is flagged, with the same events on the
 //! three paths and `train_speed` as the reference they report.
@@ -106,7 +108,11 @@ fn service_and_both_analyze_paths_raise_the_same_slip_events() {
     assert_eq!(from_input, from_scenario);
 
     let bus = PrivateBus::new();
-    let service = Service::start(&bus, &[]);
+    let stale_after = Duration::from_millis(STALE_AFTER_MS);
+    let service = Service::start(
+        &bus,
+        &[("RAILMON_DRIVE__STALE_AFTER_MS", &STALE_AFTER_MS.to_string())],
+    );
     let mut replay = start_replay(
         &bus,
         "drive",
@@ -119,9 +125,106 @@ fn service_and_both_analyze_paths_raise_the_same_slip_events() {
     service.wait_for_status("drive", Duration::from_secs(20), "every frame", |s| {
         s["estimator_steps"].as_u64() == Some(N_STEPS)
     });
+    // The last frame is in: the view names the step `lag_steps` before it until the stream has
+    // been silent for `stale_after_ms`, when the ingest loop publishes what the fixed lag holds.
+    let every_frame_at = Instant::now();
+    let before_silence = service.get_json("/api/v1/drives");
+    if every_frame_at.elapsed() < stale_after / 2 {
+        let lag = railmon_slip::fixed_lag::FIXED_LAG_STEPS as u64;
+        assert_eq!(
+            named_step(&before_silence),
+            N_STEPS - 1 - lag,
+            "before the silence: {before_silence}"
+        );
+        assert_eq!(
+            before_silence["sequence"],
+            N_STEPS - 1,
+            "the last frame used"
+        );
+    }
+    let after_silence = wait_for_drives_view(&service, N_STEPS - 1, stale_after * 10);
+    assert!(
+        every_frame_at.elapsed() >= stale_after / 2,
+        "the held steps came before the stream fell silent"
+    );
+    // ... and they are the steps `analyze --input` published at the end of the file.
+    let last = last_step_rows(&dir.join("input/estimates.csv"), N_STEPS - 1);
+    let drives = after_silence["drives"].as_array().unwrap();
+    assert_eq!(drives.len(), last.len());
+    for (drive, row) in drives.iter().zip(&last) {
+        let service_row = [
+            drive["id"].to_string(),
+            format!("{:.6}", drive["electrical_speed_rad_s"].as_f64().unwrap()),
+            format!("{:.6}", drive["load_torque_nm"].as_f64().unwrap()),
+            format!("{:.6}", after_silence["global_torque_nm"].as_f64().unwrap()),
+            format!("{:.6}", drive["slip_probability"].as_f64().unwrap()),
+        ];
+        assert_eq!(
+            &service_row[..],
+            &row[..],
+            "the last step, service vs analyze"
+        );
+    }
     let from_service = service_events(&service, from_scenario.len());
     assert_eq!(from_service, from_scenario);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The drive stream's silence limit in the test above: long enough that the view before it is
+/// read well inside it on a loaded machine.
+const STALE_AFTER_MS: u64 = 3_000;
+
+/// The step a drives view names (its estimates' time in the run over the 8 kHz period; the
+/// view's `sequence` is the newest frame used, `lag_steps` later).
+fn named_step(view: &serde_json::Value) -> u64 {
+    (view["run_time_s"].as_f64().unwrap() / DT_S).round() as u64
+}
+
+const DT_S: f64 = 125e-6;
+
+/// Polls `/api/v1/drives` until it names `step`; panics after `timeout`.
+fn wait_for_drives_view(service: &Service, step: u64, timeout: Duration) -> serde_json::Value {
+    let start = Instant::now();
+    loop {
+        let view = service.get_json("/api/v1/drives");
+        if view["run_time_s"].is_f64() && named_step(&view) == step {
+            return view;
+        }
+        assert!(
+            start.elapsed() < timeout,
+            "the view never named step {step}: {view}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// `[drive, ekf_speed_rad_s, ekf_torque_nm, temporal_global_torque_nm,
+/// temporal_slip_probability]` of each drive's row of `step` in `estimates.csv`, whose
+/// `published_step` must be the step itself (the last step, drained at the end of the file).
+fn last_step_rows(estimates: &Path, step: u64) -> Vec<Vec<String>> {
+    let text = std::fs::read_to_string(estimates).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let columns = [
+        "drive",
+        "ekf_speed_rad_s",
+        "ekf_torque_nm",
+        "temporal_global_torque_nm",
+        "temporal_slip_probability",
+    ]
+    .map(column);
+    let (step_column, published) = (column("step"), column("published_step"));
+    let rows: Vec<Vec<String>> = lines
+        .map(|line| line.split(',').collect::<Vec<&str>>())
+        .filter(|f| f[step_column] == step.to_string())
+        .map(|f| {
+            assert_eq!(f[published], step.to_string(), "{f:?}");
+            columns.iter().map(|&c| f[c].to_owned()).collect()
+        })
+        .collect();
+    assert!(!rows.is_empty(), "no rows of step {step}");
+    rows
 }
 
 /// `(method, value)` of one column of `detection.csv` after its quoted `alarm_rule` (the
