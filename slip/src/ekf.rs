@@ -177,6 +177,21 @@ pub fn ekf_step(
     f: &DriveFilter,
     sample: &DriveSample,
 ) -> Result<DriveFilter, railmon_filter::FilterError> {
+    let mut out = *f;
+    ekf_step_into(model, q, r, f, sample, &mut out)?;
+    Ok(out)
+}
+
+/// [`ekf_step`] writing the new filter into `out` (unspecified on error): the bank steps into
+/// its scratch space without moving a `DriveFilter` (288 bytes) through a `Result`.
+pub fn ekf_step_into(
+    model: &DriveModel,
+    q: &DriveMatrix,
+    r: &Matrix2<f64>,
+    f: &DriveFilter,
+    sample: &DriveSample,
+    out: &mut DriveFilter,
+) -> Result<(), railmon_filter::FilterError> {
     // Prediction (3)-(4), with the Jacobian at the previous posterior (8).
     let (x_pred, p_pred) = match f.u_prev {
         Some(u) => {
@@ -193,15 +208,13 @@ pub fn ekf_step(
         sample.i_beta_a - x_pred[idx::I_BETA],
     );
     let upd = update_currents(&x_pred, &p_pred, &innovation, r)?;
-    let mut x = upd.x;
-    x[idx::THETA] = wrap_angle(x[idx::THETA]);
-    Ok(DriveFilter {
-        x,
-        p: upd.p,
-        u_prev: Some(Vector2::new(sample.u_alpha_v, sample.u_beta_v)),
-        log_likelihood: upd.log_likelihood,
-        frames: f.frames + 1,
-    })
+    out.x = upd.x;
+    out.x[idx::THETA] = wrap_angle(out.x[idx::THETA]);
+    out.p = upd.p;
+    out.u_prev = Some(Vector2::new(sample.u_alpha_v, sample.u_beta_v));
+    out.log_likelihood = upd.log_likelihood;
+    out.frames = f.frames + 1;
+    Ok(())
 }
 
 /// Row `i` of the Jacobian `A` (eq. 8, [`DriveModel::jacobian`]) times `v`, over the
@@ -311,6 +324,7 @@ struct CurrentUpdate {
     log_likelihood: f64,
 }
 
+#[inline(always)]
 /// `railmon_filter::kalman::update_joseph` for `C = [I_2 0]`: `P C'` is the first two columns
 /// of `P`, and `I - K C` differs from `I` in its first two columns only.
 fn update_currents(
@@ -592,7 +606,7 @@ impl EkfBank {
                 }
                 _ => f,
             };
-            *out = ekf_step(&self.model, &self.q, &self.r, f, s).map_err(|source| {
+            ekf_step_into(&self.model, &self.q, &self.r, f, s, out).map_err(|source| {
                 SlipError::Filter {
                     drive: k + 1,
                     source,
