@@ -300,20 +300,14 @@ impl Cholesky2 {
         })
     }
 
-    /// `S^-1 b` for six right-hand sides `b = (b0[m], b1[m])`: `L y = b` forward, then
-    /// `L' z = y` backward.
-    #[inline(always)]
-    fn solve6(&self, b0: &[f64; 6], b1: &[f64; 6]) -> ([f64; 6], [f64; 6]) {
-        let mut z0 = [0.0; 6];
-        let mut z1 = [0.0; 6];
-        for m in 0..6 {
-            let y0 = b0[m] / self.l00;
-            let y1 = (b1[m] - y0 * self.l10) / self.l11;
-            z1[m] = y1 / self.l11;
-            // nalgebra's dot product starts from +0 (`+0 + -0` is `+0`).
-            let dot = 0.0 + self.l10 * z1[m];
-            z0[m] = (y0 - dot) / self.l00;
-        }
+    /// `S^-1 b`: `L y = b` forward, then `L' z = y` backward.
+    fn solve(&self, b0: f64, b1: f64) -> (f64, f64) {
+        let y0 = b0 / self.l00;
+        let y1 = (b1 - y0 * self.l10) / self.l11;
+        let z1 = y1 / self.l11;
+        // nalgebra's dot product starts from +0 (`+0 + -0` is `+0`).
+        let dot = 0.0 + self.l10 * z1;
+        let z0 = (y0 - dot) / self.l00;
         (z0, z1)
     }
 
@@ -344,17 +338,13 @@ fn update_currents(
     let mut s = ph_t.fixed_rows::<2>(idx::I_ALPHA).into_owned() + r;
     symmetrize(&mut s);
     let chol = Cholesky2::new(&s).ok_or(FilterError::InnovationNotPositiveDefinite)?;
-    // K = P C' S^-1, row by row: S^-1 times each row of P C' (S is symmetric), and
-    // S^-1 (y - C x-) for the likelihood, as a sixth right-hand side: six independent solves
-    // side by side, which the compiler pairs into packed divisions.
-    let mut b0 = [innovation[0]; 6];
-    let mut b1 = [innovation[1]; 6];
-    b0[..5].copy_from_slice(ph_t.column(0).as_slice());
-    b1[..5].copy_from_slice(ph_t.column(1).as_slice());
-    let (z0, z1) = chol.solve6(&b0, &b1);
+    // K = P C' S^-1, row by row: S^-1 times each row of P C' (S is symmetric).
     let mut k = SMatrix::<f64, 5, 2>::zeros();
-    k.column_mut(0).copy_from_slice(&z0[..5]);
-    k.column_mut(1).copy_from_slice(&z1[..5]);
+    for j in 0..5 {
+        let (k0, k1) = chol.solve(ph_t[(j, 0)], ph_t[(j, 1)]);
+        k[(j, 0)] = k0;
+        k[(j, 1)] = k1;
+    }
     let x_post = x + k * innovation;
     // The first two columns of I - K C (the others are those of I).
     let mut i_kh = -k;
@@ -377,7 +367,8 @@ fn update_currents(
     p_post += k * r * k.transpose();
     symmetrize(&mut p_post);
 
-    let mahalanobis = innovation[0] * z0[5] + innovation[1] * z1[5];
+    let (z0, z1) = chol.solve(innovation[0], innovation[1]);
+    let mahalanobis = innovation[0] * z0 + innovation[1] * z1;
     let log_likelihood = -0.5 * (2.0 * LN_2PI + chol.log_det() + mahalanobis);
     if !log_likelihood.is_finite() || x_post.iter().any(|v| !v.is_finite()) {
         return Err(FilterError::NonFinite {
