@@ -232,10 +232,8 @@ fn a_row_times(a: &DriveMatrix, i: usize, v: &[f64; 5]) -> f64 {
                 + a[(2, 3)] * v[3]
                 + a[(2, 4)] * v[4]
         }
-        // `A[3][3] = A[4][4] = 1` (the angle integrates, the torque is a random walk), and
-        // `1 * v` is `v` to the bit.
-        3 => a[(3, 2)] * v[2] + v[3],
-        _ => v[4],
+        3 => a[(3, 2)] * v[2] + a[(3, 3)] * v[3],
+        _ => a[(4, 4)] * v[4],
     }
 }
 
@@ -246,7 +244,6 @@ fn a_row_times(a: &DriveMatrix, i: usize, v: &[f64; 5]) -> f64 {
 /// same bits as `a * p * a.transpose() + q` (test `sparse_step_equals_the_dense_one_bit_for_bit`
 /// compares the bits).
 fn predicted_covariance(a: &DriveMatrix, p: &DriveMatrix, q: &DriveMatrix) -> DriveMatrix {
-    debug_assert!(a[(3, 3)] == 1.0 && a[(4, 4)] == 1.0);
     debug_assert!((0..5).all(|i| (0..5).all(|k| {
         let mut e = [0.0; 5];
         e[k] = 1.0;
@@ -367,16 +364,7 @@ fn update_currents(
         .iter_mut()
         .zip(t.fixed_columns::<3>(idx::OMEGA).iter())
         .for_each(|(q, t)| *q += t);
-    // K R K': R = r I in the bank (`EkfConfig::measurement_noise_a2`), so K R is K's columns
-    // scaled; the dense product's other terms are `K_ij * 0`, which change no non-zero sum.
-    if r[(0, 1)] == 0.0 && r[(1, 0)] == 0.0 {
-        let mut kr = k;
-        kr.column_mut(0).scale_mut(r[(0, 0)]);
-        kr.column_mut(1).scale_mut(r[(1, 1)]);
-        p_post += kr * k.transpose();
-    } else {
-        p_post += k * r * k.transpose();
-    }
+    p_post += k * r * k.transpose();
     symmetrize(&mut p_post);
 
     let (z0, z1) = chol.solve(innovation[0], innovation[1]);
