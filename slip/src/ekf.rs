@@ -302,11 +302,12 @@ impl Cholesky2 {
 
     /// `S^-1 b`: `L y = b` forward, then `L' z = y` backward.
     fn solve(&self, b0: f64, b1: f64) -> (f64, f64) {
-        let (inv00, inv11) = (1.0 / self.l00, 1.0 / self.l11);
-        let y0 = b0 * inv00;
-        let y1 = (b1 - y0 * self.l10) * inv11;
-        let z1 = y1 * inv11;
-        let z0 = (y0 - self.l10 * z1) * inv00;
+        let y0 = b0 / self.l00;
+        let y1 = (b1 - y0 * self.l10) / self.l11;
+        let z1 = y1 / self.l11;
+        // nalgebra's dot product starts from +0 (`+0 + -0` is `+0`).
+        let dot = 0.0 + self.l10 * z1;
+        let z0 = (y0 - dot) / self.l00;
         (z0, z1)
     }
 
