@@ -309,15 +309,10 @@ impl TrainSpeedCheck {
             if judged {
                 // The adhesion method's flag stands where the wheel has left the train by half
                 // the threshold in the direction of the effort (its torque evidence comes
-                // first; the departure confirms it). `max(q, min(p, confirmed))` is `q` when
-                // `p <= q` (a healthy drive, nearly always): the `exp` is skipped then.
-                if *p <= q {
-                    *p = q;
-                } else {
-                    let half = 0.5 * threshold;
-                    let confirmed = 1.0 / (1.0 + (-(*s - half) / (0.25 * half)).exp());
-                    *p = q.max(p.min(confirmed));
-                }
+                // first; the departure confirms it).
+                let half = 0.5 * threshold;
+                let confirmed = 1.0 / (1.0 + (-(*s - half) / (0.25 * half)).exp());
+                *p = q.max(p.min(confirmed));
             } else {
                 all_judged = false;
             }
