@@ -165,11 +165,12 @@ fn measurement_matrix() -> SMatrix<f64, 2, 5> {
 
 /// One EKF step (eq. 3-9) of one drive; returns the new filter, leaving `f` untouched.
 ///
-/// The update skips the zeros of `I - K C` (`C` selects the two currents: 2 x 5 x 5 products
-/// instead of 5 x 5 x 5, twice) but adds the remaining terms in the order of the dense
-/// products of [`ekf_step_dense`], so the result is the same to the bit (test
-/// `sparse_step_equals_the_dense_one_bit_for_bit`); speed ratio in `cargo bench -p
-/// railmon-slip --bench sections`.
+/// The prediction skips the zeros of the Jacobian `A` (14 non-zeros of 25), the update those
+/// of `I - K C` (`C` selects the two currents: 2 x 5 x 5 products instead of 5 x 5 x 5,
+/// twice) and factors the 2 x 2 innovation covariance by hand, but every sum adds the
+/// remaining terms in the order of the dense products of [`ekf_step_dense`], so the result is
+/// the same to the bit (test `sparse_step_equals_the_dense_one_bit_for_bit` compares the
+/// bits); speed ratio in `cargo bench -p railmon-slip --bench sections`.
 pub fn ekf_step(
     model: &DriveModel,
     q: &DriveMatrix,
@@ -284,13 +285,13 @@ impl Cholesky2 {
     /// `None` unless `S` is positive definite (a diagonal pivot not `> 0`, NaN included).
     fn new(s: &Matrix2<f64>) -> Option<Self> {
         let s00 = s[(0, 0)];
-        if !(s00 > 0.0) {
+        if s00.is_nan() || s00 <= 0.0 {
             return None;
         }
         let l00 = s00.sqrt();
         let l10 = s[(1, 0)] / l00;
         let d1 = s[(1, 1)] - l10 * l10;
-        if !(d1 > 0.0) {
+        if d1.is_nan() || d1 <= 0.0 {
             return None;
         }
         Some(Cholesky2 {
