@@ -5,7 +5,7 @@
 //! block diagonal, the stacked filter is exactly N independent 5-state filters; we run them as
 //! such (O(N) work and memory, never a dense 5N x 5N matrix).
 
-use nalgebra::{Cholesky, Matrix2, SMatrix, Vector2};
+use nalgebra::{Matrix2, SMatrix, Vector2};
 use serde::{Deserialize, Serialize};
 
 use railmon_filter::kalman::{symmetrize, update_joseph, LN_2PI};
@@ -165,11 +165,12 @@ fn measurement_matrix() -> SMatrix<f64, 2, 5> {
 
 /// One EKF step (eq. 3-9) of one drive; returns the new filter, leaving `f` untouched.
 ///
-/// The update skips the zeros of `I - K C` (`C` selects the two currents: 2 x 5 x 5 products
-/// instead of 5 x 5 x 5, twice) but adds the remaining terms in the order of the dense
-/// products of [`ekf_step_dense`], so the result is the same to the bit (test
-/// `sparse_step_equals_the_dense_one_bit_for_bit`); speed ratio in `cargo bench -p
-/// railmon-slip --bench sections`.
+/// The prediction skips the zeros of the Jacobian `A` (14 non-zeros of 25), the update those
+/// of `I - K C` (`C` selects the two currents: 2 x 5 x 5 products instead of 5 x 5 x 5,
+/// twice) and factors the 2 x 2 innovation covariance by hand, but every sum adds the
+/// remaining terms in the order of the dense products of [`ekf_step_dense`], so the result is
+/// the same to the bit (test `sparse_step_equals_the_dense_one_bit_for_bit` compares the
+/// bits); speed ratio in `cargo bench -p railmon-slip --bench sections`.
 pub fn ekf_step(
     model: &DriveModel,
     q: &DriveMatrix,
@@ -177,11 +178,26 @@ pub fn ekf_step(
     f: &DriveFilter,
     sample: &DriveSample,
 ) -> Result<DriveFilter, railmon_filter::FilterError> {
+    let mut out = *f;
+    ekf_step_into(model, q, r, f, sample, &mut out)?;
+    Ok(out)
+}
+
+/// [`ekf_step`] writing the new filter into `out` (unspecified on error): the bank steps into
+/// its scratch space without moving a `DriveFilter` (288 bytes) through a `Result`.
+pub fn ekf_step_into(
+    model: &DriveModel,
+    q: &DriveMatrix,
+    r: &Matrix2<f64>,
+    f: &DriveFilter,
+    sample: &DriveSample,
+    out: &mut DriveFilter,
+) -> Result<(), railmon_filter::FilterError> {
     // Prediction (3)-(4), with the Jacobian at the previous posterior (8).
     let (x_pred, p_pred) = match f.u_prev {
         Some(u) => {
             let (x_pred, a) = model.transition_and_jacobian(&f.x, &u);
-            let mut p = a * f.p * a.transpose() + q;
+            let mut p = predicted_covariance(&a, &f.p, q);
             symmetrize(&mut p);
             (x_pred, p)
         }
@@ -193,15 +209,113 @@ pub fn ekf_step(
         sample.i_beta_a - x_pred[idx::I_BETA],
     );
     let upd = update_currents(&x_pred, &p_pred, &innovation, r)?;
-    let mut x = upd.x;
-    x[idx::THETA] = wrap_angle(x[idx::THETA]);
-    Ok(DriveFilter {
-        x,
-        p: upd.p,
-        u_prev: Some(Vector2::new(sample.u_alpha_v, sample.u_beta_v)),
-        log_likelihood: upd.log_likelihood,
-        frames: f.frames + 1,
-    })
+    out.x = upd.x;
+    out.x[idx::THETA] = wrap_angle(out.x[idx::THETA]);
+    out.p = upd.p;
+    out.u_prev = Some(Vector2::new(sample.u_alpha_v, sample.u_beta_v));
+    out.log_likelihood = upd.log_likelihood;
+    out.frames = f.frames + 1;
+    Ok(())
+}
+
+/// Row `i` of the Jacobian `A` (eq. 8, [`DriveModel::jacobian`]) times `v`, over the
+/// entries of that row that are not structurally zero (14 of the 25), in increasing column
+/// order.
+#[inline(always)]
+fn a_row_times(a: &DriveMatrix, i: usize, v: &[f64; 5]) -> f64 {
+    match i {
+        0 => a[(0, 0)] * v[0] + a[(0, 2)] * v[2] + a[(0, 3)] * v[3],
+        1 => a[(1, 1)] * v[1] + a[(1, 2)] * v[2] + a[(1, 3)] * v[3],
+        2 => {
+            a[(2, 0)] * v[0]
+                + a[(2, 1)] * v[1]
+                + a[(2, 2)] * v[2]
+                + a[(2, 3)] * v[3]
+                + a[(2, 4)] * v[4]
+        }
+        3 => a[(3, 2)] * v[2] + a[(3, 3)] * v[3],
+        _ => a[(4, 4)] * v[4],
+    }
+}
+
+/// `A P A' + Q` of eq. (4) over the non-zeros of `A` only (2 x 14 x 5 products instead of
+/// 2 x 125). nalgebra's dense product sums `a_ik b_kj` over `k` in increasing order starting
+/// from the first term; this sums the same terms in the same order without the zero ones, and
+/// adding a product `0 * b` (`b` finite) to a sum changes at most the sign of a zero sum: the
+/// same bits as `a * p * a.transpose() + q` (test `sparse_step_equals_the_dense_one_bit_for_bit`
+/// compares the bits).
+fn predicted_covariance(a: &DriveMatrix, p: &DriveMatrix, q: &DriveMatrix) -> DriveMatrix {
+    debug_assert!((0..5).all(|i| (0..5).all(|k| {
+        let mut e = [0.0; 5];
+        e[k] = 1.0;
+        a_row_times(a, i, &e) == a[(i, k)]
+    })));
+    // The rows of `A P`: entry (i, j) is row i of `A` times column j of `P`.
+    let mut ap = [[0.0; 5]; 5];
+    for j in 0..5 {
+        let p_col: [f64; 5] = p.fixed_columns::<1>(j).into_owned().into();
+        for (i, row) in ap.iter_mut().enumerate() {
+            row[j] = a_row_times(a, i, &p_col);
+        }
+    }
+    // `(A P) A'`: entry (i, j) is row j of `A` times row i of `A P`.
+    let mut apa = DriveMatrix::zeros();
+    for (i, ap_row) in ap.iter().enumerate() {
+        for j in 0..5 {
+            apa[(i, j)] = a_row_times(a, j, ap_row);
+        }
+    }
+    // All of `Q`, its zeros too, as the dense sum does (`-0 + 0` is `+0`).
+    apa + q
+}
+
+/// The Cholesky factor `L = [l00 0; l10 l11]` of a 2 x 2 innovation covariance, with the
+/// solves `S z = b` the update needs. The same operations in the same order as nalgebra's
+/// `Cholesky::new` and `Cholesky::solve` for a 2 x 2 matrix (the same bits, test
+/// `sparse_step_equals_the_dense_one_bit_for_bit`), written out: nalgebra's generic solves are
+/// not inlined and cost as much as the rest of the update.
+#[derive(Clone, Copy)]
+struct Cholesky2 {
+    l00: f64,
+    l10: f64,
+    l11: f64,
+}
+
+impl Cholesky2 {
+    /// `None` unless `S` is positive definite (a diagonal pivot not `> 0`, NaN included).
+    fn new(s: &Matrix2<f64>) -> Option<Self> {
+        let s00 = s[(0, 0)];
+        if s00.is_nan() || s00 <= 0.0 {
+            return None;
+        }
+        let l00 = s00.sqrt();
+        let l10 = s[(1, 0)] / l00;
+        let d1 = s[(1, 1)] - l10 * l10;
+        if d1.is_nan() || d1 <= 0.0 {
+            return None;
+        }
+        Some(Cholesky2 {
+            l00,
+            l10,
+            l11: d1.sqrt(),
+        })
+    }
+
+    /// `S^-1 b`: `L y = b` forward, then `L' z = y` backward.
+    fn solve(&self, b0: f64, b1: f64) -> (f64, f64) {
+        let y0 = b0 / self.l00;
+        let y1 = (b1 - y0 * self.l10) / self.l11;
+        let z1 = y1 / self.l11;
+        // nalgebra's dot product starts from +0 (`+0 + -0` is `+0`).
+        let dot = 0.0 + self.l10 * z1;
+        let z0 = (y0 - dot) / self.l00;
+        (z0, z1)
+    }
+
+    /// `log det S = 2 (log l00 + log l11)`.
+    fn log_det(&self) -> f64 {
+        2.0 * (self.l00.ln() + self.l11.ln())
+    }
 }
 
 /// The posterior and likelihood of the update with `C = [I_2 0]`.
@@ -211,6 +325,7 @@ struct CurrentUpdate {
     log_likelihood: f64,
 }
 
+#[inline(always)]
 /// `railmon_filter::kalman::update_joseph` for `C = [I_2 0]`: `P C'` is the first two columns
 /// of `P`, and `I - K C` differs from `I` in its first two columns only.
 fn update_currents(
@@ -223,8 +338,14 @@ fn update_currents(
     let ph_t = p.fixed_columns::<2>(idx::I_ALPHA).into_owned();
     let mut s = ph_t.fixed_rows::<2>(idx::I_ALPHA).into_owned() + r;
     symmetrize(&mut s);
-    let chol = Cholesky::new(s).ok_or(FilterError::InnovationNotPositiveDefinite)?;
-    let k = chol.solve(&ph_t.transpose()).transpose();
+    let chol = Cholesky2::new(&s).ok_or(FilterError::InnovationNotPositiveDefinite)?;
+    // K = P C' S^-1, row by row: S^-1 times each row of P C' (S is symmetric).
+    let mut k = SMatrix::<f64, 5, 2>::zeros();
+    for j in 0..5 {
+        let (k0, k1) = chol.solve(ph_t[(j, 0)], ph_t[(j, 1)]);
+        k[(j, 0)] = k0;
+        k[(j, 1)] = k1;
+    }
     let x_post = x + k * innovation;
     // The first two columns of I - K C (the others are those of I).
     let mut i_kh = -k;
@@ -247,9 +368,9 @@ fn update_currents(
     p_post += k * r * k.transpose();
     symmetrize(&mut p_post);
 
-    let log_det_s: f64 = 2.0 * chol.l().diagonal().iter().map(|d| d.ln()).sum::<f64>();
-    let mahalanobis = innovation.dot(&chol.solve(innovation));
-    let log_likelihood = -0.5 * (2.0 * LN_2PI + log_det_s + mahalanobis);
+    let (z0, z1) = chol.solve(innovation[0], innovation[1]);
+    let mahalanobis = innovation[0] * z0 + innovation[1] * z1;
+    let log_likelihood = -0.5 * (2.0 * LN_2PI + chol.log_det() + mahalanobis);
     if !log_likelihood.is_finite() || x_post.iter().any(|v| !v.is_finite()) {
         return Err(FilterError::NonFinite {
             what: "Kalman update",
@@ -486,7 +607,7 @@ impl EkfBank {
                 }
                 _ => f,
             };
-            *out = ekf_step(&self.model, &self.q, &self.r, f, s).map_err(|source| {
+            ekf_step_into(&self.model, &self.q, &self.r, f, s, out).map_err(|source| {
                 SlipError::Filter {
                     drive: k + 1,
                     source,
