@@ -131,6 +131,99 @@ impl CentredMean {
     }
 }
 
+/// The centred running median over `2 half + 1` steps of a vector per step, with
+/// [`CentredMean`]'s interface and its windows cut at the ends of a run. A running median
+/// passes a step, and a monotone ramp, through unchanged (Tukey's running median; a step is a
+/// "root" of it, Gallagher and Wise, IEEE Trans. ASSP 29(6), 1981), where a centred mean turns
+/// a step into a ramp as wide as its window.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CentredMedian {
+    half: usize,
+    /// Ring of the last `2 half + 1` vectors, row-major.
+    ring: Vec<f64>,
+    /// Per element, the values of the window in ascending order.
+    sorted: Vec<Vec<f64>>,
+    median: Vec<f64>,
+    seen: usize,
+    first: usize,
+    out: usize,
+}
+
+impl CentredMedian {
+    pub fn new(half: usize, n: usize) -> Self {
+        let w = 2 * half + 1;
+        CentredMedian {
+            half,
+            ring: vec![0.0; w * n],
+            sorted: vec![Vec::with_capacity(w); n],
+            median: vec![0.0; n],
+            seen: 0,
+            first: 0,
+            out: 0,
+        }
+    }
+
+    /// Pushes step `t`; the centred median of step `t - half` once `half + 1` steps are in.
+    pub fn push(&mut self, x: &[f64]) -> Option<&[f64]> {
+        let n = self.median.len();
+        let w = 2 * self.half + 1;
+        let slot = self.seen % w;
+        if self.seen >= w {
+            self.forget_first();
+        }
+        for (k, &v) in x.iter().enumerate() {
+            self.ring[slot * n + k] = v;
+            let s = &mut self.sorted[k];
+            let at = s.partition_point(|y| y.total_cmp(&v).is_lt());
+            s.insert(at, v);
+        }
+        self.seen += 1;
+        if self.seen <= self.half {
+            return None;
+        }
+        self.out = self.seen - self.half;
+        Some(self.median_of_sorted())
+    }
+
+    /// As [`CentredMean::drain`].
+    pub fn drain(&mut self) -> Option<&[f64]> {
+        if self.out == self.seen {
+            *self = CentredMedian::new(self.half, self.median.len());
+            return None;
+        }
+        let step = self.out;
+        while self.first < step.saturating_sub(self.half) {
+            self.forget_first();
+        }
+        self.out += 1;
+        Some(self.median_of_sorted())
+    }
+
+    fn forget_first(&mut self) {
+        let n = self.median.len();
+        let w = 2 * self.half + 1;
+        let slot = self.first % w;
+        for (k, s) in self.sorted.iter_mut().enumerate() {
+            let v = self.ring[slot * n + k];
+            let at = s.partition_point(|y| y.total_cmp(&v).is_lt());
+            s.remove(at);
+        }
+        self.first += 1;
+    }
+
+    fn median_of_sorted(&mut self) -> &[f64] {
+        for (m, s) in self.median.iter_mut().zip(&self.sorted) {
+            let c = s.len();
+            *m = if c % 2 == 1 {
+                s[c / 2]
+            } else {
+                0.5 * (s[c / 2 - 1] + s[c / 2])
+            };
+        }
+        &self.median
+    }
+}
+
 /// Per drive, a delay line of `delay + 1` probabilities (`delay >= max(on, off)`): when an episode starts
 /// (p above 0.5 after a step at or below) the `on` steps before are raised to its
 /// probability, when it ends the `off` steps before are lowered to it; the oldest is
