@@ -30,7 +30,7 @@
 //! publication").
 
 use railmon_slip::bound::{f1_bound, losses_at_bound, LoadChangeInformation};
-use railmon_slip::fixed_lag::{CentredMean, CentredMedian, FixedLagEstimator};
+use railmon_slip::fixed_lag::{CentredMean, FixedLagEstimator};
 use railmon_slip::model::DriveState;
 use railmon_slip::sampler::{draw_kind, is_held_out, Draw, DrawKind};
 use railmon_slip::{
@@ -346,62 +346,7 @@ fn run(draw: Draw, method: Option<AdhesionMethod>, lag_study: bool) -> Outcome {
     let lag = lag.map(|l| {
         let ks: Vec<usize> = slipping.iter().map(|s| s.drive).collect();
         let hs: Vec<usize> = healthy.iter().map(|h| h.0).collect();
-        let v = l.finish();
-        if std::env::var_os("EDGE_DIAG").is_some() {
-            let (_, stage) = v.views.last().unwrap();
-            for s in &slipping {
-                if s.bound_f1 < F1_TARGET {
-                    continue;
-                }
-                let k = s.drive;
-                let det = runs(&stage[k]);
-                let (kind, smooth) = scenario
-                    .events
-                    .iter()
-                    .find_map(|e| match e {
-                        railmon_slip::SlipEvent::Ramp {
-                            drive,
-                            full_step,
-                            start_step,
-                            smoothing_steps,
-                            ..
-                        } if *drive == k + 1 => {
-                            Some((full_step - start_step, smoothing_steps.unwrap_or(0.0)))
-                        }
-                        railmon_slip::SlipEvent::Drop {
-                            drive,
-                            smoothing_steps,
-                            ..
-                        } if *drive == k + 1 => Some((0.0, smoothing_steps.unwrap_or(0.0))),
-                        _ => None,
-                    })
-                    .unwrap_or((-1.0, -1.0));
-                let (sc_f1, ..) = score_flags(&stage[k], &v.truth[k]);
-                for (a, b) in runs(&v.truth[k]) {
-                    let mid = (a + b) as f64 / 2.0;
-                    let healthy = scenario.healthy_load_nm(k, mid);
-                    let depth = healthy - scenario.true_load_nm(k, mid).0;
-                    let tol = (0.1 * healthy.abs()).max(0.5);
-                    let over: Vec<_> = det.iter().filter(|d| d.0 < b && a < d.1).collect();
-                    let on = over.first().map_or(f64::NAN, |d| d.0 as f64 - a as f64);
-                    let off = over.last().map_or(f64::NAN, |d| d.1 as f64 - b as f64);
-                    eprintln!(
-                        "DIAG {} {} {:.4} {} {} {:.3} {} {} {} {:.2} {kind} {smooth}",
-                        draw.seed,
-                        k,
-                        sc_f1,
-                        a,
-                        b - a,
-                        depth.abs() / tol,
-                        on,
-                        off,
-                        over.len(),
-                        draw.noise_factor
-                    );
-                }
-            }
-        }
-        lag_scores(&v, &ks, &hs)
+        lag_scores(&l.finish(), &ks, &hs)
     });
     Outcome {
         draw,
@@ -639,8 +584,6 @@ fn main() {
 /// Half-widths of the centred boxcars: 2 H + 1 = 63 steps has the variance of an EMA of
 /// `alpha` 1/32 on white noise (`alpha / (2 - alpha)` = 1/63).
 const BOX_HALVES: [usize; 2] = [31, 47];
-/// Half-widths of the centred running medians.
-const MEDIAN_HALVES: [usize; 3] = [31, 47, 63];
 const EMA_ALPHA: f64 = 1.0 / 32.0;
 
 /// Edge moves: (name, back-date of onsets, back-date of releases); `None` = the oracle.
@@ -712,103 +655,6 @@ fn oracle(flags: &[bool], truth: &[bool]) -> Vec<bool> {
     out
 }
 
-/// Depth-dependent edge moves: (plateau source: 0 the episode's largest departure, 1 the raw
-/// tail the look-ahead holds at the onset; onset's move at f = 0.5; release's; slope).
-const DEPTH_EDGES: [(u8, f64, f64, f64, f64); 40] = [
-    (0, 16.0, 0.0, 8.0, 0.0),
-    (0, 16.0, 0.0, 8.0, 60.0),
-    (0, 16.0, 0.0, 12.0, 60.0),
-    (0, 16.0, 0.0, 16.0, 95.0),
-    (0, 16.0, 0.0, 8.0, 95.0),
-    (0, 20.0, 30.0, 8.0, 0.0),
-    (0, 20.0, 30.0, 8.0, 60.0),
-    (0, 20.0, 30.0, 12.0, 60.0),
-    (0, 20.0, 30.0, 16.0, 95.0),
-    (0, 20.0, 30.0, 8.0, 95.0),
-    (0, 24.0, 40.0, 8.0, 0.0),
-    (0, 24.0, 40.0, 8.0, 60.0),
-    (0, 24.0, 40.0, 12.0, 60.0),
-    (0, 24.0, 40.0, 16.0, 95.0),
-    (0, 24.0, 40.0, 8.0, 95.0),
-    (0, 16.0, 40.0, 8.0, 0.0),
-    (0, 16.0, 40.0, 8.0, 60.0),
-    (0, 16.0, 40.0, 12.0, 60.0),
-    (0, 16.0, 40.0, 16.0, 95.0),
-    (0, 16.0, 40.0, 8.0, 95.0),
-    (1, 16.0, 0.0, 8.0, 0.0),
-    (1, 16.0, 0.0, 8.0, 60.0),
-    (1, 16.0, 0.0, 12.0, 60.0),
-    (1, 16.0, 0.0, 16.0, 95.0),
-    (1, 16.0, 0.0, 8.0, 95.0),
-    (1, 20.0, 30.0, 8.0, 0.0),
-    (1, 20.0, 30.0, 8.0, 60.0),
-    (1, 20.0, 30.0, 12.0, 60.0),
-    (1, 20.0, 30.0, 16.0, 95.0),
-    (1, 20.0, 30.0, 8.0, 95.0),
-    (1, 24.0, 40.0, 8.0, 0.0),
-    (1, 24.0, 40.0, 8.0, 60.0),
-    (1, 24.0, 40.0, 12.0, 60.0),
-    (1, 24.0, 40.0, 16.0, 95.0),
-    (1, 24.0, 40.0, 8.0, 95.0),
-    (1, 16.0, 40.0, 8.0, 0.0),
-    (1, 16.0, 40.0, 8.0, 60.0),
-    (1, 16.0, 40.0, 12.0, 60.0),
-    (1, 16.0, 40.0, 16.0, 95.0),
-    (1, 16.0, 40.0, 8.0, 95.0),
-];
-
-/// Every episode `[a, b)` of `flags` becomes `[a - on, b - off)`, `on = a_on + slope (f_a -
-/// 0.5)`, `off = a_off + slope (0.5 - f_b)`, `f` the departure at the edge as a share of the
-/// episode's plateau (the centred mean of a step is a ramp of 95 steps: a crossing at share
-/// `f` sits `(f - 0.5) 95` steps after the ramp's middle).
-#[allow(clippy::too_many_arguments)]
-fn depth_edges(
-    flags: &[bool],
-    dep: &[f64],
-    reference: &[f64],
-    raw: &[f64],
-    src: u8,
-    (a_on, b_on): (f64, f64),
-    (a_off, b_off): (f64, f64),
-) -> Vec<bool> {
-    let n = flags.len();
-    let mut out = vec![false; n];
-    for (a, b) in runs(flags) {
-        // Baseline: the view's mean departure 50-150 steps before the onset.
-        let lo = a.saturating_sub(150);
-        let hi = a.saturating_sub(50).max(lo + 1).min(n);
-        let base = dep[lo..hi].iter().sum::<f64>() / (hi - lo) as f64;
-        let d = |t: usize| dep[t] - base;
-        // Plateau: the episode's largest departure from the baseline.
-        let (mut peak, mut sign) = (0.0, 1.0);
-        for t in a..b {
-            if d(t).abs() > peak {
-                peak = d(t).abs();
-                sign = d(t).signum();
-            }
-        }
-        let on_plateau = if src == 0 {
-            peak
-        } else {
-            // The raw estimates' last 16 steps the look-ahead holds at the onset (a + 47).
-            let e = (a + 48).min(n);
-            let s0 = e.saturating_sub(16);
-            (sign * (raw[s0..e].iter().sum::<f64>() / (e - s0) as f64 - reference[a] - base))
-                .max(sign * d(a))
-        };
-        let f_on = (sign * d(a) / on_plateau.max(1e-9)).clamp(0.0, 1.0);
-        let f_off = (sign * d(b - 1) / peak.max(1e-9)).clamp(0.0, 1.0);
-        let on = (a_on + b_on * (f_on - 0.5)).round() as i64;
-        let off = (a_off + b_off * (0.5 - f_off)).round() as i64;
-        let a2 = (a as i64 - on).clamp(0, n as i64) as usize;
-        let b2 = (b as i64 - off).clamp(0, n as i64) as usize;
-        for f in out.iter_mut().take(b2).skip(a2) {
-            *f = true;
-        }
-    }
-    out
-}
-
 /// (F1, false steps, longest run of flags outside a loss).
 fn score_flags(flags: &[bool], truth: &[bool]) -> (f64, usize, usize, Option<f64>) {
     let mut c = DetectionCounter::default();
@@ -846,60 +692,37 @@ fn release_delays(flags: &[bool], truth: &[bool]) -> Vec<f64> {
 struct Centred {
     half: usize,
     mean: CentredMean,
-    /// A running median instead of the mean.
-    median: Option<CentredMedian>,
     est: AdhesionEstimator,
     flags: Vec<Vec<bool>>,
-    /// Per drive and step, the view's value minus the method's reference.
-    dep: Vec<Vec<f64>>,
-    reference: Vec<f64>,
 }
 
 impl Centred {
-    fn new(cfg: &railmon_slip::SlipMonitorConfig, n: usize, half: usize, median: bool) -> Self {
+    fn new(cfg: &railmon_slip::SlipMonitorConfig, n: usize, half: usize) -> Self {
         Centred {
             half,
             mean: CentredMean::new(half, n),
-            median: median.then(|| CentredMedian::new(half, n)),
             est: AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
             flags: vec![Vec::new(); n],
-            dep: vec![Vec::new(); n],
-            reference: Vec::new(),
         }
     }
 
     fn push(&mut self, x: &[f64]) {
         // The first mean is step 0's (the window cut at the start), given at step `half`.
-        let m = match &mut self.median {
-            Some(md) => md.push(x),
-            None => self.mean.push(x),
-        };
-        if let Some(m) = m {
-            let m = m.to_vec();
-            let m = &m[..];
-            let out = self.est.estimate(m).expect("centred");
-            for (k, &pk) in out.slip_probability.iter().enumerate() {
-                self.flags[k].push(pk > 0.5);
-                self.dep[k].push(m[k] - out.global_torque_nm);
+        if let Some(m) = self.mean.push(x) {
+            let p = &self.est.estimate(m).expect("centred").slip_probability;
+            for (f, &pk) in self.flags.iter_mut().zip(p) {
+                f.push(pk > 0.5);
             }
-            self.reference.push(out.global_torque_nm);
         }
     }
 
     /// The last `half` steps' means, over the steps there are after them.
     fn drain(&mut self) {
-        while let Some(m) = match &mut self.median {
-            Some(md) => md.drain(),
-            None => self.mean.drain(),
-        } {
-            let m = m.to_vec();
-            let m = &m[..];
-            let out = self.est.estimate(m).expect("centred");
-            for (k, &pk) in out.slip_probability.iter().enumerate() {
-                self.flags[k].push(pk > 0.5);
-                self.dep[k].push(m[k] - out.global_torque_nm);
+        while let Some(m) = self.mean.drain() {
+            let p = &self.est.estimate(m).expect("centred").slip_probability;
+            for (f, &pk) in self.flags.iter_mut().zip(p) {
+                f.push(pk > 0.5);
             }
-            self.reference.push(out.global_torque_nm);
         }
     }
 }
@@ -908,11 +731,6 @@ impl Centred {
 struct LagViews {
     views: Vec<(String, Vec<Vec<bool>>)>,
     truth: Vec<Vec<bool>>,
-    /// The centred 95 view: per drive its departure from the reference; the reference; the
-    /// raw torque estimates.
-    dep: Vec<Vec<f64>>,
-    reference: Vec<f64>,
-    raw_x: Vec<Vec<f64>>,
 }
 
 struct LagRunner {
@@ -927,7 +745,6 @@ struct LagRunner {
     stage: FixedLagEstimator,
     stage_flags: Vec<Vec<bool>>,
     truth: Vec<Vec<bool>>,
-    raw_x: Vec<Vec<f64>>,
 }
 
 impl LagRunner {
@@ -940,15 +757,13 @@ impl LagRunner {
             ema: vec![Vec::new(); n],
             centred: BOX_HALVES
                 .iter()
-                .map(|&h| Centred::new(cfg, n, h, false))
-                .chain(MEDIAN_HALVES.iter().map(|&h| Centred::new(cfg, n, h, true)))
+                .map(|&h| Centred::new(cfg, n, h))
                 .collect(),
             stage: FixedLagEstimator::new(
                 AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
             ),
             stage_flags: vec![Vec::new(); n],
             truth: vec![Vec::new(); n],
-            raw_x: vec![Vec::new(); n],
         }
     }
 
@@ -975,7 +790,6 @@ impl LagRunner {
             self.raw[k].push(p_raw[k] > 0.5);
             self.ema[k].push(p[k] > 0.5);
             self.truth[k].push(truth[k]);
-            self.raw_x[k].push(x[k]);
         }
         for c in &mut self.centred {
             c.push(x);
@@ -998,12 +812,6 @@ impl LagRunner {
             }
         }
         let len = self.raw.first().map_or(0, Vec::len);
-        let c95 = self
-            .centred
-            .iter()
-            .find(|c| c.half == 47 && c.median.is_none())
-            .unwrap();
-        let (dep, reference) = (c95.dep.clone(), c95.reference.clone());
         let mut views = vec![
             ("raw".to_owned(), self.raw),
             ("ema 1/32".to_owned(), self.ema),
@@ -1013,12 +821,7 @@ impl LagRunner {
                 c.flags.iter().all(|f| f.len() == len),
                 "every step has its flag"
             );
-            let kind = if c.median.is_some() {
-                "median"
-            } else {
-                "centred"
-            };
-            views.push((format!("{kind} {}", 2 * c.half + 1), c.flags));
+            views.push((format!("centred {}", 2 * c.half + 1), c.flags));
         }
         let stage = self.stage_flags;
         assert!(
@@ -1029,9 +832,6 @@ impl LagRunner {
         LagViews {
             views,
             truth: self.truth,
-            dep,
-            reference,
-            raw_x: self.raw_x,
         }
     }
 }
@@ -1063,38 +863,6 @@ fn lag_scores(v: &LagViews, slipping: &[usize], healthy: &[usize]) -> (LagScores
                 .collect();
             out.push((format!("{view}, {edge}"), f1s, h, delays));
         }
-    }
-    // Depth-dependent edges on the centred 95 view's episodes (issue 23, ninth round).
-    let c95 = &v.views.iter().find(|x| x.0 == "centred 95").unwrap().1;
-    for &(src, a_on, b_on, a_off, b_off) in DEPTH_EDGES.iter() {
-        let moved = |k: usize| {
-            depth_edges(
-                &c95[k],
-                &v.dep[k],
-                &v.reference,
-                &v.raw_x[k],
-                src,
-                (a_on, b_on),
-                (a_off, b_off),
-            )
-        };
-        let sc: Vec<_> = slipping
-            .iter()
-            .map(|&k| score_flags(&moved(k), &v.truth[k]))
-            .collect();
-        let h = healthy
-            .iter()
-            .map(|&k| {
-                let s = score_flags(&moved(k), &v.truth[k]);
-                (s.1, s.2)
-            })
-            .collect();
-        out.push((
-            format!("depth {src} on {a_on}+{b_on}f off {a_off}+{b_off}f"),
-            sc.iter().map(|s| s.0).collect(),
-            h,
-            sc.iter().map(|s| s.3).collect(),
-        ));
     }
     let rel = v
         .views
