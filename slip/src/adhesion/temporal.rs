@@ -548,7 +548,7 @@ impl TemporalEstimator {
             // of the others' as its own level (condition sampler draw 1028: -1.7 N m after
             // 5.8 s of six of seven drives sliding), and be flagged when they came back.
             self.offset_nm[k] =
-                (self.offset_nm[k] + rate * d).clamp(-0.5 * relative_limit, 0.5 * relative_limit);
+                (self.offset_nm[k] + rate * d).clamp(-relative_limit, relative_limit);
             *s2 = ((1.0 - rate) * *s2 + rate * unshrink * d * d).max(min_var);
             // The lag-1 covariance learns from the same steps with the same weights; the
             // kernel weighs by d_t only and E[d_(t-1) | d_t] = rho d_t for a stationary
