@@ -655,24 +655,6 @@ fn oracle(flags: &[bool], truth: &[bool]) -> Vec<bool> {
     out
 }
 
-/// Extra release moves on short episodes: (length at which the full extra applies, length
-/// from which none does, extra steps).
-const SHORT_RELEASE: [(f64, f64, f64); 13] = [
-    (32.0, 32.001, 1e6),
-    (48.0, 48.001, 1e6),
-    (64.0, 64.001, 1e6),
-    (96.0, 96.001, 1e6),
-    (100.0, 200.0, 16.0),
-    (100.0, 200.0, 24.0),
-    (100.0, 300.0, 16.0),
-    (100.0, 300.0, 24.0),
-    (100.0, 400.0, 24.0),
-    (100.0, 400.0, 32.0),
-    (150.0, 300.0, 24.0),
-    (150.0, 400.0, 32.0),
-    (200.0, 500.0, 32.0),
-];
-
 /// (F1, false steps, longest run of flags outside a loss).
 fn score_flags(flags: &[bool], truth: &[bool]) -> (f64, usize, usize, Option<f64>) {
     let mut c = DetectionCounter::default();
@@ -881,39 +863,6 @@ fn lag_scores(v: &LagViews, slipping: &[usize], healthy: &[usize]) -> (LagScores
                 .collect();
             out.push((format!("{view}, {edge}"), f1s, h, delays));
         }
-    }
-    // Release moved back further on short episodes (boxcar broadening), stage view.
-    let stage = &v.views.iter().find(|x| x.0 == "library stage").unwrap().1;
-    for &(e_min, e_max, extra) in SHORT_RELEASE.iter() {
-        let moved = |k: usize| {
-            let f = &stage[k];
-            let mut out = vec![false; f.len()];
-            for (a, b) in runs(f) {
-                let e = (b - a) as f64;
-                let x = (extra * ((e_max - e) / (e_max - e_min)).clamp(0.0, 1.0)).round() as usize;
-                for o in out.iter_mut().take(b.saturating_sub(x)).skip(a) {
-                    *o = true;
-                }
-            }
-            out
-        };
-        let sc: Vec<_> = slipping
-            .iter()
-            .map(|&k| score_flags(&moved(k), &v.truth[k]))
-            .collect();
-        let h = healthy
-            .iter()
-            .map(|&k| {
-                let s = score_flags(&moved(k), &v.truth[k]);
-                (s.1, s.2)
-            })
-            .collect();
-        out.push((
-            format!("stage, short release {e_min}-{e_max} extra {extra}"),
-            sc.iter().map(|s| s.0).collect(),
-            h,
-            sc.iter().map(|s| s.3).collect(),
-        ));
     }
     let rel = v
         .views
