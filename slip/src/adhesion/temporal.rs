@@ -526,14 +526,7 @@ impl TemporalEstimator {
             if p > 0.5 {
                 *level_seen = (*level_seen + p).min(level_memory.max(1.0));
                 let level = &mut self.slip_level_nm[k];
-                // Measured, not adopted: the level jumps to a deeper departure at once (a peak
-                // follower), so that a short episode's level is its plateau, not the mean of
-                // the ramp the centred mean makes of its onset.
-                if d * *level >= 0.0 && d.abs() > level.abs() {
-                    *level = d;
-                } else {
-                    *level += p / *level_seen * (d - *level);
-                }
+                *level += p / *level_seen * (d - *level);
             } else if d.abs() <= relative_limit.max(c.significance_sigmas * s2.sqrt()) {
                 // Back within the tolerance: the level is forgotten one step of its weight at
                 // a time, so a drive stays *recovering* for up to `slip_level_memory_steps`
