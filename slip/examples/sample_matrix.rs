@@ -864,55 +864,6 @@ fn lag_scores(v: &LagViews, slipping: &[usize], healthy: &[usize]) -> (LagScores
             out.push((format!("{view}, {edge}"), f1s, h, delays));
         }
     }
-    // Episodes of the stage closer than `gap` steps merged (a closing).
-    let stage = &v.views.iter().find(|x| x.0 == "library stage").unwrap().1;
-    for (gap, shortest) in [
-        (64usize, 0usize),
-        (128, 0),
-        (256, 0),
-        (96, 0),
-        (128, 48),
-        (256, 48),
-        (128, 32),
-    ] {
-        let moved = |k: usize| {
-            let f = &stage[k];
-            let mut out = f.clone();
-            let r = runs(f);
-            for w in r.windows(2) {
-                if w[1].0 - w[0].1 < gap {
-                    for o in &mut out[w[0].1..w[1].0] {
-                        *o = true;
-                    }
-                }
-            }
-            for (a, b) in runs(&out.clone()) {
-                if b - a < shortest {
-                    for o in &mut out[a..b] {
-                        *o = false;
-                    }
-                }
-            }
-            out
-        };
-        let sc: Vec<_> = slipping
-            .iter()
-            .map(|&k| score_flags(&moved(k), &v.truth[k]))
-            .collect();
-        let h = healthy
-            .iter()
-            .map(|&k| {
-                let s = score_flags(&moved(k), &v.truth[k]);
-                (s.1, s.2)
-            })
-            .collect();
-        out.push((
-            format!("stage, gaps under {gap} closed, shorter than {shortest} dropped"),
-            sc.iter().map(|s| s.0).collect(),
-            h,
-            sc.iter().map(|s| s.3).collect(),
-        ));
-    }
     let rel = v
         .views
         .iter()
