@@ -655,123 +655,6 @@ fn oracle(flags: &[bool], truth: &[bool]) -> Vec<bool> {
     out
 }
 
-/// Fitted edges: (which: 1 release, 2 onset, 3 both; the EKF's time constant in steps).
-const FIT_EDGES: [(u8, f64); 9] = [
-    (1, 8.0),
-    (1, 16.0),
-    (1, 24.0),
-    (2, 8.0),
-    (2, 16.0),
-    (2, 24.0),
-    (3, 8.0),
-    (3, 16.0),
-    (3, 24.0),
-];
-
-/// CDF of a normal (scale `sigma`) convolved with an exponential (time constant `tau`): the
-/// EKF's estimate (a first-order lag) of a load step smoothed by a normal CDF (the sampler's
-/// edges). Exponentially modified Gaussian CDF.
-fn exgauss_cdf(t: f64, sigma: f64, tau: f64) -> f64 {
-    use railmon_slip::adhesion::temporal::normal_cdf;
-    let sigma = sigma.max(1e-3);
-    let z = t / sigma;
-    let e = (-t / tau + 0.5 * sigma * sigma / (tau * tau)).min(700.0);
-    (normal_cdf(z) - e.exp() * normal_cdf(z - sigma / tau)).clamp(0.0, 1.0)
-}
-
-fn normal_quantile(p: f64) -> f64 {
-    use railmon_slip::adhesion::temporal::normal_cdf;
-    let (mut lo, mut hi) = (-8.0, 8.0);
-    for _ in 0..60 {
-        let m = 0.5 * (lo + hi);
-        if normal_cdf(m) < p {
-            lo = m
-        } else {
-            hi = m
-        }
-    }
-    0.5 * (lo + hi)
-}
-
-/// One edge of an episode: the least-squares fit of `D F((t - e) / .)` (onset) or
-/// `D (1 - F(.))` (release) to the raw departure `u_t` over `[lo, hi)`, over the edge's time
-/// `e` and smoothing `sigma` (D in closed form); the step at which the fitted true departure
-/// crosses the slip rule's tolerance.
-fn fit_edge(u: &[f64], lo: usize, tol: f64, rising: bool, tau: f64) -> Option<f64> {
-    let mut best = (f64::INFINITY, 0.0, 0.0, 0.0);
-    let uu: f64 = u.iter().map(|x| x * x).sum();
-    for sigma in [0.0, 10.0, 20.0, 30.0, 45.0, 60.0] {
-        for e in 0..u.len() {
-            let (mut ut, mut tt) = (0.0, 0.0);
-            for (i, &x) in u.iter().enumerate() {
-                let f = exgauss_cdf(i as f64 - e as f64, sigma, tau);
-                let g = if rising { f } else { 1.0 - f };
-                ut += x * g;
-                tt += g * g;
-            }
-            if tt < 1e-9 {
-                continue;
-            }
-            let sse = uu - ut * ut / tt;
-            if sse < best.0 {
-                best = (sse, e as f64, sigma, ut / tt);
-            }
-        }
-    }
-    let (_, e, sigma, d) = best;
-    if d <= tol {
-        return None;
-    }
-    // The smoothed step's departure crosses the tolerance where D Phi(z) = tol (onset) or
-    // D (1 - Phi(z)) = tol (release).
-    let z = if rising {
-        normal_quantile(tol / d)
-    } else {
-        normal_quantile(1.0 - tol / d)
-    };
-    Some(lo as f64 + e + sigma * z)
-}
-
-fn fit_edges(
-    flags: &[bool],
-    raw: &[f64],
-    healthy: &[Vec<f64>],
-    k: usize,
-    which: u8,
-    tau: f64,
-) -> Vec<bool> {
-    let n = flags.len();
-    let mut out = vec![false; n];
-    for (a, b) in runs(flags) {
-        let level = healthy[a.min(n - 1)][k];
-        let tol = (0.1 * level.abs()).max(0.5);
-        let dir = if level >= 0.0 { 1.0 } else { -1.0 };
-        // Departure towards zero, positive for a loss.
-        let dep = |t: usize| dir * (healthy[t][k] - raw[t]);
-        let (mut a2, mut b2) = (a, b);
-        if which & 2 != 0 {
-            let lo = a.saturating_sub(48);
-            let hi = (a + 64).min(n);
-            let u: Vec<f64> = (lo..hi).map(dep).collect();
-            if let Some(x) = fit_edge(&u, lo, tol, true, tau) {
-                a2 = (x.round().max(0.0) as usize).clamp(a.saturating_sub(48), a + 48);
-            }
-        }
-        if which & 1 != 0 {
-            let lo = b.saturating_sub(112);
-            let hi = (b + 48).min(n);
-            let u: Vec<f64> = (lo..hi).map(dep).collect();
-            if let Some(x) = fit_edge(&u, lo, tol, false, tau) {
-                b2 = (x.round().max(0.0) as usize).clamp(b.saturating_sub(48), b + 48);
-            }
-        }
-        for f in out.iter_mut().take(b2.min(n)).skip(a2) {
-            *f = true;
-        }
-    }
-    out
-}
-
 /// (F1, false steps, longest run of flags outside a loss).
 fn score_flags(flags: &[bool], truth: &[bool]) -> (f64, usize, usize, Option<f64>) {
     let mut c = DetectionCounter::default();
@@ -809,8 +692,6 @@ fn release_delays(flags: &[bool], truth: &[bool]) -> Vec<f64> {
 struct Centred {
     half: usize,
     mean: CentredMean,
-    /// Per step, per drive: the reference plus the drive's learnt offset (its healthy level).
-    healthy: Vec<Vec<f64>>,
     est: AdhesionEstimator,
     flags: Vec<Vec<bool>>,
 }
@@ -820,7 +701,6 @@ impl Centred {
         Centred {
             half,
             mean: CentredMean::new(half, n),
-            healthy: Vec::new(),
             est: AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
             flags: vec![Vec::new(); n],
         }
@@ -829,14 +709,9 @@ impl Centred {
     fn push(&mut self, x: &[f64]) {
         // The first mean is step 0's (the window cut at the start), given at step `half`.
         if let Some(m) = self.mean.push(x) {
-            let out = self.est.estimate(m).expect("centred");
-            for (f, &pk) in self.flags.iter_mut().zip(&out.slip_probability) {
+            let p = &self.est.estimate(m).expect("centred").slip_probability;
+            for (f, &pk) in self.flags.iter_mut().zip(p) {
                 f.push(pk > 0.5);
-            }
-            let r = out.global_torque_nm;
-            if let AdhesionEstimator::Temporal(t) = &self.est {
-                self.healthy
-                    .push(t.offset_nm().iter().map(|b| r + b).collect());
             }
         }
     }
@@ -844,14 +719,9 @@ impl Centred {
     /// The last `half` steps' means, over the steps there are after them.
     fn drain(&mut self) {
         while let Some(m) = self.mean.drain() {
-            let out = self.est.estimate(m).expect("centred");
-            for (f, &pk) in self.flags.iter_mut().zip(&out.slip_probability) {
+            let p = &self.est.estimate(m).expect("centred").slip_probability;
+            for (f, &pk) in self.flags.iter_mut().zip(p) {
                 f.push(pk > 0.5);
-            }
-            let r = out.global_torque_nm;
-            if let AdhesionEstimator::Temporal(t) = &self.est {
-                self.healthy
-                    .push(t.offset_nm().iter().map(|b| r + b).collect());
             }
         }
     }
@@ -861,9 +731,6 @@ impl Centred {
 struct LagViews {
     views: Vec<(String, Vec<Vec<bool>>)>,
     truth: Vec<Vec<bool>>,
-    /// Per step, per drive, the centred 95 view's healthy level; per drive the raw estimates.
-    healthy: Vec<Vec<f64>>,
-    raw_x: Vec<Vec<f64>>,
 }
 
 struct LagRunner {
@@ -878,7 +745,6 @@ struct LagRunner {
     stage: FixedLagEstimator,
     stage_flags: Vec<Vec<bool>>,
     truth: Vec<Vec<bool>>,
-    raw_x: Vec<Vec<f64>>,
 }
 
 impl LagRunner {
@@ -898,7 +764,6 @@ impl LagRunner {
             ),
             stage_flags: vec![Vec::new(); n],
             truth: vec![Vec::new(); n],
-            raw_x: vec![Vec::new(); n],
         }
     }
 
@@ -925,7 +790,6 @@ impl LagRunner {
             self.raw[k].push(p_raw[k] > 0.5);
             self.ema[k].push(p[k] > 0.5);
             self.truth[k].push(truth[k]);
-            self.raw_x[k].push(x[k]);
         }
         for c in &mut self.centred {
             c.push(x);
@@ -948,13 +812,6 @@ impl LagRunner {
             }
         }
         let len = self.raw.first().map_or(0, Vec::len);
-        let healthy = self
-            .centred
-            .iter()
-            .find(|c| c.half == 47)
-            .unwrap()
-            .healthy
-            .clone();
         let mut views = vec![
             ("raw".to_owned(), self.raw),
             ("ema 1/32".to_owned(), self.ema),
@@ -975,8 +832,6 @@ impl LagRunner {
         LagViews {
             views,
             truth: self.truth,
-            healthy,
-            raw_x: self.raw_x,
         }
     }
 }
@@ -1008,28 +863,6 @@ fn lag_scores(v: &LagViews, slipping: &[usize], healthy: &[usize]) -> (LagScores
                 .collect();
             out.push((format!("{view}, {edge}"), f1s, h, delays));
         }
-    }
-    // Edges by a least-squares fit of a smoothed step seen through the EKF (ninth round).
-    let stage = &v.views.iter().find(|x| x.0 == "library stage").unwrap().1;
-    for &(which, tau) in FIT_EDGES.iter() {
-        let moved = |k: usize| fit_edges(&stage[k], &v.raw_x[k], &v.healthy, k, which, tau);
-        let sc: Vec<_> = slipping
-            .iter()
-            .map(|&k| score_flags(&moved(k), &v.truth[k]))
-            .collect();
-        let h = healthy
-            .iter()
-            .map(|&k| {
-                let s = score_flags(&moved(k), &v.truth[k]);
-                (s.1, s.2)
-            })
-            .collect();
-        out.push((
-            format!("stage, fitted edges {which} tau {tau}"),
-            sc.iter().map(|s| s.0).collect(),
-            h,
-            sc.iter().map(|s| s.3).collect(),
-        ));
     }
     let rel = v
         .views
