@@ -30,7 +30,7 @@
 //! publication").
 
 use railmon_slip::bound::{f1_bound, losses_at_bound, LoadChangeInformation};
-use railmon_slip::fixed_lag::{CentredMean, FixedLagEstimator, CENTRED_HALF_WINDOW_STEPS};
+use railmon_slip::fixed_lag::{CentredMean, FixedLagEstimator};
 use railmon_slip::model::DriveState;
 use railmon_slip::sampler::{draw_kind, is_held_out, Draw, DrawKind};
 use railmon_slip::{
@@ -253,25 +253,39 @@ fn run(draw: Draw, method: Option<AdhesionMethod>, lag_study: bool) -> Outcome {
     let (mut run_now, mut run_max) = (vec![0usize; n], vec![0usize; n]);
     let mut run_start = vec![0usize; n];
     let mut lag = lag_study.then(|| LagRunner::new(&cfg, n));
-    let mut step = 0;
-    while let Some((samples, truth, train_speed)) = sim.step_with_train_speed() {
-        pipe.step_with_train_speed(samples, train_speed)
-            .expect("pipeline step");
+    // The pipeline publishes each step `FIXED_LAG_STEPS` frames later (the fixed lag on every
+    // path): its probabilities and alarms are scored against the truth of the step they name
+    // (`step_index`), kept here until then, and the last steps are drained at the end.
+    let mut truth_by_step: Vec<Vec<bool>> = Vec::new();
+    let mut score_published = |pipe: &MultiMethodPipeline, truth_by_step: &[Vec<bool>]| {
+        let named = pipe.step_index() as usize;
         let (_, probability_now) = pipe.slip_probability().next().expect("one method");
         let (_, flags) = pipe.slipping().next().expect("one method");
-        if let Some(l) = &mut lag {
-            let t: Vec<bool> = truth.iter().map(|t| t.slipping).collect();
-            l.push(pipe.torque_nm(), probability_now, &t);
-        }
         for k in 0..n {
             let flagged = probability_now[k] > 0.5;
-            probability[k].push(step, flagged, truth[k].slipping);
-            alarm[k].push(step, flags[k], truth[k].slipping);
+            let truth = truth_by_step[named][k];
+            probability[k].push(named, flagged, truth);
+            alarm[k].push(named, flags[k], truth);
             run_now[k] = if flagged { run_now[k] + 1 } else { 0 };
             if run_now[k] > run_max[k] {
                 run_max[k] = run_now[k];
-                run_start[k] = step + 1 - run_now[k];
+                run_start[k] = named + 1 - run_now[k];
             }
+        }
+    };
+    let mut step = 0;
+    while let Some((samples, truth, train_speed)) = sim.step_with_train_speed() {
+        truth_by_step.push(truth.iter().map(|t| t.slipping).collect());
+        let published = pipe
+            .step_with_train_speed(samples, train_speed)
+            .expect("pipeline step");
+        if let Some(l) = &mut lag {
+            l.push(pipe.torque_nm(), &truth_by_step[step]);
+        }
+        if published {
+            score_published(&pipe, &truth_by_step);
+        }
+        for k in 0..n {
             if let Some(i) = &mut info[k] {
                 let (s, t) = (&samples[k], &truth[k]);
                 if step >= 1000 && !truth_flags[k].contains(&true) && !t.slipping {
@@ -290,6 +304,9 @@ fn run(draw: Draw, method: Option<AdhesionMethod>, lag_study: bool) -> Outcome {
             }
         }
         step += 1;
+    }
+    while pipe.drain().expect("drain") {
+        score_published(&pipe, &truth_by_step);
     }
     let mut slipping = Vec::new();
     let mut healthy = Vec::new();
@@ -690,12 +707,18 @@ impl Centred {
     }
 
     fn push(&mut self, x: &[f64]) {
+        // The first mean is step 0's (the window cut at the start), given at step `half`.
         if let Some(m) = self.mean.push(x) {
-            if self.flags[0].is_empty() {
-                for f in &mut self.flags {
-                    f.resize(self.half, false);
-                }
+            let p = &self.est.estimate(m).expect("centred").slip_probability;
+            for (f, &pk) in self.flags.iter_mut().zip(p) {
+                f.push(pk > 0.5);
             }
+        }
+    }
+
+    /// The last `half` steps' means, over the steps there are after them.
+    fn drain(&mut self) {
+        while let Some(m) = self.mean.drain() {
             let p = &self.est.estimate(m).expect("centred").slip_probability;
             for (f, &pk) in self.flags.iter_mut().zip(p) {
                 f.push(pk > 0.5);
@@ -711,6 +734,8 @@ struct LagViews {
 }
 
 struct LagRunner {
+    /// The method on the raw torque estimates, causal (as shipped before the fixed lag).
+    raw_est: AdhesionEstimator,
     ema_est: AdhesionEstimator,
     ema_x: Vec<f64>,
     raw: Vec<Vec<bool>>,
@@ -725,6 +750,7 @@ struct LagRunner {
 impl LagRunner {
     fn new(cfg: &railmon_slip::SlipMonitorConfig, n: usize) -> Self {
         LagRunner {
+            raw_est: AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
             ema_est: AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
             ema_x: Vec::new(),
             raw: vec![Vec::new(); n],
@@ -741,8 +767,14 @@ impl LagRunner {
         }
     }
 
-    fn push(&mut self, x: &[f64], p_raw: &[f64], truth: &[bool]) {
+    fn push(&mut self, x: &[f64], truth: &[bool]) {
         let n = x.len();
+        let p_raw = self
+            .raw_est
+            .estimate(x)
+            .expect("raw")
+            .slip_probability
+            .clone();
         if self.ema_x.is_empty() {
             self.ema_x = x.to_vec();
         }
@@ -762,32 +794,40 @@ impl LagRunner {
         for c in &mut self.centred {
             c.push(x);
         }
+        // The stage's first output (at step FIXED_LAG_STEPS) is step 0's.
         if let Some(p) = self.stage.estimate(x).expect("stage") {
             for (f, &pk) in self.stage_flags.iter_mut().zip(p) {
-                if f.is_empty() {
-                    f.resize(CENTRED_HALF_WINDOW_STEPS, false);
-                }
                 f.push(pk > 0.5);
             }
         }
     }
 
-    fn finish(self) -> LagViews {
+    fn finish(mut self) -> LagViews {
+        for c in &mut self.centred {
+            c.drain();
+        }
+        while let Some((p, _)) = self.stage.drain().expect("stage drain") {
+            for (f, &pk) in self.stage_flags.iter_mut().zip(p) {
+                f.push(pk > 0.5);
+            }
+        }
         let len = self.raw.first().map_or(0, Vec::len);
         let mut views = vec![
             ("raw".to_owned(), self.raw),
             ("ema 1/32".to_owned(), self.ema),
         ];
-        for mut c in self.centred {
-            for f in &mut c.flags {
-                f.resize(len, false);
-            }
+        for c in self.centred {
+            assert!(
+                c.flags.iter().all(|f| f.len() == len),
+                "every step has its flag"
+            );
             views.push((format!("centred {}", 2 * c.half + 1), c.flags));
         }
-        let mut stage = self.stage_flags;
-        for f in &mut stage {
-            f.resize(len, false);
-        }
+        let stage = self.stage_flags;
+        assert!(
+            stage.iter().all(|f| f.len() == len),
+            "every step has its flag"
+        );
         views.push(("library stage".to_owned(), stage));
         LagViews {
             views,
