@@ -220,15 +220,6 @@ impl KernelGroup {
     }
 }
 
-/// TEMP experiment switch: whether the env var RAILMON_V14 lists `part`.
-fn v14(part: &str) -> bool {
-    static PARTS: std::sync::OnceLock<String> = std::sync::OnceLock::new();
-    PARTS
-        .get_or_init(|| std::env::var("RAILMON_V14").unwrap_or_default())
-        .split(',')
-        .any(|p| p == part)
-}
-
 /// The filter.
 #[derive(Debug, Clone)]
 pub struct Rbpf {
@@ -779,11 +770,7 @@ impl Rbpf {
         self.sorted.stale = true;
         if self.sentinels.is_some() {
             // On the published posterior: the hypotheses on probation are the sentinels' own.
-            let (mean, _) = if v14("sentpooled") {
-                (self.ln_moments().0, [0.0; 2])
-            } else {
-                self.published_ln_moments()
-            };
+            let (mean, _) = self.published_ln_moments();
             if let Some(s) = &mut self.sentinels {
                 s.recentre(mean);
             }
@@ -1421,9 +1408,6 @@ impl Rbpf {
     /// `jump::MIN_PUBLISHED_SHARE` of the posterior: the regime in which the resampling keeps
     /// them apart (`ancestors`), and the kernel and the drift follow their own mean.
     fn published_held_apart(&self) -> bool {
-        if v14("nogate") {
-            return !self.on_probation.is_empty();
-        }
         if self.on_probation.is_empty() {
             return false;
         }
