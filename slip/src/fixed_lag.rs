@@ -40,9 +40,13 @@ const EPISODE_PROBABILITY: f64 = 0.5;
 
 /// The centred mean over `2 half + 1` steps of a vector per step: after the push of step
 /// `t`, the mean of steps `t - 2 half ..= t`, which is the centred mean of step `t - half`.
-/// At the ends of a run the window is cut to the steps there are (step 0's mean is that of
-/// steps `0 ..= half`; [`CentredMean::drain`] gives the last `half` steps theirs), so that
-/// every step pushed gets a mean, once.
+/// At the start of a run the window is cut to the steps there are (step 0's mean is that of
+/// steps `0 ..= half`, inside the EKFs' lock-on); at the end [`CentredMean::drain`] gives each
+/// of the last `half` steps the mean of the last full window (`T - 2 half ..= T`), so that
+/// every step pushed gets a mean, once, and no mean is noisier than the method's yardstick
+/// learnt on full windows. (Cut windows there, down to `half + 1` steps at the last step,
+/// doubled the variance of the last steps' means: condition sampler draw 1365 flagged three
+/// healthy drives on its last 17-19 steps, 0.342 % of its steps, one of them an alarm.)
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct CentredMean {
     half: usize,
@@ -99,24 +103,13 @@ impl CentredMean {
         Some(self.mean_of_sum())
     }
 
-    /// The centred mean of the oldest step without one, over the steps there are after it
-    /// (the end of a run); `None` once every step has had its mean, and the mean is then
-    /// empty, as new.
+    /// The mean of the oldest step without one at the end of a run: the last full window's
+    /// (the last `2 half + 1` steps, or every step of a shorter run); `None` once every step
+    /// has had its mean, and the mean is then empty, as new.
     pub fn drain(&mut self) -> Option<&[f64]> {
         if self.out == self.seen {
             *self = CentredMean::new(self.half, self.sum.len());
             return None;
-        }
-        let n = self.sum.len();
-        let w = 2 * self.half + 1;
-        let step = self.out;
-        while self.first < step.saturating_sub(self.half) {
-            let row = &mut self.ring[(self.first % w) * n..][..n];
-            for (s, r) in self.sum.iter_mut().zip(row.iter_mut()) {
-                *s -= *r;
-                *r = 0.0;
-            }
-            self.first += 1;
         }
         self.out += 1;
         Some(self.mean_of_sum())
@@ -498,14 +491,17 @@ mod tests {
     use crate::adhesion::{AdhesionConfig, AdhesionMethod};
 
     #[test]
-    fn centred_mean_is_the_mean_of_the_window_around_its_step_cut_at_the_ends() {
+    fn centred_mean_is_the_mean_of_the_window_around_its_step_cut_at_the_start_held_at_the_end() {
         let half = 2;
         let mut c = CentredMean::new(half, 2);
         let xs: Vec<f64> = (0..40)
             .map(|t| (t as f64 * 0.7).sin() * 10.0 + t as f64)
             .collect();
+        let last = xs.len() - 1;
         let want = |s: usize| {
-            let w = &xs[s.saturating_sub(half)..=(s + half).min(xs.len() - 1)];
+            // The last `half` steps: the last full window.
+            let s = s.min(last - half);
+            let w = &xs[s.saturating_sub(half)..=s + half];
             w.iter().sum::<f64>() / w.len() as f64
         };
         let mut got = Vec::new();
