@@ -2,7 +2,7 @@
 //! simulated scenario or a recorded drive CSV.
 //!
 //! Every method runs behind the fixed lag (`railmon_slip::fixed_lag`, as the service): the
-//! values of step `t` come out at frame `t + FIXED_LAG_STEPS` (63), the run's last steps
+//! values of step `t` come out at frame `t + FIXED_LAG_STEPS` (111), the run's last steps
 //! drained at its end (and before a gap the EKFs relock after), so every row, score and event
 //! is of the step it names.
 //!
@@ -22,7 +22,7 @@
 //! - `events.csv`: the `slip_started` / `slip_ended` events the configured method's alarm
 //!   raises (the service's events on the same data): `id,kind,stream_time_s,subject,detail,
 //!   step,method`, stream time `step x dt` in whole nanoseconds as on the bus, of the step
-//!   the event names (63 sample periods before the frame that raised it);
+//!   the event names (111 sample periods before the frame that raised it);
 //! - `drives.csv` (scenarios only): the simulated record, in the layout `--input` reads
 //!   (`railmon_records::drive`), so a scenario run can be replayed from its file;
 //! - PNG plots after the paper's figures 5-9 (see [`plots`]).

@@ -261,7 +261,10 @@ async fn history_returns_the_window_of_stream_time() {
         .iter()
         .all(|p| p["time_s"].as_f64().unwrap() >= newest - 0.1));
     let (_, all) = get_json(&state, "/api/v1/drives/1/history").await;
-    assert_eq!(all["points"].as_array().unwrap().len(), 25);
+    // A point per 10 ms of the steps published: 0 ..= 1,999 - FIXED_LAG_STEPS, 125 us each.
+    let last_ms = (1_999 - railmon_slip::fixed_lag::FIXED_LAG_STEPS) as f64 * 0.125;
+    let want = (last_ms / 10.0).floor() as usize + 1;
+    assert_eq!(all["points"].as_array().unwrap().len(), want);
     // Drive 1 slips at 62.5-187.5 ms: the history shows it.
     assert!(all["points"]
         .as_array()

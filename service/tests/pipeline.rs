@@ -177,7 +177,9 @@ fn the_train_speed_of_the_frames_is_the_reference_once_calibrated() {
     let mut harness = Harness::new();
     assert_eq!(harness.view().reference, None);
     let mut seen = Vec::new();
-    for _ in 0..2_000 {
+    // Frames until the step 1,999 is published (the train speed calibrated by then).
+    let last = 2_000 + railmon_slip::fixed_lag::FIXED_LAG_STEPS as u64 - 1;
+    for _ in 0..=last {
         let step = harness.step;
         let (samples, _) = harness.simulator.step().unwrap();
         let samples = samples.to_vec();
@@ -187,12 +189,12 @@ fn the_train_speed_of_the_frames_is_the_reference_once_calibrated() {
         let header = header(step, harness.dt_ns);
         let input = harness.pipeline.check(&header, &frame).unwrap();
         harness.pipeline.step(&header, input).unwrap();
-        // Both publish the step FIXED_LAG_STEPS back, from the 63rd frame on.
+        // Both publish the step FIXED_LAG_STEPS back, from frame FIXED_LAG_STEPS on.
         let want = reference
             .step_with_train_speed(&samples, Some(5.75))
             .unwrap()
             .cloned();
-        if let Some(want) = want.filter(|_| step.is_multiple_of(250) || step == 1_999) {
+        if let Some(want) = want.filter(|_| step.is_multiple_of(250) || step == last) {
             let view = harness.view();
             for (got, want) in view.drives.iter().zip(&want.drives) {
                 assert_eq!(got.slip_probability, want.slip_probability);

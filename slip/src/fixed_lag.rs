@@ -28,8 +28,18 @@ pub const CENTRED_HALF_WINDOW_STEPS: usize = 47;
 pub const ONSET_BACKDATE_STEPS: usize = 16;
 /// Steps an episode's release is moved back.
 pub const RELEASE_BACKDATE_STEPS: usize = 8;
-/// Steps from a step's torque estimate to its published probability (63 steps, 7.9 ms).
-pub const FIXED_LAG_STEPS: usize = CENTRED_HALF_WINDOW_STEPS + EDGE_LAG_STEPS;
+/// Steps an episode (a run of p > 0.5, its edges moved) must last to be published; a shorter
+/// one is lowered to the probability that ended it ([`ShortEpisodes`]). 48 steps (6 ms): the
+/// method judges a 95-step mean, so a departure shorter than half its window is mostly the
+/// window's own noise. Every false step on a healthy drive over 500 draws of the condition
+/// sampler was in an episode shorter than this (runs of 7-46 steps), and no slipping drive's
+/// score needs one: `sample_matrix --lag-study`, tuning (100 draws from 1000) 367 of 419 with
+/// any minimum from 24 to 64 steps (false steps 0.056 % -> 0 from 24); held out (200 from
+/// 1000, seen before) 623 -> 620 of 692 and (200 from 1400, fresh) 702 -> 700 of 801, no
+/// healthy drive flagged on any step from 32 steps on (1087 0.152 %, 1697 0.172 % before).
+pub const MIN_EPISODE_STEPS: usize = CENTRED_HALF_WINDOW_STEPS + 1;
+/// Steps from a step's torque estimate to its published probability (111 steps, 13.9 ms).
+pub const FIXED_LAG_STEPS: usize = CENTRED_HALF_WINDOW_STEPS + EDGE_LAG_STEPS + MIN_EPISODE_STEPS;
 const EDGE_LAG_STEPS: usize = if ONSET_BACKDATE_STEPS > RELEASE_BACKDATE_STEPS {
     ONSET_BACKDATE_STEPS
 } else {
@@ -124,14 +134,11 @@ impl CentredMean {
     }
 }
 
-/// Per drive, a delay line of `delay + 1` probabilities (`delay >= max(on, off)`): when an episode starts
-/// (p above 0.5 after a step at or below) the `on` steps before are raised to its
-/// probability, when it ends the `off` steps before are lowered to it; the oldest is
-/// published. A value rides along each step unchanged (the method's global torque).
+/// Per drive, a delay line of `delay + 1` probability vectors whose steps not yet published
+/// can still be changed, and a value riding along each step unchanged (the method's global
+/// torque): the plumbing of [`EdgeBackdate`] and [`ShortEpisodes`].
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct EdgeBackdate {
-    on: usize,
-    off: usize,
+struct DelayLine {
     delay: usize,
     /// Ring of the last `delay + 1` probability vectors, row-major.
     ring: Vec<f64>,
@@ -139,9 +146,91 @@ pub struct EdgeBackdate {
     along: Vec<f64>,
     published: Vec<f64>,
     published_along: f64,
-    last_in_episode: Vec<bool>,
+    /// Steps pushed.
     seen: usize,
+    /// Steps published.
     out: usize,
+}
+
+impl DelayLine {
+    fn new(delay: usize, n: usize) -> Self {
+        let w = delay + 1;
+        DelayLine {
+            delay,
+            ring: vec![0.0; w * n],
+            along: vec![0.0; w],
+            published: vec![0.0; n],
+            published_along: 0.0,
+            seen: 0,
+            out: 0,
+        }
+    }
+
+    /// Takes in the newest step.
+    fn push(&mut self, p: &[f64], along: f64) {
+        let n = self.published.len();
+        let head = self.seen % (self.delay + 1);
+        self.ring[head * n..][..n].copy_from_slice(p);
+        self.along[head] = along;
+        self.seen += 1;
+    }
+
+    /// Steps pushed and not yet published (those that can still be changed).
+    fn unpublished(&self) -> usize {
+        self.seen - self.out
+    }
+
+    /// Drive `k`'s probability `j` steps before the newest (0: the newest), `j <
+    /// unpublished()`.
+    fn recent_mut(&mut self, j: usize, k: usize) -> &mut f64 {
+        debug_assert!(j < self.unpublished());
+        let w = self.delay + 1;
+        let n = self.published.len();
+        &mut self.ring[((self.seen - 1 - j) % w) * n + k]
+    }
+
+    /// The step `delay` before the newest, once that many are in.
+    fn publish(&mut self) -> Option<(&[f64], f64)> {
+        if self.seen <= self.delay {
+            return None;
+        }
+        Some(self.publish_oldest())
+    }
+
+    /// The oldest step not yet published, as it is (the end of a run); `None` once all are
+    /// out, and the line is then empty, as new.
+    fn drain(&mut self) -> Option<(&[f64], f64)> {
+        if self.out == self.seen {
+            *self = DelayLine::new(self.delay, self.published.len());
+            return None;
+        }
+        Some(self.publish_oldest())
+    }
+
+    fn last(&self) -> (&[f64], f64) {
+        (&self.published, self.published_along)
+    }
+
+    fn publish_oldest(&mut self) -> (&[f64], f64) {
+        let n = self.published.len();
+        let row = self.out % (self.delay + 1);
+        self.published.copy_from_slice(&self.ring[row * n..][..n]);
+        self.published_along = self.along[row];
+        self.out += 1;
+        (&self.published, self.published_along)
+    }
+}
+
+/// Per drive, a delay line of `delay + 1` probabilities (`delay >= max(on, off)`): when an
+/// episode starts (p above 0.5 after a step at or below) the `on` steps before are raised to
+/// its probability, when it ends the `off` steps before are lowered to it; the oldest is
+/// published. A value rides along each step unchanged (the method's global torque).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct EdgeBackdate {
+    on: usize,
+    off: usize,
+    line: DelayLine,
+    last_in_episode: Vec<bool>,
 }
 
 impl EdgeBackdate {
@@ -150,18 +239,11 @@ impl EdgeBackdate {
             delay >= on.max(off),
             "an edge cannot move back past the delay"
         );
-        let w = delay + 1;
         EdgeBackdate {
             on,
             off,
-            delay,
-            ring: vec![0.0; w * n],
-            along: vec![0.0; w],
-            published: vec![0.0; n],
-            published_along: 0.0,
+            line: DelayLine::new(delay, n),
             last_in_episode: vec![false; n],
-            seen: 0,
-            out: 0,
         }
     }
 
@@ -173,11 +255,7 @@ impl EdgeBackdate {
 
     /// [`EdgeBackdate::push`] with a value that comes out with its step's probabilities.
     pub fn push_along(&mut self, p: &[f64], along: f64) -> Option<(&[f64], f64)> {
-        let n = self.published.len();
-        let w = self.delay + 1;
-        let head = self.seen % w;
-        self.ring[head * n..][..n].copy_from_slice(p);
-        self.along[head] = along;
+        self.line.push(p, along);
         for (k, &pk) in p.iter().enumerate() {
             let now = pk > EPISODE_PROBABILITY;
             let (back, raise) = match (self.last_in_episode[k], now) {
@@ -186,42 +264,104 @@ impl EdgeBackdate {
                 _ => (0, false),
             };
             // Steps before the first, or already published, are not there to move.
-            for j in 1..=back.min(self.seen - self.out) {
-                let q = &mut self.ring[((head + w - j) % w) * n + k];
+            for j in 1..=back.min(self.line.unpublished() - 1) {
+                let q = self.line.recent_mut(j, k);
                 *q = if raise { q.max(pk) } else { q.min(pk) };
             }
             self.last_in_episode[k] = now;
         }
-        self.seen += 1;
-        if self.seen < w {
-            return None;
-        }
-        Some(self.publish_oldest())
+        self.line.publish()
     }
 
     /// The oldest step not yet published, as it is (the end of a run: no later edge can move
     /// it); `None` once all are out, and the line is then empty, as new.
     pub fn drain(&mut self) -> Option<(&[f64], f64)> {
-        if self.out == self.seen {
-            *self = EdgeBackdate::new(self.on, self.off, self.delay, self.published.len());
-            return None;
+        let out = self.line.drain();
+        if out.is_none() {
+            self.last_in_episode.fill(false);
         }
-        Some(self.publish_oldest())
+        out
     }
 
     /// The step last published.
     pub fn last(&self) -> (&[f64], f64) {
-        (&self.published, self.published_along)
+        self.line.last()
+    }
+}
+
+/// Per drive, a delay line of `min_steps` steps that removes episodes (runs of p above 0.5)
+/// shorter than `min_steps`: when such a run ends, its steps are lowered to the probability
+/// that ended it; a run still open at the end of the data and shorter is lowered to 0.5. A
+/// run that reaches `min_steps` is published as it is. With `min_steps` 0 it passes every
+/// step through.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ShortEpisodes {
+    min_steps: usize,
+    line: DelayLine,
+    /// Per drive, the length of the run of p above 0.5 ending at the newest step.
+    run: Vec<usize>,
+    /// Whether the end of the data has closed the open runs (set by the first `drain`).
+    closed: bool,
+}
+
+impl ShortEpisodes {
+    pub fn new(min_steps: usize, n: usize) -> Self {
+        ShortEpisodes {
+            min_steps,
+            line: DelayLine::new(min_steps, n),
+            run: vec![0; n],
+            closed: false,
+        }
     }
 
-    fn publish_oldest(&mut self) -> (&[f64], f64) {
-        let n = self.published.len();
-        let w = self.delay + 1;
-        let row = self.out % w;
-        self.published.copy_from_slice(&self.ring[row * n..][..n]);
-        self.published_along = self.along[row];
-        self.out += 1;
-        (&self.published, self.published_along)
+    /// Pushes the probabilities of step `t` (and the value riding along); those of step
+    /// `t - min_steps` once that many steps are in.
+    pub fn push_along(&mut self, p: &[f64], along: f64) -> Option<(&[f64], f64)> {
+        self.line.push(p, along);
+        for (k, &pk) in p.iter().enumerate() {
+            if pk > EPISODE_PROBABILITY {
+                self.run[k] += 1;
+            } else {
+                // The run ended at the step before this one.
+                self.end_run(k, 1, pk);
+            }
+        }
+        self.line.publish()
+    }
+
+    /// The oldest step not yet published, the runs still open at the end of the data judged
+    /// by the steps they had; `None` once all are out, and the stage is then new.
+    pub fn drain(&mut self) -> Option<(&[f64], f64)> {
+        if !self.closed {
+            self.closed = true;
+            for k in 0..self.run.len() {
+                // The run ends with the newest step.
+                self.end_run(k, 0, EPISODE_PROBABILITY);
+            }
+        }
+        if self.line.drain().is_none() {
+            *self = ShortEpisodes::new(self.min_steps, self.run.len());
+            return None;
+        }
+        Some(self.line.last())
+    }
+
+    /// The step last published.
+    pub fn last(&self) -> (&[f64], f64) {
+        self.line.last()
+    }
+
+    /// Drive `k`'s run, whose last step is `last_back` steps before the newest, has ended:
+    /// lowered to `p` when shorter than `min_steps` (its steps are all unpublished then:
+    /// the line holds `min_steps` of them).
+    fn end_run(&mut self, k: usize, last_back: usize, p: f64) {
+        let run = std::mem::take(&mut self.run[k]);
+        if run < self.min_steps {
+            for j in last_back..last_back + run {
+                let q = self.line.recent_mut(j, k);
+                *q = q.min(p);
+            }
+        }
     }
 }
 
@@ -232,6 +372,7 @@ pub struct FixedLagEstimator {
     window: CentredMean,
     estimator: AdhesionEstimator,
     edges: EdgeBackdate,
+    short: ShortEpisodes,
 }
 
 impl FixedLagEstimator {
@@ -244,19 +385,21 @@ impl FixedLagEstimator {
         // causal, 11 on the centred mean, 19 with the edges moved too; median 44 -> 74 on the
         // centred mean): they stay causal and are only held back as long,
         // so that every method's published probability is of the same step.
-        let (half, on, off, delay) = match estimator.method() {
+        let (half, on, off, delay, min_episode) = match estimator.method() {
             AdhesionMethod::Temporal => (
                 CENTRED_HALF_WINDOW_STEPS,
                 ONSET_BACKDATE_STEPS,
                 RELEASE_BACKDATE_STEPS,
                 EDGE_LAG_STEPS,
+                MIN_EPISODE_STEPS,
             ),
-            _ => (0, 0, 0, FIXED_LAG_STEPS),
+            _ => (0, 0, 0, FIXED_LAG_STEPS, 0),
         };
         FixedLagEstimator {
             window: CentredMean::new(half, n),
             estimator,
             edges: EdgeBackdate::new(on, off, delay, n),
+            short: ShortEpisodes::new(min_episode, n),
         }
     }
 
@@ -295,27 +438,37 @@ impl FixedLagEstimator {
             return Ok(None);
         };
         let out = self.estimator.estimate(mean)?;
-        Ok(self
+        let Some((p, global)) = self
             .edges
-            .push_along(&out.slip_probability, out.global_torque_nm))
+            .push_along(&out.slip_probability, out.global_torque_nm)
+        else {
+            return Ok(None);
+        };
+        Ok(self.short.push_along(p, global))
     }
 
     /// The oldest step not yet published, from the steps there are after it (the end of a
     /// run, or before a gap the EKFs relock after); `None` once every step pushed is out, and
     /// the stage then starts again as new (the method keeps what it learnt).
     pub fn drain(&mut self) -> Result<Option<(&[f64], f64)>, SlipError> {
-        // A run shorter than the edge line gives nothing until the line is full: go on.
+        // A run shorter than the lines gives nothing until they are full: go on.
         while let Some(mean) = self.window.drain() {
             let out = self.estimator.estimate(mean)?;
-            if self
+            if let Some((p, global)) = self
                 .edges
                 .push_along(&out.slip_probability, out.global_torque_nm)
-                .is_some()
             {
-                return Ok(Some(self.edges.last()));
+                if self.short.push_along(p, global).is_some() {
+                    return Ok(Some(self.short.last()));
+                }
             }
         }
-        Ok(self.edges.drain())
+        while let Some((p, global)) = self.edges.drain() {
+            if self.short.push_along(p, global).is_some() {
+                return Ok(Some(self.short.last()));
+            }
+        }
+        Ok(self.short.drain())
     }
 }
 
@@ -535,7 +688,7 @@ mod tests {
     #[test]
     fn the_line_publishes_every_step_once_in_order() {
         let config = AdhesionConfig::default();
-        for n_steps in [1usize, 20, 63, 64, 200] {
+        for n_steps in [1usize, 20, FIXED_LAG_STEPS, FIXED_LAG_STEPS + 1, 300] {
             let est = AdhesionEstimator::new(AdhesionMethod::Median, &config, 3).unwrap();
             let bank = EkfBank::new(
                 crate::model::DriveModel::new(Default::default(), 125e-6).unwrap(),
@@ -593,6 +746,52 @@ mod tests {
             .filter_map(|&x| e.push(&[x]).map(|q| q[0]))
             .collect();
         assert!(out.iter().all(|&q| q <= 0.5), "{out:?}");
+    }
+
+    /// Pushes `p` (one drive) through a [`ShortEpisodes`] of `min` and drains it.
+    fn through_short_episodes(min: usize, p: &[f64]) -> Vec<f64> {
+        let mut s = ShortEpisodes::new(min, 1);
+        let mut out = Vec::new();
+        for (t, &x) in p.iter().enumerate() {
+            // The value riding along is the step's index, unchanged.
+            if let Some((q, along)) = s.push_along(&[x], t as f64) {
+                assert_eq!(along, out.len() as f64);
+                out.push(q[0]);
+            }
+        }
+        while let Some((q, along)) = s.drain() {
+            assert_eq!(along, out.len() as f64);
+            out.push(q[0]);
+        }
+        out
+    }
+
+    /// Runs of p above 0.5 shorter than the minimum are lowered to the probability that
+    /// ended them (0.5 at the end of the data); runs as long are published as they are; every
+    /// step comes out once, in order.
+    #[test]
+    fn episodes_shorter_than_the_minimum_are_lowered() {
+        let min = 4;
+        //        short run (3) ended by 0.3   run of 4 kept          short run at the end
+        let p = [
+            0.1, 0.9, 0.8, 0.7, 0.3, 0.2, 0.6, 0.9, 0.9, 0.6, 0.4, 0.1, 0.9, 0.95,
+        ];
+        let out = through_short_episodes(min, &p);
+        let want = [
+            0.1, 0.3, 0.3, 0.3, 0.3, 0.2, 0.6, 0.9, 0.9, 0.6, 0.4, 0.1, 0.5, 0.5,
+        ];
+        assert_eq!(out, want);
+        // Nothing is lowered with a minimum of 0 or 1: a plain pass-through.
+        assert_eq!(through_short_episodes(0, &p), p);
+        assert_eq!(through_short_episodes(1, &p), p);
+        // A run the length of the minimum at the very start and end is kept.
+        let edge = [0.9, 0.9, 0.9, 0.9, 0.1, 0.1, 0.9, 0.9, 0.9, 0.9];
+        assert_eq!(through_short_episodes(min, &edge), edge);
+        // Drained, it starts again as new.
+        let mut s = ShortEpisodes::new(min, 1);
+        s.push_along(&[0.9], 0.0);
+        while s.drain().is_some() {}
+        assert!(s.push_along(&[0.1], 0.0).is_none());
     }
 
     #[test]

@@ -118,7 +118,7 @@ pub struct SlipEstimate {
     /// The step (frames since the monitor started, from 0) every value here belongs to.
     #[serde(default)]
     pub step: u64,
-    /// Frames stepped after `step` when it was published: `FIXED_LAG_STEPS` (63) in a run,
+    /// Frames stepped after `step` when it was published: `FIXED_LAG_STEPS` (111) in a run,
     /// fewer for the steps drained at its end or before a long gap. Its time is the newest
     /// frame's minus this many sample periods.
     #[serde(default)]
@@ -160,8 +160,9 @@ impl SlipMonitor {
     /// initial filter, to relock after a gap (issue 26 item 3). 6: the temporal method's
     /// excess evidence per drive (a majority dragging the reference, issue 23 item 1). 7: the
     /// method behind the fixed lag (its centred window, edge line and the pending steps' EKF
-    /// states; the estimate's `step` and `lag_steps`, issue 23 item 1).
-    pub const STATE_FORMAT_VERSION: u32 = 7;
+    /// states; the estimate's `step` and `lag_steps`, issue 23 item 1). 8: the fixed lag's
+    /// line shared by its stages, and its short-episode stage (issue 23).
+    pub const STATE_FORMAT_VERSION: u32 = 8;
 
     pub fn new(config: &SlipMonitorConfig, n_drives: usize) -> Result<Self, SlipError> {
         config.validate()?;
@@ -266,7 +267,7 @@ impl SlipMonitor {
     }
 
     /// Steps one frame; returns the estimate it publishes, that of the step
-    /// `FIXED_LAG_STEPS` (63) frames before ([`crate::fixed_lag`]; `None` in the first 63:
+    /// `FIXED_LAG_STEPS` (111) frames before ([`crate::fixed_lag`]; `None` in the first 111:
     /// [`SlipMonitor::drain`] gives the last ones at the end of a run).
     /// Validates the whole frame first (length == n_drives, all finite): on error nothing
     /// changes. An EKF failure of any drive also leaves every filter as it was. Judged against

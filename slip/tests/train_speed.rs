@@ -224,7 +224,7 @@ fn a_train_speed_out_of_range_is_refused_and_changes_nothing() {
         .unwrap()
         .unwrap();
     assert_eq!((e.step, e.reference), (0, SpeedReference::Group));
-    // The test judges from 0.15 s (1,200 steps) on: published 63 frames later.
+    // The test judges from 0.15 s (1,200 steps) on: published FIXED_LAG_STEPS frames later.
     for _ in FIXED_LAG_STEPS + 1..1_200 + FIXED_LAG_STEPS {
         let (samples, _, train) = sim.step_with_train_speed().unwrap();
         monitor.step_with_train_speed(samples, train).unwrap();

@@ -20,7 +20,7 @@ pub struct DriveConfig {
     /// Ingest the drive stream (traction drives' currents and voltages at 8 kHz: wheel slip).
     pub enabled: bool,
     /// The stream is stale (and `/readyz` fails) when no frame came for this long; the
-    /// steps still behind the slip estimate's fixed lag (63 frames) are then published.
+    /// steps still behind the slip estimate's fixed lag (111 frames) are then published.
     #[schemars(range(min = *STREAM_INTERVAL_MS.start(), max = *STREAM_INTERVAL_MS.end()))]
     pub stale_after_ms: u64,
     /// Frames with more drives are rejected (at most the frame capacity, 32).
