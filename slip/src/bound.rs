@@ -33,6 +33,7 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::model::{idx, DriveModel, DriveState};
+use crate::sample::{SLIP_RULE_FLOOR_NM, SLIP_RULE_FRACTION};
 
 /// Steps from a change until the accumulated expected log-likelihood ratio `cumulative_kl[k]`
 /// (after `k + 1` steps) reaches `log_gamma = ln(gamma)`: Lai's (Lorden's) lower bound on the
@@ -194,6 +195,22 @@ pub fn truth_runs(slipping: &[bool]) -> Vec<(usize, usize)> {
     out
 }
 
+/// The part of a departure from the healthy load beyond the slip rule's tolerance
+/// ([`crate::is_slipping`]), signed as the departure; 0 within it.
+///
+/// The bound of [`losses_at_bound`] given the departure itself tells a loss from no loss. The
+/// truth asks more: whether the loss *exceeds the tolerance*. The nearest load the rule calls
+/// adhering is the loss clipped at the tolerance, and since the model is linear in the load,
+/// what tells the two apart is this excess: given it, the bound is that of the rule's question
+/// (still optimistic: the clipped loss is one load the rule calls adhering, not necessarily the
+/// hardest to tell). A loss at 1.01x the tolerance carries 1 % of its depth as evidence, and
+/// no detector can be held to a target on it (issue 23: the condition sampler's near-tolerance
+/// losses, "above the bound" of the plain departure).
+pub fn excess_over_slip_rule_nm(departure_nm: f64, healthy_nm: f64) -> f64 {
+    let limit = (SLIP_RULE_FRACTION * healthy_nm.abs()).max(SLIP_RULE_FLOOR_NM);
+    departure_nm.signum() * (departure_nm.abs() - limit).max(0.0)
+}
+
 /// One loss at the bound, with the departure at its deepest point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BoundedLoss {
@@ -269,6 +286,25 @@ mod tests {
         let k: Vec<f64> = (1..=100).map(|t| 0.5 * t as f64).collect();
         assert_eq!(delay_bound_steps(&k, 1000f64.ln()), Some(14));
         assert_eq!(delay_bound_steps(&k[..10], 1000f64.ln()), None);
+    }
+
+    /// The excess is the departure beyond the slip rule's tolerance: 0 exactly where the rule
+    /// says adhering, and a loss at 1.02x the tolerance keeps 2 % of its depth as evidence.
+    #[test]
+    fn the_excess_over_the_slip_rule_is_what_the_rule_flags() {
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        assert!(close(excess_over_slip_rule_nm(-5.0, 20.0), -3.0));
+        assert!(close(excess_over_slip_rule_nm(5.0, -20.0), 3.0));
+        assert_eq!(excess_over_slip_rule_nm(-1.5, 20.0), 0.0);
+        // The floor: 0.5 N m at loads under 5 N m.
+        assert!(close(excess_over_slip_rule_nm(-0.51, 3.4), -0.01));
+        for healthy in [-40.0, -3.0, 0.0, 0.2, 4.0, 25.0] {
+            for d in [-8.0, -2.1, -0.6, -0.5, -0.1, 0.0, 0.3, 0.7, 3.0] {
+                let flagged = crate::is_slipping(healthy + d, healthy);
+                let excess = excess_over_slip_rule_nm(d, healthy);
+                assert_eq!(flagged, excess != 0.0, "healthy {healthy}, departure {d}");
+            }
+        }
     }
 
     #[test]
