@@ -37,13 +37,8 @@
 //! weighs, resamples and moves them like any particle, but the published posterior
 //! (`Rbpf::estimate`, `Rbpf::mean`: the health ratio, the interval, hence the alarm) leaves
 //! them out until they have held a decisive posterior mass, [`ADOPT_POSTERIOR_MASS`], for
-//! [`ADOPT_TIME_CONSTANTS`] time constants of the model's slowest mode in a row; then they
-//! are adopted and published with the rest. While they hold more than `1 -`
-//! [`MIN_PUBLISHED_SHARE`] a resampling keeps that share of the particles for the published
-//! posterior (stratified, the weights exact), and the kernel and the wear drift follow the
-//! published particles' own mean: a resampling that kept only hypotheses once published
-//! them at once, in the transient after a step of the other damper or a resume the wrong
-//! damper's. Why: the
+//! [`ADOPT_TIME_CONSTANTS`] time constants of the model's slowest mode in a row (or until
+//! nothing else is left); then they are adopted and published with the rest. Why: the
 //! likelihood ratio above is exact only when the filter's model is the plant's. With the
 //! plant's conicity, noise or mass off the model's, the ratio of a failed-damper hypothesis
 //! to a healthy cloud swings by tens of nats within tenths of a second, both ways: on the
@@ -93,12 +88,7 @@ pub const ADOPT_POSTERIOR_MASS: f64 = 0.95;
 /// How long they must hold it, in time constants of the model's slowest mode at the body
 /// mass's node ([`slowest_time_constant_s`], 2.07 s at the design mass): longer than a
 /// transient of the plant's own dynamics lasts.
-pub const ADOPT_TIME_CONSTANTS: f64 = 0.5;
-
-/// The share of the particles kept for the published posterior (those not on probation) at
-/// a resampling while jump hypotheses hold more than `1 -` this share of the posterior
-/// (`Rbpf::resample_indices`): 50 of 500 particles, enough for its 5 % and 95 % quantiles.
-pub const MIN_PUBLISHED_SHARE: f64 = 0.1;
+pub const ADOPT_TIME_CONSTANTS: f64 = 1.0;
 
 /// The sentinels: each offset for each damper.
 pub const N_SENTINELS: usize = 2 * SENTINEL_LN_OFFSETS.len();
