@@ -146,7 +146,7 @@ impl Bank {
                     yaw: vec![Row::ZERO; blocks],
                     series: vec![Row::ZERO; blocks],
                     body: vec![Row::ONE; blocks],
-                    nodes: vec![NodeRow::ZERO; NODE_LEN * blocks],
+                    nodes: vec![Row::ZERO; NODE_LEN * blocks],
                     node_theta: vec![[f64::NAN; 2]; n],
                     node_ln_mass: vec![0.0; n],
                     mass_grids: Vec::new(),
@@ -199,14 +199,9 @@ pub(super) struct SteadyBank {
     /// particle at the model's mass).
     body: Vec<Row>,
     /// Per particle: the interpolated gain node, blocked like `x`
-    /// (value `k` of particle `i` at `nodes[(i / BLOCK) * NODE_LEN + k].0[i % BLOCK]`), and the `ln theta` and `ln (m_i / m_model)`
+    /// (`at(&nodes, NODE_LEN, value, particle)`), and the `ln theta` and `ln (m_i / m_model)`
     /// it was computed for (recomputed only when the particle's parameters changed).
-    /// Stored in f32 and widened to f64 at the load (issue 28): the filter step streams the
-    /// whole array, 116 values per particle, and in f64 (0.9 MB at N = 1000) it came from L3
-    /// on a 1 MB-L2 machine; in f32 (0.46 MB) it stays in L2. The rounding, a relative
-    /// 6e-8 of each gain, `S^-1` entry and `ln det S`, is far below the grid's
-    /// interpolation error.
-    nodes: Vec<NodeRow>,
+    nodes: Vec<Row>,
     node_theta: Vec<[f64; 2]>,
     node_ln_mass: Vec<f64>,
     /// The grids of the other mass nodes the particles' own masses fell in, at the current
@@ -399,7 +394,7 @@ impl Bank {
                 b.yaw = vec![Row::ZERO; blocks];
                 b.series = vec![Row::ZERO; blocks];
                 b.body = vec![Row::ONE; blocks];
-                b.nodes = vec![NodeRow::ZERO; NODE_LEN * blocks];
+                b.nodes = vec![Row::ZERO; NODE_LEN * blocks];
                 b.node_theta = vec![[f64::NAN; 2]; n];
                 b.node_ln_mass = vec![0.0; n];
                 b.n = n;
@@ -474,7 +469,7 @@ impl SteadyBank {
                 let grid = self.grid_of_mass(lm)?;
                 grid.interpolate(&grid.cell(*th), &mut node);
                 for (k, v) in node.iter().enumerate() {
-                    self.nodes[(i / BLOCK) * NODE_LEN + k].0[i % BLOCK] = *v as f32;
+                    *at_mut(&mut self.nodes, NODE_LEN, k, i) = *v;
                 }
                 self.node_theta[i] = *th;
                 self.node_ln_mass[i] = lm;
@@ -561,19 +556,18 @@ impl SteadyBank {
             // ln N(e; 0, D^1/2 S D^1/2) with S^-1 and ln det S of each particle's parameters:
             // the quadratic form summed entry by entry in row-major order.
             let ln_det = node(LN_DET_OFFSET);
-            let mut l: [f64; BLOCK] = std::array::from_fn(|j| const_term + f64::from(ln_det[j]));
+            let mut l: [f64; BLOCK] = std::array::from_fn(|j| const_term + ln_det[j]);
             for r in 0..N_OUTPUTS {
                 for c in 0..N_OUTPUTS {
                     let s_inv = node(S_INV_OFFSET + r * N_OUTPUTS + c);
                     for j in 0..BLOCK {
-                        l[j] += f64::from(s_inv[j]) * ew[r][j] * ew[c][j];
+                        l[j] += s_inv[j] * ew[r][j] * ew[c][j];
                     }
                 }
             }
             // e' S^-1 e, for the filter's consistency check (taken from the sum so that the
             // likelihoods stay bit for bit what they were).
-            let nis: [f64; BLOCK] =
-                std::array::from_fn(|j| l[j] - (const_term + f64::from(ln_det[j])));
+            let nis: [f64; BLOCK] = std::array::from_fn(|j| l[j] - (const_term + ln_det[j]));
             let ll = l.map(|v| -0.5 * v);
             // x+ = x- + K e, each state's corrections added in the order of the outputs.
             for (s, acc_row) in acc.iter_mut().enumerate() {
@@ -581,7 +575,7 @@ impl SteadyBank {
                 for (m, e_m) in e.iter().enumerate() {
                     let k = node(s * N_OUTPUTS + m);
                     for j in 0..BLOCK {
-                        a[j] += f64::from(k[j]) * e_m[j];
+                        a[j] += k[j] * e_m[j];
                     }
                 }
                 acc_row.0 = a;
@@ -594,7 +588,7 @@ impl SteadyBank {
                     .zip(e_row.iter())
                     .zip(node(INV_S_DIAG_OFFSET + r))
                 {
-                    *z = e * e * f64::from(*inv_s);
+                    *z = e * e * inv_s;
                 }
             }
             out.ll[i0..i0 + len].copy_from_slice(&ll[..len]);
@@ -615,16 +609,6 @@ fn at(rows: &[Row], values: usize, k: usize, i: usize) -> f64 {
 #[inline(always)]
 fn at_mut(rows: &mut [Row], values: usize, k: usize, i: usize) -> &mut f64 {
     &mut rows[(i / BLOCK) * values + k][i % BLOCK]
-}
-
-/// One value of a block's particles in f32 (the interpolated gain nodes), aligned to cache
-/// lines like [`Row`] (a 256-byte row is four whole lines).
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[repr(C, align(64))]
-struct NodeRow([f32; BLOCK]);
-
-impl NodeRow {
-    const ZERO: NodeRow = NodeRow([0.0; BLOCK]);
 }
 
 fn check_finite(ll: &[f64]) -> Result<(), DamperError> {
