@@ -14,6 +14,7 @@
 
 mod bank;
 mod config;
+mod fast_exp;
 mod jump;
 mod posterior;
 mod propagator;
@@ -35,7 +36,7 @@ use crate::noise_scale::NoiseScale;
 use crate::params::{checked_half_body_mass_kg, Dampers, HALF_BODY_MASS_RATIO};
 use crate::speed::SpeedConfig;
 use crate::DamperError;
-use railmon_filter::logspace::{effective_sample_size, normalize_log_weights};
+use railmon_filter::logspace::normalize_log_weights;
 use railmon_filter::resample::systematic_resample;
 
 use bank::{Bank, StepOutput, Whitening};
@@ -586,7 +587,8 @@ impl Rbpf {
                 *next = w + l;
             }
         }
-        let log_increment = normalize_log_weights(&mut self.log_w_next)?;
+        // Normalised with its weights and ESS in one `exp` pass (`LinearWeights::normalise`).
+        let (log_increment, ess) = self.w.normalise(&mut self.log_w_next)?;
         if let Some(s) = &mut self.sentinels {
             s.step(y, &whiten)?;
         }
@@ -603,7 +605,7 @@ impl Rbpf {
         }
         std::mem::swap(&mut self.log_w, &mut self.log_w_next);
         self.log_evidence += log_increment;
-        self.ess = effective_sample_size(&self.log_w);
+        self.ess = ess;
         let resample = self.ess < self.config.resample_ess_fraction * n as f64;
         if resample {
             systematic_resample(&self.log_w, &mut self.indices, &mut self.rng);
@@ -633,7 +635,6 @@ impl Rbpf {
         // a healthy bogie's cloud stays as it was but for the few particles replaced.
         if let Some(ln_odds) = self.sentinels.as_ref().and_then(Sentinels::due) {
             self.materialise(ln_odds.exp())?;
-            self.ess = effective_sample_size(&self.log_w);
             self.sorted.stale = true;
         }
         self.judge_probation();
@@ -652,8 +653,7 @@ impl Rbpf {
         for (w, pen) in self.log_w.iter_mut().zip(&self.regeneration_penalty) {
             *w += pen;
         }
-        normalize_log_weights(&mut self.log_w)?;
-        self.ess = effective_sample_size(&self.log_w);
+        self.ess = self.w.normalise(&mut self.log_w)?.1;
         self.sorted.stale = true;
         if self.sentinels.is_some() {
             let (mean, _) = self.ln_moments();
@@ -861,7 +861,7 @@ impl Rbpf {
             self.on_probation[p] = Probation::Jump(k as u8);
             self.bank.copy_particle(p, bank, j);
         }
-        normalize_log_weights(&mut self.log_w)?;
+        self.ess = self.w.normalise(&mut self.log_w)?.1;
         sentinels.materialised();
         Ok(())
     }
