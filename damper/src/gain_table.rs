@@ -9,7 +9,7 @@
 
 use std::ops::RangeInclusive;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, TryLockError};
+use std::sync::{Arc, Mutex, OnceLock, TryLockError};
 
 use serde::{Deserialize, Serialize};
 
@@ -229,6 +229,15 @@ pub const GAIN_SOLUTION_VERSION: u32 = 1;
 /// mass exactly). Not a setting: the load signal's own error is of that order.
 pub const MASS_GRID_RATIO: f64 = 1.05;
 
+/// Where a table takes a node's solution from before solving it: the solved nodes stored at
+/// the edge (the gain cache on disk, `railmon_records::gain_cache`), imported with
+/// [`GainTable::import`] and its checks. The maths stays here, the files there.
+pub trait NodeSource: Send + Sync + std::fmt::Debug {
+    /// Imports node `node` into `table` if the source holds it; a stored node refused is the
+    /// source's to report (the table then solves the node).
+    fn fill(&self, table: &GainTable, node: usize);
+}
+
 /// The gain grids of one vehicle over its speed range and body-mass range, built on first
 /// use and shared by every filter of that vehicle (`Arc`, thread-safe).
 ///
@@ -250,6 +259,8 @@ pub const MASS_GRID_RATIO: f64 = 1.05;
 /// (`n_mass_nodes()` in all) are solved when a filter first reaches their mass.
 #[derive(Debug)]
 pub struct GainTable {
+    /// Where a node not solved yet is looked for first ([`GainTable::set_source`]).
+    source: OnceLock<Box<dyn NodeSource>>,
     model: BogieModel,
     noise: NoiseCovariances,
     nominal: Dampers,
@@ -327,6 +338,7 @@ impl GainTable {
         );
         let n_mass = (j_range.1 - j_range.0 + 1) as usize;
         GainTable {
+            source: OnceLock::new(),
             model: model.clone(),
             noise: *noise,
             nominal: *nominal,
@@ -399,6 +411,13 @@ impl GainTable {
             .f64s(self.noise.q_v.iter())
             .f64(self.noise.q_floor);
         Ok(h.finish())
+    }
+
+    /// Has every node not solved yet looked for in `source` before it is solved, when a
+    /// filter (or anyone) first asks for it ([`GainTable::grid_at`]): a run reads the nodes
+    /// it reaches instead of all of them ahead. One source per table: `false` if one was set.
+    pub fn set_source(&self, source: Box<dyn NodeSource>) -> bool {
+        self.source.set(source).is_ok()
     }
 
     /// Takes node `node`'s grid from stored `values` ([`GainGrid::values`] of a grid solved
@@ -530,6 +549,13 @@ impl GainTable {
     /// build, `cargo bench -p railmon-damper --bench rbpf_variants`); meanwhile other callers
     /// for the same node wait.
     pub fn grid_at(&self, node: usize) -> Result<Arc<GainGrid>, DamperError> {
+        // Outside the node's lock: the source imports through it (`GainTable::import`); two
+        // callers filling the same node at once both read it, one import is kept.
+        if let Some(source) = self.source.get() {
+            if !self.is_solved(node) {
+                source.fill(self, node);
+            }
+        }
         // A panic while solving leaves the node unsolved, not the lock unusable.
         let mut cell = self.nodes[node]
             .lock()
@@ -679,9 +705,48 @@ mod tests {
         assert!(!loaded.import(node, values).unwrap());
     }
 
-    /// The mass axis: the design mass's nodes are the speed nodes as they were (index and
-    /// fingerprint), every other mass node is its own solution with its own key, nearest in
-    /// `ln m`, clamped to the range.
+    /// A table with a source asks it for a node when the node is first reached, and only
+    /// then: what the source holds is used to the bit, what it does not is solved here.
+    #[test]
+    fn a_node_is_taken_from_the_source_when_first_reached() {
+        #[derive(Debug)]
+        struct Held {
+            node: usize,
+            values: Vec<f64>,
+            asked: Mutex<Vec<usize>>,
+        }
+        impl NodeSource for Arc<Held> {
+            fn fill(&self, table: &GainTable, node: usize) {
+                self.asked.lock().unwrap().push(node);
+                if node == self.node {
+                    assert!(table.import(node, self.values.clone()).unwrap());
+                }
+            }
+        }
+        let c = small();
+        let solved = Rbpf::gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
+        let node = solved.configured_node() + 2;
+        let held = Arc::new(Held {
+            node,
+            values: solved.grid_at(node).unwrap().values().to_vec(),
+            asked: Mutex::new(vec![]),
+        });
+        let t = Rbpf::unsolved_gain_table(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
+        assert!(t.set_source(Box::new(held.clone())));
+        assert!(
+            !t.set_source(Box::new(held.clone())),
+            "one source per table"
+        );
+        assert!(held.asked.lock().unwrap().is_empty(), "nothing read ahead");
+        let grid = t.grid_for_filter(node).unwrap();
+        assert_eq!(*grid, *solved.grid_at(node).unwrap());
+        let other = t.grid_at(node + 1).unwrap();
+        assert_eq!(*other, *solved.grid_at(node + 1).unwrap());
+        t.grid_at(node).unwrap();
+        t.grid_at(node + 1).unwrap();
+        assert_eq!(*held.asked.lock().unwrap(), vec![node, node + 1]);
+    }
+
     /// A filter that reaches an unsolved node stalls, and says so; on a solved node it does
     /// not (the service keeps the stalls out of its compute load).
     #[test]
@@ -703,6 +768,9 @@ mod tests {
         assert_eq!(t.filter_stall_ns(), stalled);
     }
 
+    /// The mass axis: the design mass's nodes are the speed nodes as they were (index and
+    /// fingerprint), every other mass node is its own solution with its own key, nearest in
+    /// `ln m`, clamped to the range.
     #[test]
     fn mass_nodes_are_scheduled_like_the_speed_nodes() {
         let c = small();
