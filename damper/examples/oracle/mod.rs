@@ -10,7 +10,7 @@ use railmon_damper::{slowest_time_constant_s, DamperMonitorConfig};
 /// refuses: the range then ends where the draw's speeds do (its top speed, kept below the
 /// plant's critical speed), lower only while the model is unstable there.
 pub fn with_plant_conicity(config: &DamperMonitorConfig, draw: &Draw) -> DamperMonitorConfig {
-    let mut config = config.clone();
+    let mut config = *config;
     config.vehicle.conicity = draw.scenario.vehicle.conicity;
     config.speed.max_m_s = config.speed.max_m_s.min(draw.top_speed_m_s + 1.0);
     while slowest_time_constant_s(&config.filter_model(), &config.speed).is_err()
