@@ -43,7 +43,8 @@ use railmon_damper::{
 };
 
 mod flags;
-use flags::parsed;
+mod oracle;
+use flags::{on_off, parsed};
 
 /// Accuracy, coverage and mismatch are counted from here (s), as in `robustness_matrix`.
 const JUDGE_FROM_S: f64 = 30.0;
@@ -84,6 +85,8 @@ struct Args {
     /// Only draws with a stop (`--with-stops`).
     with_stops: bool,
     withhold_mass: bool,
+    /// The filter is given the plant's own conicity (`--oracle-conicity`).
+    oracle_conicity: bool,
     config: DamperMonitorConfig,
 }
 
@@ -108,8 +111,19 @@ fn usage() -> String {
          \u{20}                  rbpf.unmeasured_mass)\n\
          --design-mass      without a measured mass assume the design one\n\
          \u{20}                  (rbpf.unmeasured_mass.enabled = false)\n\
+         --oracle-conicity  the filter's vehicle takes each draw's plant conicity (an upper\n\
+         \u{20}                  bound: the conicity is not measured onboard), its speed range\n\
+         \u{20}                  ending at the draw's top speed; gain grids solved per draw\n\
+         --rbpf-seed N      rbpf.seed (default 0): the filter's own random numbers, to tell\n\
+         \u{20}                  a figure from the run-to-run spread\n\
+         --jump on|off      rbpf.jump_search.enabled (default on)\n\
+         --min-speed-m-s V  speed.min_m_s: the filter pauses below it (default {min_speed})\n\
+         --resume-settle-s S  speed.resume_settle_s, the least settling after a pause\n\
+         \u{20}                  (default {settle})\n\
          --help             this text",
         particles = DamperMonitorConfig::default().rbpf.particles,
+        min_speed = DamperMonitorConfig::default().speed.min_m_s,
+        settle = DamperMonitorConfig::default().speed.resume_settle_s,
         min = sampler::MIN_MAX_DURATION_S,
         max = sampler::MAX_DURATION_S,
     )
@@ -126,6 +140,7 @@ fn parse_args() -> Result<Args, String> {
         shape: None,
         with_stops: false,
         withhold_mass: false,
+        oracle_conicity: false,
         config: DamperMonitorConfig::default(),
     };
     let mut it = std::env::args().skip(1);
@@ -164,6 +179,11 @@ fn parse_args() -> Result<Args, String> {
             "--with-stops" => args.with_stops = true,
             "--withhold-mass" => args.withhold_mass = true,
             "--design-mass" => args.config.rbpf.unmeasured_mass.enabled = false,
+            "--oracle-conicity" => args.oracle_conicity = true,
+            "--rbpf-seed" => args.config.rbpf.seed = parsed(&flag, &value()?)?,
+            "--jump" => args.config.rbpf.jump_search.enabled = on_off(&flag, &value()?)?,
+            "--min-speed-m-s" => args.config.speed.min_m_s = parsed(&flag, &value()?)?,
+            "--resume-settle-s" => args.config.speed.resume_settle_s = parsed(&flag, &value()?)?,
             other => return Err(format!("unknown flag {other}")),
         }
     }
@@ -550,13 +570,17 @@ fn main() -> ExitCode {
             scope.spawn(|| loop {
                 let i = next.fetch_add(1, Ordering::Relaxed);
                 let Some(&seed) = seeds.get(i) else { break };
-                let o = run(
-                    sampler::draw(seed, args.duration_s),
-                    &config,
-                    &table,
-                    args.verbose,
-                    args.withhold_mass,
-                );
+                let draw = sampler::draw(seed, args.duration_s);
+                let o = if args.oracle_conicity {
+                    // The filter's model at the plant's conicity: its own gain grids.
+                    let config = oracle::with_plant_conicity(&config, &draw);
+                    let table =
+                        Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed)
+                            .expect("the oracle filter's gain table");
+                    run(draw, &config, &table, args.verbose, args.withhold_mass)
+                } else {
+                    run(draw, &config, &table, args.verbose, args.withhold_mass)
+                };
                 eprintln!(
                     "[{:.0} s] seed {seed} done ({:.0} s)",
                     started.elapsed().as_secs_f64(),
@@ -575,12 +599,17 @@ fn main() -> ExitCode {
 fn report(args: &Args, outcomes: &[Outcome], threshold: f64, wall_s: f64) {
     let particles = args.config.rbpf.particles;
     println!(
-        "condition matrix: {} draws (seeds {}..={}, split {}), runs of at most {} s, N = {particles}, filter defaults (design vehicle), {wall_s:.0} s wall",
+        "condition matrix: {} draws (seeds {}..={}, split {}), runs of at most {} s, N = {particles}, filter defaults (design vehicle{}), {wall_s:.0} s wall",
         outcomes.len(),
         outcomes.first().map_or(0, |o| o.draw.seed),
         outcomes.last().map_or(0, |o| o.draw.seed),
         args.split.name(),
         args.duration_s,
+        if args.oracle_conicity {
+            "; oracle: the plant's conicity"
+        } else {
+            ""
+        },
     );
     println!();
     println!("{HEADER}");

@@ -8,14 +8,16 @@
 //!
 //! ```text
 //! cargo run --release -p railmon-damper --example dip_trace -- --seed 5010 [--duration-s 120]
-//!     [--particles 500] [--show-below 0.75] [--from S --to S]
+//!     [--particles 500] [--show-below 0.75] [--from S --to S] [--oracle-conicity]
 //! ```
+//! `--oracle-conicity`: the filter given the plant's conicity (as `condition_matrix`).
 //! `--duration-s` as the `condition_matrix` run the draw came from (a draw depends on it).
 
 use railmon_damper::sampler;
 use railmon_damper::{BogieSimulator, DamperAlarm, DamperMonitor, DamperMonitorConfig};
 
 mod flags;
+mod oracle;
 use flags::parsed;
 
 struct Args {
@@ -24,6 +26,7 @@ struct Args {
     particles: usize,
     show_below: f64,
     window: (f64, f64),
+    oracle_conicity: bool,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -34,6 +37,7 @@ fn parse_args() -> Result<Args, String> {
         particles: 500,
         show_below: 0.75,
         window: (f64::INFINITY, f64::NEG_INFINITY),
+        oracle_conicity: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -45,6 +49,7 @@ fn parse_args() -> Result<Args, String> {
             "--show-below" => a.show_below = parsed(&flag, &value()?)?,
             "--from" => a.window.0 = parsed(&flag, &value()?)?,
             "--to" => a.window.1 = parsed(&flag, &value()?)?,
+            "--oracle-conicity" => a.oracle_conicity = true,
             other => return Err(format!("unknown flag {other}")),
         }
     }
@@ -57,6 +62,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("seed {}: {}", args.seed, draw.short());
     let mut config = DamperMonitorConfig::default();
     config.rbpf.particles = args.particles;
+    if args.oracle_conicity {
+        config = oracle::with_plant_conicity(&config, &draw);
+    }
     let nominal = config.filter_model().nominal;
     let nominal = [nominal.csy_ns_per_m, nominal.csay_ns_per_m];
     let mut monitor = DamperMonitor::for_bogie(&config, 1, None)?;
