@@ -38,7 +38,8 @@ const INV_FACT: [f64; 12] = [
 #[inline(always)]
 pub(super) fn exp(x: f64) -> f64 {
     let xc = x.clamp(X_MIN - 1.0, X_MAX + 1.0);
-    let kf = (xc * INV_LN2 + ROUND) - ROUND;
+    let t = xc * INV_LN2 + ROUND;
+    let kf = t - ROUND;
     let r = (xc - kf * LN2_HI) - kf * LN2_LO;
     // Horner from r^13 / 13! down to 1 + r.
     let mut p = INV_FACT[11];
@@ -48,7 +49,9 @@ pub(super) fn exp(x: f64) -> f64 {
     p = p.mul_add(r, 1.0);
     p = p.mul_add(r, 1.0);
     // 2^k = 2^k1 * 2^k2 with k1 = floor(k / 2): both factors normal for k in [-1076, 1025].
-    let k = kf as i64;
+    // k from the bits of `t = 1.5 * 2^52 + k` (its ulp is 1), not by `kf as i64`: that
+    // saturating conversion has no vector form before AVX-512DQ and made the loop scalar.
+    let k = t.to_bits() as i64 - ROUND.to_bits() as i64;
     let k1 = k >> 1;
     let k2 = k - k1;
     let s1 = f64::from_bits(((k1 + 1023) as u64) << 52);
