@@ -104,19 +104,6 @@ pub const SETTLED_NIS_RATIO: f64 = 1.2;
 /// source that loses a sample now and then.
 pub const MAX_STEPPED_OVER_SAMPLES: u64 = 2;
 
-/// Measurement switch (not a setting): `RAILMON_SETTLE_CLOUD_ONLY=1` lets only the particles
-/// end the settling, `=mean` only their weighted mean.
-fn settle_cloud_only() -> u8 {
-    static ON: std::sync::OnceLock<u8> = std::sync::OnceLock::new();
-    *ON.get_or_init(
-        || match std::env::var("RAILMON_SETTLE_CLOUD_ONLY").as_deref() {
-            Ok("1") => 1,
-            Ok("mean") => 2,
-            _ => 0,
-        },
-    )
-}
-
 #[derive(Debug, Clone)]
 pub struct DamperMonitor {
     rbpf: Rbpf,
@@ -382,21 +369,9 @@ impl DamperMonitor {
         let window_end = p.settle_steps.is_multiple_of(st.window_steps);
         // Some hypothesis (a particle, or a sentinel: a damper that failed during the pause)
         // explains the data again; the weighted mean would not, after such a failure.
-        // Measured variant (RAILMON_SETTLE_CLOUD_ONLY=1): only the cloud's own particles
-        // (the first `n_particles` entries of `hypothesis_nis`) may end the settling, not the
-        // jump search's sentinels; `=mean`: the particles' weighted mean must fit.
-        let n = self.rbpf.n_particles().min(sums.len());
-        let fit = match settle_cloud_only() {
-            0 => sums.iter().copied().fold(f64::INFINITY, f64::min),
-            1 => sums[..n].iter().copied().fold(f64::INFINITY, f64::min),
-            _ => {
-                let w = self.rbpf.particle_weights();
-                let total: f64 = w.iter().sum();
-                sums[..n].iter().zip(&w).map(|(s, w)| s * w).sum::<f64>() / total
-            }
-        };
         let in_band = window_end
-            && fit / st.window_steps as f64 <= SETTLED_NIS_RATIO * crate::model::N_OUTPUTS as f64;
+            && sums.iter().copied().fold(f64::INFINITY, f64::min) / st.window_steps as f64
+                <= SETTLED_NIS_RATIO * crate::model::N_OUTPUTS as f64;
         if window_end {
             sums.fill(0.0);
         }

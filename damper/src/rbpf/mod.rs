@@ -1037,12 +1037,6 @@ impl Rbpf {
         }
     }
 
-    /// The particles' weights (unnormalised, `exp(log_w - max)`); for a measured variant.
-    pub fn particle_weights(&self) -> Vec<f64> {
-        let m = self.log_w.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        self.log_w.iter().map(|l| (l - m).exp()).collect()
-    }
-
     /// Each hypothesis's normalised innovation squared `e' S^-1 e` of the last step: the
     /// particles', then (with the jump search) the sentinels'.
     pub fn hypothesis_nis(&self) -> impl Iterator<Item = f64> + '_ {
