@@ -249,6 +249,26 @@ pub struct Rbpf {
     settle_mass_node: i32,
     filter_model: FilterModel,
     speed: SpeedConfig,
+    /// Measured variant (`RAILMON_HOLD_JUMPS_S`): steps since the last settling began (the
+    /// train moved off again); `None` before any pause. Not in the snapshot.
+    hold_since_resume_steps: Option<u64>,
+    /// Whether the last step was a settling step (`step_states`).
+    hold_in_settling: bool,
+}
+
+/// Measurement switch (not a setting): `RAILMON_HOLD_JUMPS_S=T` holds the jump search for `T`
+/// s after moving off (the settling included); `RAILMON_HOLD_JUMPS_MODE=publish` holds the
+/// adoption (and the "nothing else left" bypass) instead of the materialisation.
+fn hold_jumps() -> (f64, bool) {
+    static ON: std::sync::OnceLock<(f64, bool)> = std::sync::OnceLock::new();
+    *ON.get_or_init(|| {
+        let t = std::env::var("RAILMON_HOLD_JUMPS_S")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0.0);
+        let publish = std::env::var("RAILMON_HOLD_JUMPS_MODE").as_deref() == Ok("publish");
+        (t, publish)
+    })
 }
 
 impl Rbpf {
@@ -403,6 +423,8 @@ impl Rbpf {
             settle_mass_node: 0,
             filter_model: *filter_model,
             speed: *speed,
+            hold_since_resume_steps: None,
+            hold_in_settling: false,
         })
     }
 
@@ -534,6 +556,14 @@ impl Rbpf {
             });
         }
         self.steps_since_move += 1;
+        self.hold_in_settling = false;
+        if let Some(k) = &mut self.hold_since_resume_steps {
+            *k += 1;
+        }
+        let (hold_s, hold_publish) = hold_jumps();
+        let held = self
+            .hold_since_resume_steps
+            .is_some_and(|k| (k as f64) * self.dt_s < hold_s);
         // With `AtResampling` the parameters stay as they are until a resampling (no copy,
         // no penalty: the step's particles are `ln_theta`).
         let every_step = self.config.kernel == KernelSchedule::EveryStep;
@@ -633,11 +663,14 @@ impl Rbpf {
         }
         // Jump hypotheses due to become particles (`jump`). No resampling or move for them:
         // a healthy bogie's cloud stays as it was but for the few particles replaced.
-        if let Some(ln_odds) = self.sentinels.as_ref().and_then(Sentinels::due) {
+        let due = self.sentinels.as_ref().and_then(Sentinels::due);
+        if let Some(ln_odds) = due.filter(|_| !(held && !hold_publish)) {
             self.materialise(ln_odds.exp())?;
             self.sorted.stale = true;
         }
-        self.judge_probation();
+        if !(held && hold_publish) {
+            self.judge_probation();
+        }
         // The weights' exponentials once, for the summary after this step and the
         // predictive weights of the next.
         self.w.of(&self.log_w);
@@ -1053,6 +1086,13 @@ impl Rbpf {
             return Err(DamperError::NonFinite {
                 what: "measurement",
             });
+        }
+        if !self.hold_in_settling {
+            self.hold_in_settling = true;
+            self.hold_since_resume_steps = Some(0);
+        }
+        if let Some(k) = &mut self.hold_since_resume_steps {
+            *k += 1;
         }
         // The noise estimate is held too: its innovations would be the stale states'.
         let whiten = Whitening::new(&self.noise_scale.variance_scale());
