@@ -258,16 +258,21 @@ pub struct Rbpf {
 
 /// Measurement switch (not a setting): `RAILMON_HOLD_JUMPS_S=T` holds the jump search for `T`
 /// s after moving off (the settling included); `RAILMON_HOLD_JUMPS_MODE=publish` holds the
-/// adoption (and the "nothing else left" bypass) instead of the materialisation.
-fn hold_jumps() -> (f64, bool) {
-    static ON: std::sync::OnceLock<(f64, bool)> = std::sync::OnceLock::new();
+/// adoption (and the "nothing else left" bypass) instead of the materialisation; `=fresh`
+/// also forgets the sentinels' odds meanwhile (the jump search starts `T` s after moving off).
+fn hold_jumps() -> (f64, u8) {
+    static ON: std::sync::OnceLock<(f64, u8)> = std::sync::OnceLock::new();
     *ON.get_or_init(|| {
         let t = std::env::var("RAILMON_HOLD_JUMPS_S")
             .ok()
             .and_then(|v| v.parse().ok())
             .unwrap_or(0.0);
-        let publish = std::env::var("RAILMON_HOLD_JUMPS_MODE").as_deref() == Ok("publish");
-        (t, publish)
+        let mode = match std::env::var("RAILMON_HOLD_JUMPS_MODE").as_deref() {
+            Ok("publish") => 1,
+            Ok("fresh") => 2,
+            _ => 0,
+        };
+        (t, mode)
     })
 }
 
@@ -560,7 +565,8 @@ impl Rbpf {
         if let Some(k) = &mut self.hold_since_resume_steps {
             *k += 1;
         }
-        let (hold_s, hold_publish) = hold_jumps();
+        let (hold_s, hold_mode) = hold_jumps();
+        let hold_publish = hold_mode == 1;
         let held = self
             .hold_since_resume_steps
             .is_some_and(|k| (k as f64) * self.dt_s < hold_s);
@@ -626,6 +632,9 @@ impl Rbpf {
         self.bank.commit();
         if let Some(s) = &mut self.sentinels {
             s.commit(log_increment);
+            if held && hold_mode == 2 {
+                s.forget_odds();
+            }
         }
         self.noise_scale.update(&z_mean);
         if every_step {
