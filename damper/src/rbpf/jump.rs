@@ -327,11 +327,6 @@ impl Sentinels {
         self.fires += 1;
     }
 
-    /// Measured variant (`RAILMON_HOLD_JUMPS_MODE=fresh`): the odds start again.
-    pub(super) fn forget_odds(&mut self) {
-        self.ln_odds.fill(f64::NEG_INFINITY);
-    }
-
     pub(super) fn ln_odds(&self) -> &[f64] {
         &self.ln_odds
     }

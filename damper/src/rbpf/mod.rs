@@ -249,31 +249,6 @@ pub struct Rbpf {
     settle_mass_node: i32,
     filter_model: FilterModel,
     speed: SpeedConfig,
-    /// Measured variant (`RAILMON_HOLD_JUMPS_S`): steps since the last settling began (the
-    /// train moved off again); `None` before any pause. Not in the snapshot.
-    hold_since_resume_steps: Option<u64>,
-    /// Whether the last step was a settling step (`step_states`).
-    hold_in_settling: bool,
-}
-
-/// Measurement switch (not a setting): `RAILMON_HOLD_JUMPS_S=T` holds the jump search for `T`
-/// s after moving off (the settling included); `RAILMON_HOLD_JUMPS_MODE=publish` holds the
-/// adoption (and the "nothing else left" bypass) instead of the materialisation; `=fresh`
-/// also forgets the sentinels' odds meanwhile (the jump search starts `T` s after moving off).
-fn hold_jumps() -> (f64, u8) {
-    static ON: std::sync::OnceLock<(f64, u8)> = std::sync::OnceLock::new();
-    *ON.get_or_init(|| {
-        let t = std::env::var("RAILMON_HOLD_JUMPS_S")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0.0);
-        let mode = match std::env::var("RAILMON_HOLD_JUMPS_MODE").as_deref() {
-            Ok("publish") => 1,
-            Ok("fresh") => 2,
-            _ => 0,
-        };
-        (t, mode)
-    })
 }
 
 impl Rbpf {
@@ -428,8 +403,6 @@ impl Rbpf {
             settle_mass_node: 0,
             filter_model: *filter_model,
             speed: *speed,
-            hold_since_resume_steps: None,
-            hold_in_settling: false,
         })
     }
 
@@ -561,15 +534,6 @@ impl Rbpf {
             });
         }
         self.steps_since_move += 1;
-        self.hold_in_settling = false;
-        if let Some(k) = &mut self.hold_since_resume_steps {
-            *k += 1;
-        }
-        let (hold_s, hold_mode) = hold_jumps();
-        let hold_publish = hold_mode == 1;
-        let held = self
-            .hold_since_resume_steps
-            .is_some_and(|k| (k as f64) * self.dt_s < hold_s);
         // With `AtResampling` the parameters stay as they are until a resampling (no copy,
         // no penalty: the step's particles are `ln_theta`).
         let every_step = self.config.kernel == KernelSchedule::EveryStep;
@@ -632,9 +596,6 @@ impl Rbpf {
         self.bank.commit();
         if let Some(s) = &mut self.sentinels {
             s.commit(log_increment);
-            if held && hold_mode == 2 {
-                s.forget_odds();
-            }
         }
         self.noise_scale.update(&z_mean);
         if every_step {
@@ -672,14 +633,11 @@ impl Rbpf {
         }
         // Jump hypotheses due to become particles (`jump`). No resampling or move for them:
         // a healthy bogie's cloud stays as it was but for the few particles replaced.
-        let due = self.sentinels.as_ref().and_then(Sentinels::due);
-        if let Some(ln_odds) = due.filter(|_| !(held && !hold_publish)) {
+        if let Some(ln_odds) = self.sentinels.as_ref().and_then(Sentinels::due) {
             self.materialise(ln_odds.exp())?;
             self.sorted.stale = true;
         }
-        if !(held && hold_publish) {
-            self.judge_probation();
-        }
+        self.judge_probation();
         // The weights' exponentials once, for the summary after this step and the
         // predictive weights of the next.
         self.w.of(&self.log_w);
@@ -1095,13 +1053,6 @@ impl Rbpf {
             return Err(DamperError::NonFinite {
                 what: "measurement",
             });
-        }
-        if !self.hold_in_settling {
-            self.hold_in_settling = true;
-            self.hold_since_resume_steps = Some(0);
-        }
-        if let Some(k) = &mut self.hold_since_resume_steps {
-            *k += 1;
         }
         // The noise estimate is held too: its innovations would be the stale states'.
         let whiten = Whitening::new(&self.noise_scale.variance_scale());
