@@ -24,13 +24,18 @@ impl LinearWeights {
     /// changed: after a resampling or a normalisation nearly all do.
     pub(super) fn of(&mut self, log_w: &[f64]) -> &[f64] {
         if !self.holds(log_w) {
-            self.log_w.clear();
-            self.log_w.extend_from_slice(log_w);
-            self.w.clear();
-            self.w.extend_from_slice(log_w);
-            exp_shifted_in_place(&mut self.w, 0.0);
+            self.take(log_w);
         }
         &self.w
+    }
+
+    /// Keeps `exp(log_w)` and the log-weights it was taken of.
+    fn take(&mut self, log_w: &[f64]) {
+        self.log_w.clear();
+        self.log_w.extend_from_slice(log_w);
+        self.w.clear();
+        self.w.extend_from_slice(log_w);
+        exp_shifted_in_place(&mut self.w, 0.0);
     }
 
     /// Normalises `log_w` in place (`sum_i exp(log_w_i) = 1`), keeps its weights and returns
@@ -57,8 +62,9 @@ impl LinearWeights {
         for lw in log_w.iter_mut() {
             *lw -= total;
         }
-        let w = self.of(log_w);
-        Ok((total, 1.0 / w.iter().map(|w| w * w).sum::<f64>()))
+        // Every normalised log-weight differs from the kept ones: no comparison first.
+        self.take(log_w);
+        Ok((total, 1.0 / self.w.iter().map(|w| w * w).sum::<f64>()))
     }
 
     /// `exp(log_w)`: the kept values when they were taken of exactly `log_w`, else taken now.
