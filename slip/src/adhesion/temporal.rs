@@ -334,18 +334,6 @@ const EXCESS_LLR_THRESHOLD: f64 = 12.0;
 /// How far above the threshold the excess evidence may accumulate: the steps it takes to let
 /// go once the majority is back.
 const EXCESS_LLR_HEADROOM: f64 = 2.0;
-/// The shift of the reference below a drive's healthy level that `excess_evidence` tests
-/// for, as a share of the slip tolerance: half. A drive losing adhesion by just over the
-/// tolerance that still counts as adhering (a shallow loss no single step resolves) keeps the
-/// kernel's weight, and with the one healthy drive beside it the reference settles half-way
-/// between them; the healthy drive's excess is then half the gap, and a test for the whole
-/// tolerance (the mean of its step `delta (a - delta / 2)` at `a = delta / 2`) never moves
-/// (sampler draws 1086, 16 of 17 drives, drive 14 at 1.42x the tolerance; 1088, 22 of 31,
-/// the slipping drives at 1.11-1.14x). Tuning (`sample_matrix --split tuning`, 100 draws
-/// from 1000): 1.0 / 0.7 / 0.5 / 0.35 all 369 of 419 above the bound, half or more at once
-/// the slipping drives the flagged ones in 39 / 39 / 40 / 40 of 42 draws, no healthy step
-/// flagged; 1086 drive 14 F1 0.69 / 0.83 / 0.89 / 0.93.
-const EXCESS_SHIFT_FRACTION: f64 = 0.5;
 
 /// Standard normal CDF (the fit's relative error, 1.2e-7 also in the tails, is ample for the
 /// evidence's log odds, which are clipped).
@@ -621,8 +609,8 @@ impl TemporalEstimator {
     /// floor) drags the kernel's reference along, and the drives that held are left above it
     /// by a margin `excess_effort` never sees in one step. Physics says a drive cannot carry
     /// more than its healthy level; what must be ruled out is noise, and a lasting excess is
-    /// not noise. The test is Page's CUSUM for a shift `delta` of half the slip tolerance
-    /// ([`EXCESS_SHIFT_FRACTION`]) in the drive's excess `a_t`, whitened as the AR(1) the departures are (`rho_i` learnt,
+    /// not noise. The test is Page's CUSUM for a shift of the slip tolerance `delta`
+    /// in the drive's excess `a_t`, whitened as the AR(1) the departures are (`rho_i` learnt,
     /// `e_t = a_t - rho a_(t-1)`, variance `sigma^2 (1 - rho^2)`, the shift becoming
     /// `delta (1 - rho)`): per step `delta (e_t - delta (1 - rho) / 2) / (sigma^2 (1 + rho))`,
     /// bounded below by 0 and above by `EXCESS_LLR_THRESHOLD + EXCESS_LLR_HEADROOM` so that it
@@ -634,8 +622,7 @@ impl TemporalEstimator {
             self.last_excess_nm.fill(0.0);
             return false;
         }
-        let delta =
-            EXCESS_SHIFT_FRACTION * (c.relative_tolerance * m.abs()).max(c.min_tolerance_nm);
+        let delta = (c.relative_tolerance * m.abs()).max(c.min_tolerance_nm);
         let mut found = false;
         for (k, &xk) in x.iter().enumerate() {
             let s2 = self.spread_var_nm2[k];
