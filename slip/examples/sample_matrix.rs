@@ -128,6 +128,10 @@ struct Slipping {
     /// 3 s) + 2 s`, `s` the rms error of the drive's torque estimate while it adhered.
     resolvable: bool,
     median_delay: Option<f64>,
+    /// The deepest loss: (departure, healthy load) at its deepest step, N m; the rms error of
+    /// the drive's torque estimate while it adhered (for `--seed`'s table).
+    depth: (f64, f64),
+    rms_nm: f64,
 }
 
 /// One draw's figures.
@@ -359,6 +363,13 @@ fn run(draw: Draw, method: Option<AdhesionMethod>, lag_study: bool) -> Outcome {
                     bound_f1_rule: f1_bound(&at_rule),
                     resolvable,
                     median_delay: p.median_delay_steps,
+                    depth: losses
+                        .iter()
+                        .max_by(|a, b| a.depth_nm.abs().total_cmp(&b.depth_nm.abs()))
+                        .map_or((0.0, 0.0), |l| {
+                            (l.depth_nm, scenario.healthy_load_nm(k, l.on as f64))
+                        }),
+                    rms_nm: rms,
                 });
             }
             // A drive whose drawn loss stays within the slip rule (coasting, shallow losses
@@ -415,17 +426,24 @@ fn main() {
         println!("{HEADER}");
         println!("{}", o.summary());
         println!();
-        println!("| drive | F1 | recall | alarm F1 | F1 at the bound | median delay |");
-        println!("|---|---|---|---|---|---|");
+        println!("| drive | F1 | recall | alarm F1 | F1 at the bound | at the rule's bound | median delay | deepest loss / healthy load [N m] (x the tolerance) | EKF rms [N m] | resolved |");
+        println!("|---|---|---|---|---|---|---|---|---|---|");
         for s in &o.slipping {
             let delay = s.median_delay.map_or("–".to_owned(), |d| format!("{d:.0}"));
+            let (dep, load) = s.depth;
+            let tol = (railmon_slip::sample::SLIP_RULE_FRACTION * load.abs())
+                .max(railmon_slip::sample::SLIP_RULE_FLOOR_NM);
             println!(
-                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {delay} |",
+                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {delay} | {dep:.2} / {load:.2} ({:.2}) | {:.2} | {} |",
                 s.drive + 1,
                 s.f1,
                 s.recall,
                 s.alarm_f1,
-                s.bound_f1
+                s.bound_f1,
+                s.bound_f1_rule,
+                dep.abs() / tol,
+                s.rms_nm,
+                if s.resolvable { "yes" } else { "no" }
             );
         }
         println!();
