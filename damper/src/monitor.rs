@@ -376,6 +376,10 @@ impl DamperMonitor {
             sums.fill(0.0);
         }
         p.settled = p.settle_steps >= st.max_steps || (p.settle_steps >= st.min_steps && in_band);
+        if p.settled {
+            self.rbpf
+                .end_pause((p.paused_steps + p.settle_steps) as f64 * self.dt_s);
+        }
         Ok(())
     }
 
