@@ -200,7 +200,6 @@ pub(super) struct Sentinels {
     ln_odds: Vec<f64>,
     /// `ln(lambda dt)`: the prior odds of a jump in one step.
     ln_hazard_step: f64,
-    dt_s: f64,
     ln_materialise: f64,
     /// `ln C` range of the gain grid (absolute).
     ln_range: [[f64; 2]; 2],
@@ -229,7 +228,6 @@ impl Sentinels {
             ln_theta: vec![centre; N_SENTINELS],
             ln_odds: vec![f64::NEG_INFINITY; N_SENTINELS],
             ln_hazard_step: (js.hazard_per_s * filter_model.dt_s).ln(),
-            dt_s: filter_model.dt_s,
             ln_materialise: js.materialise_odds.ln(),
             ln_range,
             ll: vec![0.0; N_SENTINELS],
@@ -306,18 +304,12 @@ impl Sentinels {
         self.bank.reset_states();
     }
 
-    /// The odds after a pause of `pause_s` (the settling included) in which no sample
-    /// weighed the hypotheses: the Shiryaev-Roberts recursion run over those steps with
-    /// likelihood ratio 1 adds `lambda dt` each, i.e. the prior odds that the damper jumped to
-    /// this sentinel's value some time during the pause, `e^(lambda T) - 1` (a Poisson
-    /// process of rate `lambda`: `P = 1 - e^(-lambda T)`, odds `P / (1 - P)`).
-    pub(super) fn after_pause(&mut self, pause_s: f64) {
-        let ln_odds = (self.ln_hazard_step.exp() / self.dt_s * pause_s).exp_m1().ln();
-        self.ln_odds.fill(ln_odds.min(MAX_LN_ODDS));
-    }
-
     /// Every sentinel's state set to the common state after a pause (`super::resume_init`).
-    pub(super) fn set_all_states(&mut self, x: &crate::model::Vector17, p: &crate::model::Matrix17) {
+    pub(super) fn set_all_states(
+        &mut self,
+        x: &crate::model::Vector17,
+        p: &crate::model::Matrix17,
+    ) {
         self.bank.set_all_states(x, p);
     }
 

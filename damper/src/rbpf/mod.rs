@@ -48,10 +48,10 @@ pub use jump::{
     slowest_time_constant_s, JumpSearchConfig, SentinelState, N_SENTINELS, SENTINEL_LN_OFFSETS,
 };
 use posterior::SortedParticles;
-use resume_init::ResumeInit;
-pub use resume_init::ResumeInitState;
 pub use posterior::{DamperPosterior, RbpfEstimate};
 pub use propagator::{SparsePropagator, BLOCK};
+use resume_init::ResumeInit;
+pub use resume_init::{ResumeInitState, RESUME_INIT_S};
 use weights::LinearWeights;
 
 /// The fastest wear the filter follows without lagging (1/s of nominal): a damper losing 80 %
@@ -187,28 +187,6 @@ enum Probation {
     Jump(u8),
 }
 
-/// EXPERIMENT (issue 24): the window (s) of the common state after a pause
-/// (`RAILMON_RESUME_INIT_S`, 0 = off: states at rest as before).
-fn resume_init_s() -> f64 {
-    std::env::var("RAILMON_RESUME_INIT_S")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(0.0)
-}
-
-/// Particle `i`'s kernel group: 0 published, 1 + k on probation for damper k.
-fn group_of(on_probation: &[Probation], i: usize) -> usize {
-    match on_probation.get(i) {
-        None | Some(Probation::None) => 0,
-        Some(Probation::Jump(k)) => 1 + usize::from(*k),
-    }
-}
-
-/// EXPERIMENT (issue 24): the Liu-West kernel per group (published / on probation).
-fn group_kernel() -> bool {
-    std::env::var("RAILMON_GROUP_KERNEL").is_ok_and(|v| v == "1")
-}
-
 /// The filter.
 #[derive(Debug, Clone)]
 pub struct Rbpf {
@@ -277,7 +255,8 @@ pub struct Rbpf {
     filter_model: FilterModel,
     speed: SpeedConfig,
     /// After a pause that restarted the states: the common state being estimated from the
-    /// first samples, handed to every particle and sentinel after `resume_init_steps`.
+    /// first samples (`resume_init`), handed to every particle and sentinel after
+    /// [`RESUME_INIT_S`] or when the settling ends, whichever comes first.
     resume_init: Option<ResumeInit>,
 }
 
@@ -569,8 +548,8 @@ impl Rbpf {
                 what: "measurement",
             });
         }
-        // A settling that ended before the common state's window: the states as they are.
-        self.resume_init = None;
+        // A settling shorter than the common state's window: its state as it is by now.
+        self.hand_over_resume_init();
         self.steps_since_move += 1;
         // With `AtResampling` the parameters stay as they are until a resampling (no copy,
         // no penalty: the step's particles are `ln_theta`).
@@ -1073,24 +1052,10 @@ impl Rbpf {
         if let Some(s) = &mut self.sentinels {
             s.reset_states();
         }
-        self.resume_init = None;
-        if resume_init_s() > 0.0 {
-            let (speed_m_s, mass_kg) = self.bank.schedule();
-            // On failure (a non-finite covariance) the states stay at rest, as before.
-            self.resume_init =
-                ResumeInit::new(&self.filter_model, self.mean(), speed_m_s, mass_kg).ok();
-        }
-    }
-
-    /// The settling after a pause of `pause_s` (the settling included) is over: the jump
-    /// search's odds start from the prior odds of a jump during it (`Sentinels::after_pause`)
-    /// instead of from nothing.
-    pub fn end_pause(&mut self, pause_s: f64) {
-        if std::env::var("RAILMON_PAUSE_PRIOR").is_ok_and(|v| v == "1") {
-            if let Some(s) = &mut self.sentinels {
-                s.after_pause(pause_s);
-            }
-        }
+        let (speed_m_s, mass_kg) = self.bank.schedule();
+        // On failure (a non-finite covariance) the states stay at rest, as before it.
+        self.resume_init =
+            ResumeInit::new(&self.filter_model, self.mean(), speed_m_s, mass_kg).ok();
     }
 
     /// Steps the common filter after a pause and, once it has run its window, gives its state
@@ -1101,15 +1066,22 @@ impl Rbpf {
         };
         let (speed_m_s, mass_kg) = self.bank.schedule();
         init.step(y, &self.noise_scale.variance_scale(), speed_m_s, mass_kg)?;
-        if init.steps() as f64 * self.dt_s >= resume_init_s() - 0.5 * self.dt_s {
+        if init.steps() as f64 * self.dt_s >= RESUME_INIT_S - 0.5 * self.dt_s {
+            self.hand_over_resume_init();
+        }
+        Ok(())
+    }
+
+    /// Gives the common state after a pause, if one is being estimated, to every particle
+    /// and sentinel.
+    fn hand_over_resume_init(&mut self) {
+        if let Some(init) = self.resume_init.take() {
             let (x, p) = init.estimate();
             self.bank.set_all_states(x, p);
             if let Some(s) = &mut self.sentinels {
                 s.set_all_states(x, p);
             }
-            self.resume_init = None;
         }
-        Ok(())
     }
 
     /// Each hypothesis's normalised innovation squared `e' S^-1 e` of the last step: the
@@ -1186,19 +1158,6 @@ impl Rbpf {
             .map(|c| c.l())
             .unwrap_or_else(Matrix2::zeros);
         let (a, h) = (self.kernel_a, self.kernel_h);
-        // Per group (`group_ln_moments`): a hypothesis on probation does not pull the
-        // published particles towards it, nor widen their jitter by the distance between them.
-        let groups = (group_kernel() && !self.on_probation.is_empty()).then(|| {
-            self.group_ln_moments().map(|g| {
-                g.map(|(m, c)| {
-                    let l = (c + Matrix2::identity() * 1e-300)
-                        .cholesky()
-                        .map(|c| c.l())
-                        .unwrap_or_else(Matrix2::zeros);
-                    (m, l)
-                })
-            })
-        });
         let ln_regen_weight = self.config.regeneration_weight.ln();
         // With the mass a parameter the kernel is eq. 24 on (ln C_sy, ln C_say, ln m) with the
         // joint covariance: its Cholesky factor's first two rows are `chol`'s, so the dampers'
@@ -1237,10 +1196,6 @@ impl Rbpf {
             *penalty = 0.0;
             let z0: f64 = self.rng.sample(StandardNormal);
             let z1: f64 = self.rng.sample(StandardNormal);
-            let (mean, chol) = groups
-                .as_ref()
-                .and_then(|g| g[group_of(&self.on_probation, i)])
-                .unwrap_or((mean, chol));
             for k in 0..2 {
                 let jitter = h * (chol[(k, 0)] * z0 + chol[(k, 1)] * z1);
                 dst[k] = a * th[k] + (1.0 - a) * mean[k] + jitter + shift[k];
@@ -1300,49 +1255,6 @@ impl Rbpf {
 
     /// Weighted mean and covariance of `ln theta`, accumulated about the first particle so
     /// that a collapsed cloud (all particles equal) has exactly zero spread.
-    /// The moments of `ln C` within each group of particles: 0 the published ones, 1 + k
-    /// those on probation for a jump of damper k (`Probation`), each over its own normalised
-    /// weights (`None` for an empty or weightless group).
-    fn group_ln_moments(&self) -> [Option<([f64; 2], Matrix2<f64>)>; 3] {
-        let mut out = [None; 3];
-        for (g, slot) in out.iter_mut().enumerate() {
-            let member = |i: usize| group_of(&self.on_probation, i) == g;
-            let mut total = 0.0;
-            let mut mean = [0.0; 2];
-            let mut origin = None;
-            for (i, (th, lw)) in self.ln_theta.iter().zip(&self.log_w).enumerate() {
-                if !member(i) {
-                    continue;
-                }
-                let o = *origin.get_or_insert(*th);
-                let w = lw.exp();
-                total += w;
-                mean[0] += w * (th[0] - o[0]);
-                mean[1] += w * (th[1] - o[1]);
-            }
-            let Some(o) = origin else { continue };
-            if total <= 0.0 {
-                continue;
-            }
-            let shift = [mean[0] / total, mean[1] / total];
-            let mut cov = Matrix2::zeros();
-            for (i, (th, lw)) in self.ln_theta.iter().zip(&self.log_w).enumerate() {
-                if !member(i) {
-                    continue;
-                }
-                let w = lw.exp() / total;
-                let d = [th[0] - o[0] - shift[0], th[1] - o[1] - shift[1]];
-                for r in 0..2 {
-                    for c in 0..2 {
-                        cov[(r, c)] += w * d[r] * d[c];
-                    }
-                }
-            }
-            *slot = Some(([o[0] + shift[0], o[1] + shift[1]], cov));
-        }
-        out
-    }
-
     fn ln_moments(&self) -> ([f64; 2], Matrix2<f64>) {
         let origin = self.ln_theta[0];
         let mut shift = [0.0; 2];
