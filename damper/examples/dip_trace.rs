@@ -103,7 +103,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         let published = [e.csy.health_ratio, e.csay.health_ratio];
         let t = e.time_s;
+        // Every step below the alarm's threshold (a dip shorter than 10 ms shows too).
+        let below_alarm = published.iter().any(|r| *r < 0.7);
         let show = !events.is_empty()
+            || below_alarm
             || (step.is_multiple_of(10)
                 && (published.iter().any(|r| *r < args.show_below)
                     || (args.window.0..=args.window.1).contains(&t)));

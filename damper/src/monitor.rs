@@ -39,7 +39,8 @@ impl DamperMonitorState {
     /// 5: jump hypotheses on probation, not yet published (`RbpfState`).
     /// 6: each damper's degradation trend (`trends`).
     /// 7: the particles' body masses while none is measured (`RbpfState`).
-    pub const STATE_FORMAT_VERSION: u32 = 7;
+    /// 8: the common state estimated after a pause (`RbpfState`).
+    pub const STATE_FORMAT_VERSION: u32 = 8;
 }
 
 /// Where a monitor is with respect to its valid speed range.
@@ -227,7 +228,9 @@ impl DamperMonitor {
     /// before the posterior learns again. With the jump search, after a pause of at least the
     /// model's slowest time constant the states first restart at rest, as at the filter's
     /// start: the plant has forgotten the state the pause began with, and after a stop it is
-    /// at rest itself. The settling lasts `speed.resume_settle_s` at least, then ends at the
+    /// at rest itself; then the first samples fix a common state for all of them
+    /// (`rbpf::RESUME_INIT_S`: one exact Kalman filter from the plant's stationary spread,
+    /// `rbpf/resume_init.rs`). The settling lasts `speed.resume_settle_s` at least, then ends at the
     /// first [`SETTLE_WINDOW_S`] window whose mean normalised innovation squared is at most
     /// [`SETTLED_NIS_RATIO`] times 5 (the states explain the data again), or after
     /// [`Rbpf::max_resume_settle_s`] (3 time constants of that mode) at the latest.

@@ -416,6 +416,27 @@ impl Bank {
         }
     }
 
+    /// Every filter's state set to `x` (and, exact, its covariance to `p`): the common state
+    /// estimated after a pause (`super::resume_init`).
+    pub(super) fn set_all_states(&mut self, x: &Vector17, p: &Matrix17) {
+        match self {
+            Bank::Exact(b) => {
+                for e in &mut b.est {
+                    e.x = *x;
+                    e.p = *p;
+                }
+            }
+            Bank::Steady(b) => {
+                // The real particles only: the padding stays at zero (`Bank::new`).
+                for s in 0..N_STATES {
+                    for i in 0..b.n {
+                        *at_mut(&mut b.x, N_STATES, s, i) = x[s];
+                    }
+                }
+            }
+        }
+    }
+
     /// Gives particle `dst` the filter state of particle `src` of `from` (a bank of the same
     /// propagation: the sentinels of `super::jump`).
     pub(super) fn copy_particle(&mut self, dst: usize, from: &Bank, src: usize) {

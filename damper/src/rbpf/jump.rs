@@ -304,6 +304,15 @@ impl Sentinels {
         self.bank.reset_states();
     }
 
+    /// Every sentinel's state set to the common state after a pause (`super::resume_init`).
+    pub(super) fn set_all_states(
+        &mut self,
+        x: &crate::model::Vector17,
+        p: &crate::model::Matrix17,
+    ) {
+        self.bank.set_all_states(x, p);
+    }
+
     /// Each sentinel's normalised innovation squared of the last step.
     pub(super) fn nis(&self) -> &[f64] {
         &self.nis

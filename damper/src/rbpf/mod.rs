@@ -18,6 +18,7 @@ mod fast_exp;
 mod jump;
 mod posterior;
 mod propagator;
+mod resume_init;
 mod weights;
 
 use std::borrow::Cow;
@@ -49,6 +50,8 @@ pub use jump::{
 use posterior::SortedParticles;
 pub use posterior::{DamperPosterior, RbpfEstimate};
 pub use propagator::{SparsePropagator, BLOCK};
+use resume_init::ResumeInit;
+pub use resume_init::{ResumeInitState, RESUME_INIT_S};
 use weights::LinearWeights;
 
 /// The fastest wear the filter follows without lagging (1/s of nominal): a damper losing 80 %
@@ -171,6 +174,8 @@ pub struct RbpfState {
     ln_mass: Vec<f64>,
     /// The sentinels' body mass then (kg).
     sentinel_mass_kg: Option<f64>,
+    /// The common state being estimated after a pause (`resume_init`), if it is.
+    resume_init: Option<ResumeInitState>,
 }
 
 /// Whether a particle holds a jump hypothesis not yet published, and of which damper.
@@ -249,6 +254,10 @@ pub struct Rbpf {
     settle_mass_node: i32,
     filter_model: FilterModel,
     speed: SpeedConfig,
+    /// After a pause that restarted the states: the common state being estimated from the
+    /// first samples (`resume_init`), handed to every particle and sentinel after
+    /// [`RESUME_INIT_S`] or when the settling ends, whichever comes first.
+    resume_init: Option<ResumeInit>,
 }
 
 impl Rbpf {
@@ -403,6 +412,7 @@ impl Rbpf {
             settle_mass_node: 0,
             filter_model: *filter_model,
             speed: *speed,
+            resume_init: None,
         })
     }
 
@@ -432,6 +442,7 @@ impl Rbpf {
             decisive_steps: self.decisive_steps,
             ln_mass: self.ln_mass.clone(),
             sentinel_mass_kg: self.sentinel_mass_kg,
+            resume_init: self.resume_init.as_ref().map(ResumeInit::save),
         }
     }
 
@@ -517,6 +528,10 @@ impl Rbpf {
         f.ln_mass_next.clone_from(&state.ln_mass);
         f.ln_mass = state.ln_mass;
         f.sentinel_mass_kg = state.sentinel_mass_kg;
+        f.resume_init = state
+            .resume_init
+            .map(|r| ResumeInit::restore(filter_model, r))
+            .transpose()?;
         f.sorted.stale = true;
         Ok(f)
     }
@@ -533,6 +548,8 @@ impl Rbpf {
                 what: "measurement",
             });
         }
+        // A settling shorter than the common state's window: its state as it is by now.
+        self.hand_over_resume_init();
         self.steps_since_move += 1;
         // With `AtResampling` the parameters stay as they are until a resampling (no copy,
         // no penalty: the step's particles are `ln_theta`).
@@ -1035,6 +1052,36 @@ impl Rbpf {
         if let Some(s) = &mut self.sentinels {
             s.reset_states();
         }
+        let (speed_m_s, mass_kg) = self.bank.schedule();
+        // On failure (a non-finite covariance) the states stay at rest, as before it.
+        self.resume_init =
+            ResumeInit::new(&self.filter_model, self.mean(), speed_m_s, mass_kg).ok();
+    }
+
+    /// Steps the common filter after a pause and, once it has run its window, gives its state
+    /// to every particle and sentinel (`resume_init`).
+    fn step_resume_init(&mut self, y: &Vector5) -> Result<(), DamperError> {
+        let Some(init) = &mut self.resume_init else {
+            return Ok(());
+        };
+        let (speed_m_s, mass_kg) = self.bank.schedule();
+        init.step(y, &self.noise_scale.variance_scale(), speed_m_s, mass_kg)?;
+        if init.steps() as f64 * self.dt_s >= RESUME_INIT_S - 0.5 * self.dt_s {
+            self.hand_over_resume_init();
+        }
+        Ok(())
+    }
+
+    /// Gives the common state after a pause, if one is being estimated, to every particle
+    /// and sentinel.
+    fn hand_over_resume_init(&mut self) {
+        if let Some(init) = self.resume_init.take() {
+            let (x, p) = init.estimate();
+            self.bank.set_all_states(x, p);
+            if let Some(s) = &mut self.sentinels {
+                s.set_all_states(x, p);
+            }
+        }
     }
 
     /// Each hypothesis's normalised innovation squared `e' S^-1 e` of the last step: the
@@ -1071,7 +1118,7 @@ impl Rbpf {
             s.step_states(y, &whiten)?;
         }
         self.bank.commit();
-        Ok(())
+        self.step_resume_init(y)
     }
 
     /// Liu-West (eq. 24) on `ln theta`: `m_i = a theta_i + (1 - a) theta_bar`,
