@@ -10,7 +10,8 @@
 //!
 //! Then it runs the whole RBPF (N = 100, 20 s) exact and steady-state on the same data.
 //!
-//! Run: `CARGO_TARGET_DIR=... cargo bench -p railmon-damper --bench accuracy`.
+//! Run: `CARGO_TARGET_DIR=... cargo bench -p railmon-damper --bench accuracy [-- --speed-m-s V
+//! --csy-ratio R]`.
 
 use std::time::Instant;
 
@@ -23,10 +24,51 @@ use railmon_damper::{
 const SEED: &str = include_str!("../../config/scenarios/damper-seed.toml");
 const DURATION_S: f64 = 20.0;
 
+/// What the flags set: the data's speed and damper (the variants' accuracy at other points).
+struct Args {
+    speed_m_s: Option<f64>,
+    csy_ratio: f64,
+}
+
+impl Args {
+    fn parse() -> Self {
+        let mut args = Args {
+            speed_m_s: None,
+            csy_ratio: 1.0,
+        };
+        let mut it = std::env::args().skip(1);
+        while let Some(flag) = it.next() {
+            let mut value = |what: &str| -> f64 {
+                let v = it.next().unwrap_or_default();
+                v.parse().unwrap_or_else(|_| {
+                    eprintln!("{flag}: expected {what}, got {v:?}\n{USAGE}");
+                    std::process::exit(2)
+                })
+            };
+            match flag.as_str() {
+                "--speed-m-s" => args.speed_m_s = Some(value("a speed in m/s")),
+                "--csy-ratio" => args.csy_ratio = value("a ratio to the nominal C_sy"),
+                // cargo bench passes --bench to every bench binary.
+                "--bench" => {}
+                _ => {
+                    eprintln!("unknown flag {flag}\n{USAGE}");
+                    std::process::exit(2)
+                }
+            }
+        }
+        args
+    }
+}
+
+const USAGE: &str = "usage: cargo bench -p railmon-damper --bench accuracy -- [FLAGS]
+
+--speed-m-s V   the data's (and filters') speed (default: damper-seed.toml's, 45.3 m/s)
+--csy-ratio R   the plant's C_sy at R x nominal (default 1), the likelihood taken about it";
+
 struct Variant {
     name: &'static str,
     propagation: Propagation,
-    taylor_order: usize,
+    taylor_truncation: f64,
     grid_points: usize,
 }
 
@@ -42,7 +84,7 @@ fn log_likelihood(config: &DamperMonitorConfig, v: &Variant, d: &Dampers, ys: &[
     c.rbpf.jump_search.enabled = false;
     c.rbpf.kernel = KernelSchedule::AtResampling;
     c.rbpf.propagation = v.propagation;
-    c.rbpf.taylor_order = v.taylor_order;
+    c.rbpf.taylor_truncation = v.taylor_truncation;
     // The grid is centred on `nominal`: shift it so that theta falls inside a cell, as
     // a particle's parameters do, not on a node.
     c.rbpf.gain_grid = GainGridConfig {
@@ -67,6 +109,11 @@ fn parabola(h: f64, lm: f64, l0: f64, lp: f64) -> (f64, f64) {
 fn main() {
     let mut scenario = DamperScenario::from_toml_str(SEED).expect("seed scenario");
     scenario.duration_s = DURATION_S;
+    let args = Args::parse();
+    if let Some(v) = args.speed_m_s {
+        scenario.vehicle.speed_m_s = v;
+    }
+    scenario.dampers.csy_ns_per_m *= args.csy_ratio;
     let config = scenario.monitor_config();
     let mut sim = BogieSimulator::new(&scenario).expect("simulator");
     let mut ys = vec![];
@@ -77,47 +124,47 @@ fn main() {
         Variant {
             name: "exact",
             propagation: Propagation::Exact,
-            taylor_order: 10,
+            taylor_truncation: 1e-9,
             grid_points: 33,
         },
         Variant {
-            name: "steady, Taylor 8, grid 33 (default)",
+            name: "steady, Taylor to 1e-5, grid 33",
             propagation: Propagation::SteadyState,
-            taylor_order: 8,
+            taylor_truncation: 1e-5,
             grid_points: 33,
         },
         Variant {
-            name: "steady, Taylor 10, grid 33",
+            name: "steady, Taylor to 1e-9, grid 33 (default)",
             propagation: Propagation::SteadyState,
-            taylor_order: 10,
+            taylor_truncation: 1e-9,
             grid_points: 33,
         },
         Variant {
-            name: "steady, Taylor 12, grid 65",
+            name: "steady, Taylor to 1e-9, grid 65",
             propagation: Propagation::SteadyState,
-            taylor_order: 12,
+            taylor_truncation: 1e-9,
             grid_points: 65,
         },
         Variant {
-            name: "steady, Taylor 6, grid 33",
+            name: "steady, Taylor to 1e-4, grid 33",
             propagation: Propagation::SteadyState,
-            taylor_order: 6,
+            taylor_truncation: 1e-4,
             grid_points: 33,
         },
         Variant {
-            name: "steady, Taylor 1 (I + A T), grid 33",
+            name: "steady, Taylor to 1e-3, grid 33",
             propagation: Propagation::SteadyState,
-            taylor_order: 1,
+            taylor_truncation: 1e-3,
             grid_points: 33,
         },
         Variant {
-            name: "steady, Taylor 10, grid 9",
+            name: "steady, Taylor to 1e-5, grid 9",
             propagation: Propagation::SteadyState,
-            taylor_order: 10,
+            taylor_truncation: 1e-5,
             grid_points: 9,
         },
     ];
-    let truth = Dampers::NOMINAL;
+    let truth = scenario.dampers;
     let steps = [("csy", 0.02), ("csay", 0.05)];
     println!("Log-likelihood of {DURATION_S} s of damper-seed.toml, per-particle filter variants:");
     println!(

@@ -241,7 +241,10 @@ mod tests {
             with_rbpf(|r| r.regeneration_weight = 0.0),
             "rbpf.regeneration_weight",
         );
-        rejects(with_rbpf(|r| r.taylor_order = 0), "rbpf.taylor_order");
+        rejects(
+            with_rbpf(|r| r.taylor_truncation = 0.0),
+            "rbpf.taylor_truncation",
+        );
         rejects(
             with_rbpf(|r| r.gain_grid.points_per_axis = 1),
             "rbpf.gain_grid.points_per_axis",

@@ -38,15 +38,15 @@ track_velocity_std_m_s = 0.1
 /// `speed.min_m_s` after the stop, when the filter learnt again after it, and the
 /// `damper_degraded` events `(time, damper)`.
 fn run(s: &DamperScenario) -> (f64, f64, Vec<(f64, DamperId)>) {
-    let (moving_off_s, learning_s, degraded, _) = run_to_end(s);
+    let (moving_off_s, learning_s, degraded, _) = run_to_end(s, 1);
     (moving_off_s, learning_s, degraded)
 }
 
-/// [`run`], and the final estimate.
-fn run_to_end(s: &DamperScenario) -> (f64, f64, Vec<(f64, DamperId)>, DamperEstimate) {
+/// [`run`] with the filter seeded for bogie `bogie`, and the final estimate.
+fn run_to_end(s: &DamperScenario, bogie: u32) -> (f64, f64, Vec<(f64, DamperId)>, DamperEstimate) {
     let mut config = s.monitor_config();
     config.rbpf.particles = 100;
-    let mut monitor = DamperMonitor::for_bogie(&config, 1, None).unwrap();
+    let mut monitor = DamperMonitor::for_bogie(&config, bogie, None).unwrap();
     let mut alarms = DamperAlarm::pair(&config.alarm, &config.filter_model(), [false; 2]);
     let mut sim = BogieSimulator::new(s).unwrap();
     let (mut moving_off_s, mut learning_s) = (None, None);
@@ -106,16 +106,19 @@ fn a_healthy_bogie_comes_through_a_stop_without_an_alarm() {
 }
 
 /// Passengers board at the stop (issue 24 item 1): the body above the bogie goes from the
-/// design 13 t to 16.9 t (1.3 x) at 14 s, the train standing. With the mass measured the
-/// filter follows it: no alarm, and `C_sy` within 3 % of the truth at the end, 11 s after
-/// moving off. Withheld, the particles carrying the mass (`rbpf.unmeasured_mass`), it is
-/// found again after the stop by the particles regenerated from the mass prior: `C_sy` within
-/// 3 % (measured +1.40 %) and no alarm. Withheld with the design mass kept (that setting
-/// off) the heavier body's slower sway reads as a weaker `C_sy` (-22.8 % on 27 Nov): more
+/// design 13 t to 16.9 t (1.3 x) at 14 s, the train standing.
+fn boarding_at_the_stop() -> DamperScenario {
+    scenario("[load]\nchanges_kg = [[14.0, 16900.0]]")
+}
+
+/// [`boarding_at_the_stop`]: with the mass measured the filter follows it: no alarm, and
+/// `C_sy` within 3 % of the truth at the end, 11 s after moving off (filter seeds 1-7:
+/// -0.6 .. +1.1 %). Withheld with the design mass kept (`rbpf.unmeasured_mass.enabled =
+/// false`) the heavier body's slower sway reads as a weaker `C_sy` (-22.8 % on 27 Nov): more
 /// than 3 % off, so the test fails if the input stops mattering.
 #[test]
 fn a_load_change_at_a_stop_is_followed_when_measured() {
-    let mut s = scenario("[load]\nchanges_kg = [[14.0, 16900.0]]");
+    let mut s = boarding_at_the_stop();
     let mut sim = BogieSimulator::new(&s).unwrap();
     let mut masses = vec![];
     while let Some((y, truth)) = sim.step() {
@@ -130,7 +133,7 @@ fn a_load_change_at_a_stop_is_followed_when_measured() {
     }
     assert_eq!(masses, [Some(13000.0), Some(16900.0)]);
     let truth = s.dampers;
-    let (_, _, degraded, e) = run_to_end(&s);
+    let (_, _, degraded, e) = run_to_end(&s, 1);
     let error = |e: &DamperEstimate| e.csy.mean_ns_per_m / truth.csy_ns_per_m - 1.0;
     eprintln!(
         "measured: C_sy {:+.2} %, C_say {:+.2} %",
@@ -141,17 +144,8 @@ fn a_load_change_at_a_stop_is_followed_when_measured() {
     assert_eq!(e.measured_half_body_mass_kg, Some(16900.0));
     assert!(error(&e).abs() < 0.03, "C_sy measured: {:+.3}", error(&e));
     s.load.measured = false;
-    let (_, _, degraded, withheld) = run_to_end(&s);
-    eprintln!("withheld: C_sy {:+.2} %", 100.0 * error(&withheld));
-    assert_eq!(withheld.measured_half_body_mass_kg, None);
-    assert!(degraded.is_empty(), "withheld: {degraded:?}");
-    assert!(
-        error(&withheld).abs() < 0.03,
-        "C_sy withheld: {:+.3}",
-        error(&withheld)
-    );
     s.monitor.rbpf.unmeasured_mass.enabled = false;
-    let (_, _, _, design) = run_to_end(&s);
+    let (_, _, _, design) = run_to_end(&s, 1);
     eprintln!(
         "withheld, design mass: C_sy {:+.2} %",
         100.0 * error(&design)
@@ -161,4 +155,34 @@ fn a_load_change_at_a_stop_is_followed_when_measured() {
         "C_sy withheld, design mass: {:+.3}",
         error(&design)
     );
+}
+
+/// [`boarding_at_the_stop`] with the mass withheld, the particles carrying their own
+/// (`rbpf.unmeasured_mass`): found again after the stop by the particles regenerated from
+/// the mass prior, `C_sy` within 3 % and no alarm, for every filter seed. **Fails (issue 24
+/// item 1, open)**: N = 100, filter seeds (bogies) 1-7, `C_sy` at the end +1.4, -3.5 (and a
+/// false `damper_degraded` at 19.4 s), -5.2, -17.8, -2.2, +2.3, -0.9 % (29 Nov): the heavier
+/// body and a weaker `C_sy` lie on a ridge of the likelihood, and after the stop the cloud
+/// settles on it where its first draws fall. Until 29 Nov only seed 1 was run, in CI, and
+/// passed. `cargo test --release -p railmon-damper --test stop -- --ignored`.
+#[test]
+#[ignore = "issue 24 item 1: fails on 3 of 7 filter seeds (run with --ignored)"]
+fn a_load_change_at_a_stop_is_found_again_when_withheld_for_every_seed() {
+    let mut s = boarding_at_the_stop();
+    s.load.measured = false;
+    let truth = s.dampers.csy_ns_per_m;
+    let mut failed = vec![];
+    for bogie in 1..=7 {
+        let (_, _, degraded, e) = run_to_end(&s, bogie);
+        let error = e.csy.mean_ns_per_m / truth - 1.0;
+        eprintln!(
+            "seed {bogie}: C_sy {:+.2} %, alarms {degraded:?}",
+            100.0 * error
+        );
+        assert_eq!(e.measured_half_body_mass_kg, None);
+        if error.abs() >= 0.03 || !degraded.is_empty() {
+            failed.push((bogie, error, degraded));
+        }
+    }
+    assert!(failed.is_empty(), "{failed:?}");
 }

@@ -29,7 +29,7 @@ pub enum Propagation {
     /// full covariance predict and Joseph update. The reference; ~100x too slow for 1 kHz.
     Exact,
     /// Per particle: `Phi(theta) x` by a Taylor series of the sparse `A(theta)` (exact to
-    /// `taylor_order`), and the steady-state gain and innovation covariance of its `theta`,
+    /// `taylor_truncation`), and the steady-state gain and innovation covariance of its `theta`,
     /// interpolated bilinearly on a log-parameter grid of Riccati solutions.
     #[default]
     SteadyState,
@@ -93,12 +93,12 @@ impl Bank {
 
     /// `n` per-particle filters of `filter_model`, every state at rest (`x0 = 0`),
     /// propagated as `propagation` says: steady-state needs the gain table `table` (the
-    /// caller builds it when it was not given one) and the Taylor order `taylor_order`.
+    /// caller builds it when it was not given one) and the Taylor series' `taylor_truncation`.
     pub(super) fn new(
         filter_model: &FilterModel,
         n: usize,
         propagation: Propagation,
-        taylor_order: usize,
+        taylor_truncation: f64,
         table: Option<Arc<GainTable>>,
     ) -> Result<Self, DamperError> {
         let model = filter_model.bogie_model()?;
@@ -134,7 +134,7 @@ impl Bank {
                 let blocks = n.div_ceil(BLOCK);
                 Bank::Steady(Box::new(SteadyBank {
                     n,
-                    prop: SparsePropagator::new(&model, filter_model.dt_s, taylor_order)?,
+                    prop: SparsePropagator::new(&model, filter_model.dt_s, taylor_truncation)?,
                     grid: table.grid_at(grid_node)?,
                     grid_node,
                     table,

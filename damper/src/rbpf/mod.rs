@@ -336,7 +336,13 @@ impl Rbpf {
             (_, table) => table,
         };
         let bank_of = |n: usize, table: Option<Arc<GainTable>>| {
-            Bank::new(filter_model, n, cfg.propagation, cfg.taylor_order, table)
+            Bank::new(
+                filter_model,
+                n,
+                cfg.propagation,
+                cfg.taylor_truncation,
+                table,
+            )
         };
         let sentinels = if cfg.jump_search.enabled {
             let centre = Dampers {
