@@ -370,9 +370,6 @@ pub struct TemporalEstimator {
     /// Per drive, the weight its slip level has learnt from; 0 once it adheres and its
     /// estimate is back within the tolerance (no level to judge against).
     slip_level_weight: Vec<f64>,
-    /// Per drive, adhering steps since it was last flagged (p > 0.5; saturates at the spread's
-    /// memory): until one memory has passed it learns nothing (the level from before).
-    steps_since_flagged: Vec<f64>,
     /// Filtered slip probability per drive (the chain's state).
     probability: Vec<f64>,
     /// Steps seen so far (saturates at `warmup_steps`).
@@ -397,7 +394,6 @@ impl TemporalEstimator {
             last_excess_nm: vec![0.0; n_drives],
             slip_level_nm: vec![0.0; n_drives],
             slip_level_weight: vec![0.0; n_drives],
-            steps_since_flagged: vec![f64::INFINITY; n_drives],
             steps: 0,
             probability: vec![0.0; n_drives],
             sorted: Vec::with_capacity(n_drives),
@@ -557,13 +553,7 @@ impl TemporalEstimator {
             let candidate_loss = warm
                 && c.significance_sigmas > 0.0
                 && toward * d < -c.significance_sigmas * s2.sqrt();
-            // A drive flagged within the spread's memory learns nothing: judged against the
-            // level it had before its departure started (draw 1117 drive 1, a shallow ramp:
-            // between flags it learnt the loss, s_i 0.10 -> 0.20 N m, b_i -> -0.35 N m).
-            let since = &mut self.steps_since_flagged[k];
-            *since = if p > 0.5 { 0.0 } else { *since + 1.0 };
-            let held = *since < memory;
-            let w = if reference_suspect || candidate_loss || held {
+            let w = if reference_suspect || candidate_loss {
                 0.0
             } else {
                 (-0.5 * d * d / (h2 * *s2)).exp() * (1.0 - p)
