@@ -709,15 +709,15 @@ fn oracle(flags: &[bool], truth: &[bool]) -> Vec<bool> {
 /// Fitted edges: (which: 1 release, 2 onset, 3 both; the EKF's time constant in steps; the
 /// fit generalised (the departure's AR(1) noise whitened) or ordinary; a release only moved
 /// earlier (within the look-ahead the line has)).
-/// (which, tau (0: the EKF's measured response), gls, each window cut at the departure's
-/// apex, the fitted depth at most this many tolerances (0: any)).
-const FIT_EDGES: [(u8, f64, bool, bool, f64); 6] = [
-    (3, 0.0, true, false, 3.0),
-    (3, 0.0, true, false, 0.0),
-    (3, 0.0, true, true, 0.0),
-    (3, 0.0, true, true, 3.0),
-    (1, 0.0, true, true, 0.0),
-    (2, 0.0, true, true, 0.0),
+/// (which, tau (0: the EKF's measured response), gls, episodes up to this long (0: all), the
+/// fitted depth at most this many tolerances (0: any)).
+/// (which, tau (0: the EKF's measured response), gls, episodes up to this long (0: all), the
+/// fitted depth at most this many tolerances (0: any)). Chosen on tuning: the first.
+const FIT_EDGES: [(u8, f64, bool, usize, f64); 4] = [
+    (3, 0.0, true, 0, 3.0),
+    (3, 0.0, true, 0, 4.0),
+    (3, 0.0, true, 200, 0.0),
+    (3, 0.0, true, 0, 0.0),
 ];
 
 /// The EKF's torque estimate after a sharp load step of 1 at step 0, noise-free (the monitor's
@@ -892,7 +892,7 @@ fn fit_edges(
     which: u8,
     tau: f64,
     gls: bool,
-    from_peak: bool,
+    max_len: usize,
     max_depth: f64,
 ) -> Vec<bool> {
     let n = flags.len();
@@ -909,20 +909,15 @@ fn fit_edges(
         // Departure towards zero, positive for a loss.
         let dep = |t: usize| dir * (healthy[t][k] - raw[t]);
         let (mut a2, mut b2) = (a, b);
-        // The departure's 15-step centred mean; its highest step in a range (a ramp's apex).
-        let peak = |r: std::ops::Range<usize>| -> usize {
-            let sm = |t: usize| {
-                let (l, h) = (t.saturating_sub(7), (t + 8).min(n));
-                (l..h).map(dep).sum::<f64>() / (h - l) as f64
-            };
-            r.max_by(|&x, &y| sm(x).total_cmp(&sm(y))).unwrap()
-        };
+        if max_len > 0 && b - a > max_len {
+            for f in out.iter_mut().take(b).skip(a) {
+                *f = true;
+            }
+            continue;
+        }
         if which & 2 != 0 {
             let lo = a.saturating_sub(48);
-            let mut hi = (a + 64).min(n);
-            if from_peak && a + 1 < hi {
-                hi = peak(a + 1..hi) + 1;
-            }
+            let hi = (a + 64).min(n);
             let u: Vec<f64> = (lo..hi).map(dep).collect();
             if let Some(x) = fit_edge(&u, lo, tol, true, tau, rho, max_depth) {
                 a2 = (x.round().max(0.0) as usize).clamp(a.saturating_sub(48), a + 48);
@@ -935,7 +930,6 @@ fn fit_edges(
             } else {
                 b.saturating_sub(112)
             };
-            let lo = if from_peak && lo < b { peak(lo..b) } else { lo };
             let hi = (b + 48).min(n);
             let u: Vec<f64> = (lo..hi).map(dep).collect();
             if let Some(x) = fit_edge(&u, lo, tol, false, tau, rho, max_depth) {
@@ -1215,7 +1209,7 @@ fn lag_scores(v: &LagViews, slipping: &[usize], healthy: &[usize]) -> (LagScores
             })
             .collect();
         out.push((
-            format!("stage, fitted edges {which} tau {tau} gls {gls} apex {early} depth {depth}"),
+            format!("stage, fitted edges {which} tau {tau} gls {gls} under {early} depth {depth}"),
             sc.iter().map(|s| s.0).collect(),
             h,
             sc.iter().map(|s| s.3).collect(),
