@@ -381,9 +381,7 @@ fn run(draw: Draw, method: Option<AdhesionMethod>, lag_study: bool) -> Outcome {
     let lag = lag.map(|l| {
         let ks: Vec<usize> = slipping.iter().map(|s| s.drive).collect();
         let hs: Vec<usize> = healthy.iter().map(|h| h.0).collect();
-        let own = templates_of(&draw_response(scenario));
-        let bank = bank_tables(scenario);
-        lag_scores(&l.finish(), &ks, &hs, &own, &bank)
+        lag_scores(&l.finish(), &ks, &hs)
     });
     Outcome {
         draw,
@@ -708,386 +706,6 @@ fn oracle(flags: &[bool], truth: &[bool]) -> Vec<bool> {
     out
 }
 
-/// Fitted edges: (which: 1 release, 2 onset, 3 both; the EKF's time constant in steps; the
-/// fit generalised (the departure's AR(1) noise whitened) or ordinary; a release only moved
-/// earlier (within the look-ahead the line has)).
-/// (which, tau (0: the EKF's measured response, -1: the draw's own, an oracle, -2: the
-/// candidate plant's that fits the draw's edges best), gls, episodes up to this long (0: all),
-/// the fitted depth at most this many tolerances (0: any)).
-const FIT_EDGES: [(u8, f64, bool, usize, f64); 4] = [
-    (3, 0.0, true, 0, 3.0),
-    (3, 0.0, true, 0, 0.0),
-    (3, -1.0, true, 0, 0.0),
-    (3, -2.0, true, 0, 0.0),
-];
-
-/// The EKF's torque estimate after a sharp load step of 1 at step 0, noise-free (the monitor's
-/// default EKF; identical to 4 digits at 5, 20, 40 and -20 N m, onset and release): dead time,
-/// 50 % at 22 steps, 7.6 % overshoot at 52 (a second-order response, not a first-order lag).
-const EKF_STEP: [f64; 251] = [0.00000, 0.00000, 0.00080, 0.00310, 0.00740, 0.01400, 0.02330, 0.03530, 0.05030, 0.06820, 0.08890, 0.11230, 0.13830, 0.16660, 0.19720, 0.22960, 0.26370, 0.29920, 0.33580, 0.37320, 0.41130, 0.44960, 0.48800, 0.52630, 0.56410, 0.60130, 0.63780, 0.67330, 0.70760, 0.74080, 0.77250, 0.80280, 0.83150, 0.85850, 0.88400, 0.90770, 0.92970, 0.95000, 0.96850, 0.98540, 1.00070, 1.01430, 1.02630, 1.03690, 1.04600, 1.05370, 1.06010, 1.06540, 1.06940, 1.07240, 1.07450, 1.07560, 1.07590, 1.07550, 1.07440, 1.07270, 1.07060, 1.06790, 1.06500, 1.06170, 1.05810, 1.05440, 1.05050, 1.04660, 1.04260, 1.03860, 1.03460, 1.03070, 1.02690, 1.02320, 1.01970, 1.01630, 1.01310, 1.01000, 1.00720, 1.00460, 1.00210, 0.99990, 0.99790, 0.99610, 0.99450, 0.99310, 0.99190, 0.99080, 0.99000, 0.98930, 0.98880, 0.98840, 0.98810, 0.98800, 0.98800, 0.98810, 0.98830, 0.98850, 0.98890, 0.98930, 0.98970, 0.99020, 0.99080, 0.99140, 0.99190, 0.99250, 0.99310, 0.99380, 0.99440, 0.99500, 0.99550, 0.99610, 0.99660, 0.99720, 0.99770, 0.99810, 0.99860, 0.99900, 0.99940, 0.99970, 1.00000, 1.00030, 1.00060, 1.00080, 1.00100, 1.00120, 1.00130, 1.00140, 1.00150, 1.00160, 1.00170, 1.00170, 1.00170, 1.00170, 1.00170, 1.00170, 1.00160, 1.00160, 1.00150, 1.00140, 1.00140, 1.00130, 1.00120, 1.00110, 1.00100, 1.00100, 1.00090, 1.00080, 1.00070, 1.00060, 1.00050, 1.00050, 1.00040, 1.00030, 1.00020, 1.00020, 1.00010, 1.00010, 1.00000, 1.00000, 0.99990, 0.99990, 0.99990, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99980, 0.99990, 0.99990, 0.99990, 0.99990, 0.99990, 0.99990, 0.99990, 0.99990, 0.99990, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000, 1.00000];
-
-const FIT_SIGMAS: [f64; 6] = [0.0, 10.0, 20.0, 30.0, 45.0, 60.0];
-const TEMPLATE_SPAN: usize = 400;
-
-/// Per smoothing of `FIT_SIGMAS`, [`ekf_template`] at offsets `-TEMPLATE_SPAN..=TEMPLATE_SPAN`.
-fn ekf_templates() -> &'static Vec<Vec<f64>> {
-    static T: std::sync::OnceLock<Vec<Vec<f64>>> = std::sync::OnceLock::new();
-    T.get_or_init(|| {
-        FIT_SIGMAS
-            .iter()
-            .map(|&s| {
-                (0..=2 * TEMPLATE_SPAN)
-                    .map(|j| ekf_template(j as f64 - TEMPLATE_SPAN as f64, s))
-                    .collect()
-            })
-            .collect()
-    })
-}
-
-/// Tables as [`ekf_templates`] of a draw's own response.
-fn templates_of(resp: &[f64]) -> Vec<Vec<f64>> {
-    FIT_SIGMAS
-        .iter()
-        .map(|&s| {
-            (0..=2 * TEMPLATE_SPAN)
-                .map(|j| response_template(resp, j as f64 - TEMPLATE_SPAN as f64, s))
-                .collect()
-        })
-        .collect()
-}
-
-/// The EKF's estimate (monitor as configured) after a sharp 50 % load drop on the draw's own
-/// plant, noise-free: the response an oracle on the plant would template (normalised).
-fn draw_response(sc: &railmon_slip::AdhesionScenario) -> Vec<f64> {
-    plant_response(sc, None)
-}
-
-/// [`draw_response`] with the motor replaced by the nominal one scaled (`J`, `Psi_pm`, `L_s`).
-fn plant_response(sc: &railmon_slip::AdhesionScenario, scale: Option<(f64, f64, f64)>) -> Vec<f64> {
-    let mut s = sc.clone();
-    if let Some((j, psi, l)) = scale {
-        let m = &mut s.plant.motor;
-        m.r_s_ohm = 0.28;
-        m.inertia_kg_m2 = 0.04 * j;
-        m.psi_pm_wb = 0.1989 * psi;
-        m.l_s_h = 3.465e-3 * l;
-    }
-    let level = s.load.levels_nm[0];
-    let level = if level.abs() > 3.0 { level } else { 20.0 };
-    s.n_drives = 2;
-    s.n_steps = 4400;
-    s.noise.current_std_a = 0.0;
-    s.noise.voltage_std_v = 0.0;
-    s.noise.load_std_nm = 0.0;
-    s.load = railmon_slip::scenario::LoadProfile {
-        levels_nm: vec![level],
-        switch_steps: vec![],
-        smoothing_steps: 0.0,
-        drive_scale: vec![],
-    };
-    s.events = vec![railmon_slip::scenario::SlipEvent::Drop {
-        drive: 1,
-        start_step: 4000.0,
-        end_step: 5000.0,
-        remaining_fraction: 0.5,
-        smoothing_steps: Some(0.0),
-    }];
-    s.train_speed = None;
-    let config = s.monitor_config();
-    let mut sim = DriveSimulator::new(&s).expect("simulator");
-    let mut bank =
-        railmon_slip::EkfBank::new(config.model().expect("model"), &config.ekf, 2).expect("bank");
-    let mut x = Vec::new();
-    while let Some((samples, _)) = sim.step() {
-        bank.step(samples).expect("step");
-        x.push(bank.filters()[0].torque_nm());
-    }
-    let base: f64 = x[3990..4000].iter().sum::<f64>() / 10.0;
-    (4000..4400).map(|t| (base - x[t]) / (0.5 * level)).collect()
-}
-
-/// Candidate plants (the sampler's +-10 % on `J`, `Psi_pm`, `L_s`) on the draw's controller
-/// and sub-steps: their responses' template tables.
-fn bank_tables(sc: &railmon_slip::AdhesionScenario) -> Vec<Vec<Vec<f64>>> {
-    let mut out = Vec::new();
-    for j in [0.9, 1.0, 1.1] {
-        for psi in [0.9, 1.0, 1.1] {
-            for l in [0.9, 1.1] {
-                out.push(templates_of(&plant_response(sc, Some((j, psi, l)))));
-            }
-        }
-    }
-    out
-}
-
-/// The least whitened squared error of one edge's window against `tables` (over the edge's
-/// time and smoothing).
-fn edge_sse(u: &[f64], rising: bool, rho: f64, tables: &[Vec<f64>]) -> f64 {
-    let len = u.len();
-    let uw: Vec<f64> = (1..len).map(|i| u[i] - rho * u[i - 1]).collect();
-    let uu: f64 = uw.iter().map(|x| x * x).sum();
-    let mut best = uu;
-    let mut table = vec![0.0; 2 * len + 1];
-    for t in tables {
-        for (j, g) in table.iter_mut().enumerate() {
-            let f = t[(j + TEMPLATE_SPAN).saturating_sub(len)];
-            *g = if rising { f } else { 1.0 - f };
-        }
-        for e in 0..len {
-            let (mut ut, mut tt) = (0.0, 0.0);
-            for i in 1..len {
-                let g = table[i + len - e] - rho * table[i - 1 + len - e];
-                ut += uw[i - 1] * g;
-                tt += g * g;
-            }
-            if tt > 1e-9 && ut > 0.0 {
-                best = best.min(uu - ut * ut / tt);
-            }
-        }
-    }
-    best
-}
-
-/// The candidate whose response fits every edge of the draw's episodes best (summed).
-fn choose_response(v: &LagViews, drives: &[usize], bank: &[Vec<Vec<f64>>]) -> usize {
-    let stage = &v.views.iter().find(|x| x.0 == "library stage").unwrap().1;
-    let mut total = vec![0.0; bank.len()];
-    for &k in drives {
-        let flags = &stage[k];
-        let n = flags.len();
-        let rho = departure_rho(flags, &v.raw_x[k], &v.healthy, k);
-        for (a, b) in runs(flags) {
-            let level = v.healthy[a.min(n - 1)][k];
-            let dir = if level >= 0.0 { 1.0 } else { -1.0 };
-            let dep = |t: usize| dir * (v.healthy[t][k] - v.raw_x[k][t]);
-            let on: Vec<f64> = (a.saturating_sub(48)..(a + 64).min(n)).map(dep).collect();
-            let lo = b.saturating_sub(112).max((a + 16).min(b.saturating_sub(32)));
-            let off: Vec<f64> = (lo..(b + 48).min(n)).map(dep).collect();
-            for (c, t) in bank.iter().enumerate() {
-                total[c] += edge_sse(&on, true, rho, t) + edge_sse(&off, false, rho, t);
-            }
-        }
-    }
-    (0..bank.len())
-        .min_by(|&x, &y| total[x].total_cmp(&total[y]))
-        .unwrap_or(7)
-}
-
-/// The EKF's estimate of a load step at 0 smoothed by a normal CDF of scale `sigma`.
-fn ekf_template(d: f64, sigma: f64) -> f64 {
-    response_template(&EKF_STEP, d, sigma)
-}
-
-/// A step response `resp` (from step 0) of a load step at 0 smoothed by a normal CDF.
-fn response_template(resp: &[f64], d: f64, sigma: f64) -> f64 {
-    use railmon_slip::adhesion::temporal::normal_cdf;
-    let h = |j: i64| -> f64 {
-        if j < 0 {
-            0.0
-        } else {
-            resp[(j as usize).min(resp.len() - 1)]
-        }
-    };
-    if sigma < 1e-6 {
-        return h(d.floor() as i64);
-    }
-    // Sum over the response's increments of the smoothed step's CDF.
-    // g(d) = sum_j (h(j) - h(j - 1)) Phi((d - j) / sigma); Phi is 1 below d - 8 sigma.
-    let lo = ((d - 8.0 * sigma).floor() as i64).clamp(0, resp.len() as i64);
-    let hi = ((d + 8.0 * sigma).ceil() as i64 + 1).clamp(0, resp.len() as i64);
-    let mut g = h(lo - 1);
-    for j in lo..hi {
-        let dh = h(j) - h(j - 1);
-        g += dh * normal_cdf((d - j as f64) / sigma);
-    }
-    // The response's tail beyond the table is flat at its last value.
-    g
-}
-
-/// CDF of a normal (scale `sigma`) convolved with an exponential (time constant `tau`): the
-/// EKF's estimate (a first-order lag) of a load step smoothed by a normal CDF (the sampler's
-/// edges). Exponentially modified Gaussian CDF.
-fn exgauss_cdf(t: f64, sigma: f64, tau: f64) -> f64 {
-    use railmon_slip::adhesion::temporal::normal_cdf;
-    let sigma = sigma.max(1e-3);
-    let z = t / sigma;
-    let e = (-t / tau + 0.5 * sigma * sigma / (tau * tau)).min(700.0);
-    (normal_cdf(z) - e.exp() * normal_cdf(z - sigma / tau)).clamp(0.0, 1.0)
-}
-
-fn normal_quantile(p: f64) -> f64 {
-    use railmon_slip::adhesion::temporal::normal_cdf;
-    let (mut lo, mut hi) = (-8.0, 8.0);
-    for _ in 0..60 {
-        let m = 0.5 * (lo + hi);
-        if normal_cdf(m) < p {
-            lo = m
-        } else {
-            hi = m
-        }
-    }
-    0.5 * (lo + hi)
-}
-
-/// One edge of an episode: the least-squares fit of `D F((t - e) / .)` (onset) or
-/// `D (1 - F(.))` (release) to the raw departure `u_t` over `[lo, hi)`, over the edge's time
-/// `e` and smoothing `sigma` (D in closed form); the step at which the fitted true departure
-/// crosses the slip rule's tolerance.
-fn fit_edge(
-    u: &[f64],
-    lo: usize,
-    tol: f64,
-    rising: bool,
-    tau: f64,
-    rho: f64,
-    max_depth: f64,
-    own: &[Vec<f64>],
-) -> Option<f64> {
-    let len = u.len();
-    // Generalised least squares under AR(1) noise of lag-1 correlation `rho`: data and
-    // template whitened by `w_i = v_i - rho v_(i-1)` (rho 0: ordinary least squares).
-    let uw: Vec<f64> = (1..len).map(|i| u[i] - rho * u[i - 1]).collect();
-    let uu: f64 = uw.iter().map(|x| x * x).sum();
-    let mut best = (f64::INFINITY, 0.0, 0.0, 0.0);
-    let mut table = vec![0.0; 2 * len + 1];
-    for (si, sigma) in FIT_SIGMAS.into_iter().enumerate() {
-        // table[d + len]: the template at offset d from the edge.
-        for (j, g) in table.iter_mut().enumerate() {
-            let f = if tau < 0.0 {
-                own[si][(j + TEMPLATE_SPAN).saturating_sub(len)]
-            } else if tau == 0.0 {
-                ekf_templates()[si][(j + TEMPLATE_SPAN).saturating_sub(len)]
-            } else {
-                exgauss_cdf(j as f64 - len as f64, sigma, tau)
-            };
-            *g = if rising { f } else { 1.0 - f };
-        }
-        for e in 0..len {
-            let (mut ut, mut tt) = (0.0, 0.0);
-            for i in 1..len {
-                let g = table[i + len - e] - rho * table[i - 1 + len - e];
-                ut += uw[i - 1] * g;
-                tt += g * g;
-            }
-            if tt < 1e-9 {
-                continue;
-            }
-            let sse = uu - ut * ut / tt;
-            if sse < best.0 {
-                best = (sse, e as f64, sigma, ut / tt);
-            }
-        }
-    }
-    let (_, e, sigma, d) = best;
-    if d <= tol || (max_depth > 0.0 && d > max_depth * tol) {
-        return None;
-    }
-    // The smoothed step's departure crosses the tolerance where D Phi(z) = tol (onset) or
-    // D (1 - Phi(z)) = tol (release).
-    let z = if rising {
-        normal_quantile(tol / d)
-    } else {
-        normal_quantile(1.0 - tol / d)
-    };
-    Some(lo as f64 + e + sigma * z)
-}
-
-/// Lag-1 correlation of drive `k`'s raw departure from its healthy level on steps at least
-/// 200 from any flag of the stage (healthy by its judgement).
-fn departure_rho(flags: &[bool], raw: &[f64], healthy: &[Vec<f64>], k: usize) -> f64 {
-    let n = flags.len();
-    let mut near = vec![false; n];
-    for (a, b) in runs(flags) {
-        for f in &mut near[a.saturating_sub(200)..(b + 200).min(n)] {
-            *f = true;
-        }
-    }
-    // Skip the warm-up.
-    let d: Vec<Option<f64>> = (0..n)
-        .map(|t| (t >= 2000 && !near[t]).then(|| raw[t] - healthy[t][k]))
-        .collect();
-    let (mut s0, mut s1, mut m, mut c) = (0.0, 0.0, 0.0, 0usize);
-    for x in d.iter().flatten() {
-        m += x;
-        c += 1;
-    }
-    if c < 100 {
-        return 0.9;
-    }
-    m /= c as f64;
-    for t in 1..n {
-        if let (Some(a), Some(b)) = (d[t - 1], d[t]) {
-            s0 += (a - m) * (a - m);
-            s1 += (a - m) * (b - m);
-        }
-    }
-    (s1 / s0).clamp(0.0, 0.995)
-}
-
-fn fit_edges(
-    flags: &[bool],
-    raw: &[f64],
-    healthy: &[Vec<f64>],
-    k: usize,
-    which: u8,
-    tau: f64,
-    gls: bool,
-    max_len: usize,
-    max_depth: f64,
-    own: &[Vec<f64>],
-) -> Vec<bool> {
-    let n = flags.len();
-    let rho = if gls {
-        departure_rho(flags, raw, healthy, k)
-    } else {
-        0.0
-    };
-    let mut out = vec![false; n];
-    for (a, b) in runs(flags) {
-        let level = healthy[a.min(n - 1)][k];
-        let tol = (0.1 * level.abs()).max(0.5);
-        let dir = if level >= 0.0 { 1.0 } else { -1.0 };
-        // Departure towards zero, positive for a loss.
-        let dep = |t: usize| dir * (healthy[t][k] - raw[t]);
-        let (mut a2, mut b2) = (a, b);
-        if max_len > 0 && b - a > max_len {
-            for f in out.iter_mut().take(b).skip(a) {
-                *f = true;
-            }
-            continue;
-        }
-        if which & 2 != 0 {
-            let lo = a.saturating_sub(48);
-            let hi = (a + 64).min(n);
-            let u: Vec<f64> = (lo..hi).map(dep).collect();
-            if let Some(x) = fit_edge(&u, lo, tol, true, tau, rho, max_depth, own) {
-                a2 = (x.round().max(0.0) as usize).clamp(a.saturating_sub(48), a + 48);
-            }
-        }
-        if which & 1 != 0 {
-            // Generalised fits start after the onset's rise (a shorter pulse is no step).
-            let lo = if gls {
-                b.saturating_sub(112).max((a + 16).min(b.saturating_sub(32)))
-            } else {
-                b.saturating_sub(112)
-            };
-            let hi = (b + 48).min(n);
-            let u: Vec<f64> = (lo..hi).map(dep).collect();
-            if let Some(x) = fit_edge(&u, lo, tol, false, tau, rho, max_depth, own) {
-                let latest = if gls { b } else { b + 48 };
-                b2 = (x.round().max(0.0) as usize).clamp(b.saturating_sub(48), latest);
-            }
-        }
-        if std::env::var("EDGE_DEBUG").is_ok() && tau == 0.0 && gls && which == 3 {
-            eprintln!("drive {k} rho {rho:.3} stage [{a}, {b}) fitted [{a2}, {b2})");
-        }
-        for f in out.iter_mut().take(b2.min(n)).skip(a2) {
-            *f = true;
-        }
-    }
-    out
-}
-
 /// (F1, false steps, longest run of flags outside a loss).
 fn score_flags(flags: &[bool], truth: &[bool]) -> (f64, usize, usize, Option<f64>) {
     let mut c = DetectionCounter::default();
@@ -1125,8 +743,6 @@ fn release_delays(flags: &[bool], truth: &[bool]) -> Vec<f64> {
 struct Centred {
     half: usize,
     mean: CentredMean,
-    /// Per step, per drive: the reference plus the drive's learnt offset (its healthy level).
-    healthy: Vec<Vec<f64>>,
     est: AdhesionEstimator,
     flags: Vec<Vec<bool>>,
 }
@@ -1136,7 +752,6 @@ impl Centred {
         Centred {
             half,
             mean: CentredMean::new(half, n),
-            healthy: Vec::new(),
             est: AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
             flags: vec![Vec::new(); n],
         }
@@ -1145,14 +760,9 @@ impl Centred {
     fn push(&mut self, x: &[f64]) {
         // The first mean is step 0's (the window cut at the start), given at step `half`.
         if let Some(m) = self.mean.push(x) {
-            let out = self.est.estimate(m).expect("centred");
-            for (f, &pk) in self.flags.iter_mut().zip(&out.slip_probability) {
+            let p = &self.est.estimate(m).expect("centred").slip_probability;
+            for (f, &pk) in self.flags.iter_mut().zip(p) {
                 f.push(pk > 0.5);
-            }
-            let r = out.global_torque_nm;
-            if let AdhesionEstimator::Temporal(t) = &self.est {
-                self.healthy
-                    .push(t.offset_nm().iter().map(|b| r + b).collect());
             }
         }
     }
@@ -1160,14 +770,9 @@ impl Centred {
     /// The last `half` steps' means, over the steps there are after them.
     fn drain(&mut self) {
         while let Some(m) = self.mean.drain() {
-            let out = self.est.estimate(m).expect("centred");
-            for (f, &pk) in self.flags.iter_mut().zip(&out.slip_probability) {
+            let p = &self.est.estimate(m).expect("centred").slip_probability;
+            for (f, &pk) in self.flags.iter_mut().zip(p) {
                 f.push(pk > 0.5);
-            }
-            let r = out.global_torque_nm;
-            if let AdhesionEstimator::Temporal(t) = &self.est {
-                self.healthy
-                    .push(t.offset_nm().iter().map(|b| r + b).collect());
             }
         }
     }
@@ -1177,9 +782,6 @@ impl Centred {
 struct LagViews {
     views: Vec<(String, Vec<Vec<bool>>)>,
     truth: Vec<Vec<bool>>,
-    /// Per step, per drive, the centred 95 view's healthy level; per drive the raw estimates.
-    healthy: Vec<Vec<f64>>,
-    raw_x: Vec<Vec<f64>>,
 }
 
 struct LagRunner {
@@ -1194,7 +796,6 @@ struct LagRunner {
     stage: FixedLagEstimator,
     stage_flags: Vec<Vec<bool>>,
     truth: Vec<Vec<bool>>,
-    raw_x: Vec<Vec<f64>>,
 }
 
 impl LagRunner {
@@ -1214,7 +815,6 @@ impl LagRunner {
             ),
             stage_flags: vec![Vec::new(); n],
             truth: vec![Vec::new(); n],
-            raw_x: vec![Vec::new(); n],
         }
     }
 
@@ -1241,7 +841,6 @@ impl LagRunner {
             self.raw[k].push(p_raw[k] > 0.5);
             self.ema[k].push(p[k] > 0.5);
             self.truth[k].push(truth[k]);
-            self.raw_x[k].push(x[k]);
         }
         for c in &mut self.centred {
             c.push(x);
@@ -1264,13 +863,6 @@ impl LagRunner {
             }
         }
         let len = self.raw.first().map_or(0, Vec::len);
-        let healthy = self
-            .centred
-            .iter()
-            .find(|c| c.half == 47)
-            .unwrap()
-            .healthy
-            .clone();
         let mut views = vec![
             ("raw".to_owned(), self.raw),
             ("ema 1/32".to_owned(), self.ema),
@@ -1291,8 +883,6 @@ impl LagRunner {
         LagViews {
             views,
             truth: self.truth,
-            healthy,
-            raw_x: self.raw_x,
         }
     }
 }
@@ -1301,17 +891,7 @@ impl LagRunner {
 /// steps, longest run).
 type LagScores = Vec<(String, Vec<f64>, Vec<(usize, usize)>, Vec<Option<f64>>)>;
 
-fn lag_scores(
-    v: &LagViews,
-    slipping: &[usize],
-    healthy: &[usize],
-    own: &[Vec<f64>],
-    bank: &[Vec<Vec<f64>>],
-) -> (LagScores, Vec<Vec<f64>>) {
-    let chosen = choose_response(v, slipping, bank);
-    if std::env::var("EDGE_DEBUG").is_ok() {
-        eprintln!("chosen candidate {chosen}");
-    }
+fn lag_scores(v: &LagViews, slipping: &[usize], healthy: &[usize]) -> (LagScores, Vec<Vec<f64>>) {
     let mut out = Vec::new();
     for (view, flags) in &v.views {
         for (edge, mv) in EDGES {
@@ -1334,46 +914,6 @@ fn lag_scores(
                 .collect();
             out.push((format!("{view}, {edge}"), f1s, h, delays));
         }
-    }
-    // Edges by a least-squares fit of a smoothed step seen through the EKF (ninth round).
-    let stage = &v.views.iter().find(|x| x.0 == "library stage").unwrap().1;
-    if std::env::var("EDGE_DEBUG").is_ok() {
-        for &k in slipping {
-            eprintln!("drive {k} truth {:?}", runs(&v.truth[k]));
-        }
-    }
-    for &(which, tau, gls, early, depth) in FIT_EDGES.iter() {
-        let moved = |k: usize| {
-            fit_edges(
-                &stage[k],
-                &v.raw_x[k],
-                &v.healthy,
-                k,
-                which,
-                tau,
-                gls,
-                early,
-                depth,
-                if tau == -2.0 { &bank[chosen] } else { own },
-            )
-        };
-        let sc: Vec<_> = slipping
-            .iter()
-            .map(|&k| score_flags(&moved(k), &v.truth[k]))
-            .collect();
-        let h = healthy
-            .iter()
-            .map(|&k| {
-                let s = score_flags(&moved(k), &v.truth[k]);
-                (s.1, s.2)
-            })
-            .collect();
-        out.push((
-            format!("stage, fitted edges {which} tau {tau} gls {gls} under {early} depth {depth}"),
-            sc.iter().map(|s| s.0).collect(),
-            h,
-            sc.iter().map(|s| s.3).collect(),
-        ));
     }
     let rel = v
         .views
@@ -1430,43 +970,6 @@ fn print_lag_study(outcomes: &[Outcome]) {
             met - met_r,
             n - n_r
         );
-    }
-    // Per-drive changes of the fitted variants against the stage (experiment).
-    let base = first
-        .iter()
-        .position(|x| x.0 == "library stage, as is")
-        .unwrap();
-    for (v, (name, _, _, _)) in first.iter().enumerate() {
-        if !name.contains("fitted") {
-            continue;
-        }
-        let (mut up, mut down) = (Vec::new(), Vec::new());
-        for o in outcomes {
-            let Some((scores, _)) = &o.lag else { continue };
-            for (i, s) in o.slipping.iter().enumerate() {
-                if s.bound_f1 < F1_TARGET {
-                    continue;
-                }
-                let (b, f) = (scores[base].1[i], scores[v].1[i]);
-                let tol = (0.1 * s.depth.1.abs()).max(0.5);
-                let row = format!(
-                    "{}:{}{} {:.3}->{:.3} x{:.2}",
-                    o.draw.seed,
-                    s.drive,
-                    if s.resolvable { "" } else { "~" },
-                    b,
-                    f,
-                    s.depth.0.abs() / tol
-                );
-                if b < F1_TARGET && f >= F1_TARGET {
-                    up.push(row);
-                } else if b >= F1_TARGET && f < F1_TARGET {
-                    down.push(row);
-                }
-            }
-        }
-        println!("{name}: up {} [{}]", up.len(), up.join(", "));
-        println!("{name}: down {} [{}]", down.len(), down.join(", "));
     }
     println!();
     println!("| view | onset delay [steps], per drive median, above the bound | release delay [steps], truth's end to the episode's end |");
