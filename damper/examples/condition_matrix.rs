@@ -500,9 +500,7 @@ fn run(
         o.within += usize::from(errors.iter().all(|e| e.abs() <= WITHIN));
         for k in 0..2 {
             o.error_sum[k] += errors[k];
-            o.covered[k] += usize::from(
-                posts[k].q05_ns_per_m <= truths[k] && truths[k] <= posts[k].q95_ns_per_m,
-            );
+            o.covered[k] += usize::from(posts[k].covers(truths[k]));
         }
         o.mismatch += usize::from(e.model_mismatch);
     }

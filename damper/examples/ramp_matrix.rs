@@ -302,7 +302,7 @@ fn run(
         let k = f.damper.index();
         let p = posts[k];
         o.ramp_samples += 1;
-        o.covered += usize::from(p.q05_ns_per_m <= truths[k] && truths[k] <= p.q95_ns_per_m);
+        o.covered += usize::from(p.covers(truths[k]));
         o.above_truth += usize::from(truths[k] < p.q05_ns_per_m);
         // The time the truth had the mean's value: the ramp is linear in the coefficient.
         let m = p.mean_ns_per_m / initial[k];

@@ -393,9 +393,7 @@ fn run(
                 .all(|(p, tr)| (p.mean_ns_per_m / tr - 1.0).abs() <= 0.05),
         );
         for k in 0..2 {
-            t.covered[k] += usize::from(
-                posts[k].q05_ns_per_m <= truths[k] && truths[k] <= posts[k].q95_ns_per_m,
-            );
+            t.covered[k] += usize::from(posts[k].covers(truths[k]));
         }
         t.mismatch += usize::from(e.model_mismatch);
         t.nis_sum += e.nis_window_mean.unwrap_or(0.0);

@@ -40,8 +40,7 @@ fn a_ramp_is_followed_and_flagged_within_10_s_of_the_crossing() {
         }
         if truth.time_s >= 20.0 && step.is_multiple_of(10) {
             ramp += 1;
-            covered +=
-                usize::from(e.csy.q05_ns_per_m <= truth_csy && truth_csy <= e.csy.q95_ns_per_m);
+            covered += usize::from(e.csy.covers(truth_csy));
         }
     }
     let coverage = covered as f64 / ramp as f64;

@@ -293,10 +293,7 @@ fn rbpf_converges_on_a_short_seeded_scenario() {
         // After 10 s the exact likelihood has standard deviations of about 0.3% (C_sy) and
         // 1.5% (C_say): 4% is wide for both, yet far inside the prior's 50%.
         assert!(err.abs() < 0.04, "{name}: relative error {err}");
-        assert!(
-            post.q05_ns_per_m <= truth && truth <= post.q95_ns_per_m,
-            "{name}: {post:?}"
-        );
+        assert!(post.covers(truth), "{name}: {post:?}");
         assert!(
             post.q95_ns_per_m / post.q05_ns_per_m < 1.15,
             "{name} has narrowed"

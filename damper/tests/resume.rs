@@ -36,9 +36,7 @@ fn a_resumed_monitor_goes_on_exactly_and_inside_the_pre_restart_interval() {
     let inside = |e: &railmon_damper::DamperEstimate| {
         [(e.csy, pre.csy), (e.csay, pre.csay)]
             .iter()
-            .all(|(now, was)| {
-                was.q05_ns_per_m <= now.mean_ns_per_m && now.mean_ns_per_m <= was.q95_ns_per_m
-            })
+            .all(|(now, was)| was.covers(now.mean_ns_per_m))
     };
     let mut fresh = DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
     for s in after {

@@ -12,6 +12,13 @@ pub struct DamperPosterior {
     pub health_ratio: f64,
 }
 
+impl DamperPosterior {
+    /// `value_ns_per_m` lies inside the 90 % interval (bounds included).
+    pub fn covers(&self, value_ns_per_m: f64) -> bool {
+        self.q05_ns_per_m <= value_ns_per_m && value_ns_per_m <= self.q95_ns_per_m
+    }
+}
+
 /// What the RBPF says after a step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RbpfEstimate {
