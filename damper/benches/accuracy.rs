@@ -128,13 +128,13 @@ fn main() {
             grid_points: 33,
         },
         Variant {
-            name: "steady, Taylor to 1e-5, grid 33",
+            name: "steady, Taylor to 1e-5, grid 33 (default)",
             propagation: Propagation::SteadyState,
             taylor_truncation: 1e-5,
             grid_points: 33,
         },
         Variant {
-            name: "steady, Taylor to 1e-9, grid 33 (default)",
+            name: "steady, Taylor to 1e-9, grid 33",
             propagation: Propagation::SteadyState,
             taylor_truncation: 1e-9,
             grid_points: 33,

@@ -18,6 +18,8 @@
 //!   gains of its mass node);
 //! - `monitor:no-mass:design`: withheld, the design mass assumed (`unmeasured_mass.enabled =
 //!   false`: the cost of `monitor`).
+//! - `plain:taylor-1e-9`, `monitor:taylor-1e-9`: `plain` and `monitor` with the Taylor series
+//!   truncated at 1e-9 (`rbpf.taylor_truncation`; the default 1e-5 since 29 Nov).
 //!
 //! Every filter first runs 3 s of its data (posterior narrowed, as in service; the speed
 //! nodes the ramp visits are solved before timing), then all variants run alternately in
@@ -169,6 +171,10 @@ fn main() -> ExitCode {
     design_mass.rbpf.unmeasured_mass.enabled = false;
     let mut fixed = with_noise;
     fixed.rbpf.noise_scale.enabled = false;
+    let mut fixed_1e9 = fixed;
+    fixed_1e9.rbpf.taylor_truncation = 1e-9;
+    let mut default_1e9 = default;
+    default_1e9.rbpf.taylor_truncation = 1e-9;
     let start = Instant::now();
     let table =
         Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed).expect("table");
@@ -221,6 +227,8 @@ fn main() -> ExitCode {
         ("monitor", monitor(&default), &ramped),
         ("monitor:no-mass", monitor(&default), &no_mass),
         ("monitor:no-mass:design", monitor(&design_mass), &no_mass),
+        ("plain:taylor-1e-9", rbpf(&fixed_1e9, false), &constant),
+        ("monitor:taylor-1e-9", monitor(&default_1e9), &ramped),
     ];
     if let Some(o) = only
         .iter()

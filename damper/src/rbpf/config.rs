@@ -75,12 +75,11 @@ pub struct RbpfConfig {
     pub kernel: KernelSchedule,
     /// Truncation of the Taylor series for `Phi(theta) x` (steady-state propagation): the
     /// order is the least at which the first omitted term of the stiffest creep mode,
-    /// `(|A_ii| T)^(k+1) / (k+1)!`, is below this (the creep terms grow as `1 / v`: order 8
-    /// at 45.3 m/s, 20 at 5 m/s). Looser is cheaper: at 1e-5 (order 5 at 45.3 m/s, the
-    /// filter step 20-28 % cheaper) each particle's log-likelihood over 20 s is within 0.003
-    /// nats of this one's and the likelihood's mode within 0.001 % of the coefficient
-    /// (`benches/accuracy.rs`, 6-45 m/s, `C_sy` 0.1-1 x); not the default yet because two
-    /// tests pass on one filter seed only (notes/damper-log.md, 29 Nov).
+    /// `(|A_ii| T)^(k+1) / (k+1)!`, is below this (the creep terms grow as `1 / v`: order 5
+    /// at 45.3 m/s, 15 at 5 m/s). Each particle's log-likelihood over 20 s is within 0.003
+    /// nats of the series to 1e-9 (order 8 and 20) and the likelihood's mode within 0.001 %
+    /// of the coefficient (`benches/accuracy.rs`, 6-45 m/s, `C_sy` 0.1-1 x); at 1e-4 0.04
+    /// nats, at 1e-3 0.5. Tighter costs time (`benches/rbpf_variants.rs`, `:taylor-1e-9`).
     #[schemars(extend("exclusiveMinimum" = 0.0), range(max = TAYLOR_TRUNCATION_MAX))]
     pub taylor_truncation: f64,
     pub gain_grid: GainGridConfig,
@@ -107,7 +106,7 @@ impl Default for RbpfConfig {
             jump_search: JumpSearchConfig::default(),
             propagation: Propagation::SteadyState,
             kernel: KernelSchedule::AtResampling,
-            taylor_truncation: 1e-9,
+            taylor_truncation: 1e-5,
             gain_grid: GainGridConfig::default(),
             noise_scale: NoiseScaleConfig::default(),
             unmeasured_mass: UnmeasuredMassConfig::default(),
