@@ -1339,6 +1339,12 @@ impl Rbpf {
         self.resamples
     }
 
+    /// Particle `i`'s `ln (m_bd / design)` while the particles carry the body mass
+    /// (`unmeasured_mass`); `None` otherwise.
+    pub fn particle_ln_mass(&self, i: usize) -> Option<f64> {
+        self.ln_mass.get(i).copied()
+    }
+
     /// Particle `i`: its `ln theta`, normalised log-weight, state mean and (exact filter only)
     /// covariance.
     pub fn particle(&self, i: usize) -> ([f64; 2], f64, Vector17, Option<Matrix17>) {
