@@ -1067,24 +1067,7 @@ impl Rbpf {
         if self.ln_mass.is_empty() {
             return Ok(());
         }
-        let f: f64 = std::env::var("RAILMON_EXP_FORGET_FRACTION")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(1.0);
-        if f >= 1.0 {
-            self.draw_mass_prior();
-        } else {
-            let c = self.config.unmeasured_mass;
-            let (lo, hi) = (c.min_ratio.ln(), c.max_ratio.ln());
-            for m in self.ln_mass.iter_mut() {
-                if self.rng.random::<f64>() < f {
-                    *m = lo + (hi - lo) * self.rng.random::<f64>();
-                }
-            }
-            self.ln_mass_next.clone_from(&self.ln_mass);
-            self.sentinel_mass_kg = self.estimated_half_body_mass_kg();
-            self.sorted.stale = true;
-        }
+        self.draw_mass_prior();
         // The sentinels at the new posterior mean mass (`draw_mass_prior` set it).
         let (speed_m_s, mass_kg) = self.bank.schedule();
         self.set_schedule(speed_m_s, mass_kg)
