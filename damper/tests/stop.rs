@@ -157,10 +157,13 @@ fn a_load_change_at_a_stop_is_followed_when_measured() {
     );
 }
 
+/// A failed run: the filter seed, the final `C_sy` error and the `damper_degraded` events.
+type Failure = (u32, f64, Vec<(f64, DamperId)>);
+
 /// [`boarding_at_the_stop`] with the mass withheld, the particles carrying their own
 /// (`rbpf.unmeasured_mass`), filter seed (bogie) `bogie`: `C_sy` within 3 % at the end and no
 /// alarm, or why not.
-fn withheld_boarding_fails(bogie: u32) -> Option<(u32, f64, Vec<(f64, DamperId)>)> {
+fn withheld_boarding_fails(bogie: u32) -> Option<Failure> {
     let mut s = boarding_at_the_stop();
     s.load.measured = false;
     let (_, _, degraded, e) = run_to_end(&s, bogie);
