@@ -230,7 +230,9 @@ impl DamperMonitor {
     /// start: the plant has forgotten the state the pause began with, and after a stop it is
     /// at rest itself; then the first samples fix a common state for all of them
     /// (`rbpf::RESUME_INIT_S`: one exact Kalman filter from the plant's stationary spread,
-    /// `rbpf/resume_init.rs`). The settling lasts `speed.resume_settle_s` at least, then ends at the
+    /// `rbpf/resume_init.rs`); unless the pause was above the speed range, the particles that
+    /// carry the body mass (no mass measured) draw it again from the prior, the load having
+    /// possibly changed at a stop ([`Rbpf::forget_unmeasured_mass`]). The settling lasts `speed.resume_settle_s` at least, then ends at the
     /// first [`SETTLE_WINDOW_S`] window whose mean normalised innovation squared is at most
     /// [`SETTLED_NIS_RATIO`] times 5 (the states explain the data again), or after
     /// [`Rbpf::max_resume_settle_s`] (3 time constants of that mode) at the latest.
@@ -357,6 +359,11 @@ impl DamperMonitor {
         let st = Settling::of(self.dt_s, &self.speed, &self.rbpf);
         let p = &mut self.pause;
         if p.settle_steps == 0 && p.paused_steps >= st.reset_after_steps {
+            // Below the speed range, or samples missing, the train may have stood and its
+            // load changed; above it, not.
+            if p.reason != Some(PauseReason::HighSpeed) {
+                self.rbpf.forget_unmeasured_mass()?;
+            }
             self.rbpf.reset_states();
         }
         self.rbpf.step_states(y)?;

@@ -157,34 +157,49 @@ fn a_load_change_at_a_stop_is_followed_when_measured() {
     );
 }
 
+/// A failed run: the filter seed, the final `C_sy` error and the `damper_degraded` events.
+type Failure = (u32, f64, Vec<(f64, DamperId)>);
+
 /// [`boarding_at_the_stop`] with the mass withheld, the particles carrying their own
-/// (`rbpf.unmeasured_mass`): found again after the stop by the particles regenerated from
-/// the mass prior, `C_sy` within 3 % and no alarm, for every filter seed. **Fails (issue 24
-/// item 1, open)**: N = 100, filter seeds (bogies) 1-7, `C_sy` at the end +0.4, -9.8 (a false
-/// `C_say` alarm), -29.2 (false `C_sy` and `C_say` alarms), -20.4, +2.7, +0.4, -18.7 % with
-/// the states estimated after the stop (`rbpf/resume_init.rs`); before it +1.4, -3.5 (a false
-/// alarm), -5.2, -17.8, -2.2, +2.3, -0.9 %. The heavier body and a weaker `C_sy` lie on a
-/// ridge of the likelihood, and after the stop the cloud settles on it where its first draws
-/// fall. Until 29 Nov only seed 1 was run, in CI, and passed.
-#[test]
-#[ignore = "issue 24 item 1, open: fails on 4 of 7 filter seeds, about 4 min in release: \
-            `cargo test --release -p railmon-damper --test stop -- --ignored --nocapture`"]
-fn a_load_change_at_a_stop_is_found_again_when_withheld_for_every_seed() {
+/// (`rbpf.unmeasured_mass`), filter seed (bogie) `bogie`: `C_sy` within 3 % at the end and no
+/// alarm, or why not.
+fn withheld_boarding_fails(bogie: u32) -> Option<Failure> {
     let mut s = boarding_at_the_stop();
     s.load.measured = false;
-    let truth = s.dampers.csy_ns_per_m;
-    let mut failed = vec![];
-    for bogie in 1..=7 {
-        let (_, _, degraded, e) = run_to_end(&s, bogie);
-        let error = e.csy.mean_ns_per_m / truth - 1.0;
-        eprintln!(
-            "seed {bogie}: C_sy {:+.2} %, alarms {degraded:?}",
-            100.0 * error
-        );
-        assert_eq!(e.measured_half_body_mass_kg, None);
-        if error.abs() >= 0.03 || !degraded.is_empty() {
-            failed.push((bogie, error, degraded));
-        }
-    }
+    let (_, _, degraded, e) = run_to_end(&s, bogie);
+    let error = e.csy.mean_ns_per_m / s.dampers.csy_ns_per_m - 1.0;
+    eprintln!(
+        "seed {bogie}: C_sy {:+.2} %, alarms {degraded:?}",
+        100.0 * error
+    );
+    assert_eq!(e.measured_half_body_mass_kg, None);
+    (error.abs() >= 0.03 || !degraded.is_empty()).then_some((bogie, error, degraded))
+}
+
+/// [`withheld_boarding_fails`] on filter seed 3, the worst of seeds 1-7 before the particles
+/// drew their mass again after a stop (`Rbpf::forget_unmeasured_mass`, issue 24 item 1):
+/// then `C_sy` -29.2 % with false `C_sy` and `C_say` alarms, the cloud keeping the mass from
+/// before the stop; with it +1.6 %, the mass read 17.25 t of 16.9 t. One seed in CI (about 30
+/// s); all seven: the ignored test below.
+#[test]
+fn a_load_change_at_a_stop_is_found_again_when_withheld() {
+    assert_eq!(withheld_boarding_fails(3), None);
+}
+
+/// [`withheld_boarding_fails`] for filter seeds (bogies) 1-7, N = 100: found again after the
+/// stop because every particle draws its mass again from the prior when the states restart
+/// after a pause below the speed range (`Rbpf::forget_unmeasured_mass`): `C_sy` at the end
+/// +2.5, +1.0, +1.6, +1.3, +1.2, +2.7, +1.6 %, no alarm. Before it the cloud kept the mass from before the stop, and the
+/// new one came only through the kernel's regenerated particles (1 % a move, at a tenth of
+/// the weight) while the heavier body's data were explained by a weaker `C_sy` and the jump
+/// hypotheses (at the old mass): +0.4, -9.8 (a false `C_say` alarm), -29.2 (false `C_sy` and
+/// `C_say` alarms), -20.4, +2.7, +0.4, -18.7 % with the states estimated after the stop
+/// (`rbpf/resume_init.rs`), +1.4, -3.5 (a false alarm), -5.2, -17.8, -2.2, +2.3, -0.9 % before
+/// that. Ignored for its time only.
+#[test]
+#[ignore = "about 4 min in release (seed 3 alone runs in CI): \
+            `cargo test --release -p railmon-damper --test stop -- --ignored --nocapture`"]
+fn a_load_change_at_a_stop_is_found_again_when_withheld_for_every_seed() {
+    let failed: Vec<_> = (1..=7).filter_map(withheld_boarding_fails).collect();
     assert!(failed.is_empty(), "{failed:?}");
 }

@@ -1051,6 +1051,28 @@ impl Rbpf {
         self.slowest_time_constant_s
     }
 
+    /// The body mass's posterior forgotten after a pause in which the train may have stood
+    /// (`DamperMonitor` calls it before [`Rbpf::reset_states`] unless the pause was above the
+    /// speed range): passengers board and alight at a stop, so while the particles carry the
+    /// mass (`unmeasured_mass`) each draws its mass again from the prior, its dampers and
+    /// weight kept; the first samples after moving off then weigh the masses, the dampers'
+    /// posterior as before the stop. Without it the cloud kept the mass from before the stop
+    /// and found a new one only through the kernel's regenerated particles (`regeneration_
+    /// fraction`, 1 % a move at a tenth of the weight): meanwhile the data of the heavier
+    /// body were explained by a weaker `C_sy` (the mass/`C_sy` ridge) and by the jump
+    /// hypotheses (the sentinels at the old mass), and the cloud settled on the ridge
+    /// (`tests/stop.rs`, issue 24 item 1). Nothing happens when the mass is measured or the
+    /// design mass assumed.
+    pub fn forget_unmeasured_mass(&mut self) -> Result<(), DamperError> {
+        if self.ln_mass.is_empty() {
+            return Ok(());
+        }
+        self.draw_mass_prior();
+        // The sentinels at the new posterior mean mass (`draw_mass_prior` set it).
+        let (speed_m_s, mass_kg) = self.bank.schedule();
+        self.set_schedule(speed_m_s, mass_kg)
+    }
+
     /// Every particle's and sentinel's Kalman state back at rest, as at the start; the
     /// parameter posterior untouched.
     pub fn reset_states(&mut self) {
@@ -1337,6 +1359,12 @@ impl Rbpf {
 
     pub fn resample_count(&self) -> u64 {
         self.resamples
+    }
+
+    /// Particle `i`'s `ln (m_bd / design)` while the particles carry the body mass
+    /// (`unmeasured_mass`); `None` otherwise.
+    pub fn particle_ln_mass(&self, i: usize) -> Option<f64> {
+        self.ln_mass.get(i).copied()
     }
 
     /// Particle `i`: its `ln theta`, normalised log-weight, state mean and (exact filter only)

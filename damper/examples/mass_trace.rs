@@ -1,0 +1,132 @@
+//! The boarding at a stop of `tests/stop.rs` (body 13 t -> 16.9 t at 14 s while standing)
+//! with the mass withheld, the particles carrying their own (issue 24 item 1): every
+//! `--every` s the published `C_sy`, `C_say` errors, the weighted mean and 10/90 % of the
+//! particles' body mass, the weighted correlation of `ln m` with `ln C_sy`, the ESS, the
+//! resamplings so far and whether paused; and every alarm event.
+//!
+//! ```text
+//! cargo run --release -p railmon-damper --example mass_trace -- --bogie 3 [--every 0.5]
+//!     [--particles 100] [--from S --to S --fine 0.05]
+//! ```
+
+use railmon_damper::{BogieSimulator, DamperAlarm, DamperMonitor, DamperScenario};
+
+mod flags;
+use flags::parsed;
+
+fn scenario() -> DamperScenario {
+    let text = r#"
+name = "stop"
+seed = 3
+duration_s = 26.0
+dt_s = 0.001
+[speed]
+profile_m_s = [[0.0, 30.0], [11.0, 30.0], [13.0, 0.0], [15.0, 0.0], [17.0, 30.0]]
+[track]
+kind = "white"
+velocity_std_m_s = 0.1
+[sensors]
+accel_std_m_s2 = 0.02
+gyro_std_rad_s = 0.004
+[load]
+changes_kg = [[14.0, 16900.0]]
+measured = false
+[monitor]
+track_velocity_std_m_s = 0.1
+"#;
+    DamperScenario::from_toml_str(text).unwrap()
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let (mut bogie, mut every_s, mut particles) = (1u32, 0.5f64, 100usize);
+    let mut window = (f64::INFINITY, f64::NEG_INFINITY, 0.05f64);
+    let mut it = std::env::args().skip(1);
+    while let Some(flag) = it.next() {
+        let mut value = || it.next().ok_or(format!("{flag} needs a value"));
+        match flag.as_str() {
+            "--bogie" => bogie = parsed(&flag, &value()?)?,
+            "--every" => every_s = parsed(&flag, &value()?)?,
+            "--particles" => particles = parsed(&flag, &value()?)?,
+            "--from" => window.0 = parsed(&flag, &value()?)?,
+            "--to" => window.1 = parsed(&flag, &value()?)?,
+            "--fine" => window.2 = parsed(&flag, &value()?)?,
+            other => return Err(format!("unknown flag {other}").into()),
+        }
+    }
+    let s = scenario();
+    let mut config = s.monitor_config();
+    config.rbpf.particles = particles;
+    let mut monitor = DamperMonitor::for_bogie(&config, bogie, None)?;
+    let mut alarms = DamperAlarm::pair(&config.alarm, &config.filter_model(), [false; 2]);
+    let mut sim = BogieSimulator::new(&s)?;
+    let design = monitor.rbpf().design_half_body_mass_kg();
+    let mut next_s = 0.0;
+    while let Some((sample, truth)) = sim.step() {
+        let e = *monitor.step(sample)?;
+        for event in alarms.iter_mut().filter_map(|a| a.update(&e)) {
+            println!(
+                "{:7.3} s  {} {} health {:.3}",
+                event.time_s,
+                event.kind.as_str(),
+                event.damper.name(),
+                event.health_ratio
+            );
+        }
+        if truth.time_s + 1e-9 < next_s {
+            continue;
+        }
+        next_s += if (window.0..window.1).contains(&truth.time_s) {
+            window.2
+        } else {
+            every_s
+        };
+        let f = monitor.rbpf();
+        let n = f.n_particles();
+        let mut rows: Vec<(f64, f64, f64)> = (0..n)
+            .filter_map(|i| {
+                let (th, lw, _, _) = f.particle(i);
+                f.particle_ln_mass(i).map(|m| (m, th[0], lw.exp()))
+            })
+            .collect();
+        let (mut mm, mut mc, mut vm, mut vc, mut cov) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &(m, c, w) in &rows {
+            mm += w * m;
+            mc += w * c;
+        }
+        for &(m, c, w) in &rows {
+            vm += w * (m - mm) * (m - mm);
+            vc += w * (c - mc) * (c - mc);
+            cov += w * (m - mm) * (c - mc);
+        }
+        rows.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let q = |p: f64| {
+            let mut acc = 0.0;
+            for &(m, _, w) in &rows {
+                acc += w;
+                if acc >= p {
+                    return design * m.exp();
+                }
+            }
+            f64::NAN
+        };
+        println!(
+            "{:6.2} s {:5.1} m/s  C_sy {:+6.2} %  C_say {:+6.2} %  mass {:6.0} [{:6.0}, {:6.0}] kg (truth {:.0})  corr {:+.2}  ESS {:5.1}  res {:4}  jumps {} prob {:.2} lnodds {:.1}  {}",
+            truth.time_s,
+            sample.speed_m_s,
+            100.0 * (e.csy.mean_ns_per_m / truth.dampers.csy_ns_per_m - 1.0),
+            100.0 * (e.csay.mean_ns_per_m / truth.dampers.csay_ns_per_m - 1.0),
+            design * mm.exp(),
+            q(0.1),
+            q(0.9),
+            truth.half_body_mass_kg,
+            cov / (vm * vc).sqrt().max(1e-300),
+            e.effective_sample_size,
+            f.resample_count(),
+            f.jump_count(),
+            f.jump_probation_mass(),
+            f.jump_max_ln_odds(),
+            e.paused.map_or(String::new(), |p| format!("{p:?}")),
+        );
+    }
+    Ok(())
+}
