@@ -232,7 +232,8 @@ impl DamperMonitor {
     /// (`rbpf::RESUME_INIT_S`: one exact Kalman filter from the plant's stationary spread,
     /// `rbpf/resume_init.rs`); unless the pause was above the speed range, the particles that
     /// carry the body mass (no mass measured) draw it again from the prior, the load having
-    /// possibly changed at a stop ([`Rbpf::forget_unmeasured_mass`]). The settling lasts `speed.resume_settle_s` at least, then ends at the
+    /// possibly changed at a stop ([`Rbpf::forget_unmeasured_mass`]). The settling lasts
+    /// `speed.resume_settle_s` at least, then ends at the
     /// first [`SETTLE_WINDOW_S`] window whose mean normalised innovation squared is at most
     /// [`SETTLED_NIS_RATIO`] times 5 (the states explain the data again), or after
     /// [`Rbpf::max_resume_settle_s`] (3 time constants of that mode) at the latest.
