@@ -14,27 +14,13 @@ use railmon_damper::{BogieSimulator, DamperAlarm, DamperMonitor, DamperScenario}
 mod flags;
 use flags::parsed;
 
+/// `tests/stop.rs`'s boarding at the stop, the mass withheld.
 fn scenario() -> DamperScenario {
-    let text = r#"
-name = "stop"
-seed = 3
-duration_s = 26.0
-dt_s = 0.001
-[speed]
-profile_m_s = [[0.0, 30.0], [11.0, 30.0], [13.0, 0.0], [15.0, 0.0], [17.0, 30.0]]
-[track]
-kind = "white"
-velocity_std_m_s = 0.1
-[sensors]
-accel_std_m_s2 = 0.02
-gyro_std_rad_s = 0.004
-[load]
-changes_kg = [[14.0, 16900.0]]
-measured = false
-[monitor]
-track_velocity_std_m_s = 0.1
-"#;
-    DamperScenario::from_toml_str(text).unwrap()
+    let text = format!(
+        "{}\n[load]\nchanges_kg = [[14.0, 16900.0]]\nmeasured = false\n",
+        include_str!("../tests/common/stop.toml")
+    );
+    DamperScenario::from_toml_str(&text).unwrap()
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

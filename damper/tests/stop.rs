@@ -12,25 +12,7 @@ use railmon_damper::{
 /// 11 s at 30 m/s (the alarm's 10 s warm-up), braking to a stop at 13 s, standing 2 s,
 /// moving off at 15 s: 5 m/s at 15.33 s, 30 m/s at 17 s; `fault` (TOML) added.
 fn scenario(fault: &str) -> DamperScenario {
-    let text = format!(
-        r#"
-name = "stop"
-seed = 3
-duration_s = 26.0
-dt_s = 0.001
-[speed]
-profile_m_s = [[0.0, 30.0], [11.0, 30.0], [13.0, 0.0], [15.0, 0.0], [17.0, 30.0]]
-[track]
-kind = "white"
-velocity_std_m_s = 0.1
-[sensors]
-accel_std_m_s2 = 0.02
-gyro_std_rad_s = 0.004
-{fault}
-[monitor]
-track_velocity_std_m_s = 0.1
-"#
-    );
+    let text = format!("{}\n{fault}\n", include_str!("common/stop.toml"));
     DamperScenario::from_toml_str(&text).unwrap()
 }
 
