@@ -380,19 +380,29 @@ pub fn run(args: &Args) -> Result<DamperReport, DamperAnalysisError> {
     write_estimates(&args.run.out.join("estimates.csv"), &trace)?;
     write_events(&args.run.out.join("events.csv"), args.bogie, &events)?;
     let has_truth = trace.iter().all(|p| p.truth.is_some()) && !trace.is_empty();
-    let summary = if has_truth { summarise(&trace) } else { vec![] };
+    // The EKF baseline is compared only where it ran (`[monitor.ekf] enabled`, off by default).
+    let methods = if config.ekf.enabled {
+        &METHODS[..]
+    } else {
+        &METHODS[..1]
+    };
+    let summary = if has_truth {
+        summarise(&trace, methods)
+    } else {
+        vec![]
+    };
     if has_truth {
         write_summary(&args.run.out.join("summary.csv"), &summary)?;
     }
     let fault_rows = if has_truth && !faults.is_empty() {
-        let rows = fault_table(&trace, &faults);
+        let rows = fault_table(&trace, &faults, methods);
         write_faults(&args.run.out.join("faults.csv"), &rows)?;
         rows
     } else {
         vec![]
     };
     if !args.run.no_plots {
-        plots(&args.run.out, &trace)?;
+        plots(&args.run.out, &trace, methods)?;
     }
     let mean_step_us = elapsed.as_secs_f64() * 1e6 / steps.max(1) as f64;
     write_csv_table(
@@ -754,12 +764,12 @@ fn settle_time(points: &[TracePoint], method: &str, damper: DamperId) -> Option<
     settled
 }
 
-fn summarise(trace: &[TracePoint]) -> Vec<SummaryRow> {
+fn summarise(trace: &[TracePoint], methods: &[&'static str]) -> Vec<SummaryRow> {
     let mut rows = vec![];
     let Some(end) = trace.last() else {
         return rows;
     };
-    for method in METHODS {
+    for &method in methods {
         for damper in DamperId::ALL {
             let truth = end.truth.map_or(f64::NAN, |t| t[damper.index()]);
             let err_at = |t: f64| at_time(trace, t).and_then(|p| relative_error(p, method, damper));
@@ -779,7 +789,11 @@ fn summarise(trace: &[TracePoint]) -> Vec<SummaryRow> {
     rows
 }
 
-fn fault_table(trace: &[TracePoint], faults: &[DamperFault]) -> Vec<FaultRow> {
+fn fault_table(
+    trace: &[TracePoint],
+    faults: &[DamperFault],
+    methods: &[&'static str],
+) -> Vec<FaultRow> {
     let mut rows = vec![];
     for f in faults {
         let done_s = match f.kind {
@@ -791,7 +805,7 @@ fn fault_table(trace: &[TracePoint], faults: &[DamperFault]) -> Vec<FaultRow> {
             .filter(|p| p.time_s >= done_s)
             .copied()
             .collect();
-        for method in METHODS {
+        for &method in methods {
             rows.push(FaultRow {
                 method,
                 damper: f.damper.name(),
@@ -944,11 +958,16 @@ fn opt_s(v: Option<f64>) -> String {
     v.map_or_else(String::new, |s| format!("{s:.2}"))
 }
 
-/// Figures 2-5 of the paper (RBPF and EKF, each damper, estimate against truth, in
-/// kN s/m), with the RBPF's 90% interval, plus the effective sample size.
-fn plots(dir: &Path, trace: &[TracePoint]) -> Result<(), DamperAnalysisError> {
+/// Figures 2-5 of the paper (RBPF and, when it ran, the EKF, each damper, estimate against
+/// truth, in kN s/m), with the RBPF's 90% interval, plus the effective sample size.
+fn plots(
+    dir: &Path,
+    trace: &[TracePoint],
+    methods: &[&'static str],
+) -> Result<(), DamperAnalysisError> {
     let kn = |v: f64| v / 1e3;
-    for (method, label) in [("rbpf", "RBPF"), ("ekf", "EKF")] {
+    for &method in methods {
+        let label = if method == "ekf" { "EKF" } else { "RBPF" };
         for d in DamperId::ALL {
             let view: Vec<(f64, (f64, f64, f64))> = trace
                 .iter()

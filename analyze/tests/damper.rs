@@ -48,7 +48,10 @@ fn a_run_with_the_gain_cache_cold_or_warm_estimates_as_one_without() {
         a.run.scenario = Some(scenario("damper-seed"));
         a.run.no_plots = true;
         a.gain_cache = gain_cache;
-        run(&a).unwrap();
+        let report = run(&a).unwrap();
+        // The EKF baseline is off by default: the summary holds the RBPF's rows only.
+        assert!(report.summary.iter().all(|r| r.method == "rbpf"));
+        assert_eq!(report.summary.len(), 2);
         let text = std::fs::read_to_string(out.join("estimates.csv")).unwrap();
         std::fs::remove_dir_all(&out).unwrap();
         text
@@ -123,9 +126,18 @@ fn a_measured_mass_gives_the_same_estimates_from_the_scenario_and_its_recording(
 #[test]
 fn scenario_run_writes_reports_and_its_recording_replays_identically() {
     let out = out_dir("scenario");
+    // With the EKF baseline (off by default), for the paper's figures 2-5.
+    let with_ekf = out_dir("scenario-ekf").with_extension("toml");
+    let text = std::fs::read_to_string(scenario("damper-seed")).unwrap();
+    std::fs::write(
+        &with_ekf,
+        format!("{text}\n[monitor.ekf]\nenabled = true\n"),
+    )
+    .unwrap();
     let mut a = args(&out);
-    a.run.scenario = Some(scenario("damper-seed"));
+    a.run.scenario = Some(with_ekf.clone());
     let report = run(&a).unwrap();
+    std::fs::remove_file(&with_ekf).unwrap();
     assert_eq!(report.steps, 3000);
     assert_eq!(report.summary.len(), 4);
     let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
@@ -158,7 +170,7 @@ fn scenario_run_writes_reports_and_its_recording_replays_identically() {
     let config = replay.join("monitor.toml");
     std::fs::write(
         &config,
-        "track_velocity_std_m_s = 0.1\n[rbpf]\ndelta = 0.99\nseed = 11\n",
+        "track_velocity_std_m_s = 0.1\n[rbpf]\ndelta = 0.99\nseed = 11\n[ekf]\nenabled = true\n",
     )
     .unwrap();
     let mut b = args(&replay);
@@ -184,7 +196,7 @@ fn scenario_run_writes_reports_and_its_recording_replays_identically() {
     let config_2 = replay.join("monitor-2.toml");
     std::fs::write(
         &config_2,
-        "track_velocity_std_m_s = 0.1\n[rbpf]\ndelta = 0.99\nseed = 10\n",
+        "track_velocity_std_m_s = 0.1\n[rbpf]\ndelta = 0.99\nseed = 10\n[ekf]\nenabled = true\n",
     )
     .unwrap();
     b.run.input = Some(two);

@@ -11,8 +11,9 @@
 //!   a higher Taylor order);
 //! - `+speed+noise+jump`: `+speed+noise` with the jump search's sentinels
 //!   (`[monitor.rbpf.jump_search]`; the variants above have it off);
-//! - `monitor`: `DamperMonitor::step` of the default configuration on the ramp (adds the EKF,
-//!   the consistency check and the posterior summary).
+//! - `monitor`: `DamperMonitor::step` of the default configuration on the ramp (adds the
+//!   consistency check and the posterior summary);
+//! - `monitor:+ekf`: the same with the EKF baseline (`ekf.enabled`, off by default since 29 Nov).
 //! - `monitor:no-mass`: the same with the samples' body mass withheld, the particles carrying
 //!   their own (`[monitor.rbpf.unmeasured_mass]`: a third parameter, per-particle body row and
 //!   gains of its mass node);
@@ -173,6 +174,8 @@ fn main() -> ExitCode {
     fixed.rbpf.noise_scale.enabled = false;
     let mut fixed_1e9 = fixed;
     fixed_1e9.rbpf.taylor_truncation = 1e-9;
+    let mut with_ekf = default;
+    with_ekf.ekf.enabled = true;
     let mut default_1e9 = default;
     default_1e9.rbpf.taylor_truncation = 1e-9;
     let start = Instant::now();
@@ -225,6 +228,7 @@ fn main() -> ExitCode {
         ("+speed+noise@10", rbpf(&with_noise, true), &slow),
         ("+speed+noise+jump", rbpf(&with_jump, true), &ramped),
         ("monitor", monitor(&default), &ramped),
+        ("monitor:+ekf", monitor(&with_ekf), &ramped),
         ("monitor:no-mass", monitor(&default), &no_mass),
         ("monitor:no-mass:design", monitor(&design_mass), &no_mass),
         ("plain:taylor-1e-9", rbpf(&fixed_1e9, false), &constant),

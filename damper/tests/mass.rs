@@ -30,7 +30,6 @@ fn final_estimate(
     let mut c = s.monitor_config();
     c.rbpf.particles = 300;
     c.rbpf.unmeasured_mass.enabled = mass_particles;
-    c.ekf.enabled = false;
     let mut m = DamperMonitor::new(&c, 21).unwrap();
     let mut sim = BogieSimulator::new(s).unwrap().with_mass_input(gives_mass);
     while let Some((y, _)) = sim.step() {
@@ -163,7 +162,6 @@ fn a_resumed_monitor_keeps_the_particles_masses() {
     let s = loaded(1.3, 6.0);
     let mut c = s.monitor_config();
     c.rbpf.particles = 100;
-    c.ekf.enabled = false;
     let mut sim = BogieSimulator::new(&s).unwrap().with_mass_input(false);
     let samples: Vec<BogieSample> = std::iter::from_fn(|| sim.step().map(|(y, _)| *y)).collect();
     let (before, after) = samples.split_at(5_000);

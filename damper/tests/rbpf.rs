@@ -40,7 +40,6 @@ fn known_parameter_config(s: &DamperScenario, propagation: Propagation) -> Dampe
     c.rbpf.jump_search.enabled = false;
     c.rbpf.kernel = KernelSchedule::EveryStep;
     c.rbpf.propagation = propagation;
-    c.ekf.enabled = false;
     c
 }
 
@@ -259,6 +258,7 @@ fn exact_rbpf_and_ekf_covariances_stay_symmetric_positive_definite() {
     c.rbpf.propagation = Propagation::Exact;
     c.rbpf.kernel = KernelSchedule::EveryStep;
     c.rbpf.jump_search.enabled = false;
+    c.ekf.enabled = true;
     let mut m = DamperMonitor::new(&c, 5).unwrap();
     for (k, (y, _)) in samples(&s).iter().enumerate() {
         m.step(y).unwrap();
@@ -281,7 +281,6 @@ fn rbpf_converges_on_a_short_seeded_scenario() {
     let s = scenario("damper-seed", 10.0);
     let mut c = s.monitor_config();
     c.rbpf.particles = 300;
-    c.ekf.enabled = false;
     let mut m = DamperMonitor::new(&c, 21).unwrap();
     let data = samples(&s);
     for (y, _) in &data {
@@ -395,7 +394,6 @@ fn noise_scale_estimate_matches_the_analytic_innovation_variance() {
         .unwrap()
         .monitor_config();
         c.rbpf.particles = 200;
-        c.ekf.enabled = false;
         let expected = innovation_variance_ratio(&c, &s.sensors);
         let mut rbpf = Rbpf::new(&c.filter_model(), &c.rbpf, &c.speed).unwrap();
         for (y, _) in samples(&s) {

@@ -42,7 +42,6 @@ fn log_likelihood(
     c.rbpf.regeneration_fraction = 0.0;
     c.rbpf.jump_search.enabled = false;
     c.nominal.csay_ns_per_m *= csay_ratio;
-    c.ekf.enabled = false;
     let mut m = DamperMonitor::with_gain_table(&c, 1, Some(table.clone())).unwrap();
     for y in data {
         m.step(y).unwrap();
