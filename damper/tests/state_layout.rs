@@ -6,11 +6,13 @@
 use railmon_damper::{BogieSimulator, DamperMonitor, DamperMonitorState, DamperScenario};
 
 /// The state of a monitor run `steps` samples into a scenario (N = 50: the layout does not
-/// depend on the particle count).
+/// depend on the particle count), with the EKF baseline (off by default) so that its state is
+/// traced too.
 fn state_after(scenario_toml: &str, steps: usize) -> DamperMonitorState {
     let scenario = DamperScenario::from_toml_str(scenario_toml).unwrap();
     let mut config = scenario.monitor_config();
     config.rbpf.particles = 50;
+    config.ekf.enabled = true;
     let mut monitor = DamperMonitor::for_bogie(&config, 1, None).unwrap();
     let mut simulator = BogieSimulator::new(&scenario).unwrap();
     for _ in 0..steps {
