@@ -65,8 +65,8 @@ impl SolvingAhead {
     pub fn new(table: Arc<GainTable>) -> Self {
         let at = Arc::new([0.0; 3].map(|x: f64| AtomicU64::new(x.to_bits())));
         let stop = Arc::new(AtomicBool::new(false));
-        // Experiment: a single solving thread, as the service's.
-        let threads = 1;
+        // One thread a core: the filter itself mostly waits for the nodes under way here.
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
         let threads = (0..threads)
             .map(|_| {
                 let (table, at, stop) = (table.clone(), at.clone(), stop.clone());
