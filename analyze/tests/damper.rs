@@ -2,6 +2,7 @@
 //! recorded `bogie.csv` replayed through `--input` gives the same estimates.
 
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 use railmon_analyze::damper::{run, Args, DamperAnalysisError};
 use railmon_analyze::report::RunArgs;
@@ -15,6 +16,25 @@ fn out_dir(tag: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("railmon-damper-{tag}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     dir
+}
+
+/// The gain cache (`--gain-cache`) of every run here but those of the cache's own test: the
+/// runs reach the same gain-table nodes again and again (every replay those of the run it
+/// replays; the recordings without a mass column the 11 mass nodes of the unmeasured mass's
+/// prior at the same speed; damper-load's its two measured masses through a stop), and each
+/// solved them afresh (0.3-0.5 s a node) in most of this binary's time. A node taken from the
+/// cache gives the estimates of one solved in the run, to the bit (checked on the way in, and
+/// by `a_run_with_the_gain_cache_cold_or_warm_estimates_as_one_without`, which runs without
+/// it and with a cache of its own). Emptied at the binary's first run, so that each test run
+/// solves what it needs afresh; in the target directory, so at most one copy stays on disk.
+fn shared_gain_cache() -> PathBuf {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("railmon-analyze-damper-gain-cache");
+        let _ = std::fs::remove_dir_all(&dir);
+        dir
+    })
+    .clone()
 }
 
 fn args(out: &Path) -> Args {
@@ -33,7 +53,7 @@ fn args(out: &Path) -> Args {
         bogie: 1,
         every_bogie: false,
         csv_every: 10,
-        gain_cache: None,
+        gain_cache: Some(shared_gain_cache()),
     }
 }
 

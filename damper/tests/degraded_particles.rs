@@ -38,8 +38,8 @@ impl Lockstep {
         );
     }
 
-    /// Runs filter seed `seed` and adds its counts.
-    fn run(&mut self, seed: u64) {
+    /// Runs filter seed `seed`: its counts.
+    fn of_seed(seed: u64) -> Lockstep {
         let (scenario, config) = common::csy_ramp_on_seed();
         let mut cut = DamperMonitor::new(&config, seed).unwrap();
         let mut full = DamperMonitor::new(&config, seed).unwrap();
@@ -81,12 +81,34 @@ impl Lockstep {
             }
         }
         this.print(&format!("seed {seed}"));
-        for k in 0..3 {
-            self.seen[k] += this.seen[k];
-            self.cut_covered[k] += this.cut_covered[k];
-            self.full_covered[k] += this.full_covered[k];
-            self.mean_inside_full[k] += this.mean_inside_full[k];
+        this
+    }
+
+    /// The counts of filter seeds `seeds`, summed. The seeds run at once, a thread each: each
+    /// is a long single-threaded run, and one after the other they left the second core idle
+    /// for most of this binary's time. Each seed's run is its own, and the sums are of
+    /// integers: the same totals in any order.
+    fn over_seeds(seeds: &[u64]) -> Lockstep {
+        let runs: Vec<Lockstep> = std::thread::scope(|s| {
+            let threads: Vec<_> = seeds
+                .iter()
+                .map(|&seed| s.spawn(move || Lockstep::of_seed(seed)))
+                .collect();
+            threads
+                .into_iter()
+                .map(|t| t.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
+                .collect()
+        });
+        let mut sum = Lockstep::default();
+        for run in runs {
+            for k in 0..3 {
+                sum.seen[k] += run.seen[k];
+                sum.cut_covered[k] += run.cut_covered[k];
+                sum.full_covered[k] += run.full_covered[k];
+                sum.mean_inside_full[k] += run.mean_inside_full[k];
+            }
         }
+        sum
     }
 
     /// The cut keeps a valid posterior, over the seeds run: over the degraded stretch the
@@ -125,11 +147,7 @@ impl Lockstep {
 #[test]
 fn a_filter_cut_to_the_floor_and_restored_keeps_a_valid_posterior() {
     let (_, config) = common::csy_ramp_on_seed();
-    let mut runs = Lockstep::default();
-    for seed in [config.rbpf.seed, 1, 2] {
-        runs.run(seed);
-    }
-    runs.assert_valid();
+    Lockstep::over_seeds(&[config.rbpf.seed, 1, 2]).assert_valid();
 }
 
 /// [`a_filter_cut_to_the_floor_and_restored_keeps_a_valid_posterior`] over filter seeds 1-12.
@@ -140,11 +158,8 @@ fn a_filter_cut_to_the_floor_and_restored_keeps_a_valid_posterior() {
 #[ignore = "about 2.5 min in release: `cargo test --release -p railmon-damper --test \
             degraded_particles -- --ignored --nocapture`"]
 fn the_cut_keeps_a_valid_posterior_over_twelve_seeds() {
-    let mut runs = Lockstep::default();
-    for seed in 1..=12 {
-        runs.run(seed);
-    }
-    runs.assert_valid();
+    let seeds: Vec<u64> = (1..=12).collect();
+    Lockstep::over_seeds(&seeds).assert_valid();
 }
 
 /// A state saved at the floor resumes at its own count in a monitor configured for more, and
