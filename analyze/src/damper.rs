@@ -854,6 +854,7 @@ fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), RecordError>
             "paused",
             "half_body_mass_kg",
             "mass_source",
+            "held_through_burst",
         ]
         .map(str::to_owned),
     );
@@ -891,6 +892,7 @@ fn write_estimates(path: &Path, trace: &[TracePoint]) -> Result<(), RecordError>
         row.push(p.estimate.paused.map_or("", |r| r.as_str()).to_owned());
         row.push(format!("{:.1}", p.body_mass.half_body_mass_kg));
         row.push(p.body_mass.source.as_str().to_owned());
+        row.push(p.estimate.held_through_burst.to_string());
         row
     });
     write_csv_table(path, &header, rows)

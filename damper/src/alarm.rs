@@ -238,6 +238,7 @@ mod tests {
             model_mismatch: false,
             noise_std_ratio: [1.0; 5],
             paused: None,
+            held_through_burst: false,
             speed_m_s: 45.3,
             measured_half_body_mass_kg: None,
         }

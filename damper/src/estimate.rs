@@ -31,6 +31,11 @@ pub struct DamperEstimate {
     /// such a stretch): the posterior is held as it was, not learnt from a model that is not
     /// valid there; the alarm does not judge meanwhile.
     pub paused: Option<PauseReason>,
+    /// The innovations burst beyond what any hypothesis explains (a damper failing at speed,
+    /// a shock; `crate::burst`): `csy` and `csay` are the posteriors published before the
+    /// burst, held while the filter learns through it, until its innovations are back in
+    /// their band (at most 3 time constants of the model's slowest mode).
+    pub held_through_burst: bool,
     /// The last sample's speed (m/s).
     pub speed_m_s: f64,
     /// The last sample's measured body mass above the bogie (kg,

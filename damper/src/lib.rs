@@ -11,6 +11,7 @@
 //! Design, results and measurements: `docs/damper.md`.
 
 pub mod alarm;
+pub mod burst;
 pub mod config;
 pub mod consistency;
 pub mod ekf;

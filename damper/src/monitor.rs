@@ -3,6 +3,7 @@
 
 use std::sync::Arc;
 
+use crate::burst::BurstHold;
 use crate::config::DamperMonitorConfig;
 use crate::consistency::ConsistencyCheck;
 use crate::ekf::{AugmentedEkf, EkfState};
@@ -27,6 +28,8 @@ pub struct DamperMonitorState {
     pause: PauseState,
     /// Each damper's degradation trend (`C_sy`, `C_say`).
     trends: [DegradationTrend; 2],
+    /// The publication held through a burst of innovations (`crate::burst`).
+    burst: BurstHold,
 }
 
 impl DamperMonitorState {
@@ -40,7 +43,8 @@ impl DamperMonitorState {
     /// 6: each damper's degradation trend (`trends`).
     /// 7: the particles' body masses while none is measured (`RbpfState`).
     /// 8: the common state estimated after a pause (`RbpfState`).
-    pub const STATE_FORMAT_VERSION: u32 = 8;
+    /// 9: the publication held through a burst of innovations (`burst`).
+    pub const STATE_FORMAT_VERSION: u32 = 9;
 }
 
 /// Where a monitor is with respect to its valid speed range.
@@ -120,6 +124,8 @@ pub struct DamperMonitor {
     trends: [DegradationTrend; 2],
     /// The nominal dampers (`C_sy`, `C_say`; N s/m) the trends' ratios are of.
     nominal_ns_per_m: [f64; 2],
+    /// What is published through a burst of innovations (`crate::burst`).
+    burst: BurstHold,
 }
 
 impl Settling {
@@ -204,6 +210,7 @@ impl DamperMonitor {
                 model_mismatch: false,
                 noise_std_ratio: rbpf.noise_std_ratio(),
                 paused: None,
+                held_through_burst: false,
                 speed_m_s: config.vehicle.speed_m_s,
                 measured_half_body_mass_kg: None,
             },
@@ -217,6 +224,7 @@ impl DamperMonitor {
             pause: PauseState::running(config.vehicle.speed_m_s),
             trends: [(); 2].map(|_| DegradationTrend::new(config.alarm.degraded_below_ratio)),
             nominal_ns_per_m: [model.nominal.csy_ns_per_m, model.nominal.csay_ns_per_m],
+            burst: BurstHold::new(config.dt_s),
         })
     }
 
@@ -291,30 +299,39 @@ impl DamperMonitor {
             }
             None => None,
         };
-        if self.pause.reason.is_none() {
-            self.consistency
-                .update(self.rbpf.normalised_innovation_squared());
-        }
         let r = self.rbpf.estimate();
+        let [csy, csay] = if self.pause.reason.is_none() {
+            let nis = self.rbpf.normalised_innovation_squared();
+            self.consistency.update(nis);
+            let settled_nis = SETTLED_NIS_RATIO * crate::model::N_OUTPUTS as f64;
+            let max_hold_steps = self.max_hold_steps();
+            self.burst
+                .update(nis, [r.csy, r.csay], max_hold_steps, settled_nis)
+        } else {
+            // Settling after a pause: the posterior does not learn; what was published stays.
+            self.burst.published().unwrap_or([r.csy, r.csay])
+        };
+        let held_through_burst = self.burst.holding();
         self.estimate = DamperEstimate {
             time_s,
-            csy: r.csy,
-            csay: r.csay,
+            csy,
+            csay,
             effective_sample_size: r.effective_sample_size,
             ekf,
             nis_window_mean: self.consistency.window_mean(),
             model_mismatch: self.consistency.mismatch(),
             noise_std_ratio: self.rbpf.noise_std_ratio(),
             paused: self.pause.reason,
+            held_through_burst,
             speed_m_s,
             measured_half_body_mass_kg: sample.half_body_mass_kg,
         };
         // Operating time: the filter learnt from this sample and its model explains the data.
-        if self.pause.reason.is_none() && !self.estimate.model_mismatch {
+        if self.pause.reason.is_none() && !self.estimate.model_mismatch && !held_through_burst {
             for ((trend, p), nominal) in self
                 .trends
                 .iter_mut()
-                .zip([r.csy, r.csay])
+                .zip([csy, csay])
                 .zip(self.nominal_ns_per_m)
             {
                 trend.update(
@@ -399,6 +416,7 @@ impl DamperMonitor {
             consistency: self.consistency,
             pause: self.pause.clone(),
             trends: self.trends.clone(),
+            burst: self.burst.clone(),
         }
     }
 
@@ -425,17 +443,20 @@ impl DamperMonitor {
         };
         let r = rbpf.estimate();
         let consistency = state.consistency;
+        let burst = state.burst;
+        let [csy, csay] = burst.published().unwrap_or([r.csy, r.csay]);
         Ok(DamperMonitor {
             estimate: DamperEstimate {
                 time_s: state.steps as f64 * config.dt_s,
-                csy: r.csy,
-                csay: r.csay,
+                csy,
+                csay,
                 effective_sample_size: r.effective_sample_size,
                 ekf: ekf.as_ref().map(|e| e.estimate()),
                 nis_window_mean: consistency.window_mean(),
                 model_mismatch: consistency.mismatch(),
                 noise_std_ratio: rbpf.noise_std_ratio(),
                 paused: pause.reason,
+                held_through_burst: burst.holding(),
                 speed_m_s: pause.speed_m_s,
                 // Not in the state: the next sample says (the filters take it before they step).
                 measured_half_body_mass_kg: None,
@@ -450,7 +471,19 @@ impl DamperMonitor {
             pause,
             trends: state.trends,
             nominal_ns_per_m: [model.nominal.csy_ns_per_m, model.nominal.csay_ns_per_m],
+            burst,
         })
+    }
+
+    /// The longest hold of the publication through a burst ([`crate::burst`]):
+    /// [`Rbpf::max_resume_settle_s`] (3 time constants of the model's slowest mode, the
+    /// settling's longest after a pause). None without the jump search, whose adoptions are
+    /// what a burst moves.
+    fn max_hold_steps(&self) -> u64 {
+        match self.rbpf.slowest_time_constant_s() {
+            Some(_) => (self.rbpf.max_resume_settle_s() / self.dt_s).round() as u64,
+            None => 0,
+        }
     }
 
     pub fn estimate(&self) -> &DamperEstimate {

@@ -158,6 +158,7 @@ mod tests {
             model_mismatch: mismatch,
             noise_std_ratio: [1.0; 5],
             paused,
+            held_through_burst: false,
             speed_m_s: if paused.is_some() { 2.0 } else { 30.0 },
             measured_half_body_mass_kg: None,
         }

@@ -1,7 +1,7 @@
 //! The RBPF's posterior summaries: mean and 90% interval of each coefficient.
 
 /// Posterior summary of one damper coefficient.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct DamperPosterior {
     /// Posterior mean (N s/m).
     pub mean_ns_per_m: f64,

@@ -656,6 +656,7 @@ impl BogiePipeline {
                         None => "no_samples",
                         Some(e) if e.paused.is_some() => "paused",
                         Some(e) if e.model_mismatch => "model_mismatch",
+                        Some(e) if e.held_through_burst => "held",
                         Some(_) => "ok",
                     }
                     .into(),

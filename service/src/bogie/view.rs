@@ -96,9 +96,12 @@ pub struct BogieView {
     pub nis_window_mean: f64,
     /// `ok`, `no_samples`, `paused` (the speed is outside the filter's valid range,
     /// `estimator.speed`: the posterior is held and the health flags are not judged; the
-    /// reason in `paused`), or `model_mismatch`: the filter's model does not explain the data
+    /// reason in `paused`), `model_mismatch`: the filter's model does not explain the data
     /// for a sustained time (a wrong vehicle or sensor noise in the configuration; the health
-    /// flags are not judged meanwhile).
+    /// flags are not judged meanwhile), or `held`: its innovations burst beyond what any
+    /// hypothesis explains (a damper failing at speed, a shock), and `csy` / `csay` are the
+    /// estimates from before the burst while the filter learns through it, until its
+    /// innovations are back in their band (typically 0.2-0.6 s).
     pub status: String,
     /// Why the filter is paused: `low_speed` or `high_speed`; null when it is not.
     pub paused: Option<String>,
