@@ -53,3 +53,42 @@ fn a_resumed_monitor_goes_on_exactly_and_inside_the_pre_restart_interval() {
     other.rbpf.particles = 100;
     assert!(DamperMonitor::resume(&other, None, running.state()).is_err());
 }
+
+/// A monitor saved while it holds its publication through a burst (`railmon_damper::burst`:
+/// held-out sampler draw 5105, `C_sy` stepping to 0.26 x at 57 s at 46 m/s) resumes holding
+/// the same posteriors, and goes on exactly as the one that saved it through the release.
+#[test]
+fn a_monitor_saved_during_a_burst_hold_resumes_it_exactly() {
+    let mut scenario = railmon_damper::sampler::draw(5105, 120.0).scenario;
+    scenario.duration_s = 58.0;
+    let mut config = scenario.monitor_config();
+    config.rbpf.particles = 200;
+    let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed).unwrap();
+    let mut sim = BogieSimulator::new(&scenario).unwrap();
+    let mut samples: Vec<BogieSample> = vec![];
+    while let Some((s, _)) = sim.step() {
+        samples.push(*s);
+    }
+    let mut running = DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
+    let mut at = None;
+    for (k, s) in samples.iter().enumerate() {
+        if running.step(s).unwrap().held_through_burst {
+            at = Some(k + 1);
+            break;
+        }
+    }
+    let at = at.expect("the step's burst is held");
+    let bytes = bincode::serialize(&running.state()).unwrap();
+    let state = bincode::deserialize(&bytes).unwrap();
+    let mut resumed = DamperMonitor::resume(&config, Some(table.clone()), state).unwrap();
+    assert!(resumed.estimate().held_through_burst);
+    assert_eq!(resumed.estimate().csay, running.estimate().csay);
+    let mut released = false;
+    for s in &samples[at..] {
+        let a = *running.step(s).unwrap();
+        let b = *resumed.step(s).unwrap();
+        assert_eq!(a, b);
+        released |= !a.held_through_burst;
+    }
+    assert!(released, "the hold ends within the run");
+}
