@@ -32,9 +32,8 @@
 use railmon_slip::bound::{
     excess_over_slip_rule_nm, f1_bound, losses_at_bound, LoadChangeInformation,
 };
-use railmon_slip::ekf::DriveFilter;
 use railmon_slip::fixed_lag::{CentredMean, FixedLagEstimator};
-use railmon_slip::model::{idx, wrap_angle, DriveMatrix, DriveState};
+use railmon_slip::model::DriveState;
 use railmon_slip::sampler::{draw_kind, is_held_out, Draw, DrawKind};
 use railmon_slip::{
     AdhesionEstimator, AdhesionMethod, DetectionCounter, DriveModel, DriveSimulator,
@@ -271,7 +270,7 @@ fn run(draw: Draw, method: Option<AdhesionMethod>, lag_study: bool) -> Outcome {
     let mut adhering_error = vec![(0.0, 0usize); n];
     let (mut run_now, mut run_max) = (vec![0usize; n], vec![0usize; n]);
     let mut run_start = vec![0usize; n];
-    let mut lag = lag_study.then(|| LagRunner::new(&cfg, n, *pipe.bank().model()));
+    let mut lag = lag_study.then(|| LagRunner::new(&cfg, n));
     // The pipeline publishes each step `FIXED_LAG_STEPS` frames later (the fixed lag on every
     // path): its probabilities and alarms are scored against the truth of the step they name
     // (`step_index`), kept here until then, and the last steps are drained at the end.
@@ -299,11 +298,7 @@ fn run(draw: Draw, method: Option<AdhesionMethod>, lag_study: bool) -> Outcome {
             .step_with_train_speed(samples, train_speed)
             .expect("pipeline step");
         if let Some(l) = &mut lag {
-            l.push(
-                pipe.torque_nm(),
-                pipe.bank().filters(),
-                &truth_by_step[step],
-            );
+            l.push(pipe.torque_nm(), &truth_by_step[step]);
         }
         if published {
             score_published(&pipe, &truth_by_step);
@@ -643,12 +638,7 @@ const BOX_HALVES: [usize; 2] = [31, 47];
 const EMA_ALPHA: f64 = 1.0 / 32.0;
 
 /// Edge moves: (name, back-date of onsets, back-date of releases); `None` = the oracle.
-const EDGES: [(&str, Option<(isize, isize)>); 19] = [
-    ("0/+8", Some((0, -8))),
-    ("0/+16", Some((0, -16))),
-    ("0/+24", Some((0, -24))),
-    ("-8/+8", Some((8, -8))),
-    ("-8/+16", Some((8, -16))),
+const EDGES: [(&str, Option<(usize, usize)>); 14] = [
     ("as is", Some((0, 0))),
     ("-8/0", Some((8, 0))),
     ("-16/0", Some((16, 0))),
@@ -685,12 +675,10 @@ fn runs(flags: &[bool]) -> Vec<(usize, usize)> {
 }
 
 /// Every episode `[a, b)` becomes `[a - on, b - off)` (dropped when empty).
-fn back_date(flags: &[bool], on: isize, off: isize) -> Vec<bool> {
+fn back_date(flags: &[bool], on: usize, off: usize) -> Vec<bool> {
     let mut out = vec![false; flags.len()];
-    let len = flags.len() as isize;
     for (a, b) in runs(flags) {
-        let a = (a as isize - on).clamp(0, len) as usize;
-        let b = (b as isize - off).clamp(0, len) as usize;
+        let (a, b) = (a.saturating_sub(on), b.saturating_sub(off));
         for f in out.iter_mut().take(b).skip(a) {
             *f = true;
         }
@@ -808,82 +796,11 @@ struct LagRunner {
     stage: FixedLagEstimator,
     stage_flags: Vec<Vec<bool>>,
     truth: Vec<Vec<bool>>,
-    /// Every step's filters, for the fixed-interval (RTS) smoother's view.
-    filters: Vec<Vec<DriveFilter>>,
-    cfg: railmon_slip::SlipMonitorConfig,
-    model: DriveModel,
-}
-
-/// The stage's episodes with the onset (and the release, with `take_release`) of the RTS
-/// view's episode that overlaps it, where that edge is within `RTS_EDGE_REACH` steps.
-fn rts_edges(stage: &[bool], rts: &[bool], take_release: bool) -> Vec<bool> {
-    let mut out = vec![false; stage.len()];
-    let r = runs(rts);
-    for (a, b) in runs(stage) {
-        let (mut a2, mut b2) = (a, b);
-        if let Some(&(c, d)) = r.iter().find(|(c, d)| *c < b && a < *d) {
-            if c.abs_diff(a) <= RTS_EDGE_REACH {
-                a2 = c;
-            }
-            if take_release && d.abs_diff(b) <= RTS_EDGE_REACH {
-                b2 = d;
-            }
-        }
-        for f in &mut out[a2..b2.max(a2)] {
-            *f = true;
-        }
-    }
-    out
-}
-const RTS_EDGE_REACH: usize = 64;
-
-/// Half-widths of the centred means on the RTS-smoothed torque.
-const RTS_HALVES: [usize; 4] = [0, 15, 31, 47];
-
-/// The fixed-interval Rauch-Tung-Striebel smoother over one drive's EKF record (Simon 2006,
-/// section 9.4.2; Saerkkae 2013, eq. 9.x for the extended form): `x_s(t) = x_f(t) + G (x_s(t+1)
-/// - x_p(t+1))`, `G = P_f(t) A' P_p(t+1)^-1`, with `A`, `x_p` and `P_p` the EKF's own
-/// prediction from `x_f(t)` (its Jacobian at the filtered state, eq. 8). The torque of the
-/// smoothed state.
-fn rts_torque(
-    model: &DriveModel,
-    q: &DriveMatrix,
-    filters: &[Vec<DriveFilter>],
-    k: usize,
-) -> Vec<f64> {
-    let t_len = filters.len();
-    let mut xs = vec![DriveState::zeros(); t_len];
-    if t_len == 0 {
-        return Vec::new();
-    }
-    xs[t_len - 1] = filters[t_len - 1][k].x;
-    for t in (0..t_len - 1).rev() {
-        let f = &filters[t][k];
-        let Some(u) = filters[t + 1][k].u_prev else {
-            xs[t] = f.x;
-            continue;
-        };
-        let (xp, a) = model.transition_and_jacobian(&f.x, &u);
-        let pp = a * f.p * a.transpose() + q;
-        let ap = a * f.p;
-        let Some(ch) = pp.cholesky() else {
-            xs[t] = f.x;
-            continue;
-        };
-        let g = ch.solve(&ap).transpose();
-        let mut d = xs[t + 1] - xp;
-        d[idx::THETA] = wrap_angle(d[idx::THETA]);
-        xs[t] = f.x + g * d;
-    }
-    xs.iter().map(|x| x[idx::TORQUE]).collect()
 }
 
 impl LagRunner {
-    fn new(cfg: &railmon_slip::SlipMonitorConfig, n: usize, model: DriveModel) -> Self {
+    fn new(cfg: &railmon_slip::SlipMonitorConfig, n: usize) -> Self {
         LagRunner {
-            filters: Vec::new(),
-            cfg: cfg.clone(),
-            model,
             raw_est: AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
             ema_est: AdhesionEstimator::new(cfg.method, &cfg.adhesion, n).expect("estimator"),
             ema_x: Vec::new(),
@@ -901,9 +818,8 @@ impl LagRunner {
         }
     }
 
-    fn push(&mut self, x: &[f64], filters: &[DriveFilter], truth: &[bool]) {
+    fn push(&mut self, x: &[f64], truth: &[bool]) {
         let n = x.len();
-        self.filters.push(filters.to_vec());
         let p_raw = self
             .raw_est
             .estimate(x)
@@ -964,41 +880,6 @@ impl LagRunner {
             "every step has its flag"
         );
         views.push(("library stage".to_owned(), stage));
-        let n = self.truth.len();
-        let q = DriveMatrix::from_diagonal(&self.cfg.ekf.process_noise_diag.into());
-        let smoothed: Vec<Vec<f64>> = (0..n)
-            .map(|k| rts_torque(&self.model, &q, &self.filters, k))
-            .collect();
-        drop(std::mem::take(&mut self.filters));
-        for half in RTS_HALVES {
-            let mut c = Centred::new(&self.cfg, n, half);
-            let mut x = vec![0.0; n];
-            for t in 0..len {
-                for (xk, s) in x.iter_mut().zip(&smoothed) {
-                    *xk = s[t];
-                }
-                c.push(&x);
-            }
-            c.drain();
-            if half == 31 || half == 47 {
-                let stage_flags = views
-                    .iter()
-                    .find(|v| v.0 == "library stage")
-                    .expect("stage")
-                    .1
-                    .clone();
-                for (name, take_release) in [("onsets", false), ("edges", true)] {
-                    let merged = (0..n)
-                        .map(|k| rts_edges(&stage_flags[k], &c.flags[k], take_release))
-                        .collect();
-                    views.push((
-                        format!("stage, {name} of rts centred {}", 2 * half + 1),
-                        merged,
-                    ));
-                }
-            }
-            views.push((format!("rts, centred {}", 2 * half + 1), c.flags));
-        }
         LagViews {
             views,
             truth: self.truth,
@@ -1089,25 +970,6 @@ fn print_lag_study(outcomes: &[Outcome]) {
             met - met_r,
             n - n_r
         );
-    }
-    if std::env::var_os("RTS_DIFF").is_some() {
-        let find = |name: &str| first.iter().position(|x| x.0 == name).expect("view");
-        let (a, b) = (
-            find("library stage, as is"),
-            find("stage, edges of rts centred 63, as is"),
-        );
-        for o in outcomes {
-            let Some((scores, _)) = &o.lag else { continue };
-            for (i, s) in o.slipping.iter().enumerate() {
-                let (fa, fb) = (scores[a].1[i], scores[b].1[i]);
-                if s.bound_f1 >= F1_TARGET && ((fa >= F1_TARGET) != (fb >= F1_TARGET)) {
-                    println!(
-                        "diff seed {} drive {} resolvable {} stage {:.3} rts {:.3} depth {:.2}/{:.2} rms {:.2} steps {} {:?}",
-                        o.draw.seed, s.drive + 1, s.resolvable, fa, fb, s.depth.0, s.depth.1, s.rms_nm, o.steps, o.draw.regime.name()
-                    );
-                }
-            }
-        }
     }
     println!();
     println!("| view | onset delay [steps], per drive median, above the bound | release delay [steps], truth's end to the episode's end |");
