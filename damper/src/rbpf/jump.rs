@@ -90,41 +90,8 @@ pub const ADOPT_POSTERIOR_MASS: f64 = 0.95;
 /// transient of the plant's own dynamics lasts.
 pub const ADOPT_TIME_CONSTANTS: f64 = 1.0;
 
-/// The sentinels of one damper alone: each offset for each damper.
-const N_SINGLE: usize = 2 * SENTINEL_LN_OFFSETS.len();
-
-/// The sentinels: each offset for each damper alone, then every pair of offsets for both
-/// dampers at once (`C_sy`'s offset the slower index). Why both: a bogie that stood while
-/// both its dampers failed (a stop's failure is seen only when it moves off) or lost both at
-/// once was found one damper after the other: the stronger one's hypothesis (`C_sy`) is
-/// adopted with the other damper at its healthy value, and the weaker one needs a second
-/// search against a cloud already fitted to part of the change. On the condition sampler's
-/// faults at a stop the data would have told `C_say` 5.6-9.4 s after moving off, the filter
-/// took 14.7-19.1 s or missed it (docs/damper.md, "What the data allow at a stop").
-pub const N_SENTINELS: usize = N_SINGLE + SENTINEL_LN_OFFSETS.len() * SENTINEL_LN_OFFSETS.len();
-
-/// Which dampers sentinel `j` moves: `0` `C_sy`, `1` `C_say`, `2` both.
-pub fn sentinel_dampers(j: usize) -> usize {
-    if j < N_SINGLE {
-        j / SENTINEL_LN_OFFSETS.len()
-    } else {
-        2
-    }
-}
-
-/// The prior rate (per second) of sentinel `j`'s jump, from the search's `hazard_per_s`
-/// (one damper to one sentinel's value): a jump of both dampers to one pair of values gets
-/// that over the number of offsets, so that all pairs together are as likely a priori as
-/// one damper's jump to any of its values: a double failure is not the likelier event, and
-/// on a healthy bogie the pairs' odds cross `A` about as often as one damper's sentinels do
-/// (once in `A / lambda_j` s each, the Shiryaev-Roberts property).
-pub fn sentinel_hazard_per_s(js: &JumpSearchConfig, j: usize) -> f64 {
-    if j < N_SINGLE {
-        js.hazard_per_s
-    } else {
-        js.hazard_per_s / SENTINEL_LN_OFFSETS.len() as f64
-    }
-}
+/// The sentinels: each offset for each damper.
+pub const N_SENTINELS: usize = 2 * SENTINEL_LN_OFFSETS.len();
 
 /// The jump search (`[monitor.rbpf.jump_search]`), module docs of `railmon_damper::rbpf::jump`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -232,8 +199,7 @@ pub(super) struct Sentinels {
     /// `ln Q_j` (`-inf`: none yet, after a start or a materialisation).
     ln_odds: Vec<f64>,
     /// `ln(lambda dt)`: the prior odds of a jump in one step.
-    /// Per sentinel, `ln (lambda_j dt)` ([`sentinel_hazard_per_s`]).
-    ln_hazard_step: Vec<f64>,
+    ln_hazard_step: f64,
     ln_materialise: f64,
     /// `ln C` range of the gain grid (absolute).
     ln_range: [[f64; 2]; 2],
@@ -261,9 +227,7 @@ impl Sentinels {
             bank,
             ln_theta: vec![centre; N_SENTINELS],
             ln_odds: vec![f64::NEG_INFINITY; N_SENTINELS],
-            ln_hazard_step: (0..N_SENTINELS)
-                .map(|j| (sentinel_hazard_per_s(js, j) * filter_model.dt_s).ln())
-                .collect(),
+            ln_hazard_step: (js.hazard_per_s * filter_model.dt_s).ln(),
             ln_materialise: js.materialise_odds.ln(),
             ln_range,
             ll: vec![0.0; N_SENTINELS],
@@ -278,25 +242,11 @@ impl Sentinels {
     /// Puts the sentinels at their offsets from `centre` (the posterior mean of `ln C`).
     pub(super) fn recentre(&mut self, centre: [f64; 2]) {
         let range = self.ln_range;
-        let n_offsets = SENTINEL_LN_OFFSETS.len();
         for (j, th) in self.ln_theta.iter_mut().enumerate() {
-            let offsets = match sentinel_dampers(j) {
-                2 => {
-                    let pair = j - N_SINGLE;
-                    [
-                        Some(SENTINEL_LN_OFFSETS[pair / n_offsets]),
-                        Some(SENTINEL_LN_OFFSETS[pair % n_offsets]),
-                    ]
-                }
-                0 => [Some(SENTINEL_LN_OFFSETS[j % n_offsets]), None],
-                _ => [None, Some(SENTINEL_LN_OFFSETS[j % n_offsets])],
-            };
+            let k = j / SENTINEL_LN_OFFSETS.len();
+            let offset = SENTINEL_LN_OFFSETS[j % SENTINEL_LN_OFFSETS.len()];
             *th = centre;
-            for (k, offset) in offsets.iter().enumerate() {
-                if let Some(o) = offset {
-                    th[k] = (centre[k] + o).clamp(range[k][0], range[k][1]);
-                }
-            }
+            th[k] = (centre[k] + offset).clamp(range[k][0], range[k][1]);
         }
     }
 
@@ -324,13 +274,8 @@ impl Sentinels {
     /// `mixture_ll` of the same step.
     pub(super) fn commit(&mut self, mixture_ll: f64) {
         self.bank.commit();
-        for ((q, l), h) in self
-            .ln_odds
-            .iter_mut()
-            .zip(&self.ll)
-            .zip(&self.ln_hazard_step)
-        {
-            *q = updated_ln_odds(*q, *h, l - mixture_ll);
+        for (q, l) in self.ln_odds.iter_mut().zip(&self.ll) {
+            *q = updated_ln_odds(*q, self.ln_hazard_step, l - mixture_ll);
         }
     }
 

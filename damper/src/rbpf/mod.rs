@@ -45,8 +45,7 @@ pub use bank::{BankState, Propagation};
 pub use config::{KernelSchedule, RbpfConfig, UnmeasuredMassConfig};
 use jump::Sentinels;
 pub use jump::{
-    sentinel_dampers, slowest_time_constant_s, JumpSearchConfig, SentinelState, N_SENTINELS,
-    SENTINEL_LN_OFFSETS,
+    slowest_time_constant_s, JumpSearchConfig, SentinelState, N_SENTINELS, SENTINEL_LN_OFFSETS,
 };
 use posterior::SortedParticles;
 pub use posterior::{DamperPosterior, RbpfEstimate};
@@ -165,11 +164,11 @@ pub struct RbpfState {
     noise_scale: NoiseScale,
     sentinels: Option<SentinelState>,
     /// Per particle, which damper's jump hypothesis not yet adopted it holds (`jump` module
-    /// docs, "Publishing a jump"): 0 none, 1 `C_sy`, 2 `C_say`, 3 both; empty when none does.
+    /// docs, "Publishing a jump"): 0 none, 1 `C_sy`, 2 `C_say`; empty when none does.
     on_probation: Vec<u8>,
-    /// Per jump class (`C_sy`, `C_say`, both), steps its hypotheses on probation have held a
-    /// decisive posterior mass in a row.
-    decisive_steps: [u64; N_JUMP_CLASSES],
+    /// Per damper, steps its hypotheses on probation have held a decisive posterior mass in
+    /// a row.
+    decisive_steps: [u64; 2],
     /// Per particle `ln (m_bd / design)` while no mass is measured (`unmeasured_mass`); empty
     /// otherwise.
     ln_mass: Vec<f64>,
@@ -179,16 +178,12 @@ pub struct RbpfState {
     resume_init: Option<ResumeInitState>,
 }
 
-/// Classes of jump hypotheses: `C_sy`, `C_say`, both (`jump::sentinel_dampers`).
-const N_JUMP_CLASSES: usize = 3;
-
 /// Whether a particle holds a jump hypothesis not yet published, and of which damper.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Probation {
     /// Published.
     None,
-    /// A jump of `C_sy` (0), `C_say` (1) or both (2) (`jump::sentinel_dampers`), not yet
-    /// adopted.
+    /// A jump of `C_sy` (0) or `C_say` (1), not yet adopted.
     Jump(u8),
 }
 
@@ -238,9 +233,9 @@ pub struct Rbpf {
     /// Per particle, which damper's jump hypothesis not yet adopted it holds (empty: none);
     /// the published posterior leaves these out (`jump` module docs, "Publishing a jump").
     on_probation: Vec<Probation>,
-    /// Per jump class (`C_sy`, `C_say`, both), steps in a row its particles on probation
-    /// have held at least `jump::ADOPT_POSTERIOR_MASS` of the posterior.
-    decisive_steps: [u64; N_JUMP_CLASSES],
+    /// Per damper, steps in a row its particles on probation have held at least
+    /// `jump::ADOPT_POSTERIOR_MASS` of the posterior.
+    decisive_steps: [u64; 2],
     /// Jump hypotheses adopted so far (published).
     adoptions: u64,
     /// The time constant of the model's slowest mode (s; [`slowest_time_constant_s`]), with
@@ -415,7 +410,7 @@ impl Rbpf {
             },
             sentinels,
             on_probation: Vec::new(),
-            decisive_steps: [0; N_JUMP_CLASSES],
+            decisive_steps: [0; 2],
             adoptions: 0,
             slowest_time_constant_s,
             max_resume_settle_s,
@@ -485,13 +480,10 @@ impl Rbpf {
             f.resize_buffers();
         }
         if !(state.on_probation.is_empty() || state.on_probation.len() == n)
-            || state
-                .on_probation
-                .iter()
-                .any(|p| *p as usize > N_JUMP_CLASSES)
+            || state.on_probation.iter().any(|p| *p > 2)
         {
             return Err(DamperError::Config(format!(
-                "snapshot: on_probation of {} entries in 0..=3 expected for {n} particles",
+                "snapshot: on_probation of {} entries in 0..=2 expected for {n} particles",
                 state.on_probation.len()
             )));
         }
@@ -775,7 +767,7 @@ impl Rbpf {
             return;
         }
         let window_s = jump::ADOPT_TIME_CONSTANTS * self.slowest_time_constant_s.unwrap_or(0.0);
-        let mass = [0, 1, 2].map(|k| self.probation_mass(k));
+        let mass = [0, 1].map(|k| self.probation_mass(k));
         for (k, mass) in mass.iter().enumerate() {
             if *mass >= jump::ADOPT_POSTERIOR_MASS {
                 self.decisive_steps[k] += 1;
@@ -792,14 +784,11 @@ impl Rbpf {
             .zip(&self.log_w)
             .all(|(p, w)| *p != Probation::None || *w == f64::NEG_INFINITY);
         if rest_empty {
-            let most = (0..N_JUMP_CLASSES)
-                .max_by(|&a, &b| mass[a].total_cmp(&mass[b]))
-                .unwrap_or(0);
-            self.adopt(most);
+            self.adopt(usize::from(mass[1] > mass[0]));
         }
         if self.on_probation.iter().all(|p| *p == Probation::None) {
             self.on_probation.clear();
-            self.decisive_steps = [0; N_JUMP_CLASSES];
+            self.decisive_steps = [0; 2];
         }
     }
 
@@ -844,7 +833,7 @@ impl Rbpf {
 
     /// The posterior mass of the jump hypotheses not yet adopted (0: none).
     pub fn jump_probation_mass(&self) -> f64 {
-        (0..N_JUMP_CLASSES).map(|k| self.probation_mass(k)).sum()
+        self.probation_mass(0) + self.probation_mass(1)
     }
 
     /// The sentinels' jump hypotheses (total posterior odds `odds` against the cloud) become
@@ -888,17 +877,9 @@ impl Rbpf {
         }
         for (&p, &j) in self.indices[..m].iter().zip(&of_sentinel) {
             let (theta_j, bank) = sentinels.sentinel(j);
-            let k = sentinel_dampers(j);
-            // A jump of both dampers moves both coefficients, each jittered on its own.
-            let moved: &[usize] = match k {
-                0 => &[0],
-                1 => &[1],
-                _ => &[0, 1],
-            };
-            for &d in moved {
-                let z: f64 = self.rng.sample(StandardNormal);
-                self.ln_theta[p][d] = sentinels.clamp(d, theta_j[d] + js.newcomer_ln_std * z);
-            }
+            let k = j / SENTINEL_LN_OFFSETS.len();
+            let z: f64 = self.rng.sample(StandardNormal);
+            self.ln_theta[p][k] = sentinels.clamp(k, theta_j[k] + js.newcomer_ln_std * z);
             self.log_w[p] = ln_each;
             self.on_probation[p] = Probation::Jump(k as u8);
             self.bank.copy_particle(p, bank, j);
