@@ -72,16 +72,10 @@ struct Variant {
     grid_points: usize,
 }
 
-/// `ln p(y | theta)` of one filter variant: an RBPF whose particles all sit at `theta`.
+/// `ln p(y | theta)` of one filter variant: an RBPF whose particles all sit at `theta`
+/// (`DamperMonitorConfig::with_known_dampers`).
 fn log_likelihood(config: &DamperMonitorConfig, v: &Variant, d: &Dampers, ys: &[Vector5]) -> f64 {
-    let mut c = *config;
-    c.nominal = *d;
-    c.rbpf.particles = 2;
-    c.rbpf.prior_ratio = 1.0;
-    c.rbpf.prior_ln_std = 0.0;
-    c.rbpf.ln_diffusion_per_sqrt_s = 0.0;
-    c.rbpf.regeneration_fraction = 0.0;
-    c.rbpf.jump_search.enabled = false;
+    let mut c = config.with_known_dampers(*d);
     c.rbpf.kernel = KernelSchedule::AtResampling;
     c.rbpf.propagation = v.propagation;
     c.rbpf.taylor_truncation = v.taylor_truncation;

@@ -358,13 +358,14 @@ const HEADER: &str = "| seed | conditions | false degraded | lowest healthy rati
 /// The delay the data allow a fault at a stop (issue 24 item 4: flagged within 10 s of
 /// passing the minimum speed), per failed damper: two filters of known dampers beside the
 /// monitor, with that damper failed and with it healthy (the other as the plant has it; the
-/// monitor's model, mass given, its settling after the pause; 2 particles without diffusion,
-/// regeneration or jump search: their log-evidence is the exact Kalman log-likelihood), and the
-/// log-likelihood ratio of failed over healthy from the crossing on. A posterior that puts
-/// 95 % on the failure needs that ratio to pass `ln 19 - ln(lambda T)`, `lambda T` the prior
-/// odds of a failure during the stop (the jump search's hazard over the stop's length); the
-/// alarm then holds `alarm.hold_s`. An ideal observer's delay that knows the failed value,
-/// not a strict bound: a filter whose evidence runs ahead of its expectation can be earlier.
+/// monitor's model, mass given, its settling after the pause;
+/// `DamperMonitorConfig::with_known_dampers`: their log-evidence is the exact Kalman
+/// log-likelihood), and the log-likelihood ratio of failed over healthy from the crossing on.
+/// A posterior that puts 95 % on the failure needs that ratio to pass `ln 19 - ln(lambda T)`,
+/// `lambda T` the prior odds of a failure during the stop (the jump search's hazard over the
+/// stop's length); the alarm then holds `alarm.hold_s`. An ideal observer's delay that knows
+/// the failed value, not a strict bound: a filter whose evidence runs ahead of its
+/// expectation can be earlier.
 struct DataBound {
     damper: DamperId,
     monitors: [DamperMonitor; 2],
@@ -380,13 +381,7 @@ impl DataBound {
         let s = &draw.scenario;
         let failed = railmon_damper::faults::dampers_at(&s.dampers, &s.faults, s.duration_s);
         let fixed = |dampers: railmon_damper::Dampers| {
-            let mut c = *config;
-            c.rbpf.particles = 2;
-            c.rbpf.prior_ln_std = 0.0;
-            c.rbpf.ln_diffusion_per_sqrt_s = 0.0;
-            c.rbpf.regeneration_fraction = 0.0;
-            c.rbpf.jump_search.enabled = false;
-            c.nominal = dampers;
+            let c = config.with_known_dampers(dampers);
             DamperMonitor::with_gain_table(&c, 1, Some(table.clone())).ok()
         };
         s.faults

@@ -109,6 +109,27 @@ impl DamperMonitorConfig {
         }
     }
 
+    /// This configuration as the filter of known dampers `known`: every particle at exactly
+    /// those values (2 particles, prior centred on them with no spread) and no parameter
+    /// dynamics (no diffusion, no regeneration, no jump search), the rest (model, noise
+    /// estimate, speed schedule, ...) as configured. Its `Rbpf::log_evidence` is then the
+    /// exact Kalman log-likelihood `ln p(y | C)` of the data at that damping, the yardstick the
+    /// tests and studies compare the monitor against (an ideal observer that knows the values).
+    /// Exact only where every particle has the same model: with a measured mass, or
+    /// `rbpf.unmeasured_mass` off (otherwise the particles draw masses of their own).
+    pub fn with_known_dampers(&self, known: Dampers) -> Self {
+        let mut c = *self;
+        // Two particles: the fewest the RBPF takes; both the same filter.
+        c.rbpf.particles = 2;
+        c.rbpf.prior_ratio = 1.0;
+        c.rbpf.prior_ln_std = 0.0;
+        c.rbpf.ln_diffusion_per_sqrt_s = 0.0;
+        c.rbpf.regeneration_fraction = 0.0;
+        c.rbpf.jump_search.enabled = false;
+        c.nominal = known;
+        c
+    }
+
     /// Parses a TOML table with the fields of this struct (all optional) and validates it.
     pub fn from_toml_str(text: &str) -> Result<Self, DamperError> {
         let c: DamperMonitorConfig =

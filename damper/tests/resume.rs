@@ -3,21 +3,36 @@
 //! first sample on, where a monitor started from its prior (what a restart gave before) is not
 //! within 1 s.
 
-use railmon_damper::{BogieSample, BogieSimulator, DamperMonitor, DamperScenario, Rbpf};
+use std::sync::Arc;
 
-#[test]
-fn a_resumed_monitor_goes_on_exactly_and_inside_the_pre_restart_interval() {
-    let text = include_str!("../../config/scenarios/damper-seed.toml");
-    let mut scenario = DamperScenario::from_toml_str(text).unwrap();
-    scenario.duration_s = 21.0;
+use railmon_damper::gain_table::GainTable;
+use railmon_damper::{
+    BogieSample, BogieSimulator, DamperMonitor, DamperMonitorConfig, DamperScenario, Rbpf,
+};
+
+/// The scenario's monitor configuration at 200 particles, its gain table, and the samples of
+/// `duration_s` of the scenario: what both tests run a saving and a resumed monitor on.
+fn setup(
+    mut scenario: DamperScenario,
+    duration_s: f64,
+) -> (DamperMonitorConfig, Arc<GainTable>, Vec<BogieSample>) {
+    scenario.duration_s = duration_s;
     let mut config = scenario.monitor_config();
     config.rbpf.particles = 200;
     let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed).unwrap();
     let mut sim = BogieSimulator::new(&scenario).unwrap();
-    let mut samples: Vec<BogieSample> = vec![];
+    let mut samples = vec![];
     while let Some((s, _)) = sim.step() {
         samples.push(*s);
     }
+    (config, table, samples)
+}
+
+#[test]
+fn a_resumed_monitor_goes_on_exactly_and_inside_the_pre_restart_interval() {
+    let text = include_str!("../../config/scenarios/damper-seed.toml");
+    let scenario = DamperScenario::from_toml_str(text).unwrap();
+    let (config, table, samples) = setup(scenario, 21.0);
     let (before, after) = samples.split_at(20_000);
     let mut running = DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
     for s in before {
@@ -59,16 +74,8 @@ fn a_resumed_monitor_goes_on_exactly_and_inside_the_pre_restart_interval() {
 /// the same posteriors, and goes on exactly as the one that saved it through the release.
 #[test]
 fn a_monitor_saved_during_a_burst_hold_resumes_it_exactly() {
-    let mut scenario = railmon_damper::sampler::draw(5105, 120.0).scenario;
-    scenario.duration_s = 58.0;
-    let mut config = scenario.monitor_config();
-    config.rbpf.particles = 200;
-    let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed).unwrap();
-    let mut sim = BogieSimulator::new(&scenario).unwrap();
-    let mut samples: Vec<BogieSample> = vec![];
-    while let Some((s, _)) = sim.step() {
-        samples.push(*s);
-    }
+    let scenario = railmon_damper::sampler::draw(5105, 120.0).scenario;
+    let (config, table, samples) = setup(scenario, 58.0);
     let mut running = DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
     let mut at = None;
     for (k, s) in samples.iter().enumerate() {

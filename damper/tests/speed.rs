@@ -27,21 +27,18 @@ fn samples(s: &DamperScenario) -> Vec<BogieSample> {
     out
 }
 
-/// `ln p(y)` of the known-parameter filter (every particle at `C_say = ratio x nominal`) on
-/// `data`, its steady-state gains from `table`.
+/// `ln p(y)` of the known-parameter filter (`DamperMonitorConfig::with_known_dampers`,
+/// `C_say = ratio x nominal`) on `data`, its steady-state gains from `table`.
 fn log_likelihood(
     c: &DamperMonitorConfig,
     table: &std::sync::Arc<gain_table::GainTable>,
     csay_ratio: f64,
     data: &[BogieSample],
 ) -> f64 {
-    let mut c = *c;
-    c.rbpf.particles = 2;
-    c.rbpf.prior_ln_std = 0.0;
-    c.rbpf.ln_diffusion_per_sqrt_s = 0.0;
-    c.rbpf.regeneration_fraction = 0.0;
-    c.rbpf.jump_search.enabled = false;
-    c.nominal.csay_ns_per_m *= csay_ratio;
+    let c = c.with_known_dampers(Dampers {
+        csay_ns_per_m: c.nominal.csay_ns_per_m * csay_ratio,
+        ..c.nominal
+    });
     let mut m = DamperMonitor::with_gain_table(&c, 1, Some(table.clone())).unwrap();
     for y in data {
         m.step(y).unwrap();
