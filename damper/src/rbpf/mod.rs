@@ -843,31 +843,14 @@ impl Rbpf {
     /// share the mass `odds / (1 + odds)` equally; the others keep their relative weights in
     /// the rest.
     fn materialise(&mut self, odds: f64) -> Result<(), DamperError> {
-        if self.sentinels.is_none() {
+        let Some(sentinels) = self.sentinels.as_mut() else {
             return Ok(());
-        }
+        };
         let n = self.ln_theta.len();
         let js = self.config.jump_search;
         let mass = odds / (1.0 + odds);
         let share = mass.max(js.min_newcomer_fraction);
         let m = ((share * n as f64).round() as usize).clamp(1, n / 2);
-        // The other damper's coefficient of each newcomer, drawn from the published
-        // posterior (systematic resampling of its weights): the hypothesis is "this damper
-        // jumped, the other is as believed", not "the other is whatever the replaced particle
-        // held" (a particle chosen uniformly may be a regenerated one of small weight, its
-        // coefficient anywhere in the gain grid's range).
-        let donor_theta: Option<Vec<[f64; 2]>> = if std::env::var_os("RAILMON_DONOR").is_some() {
-            let mut lw: Vec<f64> = self.published_weights().iter().map(|w| w.ln()).collect();
-            normalize_log_weights(&mut lw)?;
-            let mut d = vec![0; m];
-            systematic_resample(&lw, &mut d, &mut self.rng);
-            Some(d.iter().map(|&i| self.ln_theta[i]).collect())
-        } else {
-            None
-        };
-        let Some(sentinels) = self.sentinels.as_mut() else {
-            return Ok(());
-        };
         // Which sentinel each newcomer stands for: systematic resampling of their odds.
         let mut share = sentinels.ln_odds().to_vec();
         normalize_log_weights(&mut share)?;
@@ -892,12 +875,9 @@ impl Rbpf {
         for w in self.log_w.iter_mut() {
             *w += ln_rest;
         }
-        for (slot, (&p, &j)) in self.indices[..m].iter().zip(&of_sentinel).enumerate() {
+        for (&p, &j) in self.indices[..m].iter().zip(&of_sentinel) {
             let (theta_j, bank) = sentinels.sentinel(j);
             let k = j / SENTINEL_LN_OFFSETS.len();
-            if let Some(d) = &donor_theta {
-                self.ln_theta[p][1 - k] = d[slot][1 - k];
-            }
             let z: f64 = self.rng.sample(StandardNormal);
             self.ln_theta[p][k] = sentinels.clamp(k, theta_j[k] + js.newcomer_ln_std * z);
             self.log_w[p] = ln_each;
