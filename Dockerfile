@@ -1,6 +1,6 @@
 # railmon: two images from one file, both on the same Debian bookworm base.
-#   target `railmon` (the last stage, the default): the onboard `railmon` (`serve` only: built
-#     with `--no-default-features`, no plotting or font code, so no libfontconfig) and
+#   target `railmon` (the last stage, the default): the onboard `railmon` (all but `analyze`:
+#     built with `--no-default-features`, no plotting or font code, so no libfontconfig) and
 #     `sensors-replay`, packaging binaries built by cargo on the host;
 #   target `monitoring`: the ground's Prometheus, Alertmanager and NATS server (JetStream),
 #     Debian's packages (the ones the system tests run), for compose.yaml.

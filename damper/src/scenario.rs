@@ -68,7 +68,8 @@ pub struct LoadSpec {
     pub half_body_mass_kg: Option<f64>,
     /// Whether the samples carry the plant's body mass as the measured load
     /// (`BogieSample::half_body_mass_kg`, the air springs' pressure); `false`: they carry none
-    /// and the filter assumes the design mass.
+    /// and the particles carry the mass (`rbpf.unmeasured_mass`; with that off the filter
+    /// assumes the design mass).
     pub measured: bool,
     /// `[[time_s, half_body_mass_kg], ...]`: at each time the body mass becomes the value (kg).
     /// Times increasing, within the run, each at a stop (the `[speed]` profile at 0 m/s).

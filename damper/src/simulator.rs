@@ -96,9 +96,10 @@ impl BogieSimulator {
 
     /// Whether the samples carry the plant's body mass above the bogie as the measured load
     /// (`BogieSample::half_body_mass_kg`; from the start, as a real train's air-spring
-    /// pressure does; default: the scenario's `load.measured`). `false` withholds it (`None`: the filter assumes its design mass), to
-    /// measure what the input is worth. Draws no random number: the samples are otherwise
-    /// the same.
+    /// pressure does; default: the scenario's `load.measured`). `false` withholds it (`None`:
+    /// the particles carry the mass, or with `rbpf.unmeasured_mass` off the filter assumes its
+    /// design mass), to measure what the input is worth. Draws no random number: the samples
+    /// are otherwise the same.
     pub fn with_mass_input(mut self, gives_mass: bool) -> Self {
         self.gives_mass = gives_mass;
         self

@@ -14,8 +14,8 @@ use crate::speed::PauseReason;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum BogieStatusEventKind {
-    /// The monitor holds its posterior (`reason`: `low_speed` / `high_speed`), or holds it for
-    /// another reason than before.
+    /// The monitor holds its posterior (`reason`: `low_speed` / `high_speed` / `gap`), or holds
+    /// it for another reason than before.
     DamperPaused,
     /// The monitor learns again (the settling after a pause is over).
     DamperResumed,
@@ -58,7 +58,7 @@ pub struct BogieStatusEvent {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct BogieStatusEventDetail {
     pub bogie: u32,
-    /// `low_speed` / `high_speed` for `damper_paused`, else absent.
+    /// `low_speed` / `high_speed` / `gap` for `damper_paused`, else absent.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reason: Option<&'static str>,
     pub speed_m_s: f64,

@@ -488,7 +488,7 @@ impl FuelMonitorConfig {
     /// `sample_period_s` (within 1 %), at most `max_gap_s`. Data at another rate or with time
     /// stamps in another unit (ms for s) would otherwise be estimated as if it were right (the
     /// derived acceleration divides by the step). The service's sample clock applies the same
-    /// rule to frames (`service/src/ingest/clock.rs`), with its own, shorter gap limit.
+    /// rule to frames (`records/src/sample_clock.rs`), with its own, shorter gap limit.
     pub fn check_sample_step(&self, previous_s: f64, time_s: f64) -> Result<(), FuelError> {
         if !time_s.is_finite() || time_s <= previous_s {
             return Err(FuelError::TimeNotIncreasing { time_s, previous_s });

@@ -10,9 +10,9 @@
 //! - what the service runs: the EKFs and the default method (`SlipMonitor`, temporal),
 //! - the same with a train speed on every frame (`step_with_train_speed`, a constant 5.75 m/s:
 //!   the cost of the train-speed reference),
-//! - the temporal method behind the fixed-lag stage (`railmon_slip::fixed_lag`, library only:
-//!   the service does not run it) over the same torque estimates, alone and summed with the
-//!   EKF bank,
+//! - the temporal method behind the fixed-lag stage (`FixedLagEstimator`, the stage
+//!   `SlipMonitor` and `MultiMethodPipeline` run per method inside their `FixedLagLine`) over
+//!   the same torque estimates, alone and summed with the EKF bank,
 //!
 //! printed as drive-steps per second of CPU time (one core), with the sum of the sections next
 //! to the measured whole. CPU time (`railmon_bench_support`) instead of wall clock: on the

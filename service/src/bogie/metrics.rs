@@ -62,8 +62,9 @@ impl BogieMetrics {
             )?,
             paused: f.estimate_gauge_vec(
                 "bogie_damper_paused",
-                "1 while the bogie's filter holds its posterior because the speed is outside its \
-                 valid range (reason: low_speed, high_speed).",
+                "1 while the bogie's filter holds its posterior: the speed outside its valid \
+                 range (reason: low_speed, high_speed) or its states settling after missing \
+                 samples (gap).",
                 &["bogie", "reason"],
             )?,
             speed: f.estimate_gauge_vec(

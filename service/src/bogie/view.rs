@@ -103,7 +103,7 @@ pub struct BogieView {
     /// estimates from before the burst while the filter learns through it, until its
     /// innovations are back in their band (typically 0.2-0.6 s).
     pub status: String,
-    /// Why the filter is paused: `low_speed` or `high_speed`; null when it is not.
+    /// Why the filter is paused: `low_speed`, `high_speed` or `gap`; null when it is not.
     pub paused: Option<String>,
     /// Vehicle speed of the last sample, m/s; null before the first.
     pub speed_m_s: Option<f64>,

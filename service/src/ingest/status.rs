@@ -28,8 +28,9 @@ pub const COMMON_REJECTION_REASONS: [&str; 9] = [
     "rate_mismatch",
 ];
 
-/// At most one log line per rejection reason per this long; the rest are counted and the
-/// count is logged with the next line (a stream of bad frames at 8 kHz logged 1.5 MB/s).
+/// At most one log line of rejected frames per stream (whatever the reason) per this long;
+/// the rest are counted and the count is logged with the next line (a stream of bad frames at
+/// 8 kHz logged 1.5 MB/s).
 const REJECTION_LOG_INTERVAL_NS: u64 = 1_000_000_000;
 
 /// Whether a stream's estimates are being produced from its data now, and if not, why.

@@ -1,5 +1,6 @@
 //! The command line the trace examples share: `SCENARIO.toml DRIVE FROM TO`, read into the
-//! scenario, the 0-based drive and the range of steps to print.
+//! scenario, the drive's 0-based index (DRIVE counts from 1, as the CSVs do) and the range of
+//! steps to print.
 
 use std::ops::RangeInclusive;
 
