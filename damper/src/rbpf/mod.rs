@@ -792,31 +792,6 @@ impl Rbpf {
         }
     }
 
-    /// The weighted mean of `ln theta` over the published particles (those not on
-    /// probation); `None` when none is on probation (then it is the pooled mean) or none is
-    /// published.
-    fn published_ln_mean(&self) -> Option<[f64; 2]> {
-        if self.on_probation.is_empty() {
-            return None;
-        }
-        let (mut sum, mut total) = ([0.0; 2], 0.0);
-        let origin = self.ln_theta[0];
-        for ((th, lw), p) in self
-            .ln_theta
-            .iter()
-            .zip(&self.log_w)
-            .zip(&self.on_probation)
-        {
-            if *p == Probation::None {
-                let w = lw.exp();
-                total += w;
-                sum[0] += w * (th[0] - origin[0]);
-                sum[1] += w * (th[1] - origin[1]);
-            }
-        }
-        (total > 0.0).then(|| [origin[0] + sum[0] / total, origin[1] + sum[1] / total])
-    }
-
     /// Publishes damper `k`'s jump hypotheses on probation.
     fn adopt(&mut self, k: usize) {
         let jump = Probation::Jump(k as u8);
@@ -826,10 +801,6 @@ impl Rbpf {
             adopted = true;
         }
         self.adoptions += u64::from(adopted);
-        if adopted && std::env::var_os("RAILMON_DRIFT_PUBLISHED").is_some() {
-            // The published mean moves at once with an adoption: not wear either.
-            self.wear.last_mean = None;
-        }
         self.decisive_steps[k] = 0;
     }
 
@@ -1194,14 +1165,7 @@ impl Rbpf {
         );
         let nominal = self.nominal.ln();
         let (mean, cov) = self.ln_moments();
-        if std::env::var_os("RAILMON_DRIFT_PUBLISHED").is_some() {
-            // The wear drift reads the published particles' mean: a jump hypothesis becoming
-            // particles (on probation) moves the pooled mean at once, which is not wear.
-            let published = self.published_ln_mean().unwrap_or(mean);
-            self.wear.observe(published, since_move_s);
-        } else {
-            self.wear.observe(mean, since_move_s);
-        }
+        self.wear.observe(mean, since_move_s);
         let (shift, dif) = {
             let evolution = [0, 1].map(|k| {
                 wear_evolution(
