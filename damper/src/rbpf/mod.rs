@@ -19,8 +19,8 @@ mod jump;
 mod posterior;
 mod propagator;
 mod resume_init;
-mod wear_rate;
 mod weights;
+mod wear_rate;
 
 use std::borrow::Cow;
 use std::sync::Arc;
@@ -193,18 +193,6 @@ pub struct RbpfState {
     /// The data's information about `ln C` per second (`wear_rate::Information`).
     #[serde(default)]
     information: wear_rate::Information,
-}
-
-/// Steps between the levels' advances by their rates (experiment: `RAILMON_RATE_BLOCK`, 1 = v12).
-fn rate_block_steps() -> u64 {
-    static B: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
-    *B.get_or_init(|| {
-        std::env::var("RAILMON_RATE_BLOCK")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(1)
-            .max(1)
-    })
 }
 
 /// Whether a particle holds a jump hypothesis not yet published, and of which damper.
@@ -617,10 +605,12 @@ impl Rbpf {
         if per_particle_wear() && !every_step {
             // Each particle's level wears at its own rate every step (v12), not in jumps at
             // the moves.
-            let block = rate_block_steps();
-            if self.steps_since_move % block == 0 {
-                self.advance_levels(block);
+            let dt = self.dt_s;
+            for (th, r) in self.ln_theta.iter_mut().zip(&self.wear_rate) {
+                th[0] += r[0] * dt;
+                th[1] += r[1] * dt;
             }
+            self.sorted.stale = true;
         }
         let whiten = Whitening::new(&self.noise_scale.variance_scale());
         let (ln_theta, ln_mass) = if every_step {
@@ -1240,23 +1230,7 @@ impl Rbpf {
     /// regeneration. Writes `ln_theta_next`, and in `regeneration_penalty` the log-weight
     /// each particle's weight is to be scaled by (`ln regeneration_weight` for a regenerated
     /// one, else 0).
-    /// Each particle's level advanced by its rate over `steps` steps.
-    fn advance_levels(&mut self, steps: u64) {
-        if steps == 0 || self.wear_rate.is_empty() {
-            return;
-        }
-        let dt = self.dt_s * steps as f64;
-        for (th, r) in self.ln_theta.iter_mut().zip(&self.wear_rate) {
-            th[0] += r[0] * dt;
-            th[1] += r[1] * dt;
-        }
-        self.sorted.stale = true;
-    }
-
     fn kernel_move(&mut self) {
-        if per_particle_wear() && self.config.kernel != KernelSchedule::EveryStep {
-            self.advance_levels(self.steps_since_move % rate_block_steps());
-        }
         let since_move_s = self.steps_since_move as f64 * self.dt_s;
         self.steps_since_move = 0;
         let regen = self.config.regeneration_fraction;
@@ -1384,7 +1358,8 @@ impl Rbpf {
                     let z: f64 = self.rng.sample(StandardNormal);
                     let moved = a * r[k] + (1.0 - a) * m[k] + jitter[k] * z;
                     let z: f64 = self.rng.sample(StandardNormal);
-                    next[k] = (reversion[k] * moved + walk[k] * z).clamp(-fastest[k], fastest[k]);
+                    next[k] =
+                        (reversion[k] * moved + walk[k] * z).clamp(-fastest[k], fastest[k]);
                 }
             }
             // Regeneration, one coefficient at a time (the other is usually known to a fraction
