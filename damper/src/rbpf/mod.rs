@@ -20,7 +20,6 @@ mod posterior;
 mod propagator;
 mod resume_init;
 mod weights;
-mod wear_rate;
 
 use std::borrow::Cow;
 use std::sync::Arc;
@@ -61,16 +60,6 @@ use weights::LinearWeights;
 /// through a worn seal takes weeks; a loss faster than this is a failure, a step, for the
 /// jump search (`jump`). An input-like bound with that reason, not a per-case knob.
 pub const MAX_WEAR_PER_S: f64 = 0.8 / 60.0;
-
-/// Whether each particle carries its own wear rate (`wear_rate`), in place of the drift read
-/// off the mean (`wear_evolution`). Experiment switch (issue 24 item 3).
-pub const PER_PARTICLE_WEAR: bool = true;
-
-/// TUNING ONLY (removed before commit).
-fn per_particle_wear() -> bool {
-    static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *ON.get_or_init(|| std::env::var_os("RAILMON_RATE_OFF").is_none() && PER_PARTICLE_WEAR)
-}
 
 /// The fewest particles a host that cannot keep up may cut the filter to
 /// ([`Rbpf::set_particles`], the service's degraded compute). Why this floor: cut to 200 from
@@ -187,12 +176,6 @@ pub struct RbpfState {
     sentinel_mass_kg: Option<f64>,
     /// The common state being estimated after a pause (`resume_init`), if it is.
     resume_init: Option<ResumeInitState>,
-    /// Per particle `d ln C / dt` per damper ([`PER_PARTICLE_WEAR`]); empty: all 0.
-    #[serde(default)]
-    wear_rate: Vec<[f64; 2]>,
-    /// The data's information about `ln C` per second (`wear_rate::Information`).
-    #[serde(default)]
-    information: wear_rate::Information,
 }
 
 /// Whether a particle holds a jump hypothesis not yet published, and of which damper.
@@ -217,12 +200,6 @@ pub struct Rbpf {
     wear: WearDrift,
     ln_theta: Vec<[f64; 2]>,
     ln_theta_next: Vec<[f64; 2]>,
-    /// Per particle `d ln C / dt` per damper (`wear_rate` module; all 0 unless
-    /// [`PER_PARTICLE_WEAR`]).
-    wear_rate: Vec<[f64; 2]>,
-    wear_rate_next: Vec<[f64; 2]>,
-    /// The data's information about `ln C` per second, which sizes the rates' walk.
-    information: wear_rate::Information,
     /// Per particle `ln (m_bd / design)` while no mass is measured (`unmeasured_mass`; the
     /// bank then runs at the design mass); empty: every particle at the scheduled mass.
     ln_mass: Vec<f64>,
@@ -409,9 +386,6 @@ impl Rbpf {
             wear: WearDrift::default(),
             ln_theta_next: ln_theta.clone(),
             ln_theta,
-            wear_rate: vec![[0.0; 2]; n],
-            wear_rate_next: vec![[0.0; 2]; n],
-            information: wear_rate::Information::default(),
             ln_mass: Vec::new(),
             ln_mass_next: Vec::new(),
             sentinel_mass_kg: None,
@@ -475,8 +449,6 @@ impl Rbpf {
             ln_mass: self.ln_mass.clone(),
             sentinel_mass_kg: self.sentinel_mass_kg,
             resume_init: self.resume_init.as_ref().map(ResumeInit::save),
-            wear_rate: self.wear_rate.clone(),
-            information: self.information,
         }
     }
 
@@ -505,7 +477,6 @@ impl Rbpf {
             let all_first = vec![0; n];
             f.bank.resize(&all_first);
             f.ln_theta.truncate(n);
-            f.wear_rate.truncate(n);
             f.resize_buffers();
         }
         if !(state.on_probation.is_empty() || state.on_probation.len() == n)
@@ -567,16 +538,6 @@ impl Rbpf {
             .resume_init
             .map(|r| ResumeInit::restore(filter_model, r))
             .transpose()?;
-        if state.wear_rate.len() == n {
-            f.wear_rate = state.wear_rate;
-        } else if !state.wear_rate.is_empty() {
-            return Err(DamperError::Config(format!(
-                "snapshot: wear_rate of {} entries, 0 or {n} expected",
-                state.wear_rate.len()
-            )));
-        }
-        f.wear_rate_next.clone_from(&f.wear_rate);
-        f.information = state.information;
         f.sorted.stale = true;
         Ok(f)
     }
@@ -601,16 +562,6 @@ impl Rbpf {
         let every_step = self.config.kernel == KernelSchedule::EveryStep;
         if every_step {
             self.kernel_move();
-        }
-        if per_particle_wear() && !every_step {
-            // Each particle's level wears at its own rate every step (v12), not in jumps at
-            // the moves.
-            let dt = self.dt_s;
-            for (th, r) in self.ln_theta.iter_mut().zip(&self.wear_rate) {
-                th[0] += r[0] * dt;
-                th[1] += r[1] * dt;
-            }
-            self.sorted.stale = true;
         }
         let whiten = Whitening::new(&self.noise_scale.variance_scale());
         let (ln_theta, ln_mass) = if every_step {
@@ -673,7 +624,6 @@ impl Rbpf {
         if every_step {
             self.sorted.stale = true;
             std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
-            std::mem::swap(&mut self.wear_rate, &mut self.wear_rate_next);
             std::mem::swap(&mut self.ln_mass, &mut self.ln_mass_next);
         }
         std::mem::swap(&mut self.log_w, &mut self.log_w_next);
@@ -681,19 +631,6 @@ impl Rbpf {
         self.ess = ess;
         let resample = self.ess < self.config.resample_ess_fraction * n as f64;
         if resample {
-            if per_particle_wear() {
-                // The weights since the last move judged fixed particles: the interval's
-                // information (`wear_rate::Information`), regenerated and jump particles
-                // left out.
-                let since_s = self.steps_since_move as f64 * self.dt_s;
-                let (pen, prob) = (&self.regeneration_penalty, &self.on_probation);
-                self.information.observe(
-                    &self.ln_theta,
-                    &self.log_w,
-                    |i| pen[i] == 0.0 && prob.get(i).is_none_or(|p| *p == Probation::None),
-                    since_s,
-                );
-            }
             systematic_resample(&self.log_w, &mut self.indices, &mut self.rng);
             self.bank.resample(&self.indices);
             if !self.on_probation.is_empty() {
@@ -706,10 +643,6 @@ impl Rbpf {
                 *dst = self.ln_theta[i];
             }
             std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
-            for (dst, &i) in self.wear_rate_next.iter_mut().zip(&self.indices) {
-                *dst = self.wear_rate[i];
-            }
-            std::mem::swap(&mut self.wear_rate, &mut self.wear_rate_next);
             for (dst, &i) in self.ln_mass_next.iter_mut().zip(&self.indices) {
                 *dst = self.ln_mass[i];
             }
@@ -739,7 +672,6 @@ impl Rbpf {
     fn move_after_resampling(&mut self) -> Result<(), DamperError> {
         self.kernel_move();
         std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
-        std::mem::swap(&mut self.wear_rate, &mut self.wear_rate_next);
         std::mem::swap(&mut self.ln_mass, &mut self.ln_mass_next);
         for (w, pen) in self.log_w.iter_mut().zip(&self.regeneration_penalty) {
             *w += pen;
@@ -782,7 +714,6 @@ impl Rbpf {
         systematic_resample(&self.log_w, &mut indices, &mut self.rng);
         self.bank.resize(&indices);
         self.ln_theta = indices.iter().map(|&i| self.ln_theta[i]).collect();
-        self.wear_rate = indices.iter().map(|&i| self.wear_rate[i]).collect();
         if !self.ln_mass.is_empty() {
             self.ln_mass = indices.iter().map(|&i| self.ln_mass[i]).collect();
         }
@@ -804,7 +735,6 @@ impl Rbpf {
     fn resize_buffers(&mut self) {
         let n = self.ln_theta.len();
         self.ln_theta_next.clone_from(&self.ln_theta);
-        self.wear_rate_next.clone_from(&self.wear_rate);
         self.ln_mass_next.clone_from(&self.ln_mass);
         self.log_w.resize(n, -(n as f64).ln());
         self.log_w_next = vec![0.0; n];
@@ -950,8 +880,6 @@ impl Rbpf {
             let k = j / SENTINEL_LN_OFFSETS.len();
             let z: f64 = self.rng.sample(StandardNormal);
             self.ln_theta[p][k] = sentinels.clamp(k, theta_j[k] + js.newcomer_ln_std * z);
-            // A step, not a wear: the newcomer's damper holds still.
-            self.wear_rate[p][k] = 0.0;
             self.log_w[p] = ln_each;
             self.on_probation[p] = Probation::Jump(k as u8);
             self.bank.copy_particle(p, bank, j);
@@ -1149,9 +1077,6 @@ impl Rbpf {
     /// parameter posterior untouched.
     pub fn reset_states(&mut self) {
         self.bank.reset_states();
-        // After a pause the data's information is unknown until they speak again: no rate
-        // walks meanwhile (`wear_rate`).
-        self.information.reset();
         if let Some(s) = &mut self.sentinels {
             s.reset_states();
         }
@@ -1241,11 +1166,7 @@ impl Rbpf {
         let nominal = self.nominal.ln();
         let (mean, cov) = self.ln_moments();
         self.wear.observe(mean, since_move_s);
-        let (shift, dif) = if per_particle_wear() {
-            // Each particle's own rate moves it (below); the fixed walk stays.
-            let q0 = self.config.ln_diffusion_per_sqrt_s.powi(2);
-            ([0.0; 2], [(q0 * since_move_s).sqrt(); 2])
-        } else {
+        let (shift, dif) = {
             let evolution = [0, 1].map(|k| {
                 wear_evolution(
                     self.wear.ln_per_s[k],
@@ -1265,32 +1186,6 @@ impl Rbpf {
             .map(|c| c.l())
             .unwrap_or_else(Matrix2::zeros);
         let (a, h) = (self.kernel_a, self.kernel_h);
-        // The rates' Liu-West moments, reversion and information-sized walk (`wear_rate`).
-        let rate = per_particle_wear().then(|| {
-            let (mut m, mut v) = ([0.0; 2], [0.0; 2]);
-            for (r, lw) in self.wear_rate.iter().zip(&self.log_w) {
-                let w = lw.exp();
-                for k in 0..2 {
-                    m[k] += w * r[k];
-                }
-            }
-            for (r, lw) in self.wear_rate.iter().zip(&self.log_w) {
-                let w = lw.exp();
-                for k in 0..2 {
-                    v[k] += w * (r[k] - m[k]).powi(2);
-                }
-            }
-            let info = self.information.per_s();
-            let fastest = [0, 1]
-                .map(|k| MAX_WEAR_PER_S / (mean[k] - nominal[k]).exp().max(f64::MIN_POSITIVE));
-            (
-                m,
-                v.map(|v| h * v.sqrt()),
-                info.map(|i| wear_rate::rate_reversion_informed(i, since_move_s)),
-                info.map(|i| wear_rate::rate_walk_std(i, since_move_s)),
-                fastest,
-            )
-        });
         let ln_regen_weight = self.config.regeneration_weight.ln();
         // With the mass a parameter the kernel is eq. 24 on (ln C_sy, ln C_say, ln m) with the
         // joint covariance: its Cholesky factor's first two rows are `chol`'s, so the dampers'
@@ -1351,17 +1246,6 @@ impl Rbpf {
                     dst[k] += dif * self.rng.sample::<f64, _>(StandardNormal);
                 }
             }
-            if let Some((m, jitter, reversion, walk, fastest)) = rate {
-                let r = self.wear_rate[i];
-                let next = &mut self.wear_rate_next[i];
-                for k in 0..2 {
-                    let z: f64 = self.rng.sample(StandardNormal);
-                    let moved = a * r[k] + (1.0 - a) * m[k] + jitter[k] * z;
-                    let z: f64 = self.rng.sample(StandardNormal);
-                    next[k] =
-                        (reversion[k] * moved + walk[k] * z).clamp(-fastest[k], fastest[k]);
-                }
-            }
             // Regeneration, one coefficient at a time (the other is usually known to a fraction
             // of a percent: redrawing both would almost never land near the truth), uniform
             // in log over the gain grid's range. A newcomer starts with a reduced weight
@@ -1371,9 +1255,6 @@ impl Rbpf {
                 if regen > 0.0 && self.rng.random::<f64>() < regen {
                     dst[k] = nominal[k] + lo + (hi - lo) * self.rng.random::<f64>();
                     *penalty = ln_regen_weight;
-                    if per_particle_wear() {
-                        self.wear_rate_next[i][k] = 0.0;
-                    }
                 }
             }
         }
