@@ -44,7 +44,8 @@ impl DamperMonitorState {
     /// 7: the particles' body masses while none is measured (`RbpfState`).
     /// 8: the common state estimated after a pause (`RbpfState`).
     /// 9: the publication held through a burst of innovations (`burst`).
-    pub const STATE_FORMAT_VERSION: u32 = 9;
+    /// 10: a wear rate per particle in place of the drift read off the mean (`RbpfState`).
+    pub const STATE_FORMAT_VERSION: u32 = 10;
 }
 
 /// Where a monitor is with respect to its valid speed range.

@@ -18,7 +18,7 @@
 //! (a model the filter does not have), never narrows it. The interval is `b +- t_{0.95, n-2}
 //! sqrt(var b)`. Each bin weighs by the posterior's variance, not by that over its samples:
 //! the filter forgets with the time constant `tau = P / q` of its random walk
-//! (`rbpf::wear_evolution`: about 5 s at a healthy width of 1.5 % of nominal, less on
+//! (`rbpf/wear_rate.rs` module docs: about 5 s at a healthy width of 1.5 % of nominal, less on
 //! a ramp), so a bin's mean is about as uncertain as one posterior, and bins a few `tau`
 //! apart are about independent.
 //!

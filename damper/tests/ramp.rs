@@ -1,6 +1,6 @@
 //! Slow degradation (issue 24 item 3): a damper losing its oil linearly over minutes is
-//! followed by the posterior, not left behind it (`rbpf::wear_evolution`), and its
-//! degradation trend sees the rate (`trend`).
+//! followed by the posterior, not left behind it (a wear rate per particle,
+//! `rbpf/wear_rate.rs`), and its degradation trend sees the rate (`trend`).
 
 use railmon_damper::*;
 
@@ -9,7 +9,7 @@ mod common;
 /// [`common::csy_ramp_on_seed`] (`C_sy` crossing 0.7 at 80 s, N = 300): the 90 % interval covers the
 /// truth >= 85 % of the ramp (every 10 ms), `damper_degraded` comes within 10 s of the
 /// crossing, none on `C_say`, and the trend of `C_sy` at the end is significantly negative.
-/// Without the drift and its random walk (the plain Liu-West kernel and the fixed
+/// Without a wear model (the plain Liu-West kernel and the fixed
 /// `ln_diffusion_per_sqrt_s`) this seed's coverage was 14 % and the alarm came 13.8 s after the
 /// crossing (docs/notes/damper-log.md, 28 Nov).
 #[test]

@@ -19,6 +19,7 @@ mod jump;
 mod posterior;
 mod propagator;
 mod resume_init;
+mod wear_rate;
 mod weights;
 
 use std::borrow::Cow;
@@ -52,6 +53,7 @@ pub use posterior::{DamperPosterior, RbpfEstimate};
 pub use propagator::{SparsePropagator, BLOCK};
 use resume_init::ResumeInit;
 pub use resume_init::{ResumeInitState, RESUME_INIT_S};
+use wear_rate::RateMove;
 use weights::LinearWeights;
 
 /// The fastest wear the filter follows without lagging (1/s of nominal): a damper losing 80 %
@@ -157,6 +159,8 @@ pub struct RbpfState {
     steps_since_move: u64,
     /// The posterior mean's drift per damper (`ln C` per s) and the mean at the last move.
     wear: WearDrift,
+    /// Per particle `d ln C / dt` per damper (`wear_rate`).
+    wear_rate: Vec<[f64; 2]>,
     ess: f64,
     log_evidence: f64,
     resamples: u64,
@@ -200,6 +204,11 @@ pub struct Rbpf {
     wear: WearDrift,
     ln_theta: Vec<[f64; 2]>,
     ln_theta_next: Vec<[f64; 2]>,
+    /// Per particle `d ln C / dt` per damper (`wear_rate`): each level moves by its rate
+    /// between kernel moves. All 0 with [`KernelSchedule::EveryStep`] (the paper's static
+    /// parameters).
+    wear_rate: Vec<[f64; 2]>,
+    wear_rate_next: Vec<[f64; 2]>,
     /// Per particle `ln (m_bd / design)` while no mass is measured (`unmeasured_mass`; the
     /// bank then runs at the design mass); empty: every particle at the scheduled mass.
     ln_mass: Vec<f64>,
@@ -383,9 +392,11 @@ impl Rbpf {
             kernel_h: h2.sqrt(),
             dt_s: filter_model.dt_s,
             steps_since_move: 0,
-            wear: WearDrift::default(),
             ln_theta_next: ln_theta.clone(),
             ln_theta,
+            wear: WearDrift::default(),
+            wear_rate: vec![[0.0; 2]; n],
+            wear_rate_next: vec![[0.0; 2]; n],
             ln_mass: Vec::new(),
             ln_mass_next: Vec::new(),
             sentinel_mass_kg: None,
@@ -431,6 +442,7 @@ impl Rbpf {
             rng: self.rng.clone(),
             steps_since_move: self.steps_since_move,
             wear: self.wear,
+            wear_rate: self.wear_rate.clone(),
             ess: self.ess,
             log_evidence: self.log_evidence,
             resamples: self.resamples,
@@ -467,16 +479,18 @@ impl Rbpf {
         // Fewer particles than configured: saved while degraded ([`Rbpf::set_particles`]).
         let configured = f.n_particles();
         let n = state.ln_theta.len();
-        if !(1..=configured).contains(&n) || state.log_w.len() != n {
+        if !(1..=configured).contains(&n) || state.log_w.len() != n || state.wear_rate.len() != n {
             return Err(DamperError::Config(format!(
-                "snapshot of {n} particles ({} weights), 1..={configured} expected",
-                state.log_w.len()
+                "snapshot of {n} particles ({} weights, {} wear rates), 1..={configured} expected",
+                state.log_w.len(),
+                state.wear_rate.len()
             )));
         }
         if n < configured {
             let all_first = vec![0; n];
             f.bank.resize(&all_first);
             f.ln_theta.truncate(n);
+            f.wear_rate.truncate(n);
             f.resize_buffers();
         }
         if !(state.on_probation.is_empty() || state.on_probation.len() == n)
@@ -516,7 +530,6 @@ impl Rbpf {
         f.log_w = state.log_w;
         f.rng = state.rng;
         f.steps_since_move = state.steps_since_move;
-        f.wear = state.wear;
         f.ess = state.ess;
         f.log_evidence = state.log_evidence;
         f.resamples = state.resamples;
@@ -538,6 +551,9 @@ impl Rbpf {
             .resume_init
             .map(|r| ResumeInit::restore(filter_model, r))
             .transpose()?;
+        f.wear = state.wear;
+        f.wear_rate_next.clone_from(&state.wear_rate);
+        f.wear_rate = state.wear_rate;
         f.sorted.stale = true;
         Ok(f)
     }
@@ -562,6 +578,15 @@ impl Rbpf {
         let every_step = self.config.kernel == KernelSchedule::EveryStep;
         if every_step {
             self.kernel_move();
+        }
+        // Each particle's level wears at its own rate (`wear_rate`), advanced in blocks; the
+        // rest of a block at the next kernel move.
+        if !every_step
+            && self
+                .steps_since_move
+                .is_multiple_of(wear_rate::LEVEL_ADVANCE_STEPS)
+        {
+            self.advance_levels(wear_rate::LEVEL_ADVANCE_STEPS);
         }
         let whiten = Whitening::new(&self.noise_scale.variance_scale());
         let (ln_theta, ln_mass) = if every_step {
@@ -624,6 +649,7 @@ impl Rbpf {
         if every_step {
             self.sorted.stale = true;
             std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
+            std::mem::swap(&mut self.wear_rate, &mut self.wear_rate_next);
             std::mem::swap(&mut self.ln_mass, &mut self.ln_mass_next);
         }
         std::mem::swap(&mut self.log_w, &mut self.log_w_next);
@@ -643,6 +669,10 @@ impl Rbpf {
                 *dst = self.ln_theta[i];
             }
             std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
+            for (dst, &i) in self.wear_rate_next.iter_mut().zip(&self.indices) {
+                *dst = self.wear_rate[i];
+            }
+            std::mem::swap(&mut self.wear_rate, &mut self.wear_rate_next);
             for (dst, &i) in self.ln_mass_next.iter_mut().zip(&self.indices) {
                 *dst = self.ln_mass[i];
             }
@@ -672,6 +702,7 @@ impl Rbpf {
     fn move_after_resampling(&mut self) -> Result<(), DamperError> {
         self.kernel_move();
         std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
+        std::mem::swap(&mut self.wear_rate, &mut self.wear_rate_next);
         std::mem::swap(&mut self.ln_mass, &mut self.ln_mass_next);
         for (w, pen) in self.log_w.iter_mut().zip(&self.regeneration_penalty) {
             *w += pen;
@@ -714,6 +745,7 @@ impl Rbpf {
         systematic_resample(&self.log_w, &mut indices, &mut self.rng);
         self.bank.resize(&indices);
         self.ln_theta = indices.iter().map(|&i| self.ln_theta[i]).collect();
+        self.wear_rate = indices.iter().map(|&i| self.wear_rate[i]).collect();
         if !self.ln_mass.is_empty() {
             self.ln_mass = indices.iter().map(|&i| self.ln_mass[i]).collect();
         }
@@ -735,6 +767,7 @@ impl Rbpf {
     fn resize_buffers(&mut self) {
         let n = self.ln_theta.len();
         self.ln_theta_next.clone_from(&self.ln_theta);
+        self.wear_rate_next.clone_from(&self.wear_rate);
         self.ln_mass_next.clone_from(&self.ln_mass);
         self.log_w.resize(n, -(n as f64).ln());
         self.log_w_next = vec![0.0; n];
@@ -880,6 +913,8 @@ impl Rbpf {
             let k = j / SENTINEL_LN_OFFSETS.len();
             let z: f64 = self.rng.sample(StandardNormal);
             self.ln_theta[p][k] = sentinels.clamp(k, theta_j[k] + js.newcomer_ln_std * z);
+            // A step, not a wear: the newcomer's damper holds still.
+            self.wear_rate[p][k] = 0.0;
             self.log_w[p] = ln_each;
             self.on_probation[p] = Probation::Jump(k as u8);
             self.bank.copy_particle(p, bank, j);
@@ -1149,13 +1184,30 @@ impl Rbpf {
         self.step_resume_init(y)
     }
 
+    /// Each particle's level advanced by its wear rate over `steps` steps (`wear_rate`).
+    fn advance_levels(&mut self, steps: u64) {
+        if steps == 0 {
+            return;
+        }
+        let dt = self.dt_s * steps as f64;
+        for (th, r) in self.ln_theta.iter_mut().zip(&self.wear_rate) {
+            th[0] += r[0] * dt;
+            th[1] += r[1] * dt;
+        }
+        self.sorted.stale = true;
+    }
+
     /// Liu-West (eq. 24) on `ln theta`: `m_i = a theta_i + (1 - a) theta_bar`,
     /// `theta_i' ~ N(m_i, h^2 V)`, with `theta_bar`, `V` the weighted mean and covariance;
-    /// plus the optional random walk over the time since the last move and the optional
-    /// regeneration. Writes `ln_theta_next`, and in `regeneration_penalty` the log-weight
-    /// each particle's weight is to be scaled by (`ln regeneration_weight` for a regenerated
-    /// one, else 0).
+    /// plus the optional random walk over the time since the last move, the wear rates'
+    /// move (`wear_rate`) and the optional regeneration. Writes `ln_theta_next` and
+    /// `wear_rate_next`, and in `regeneration_penalty` the log-weight each particle's weight is
+    /// to be scaled by (`ln regeneration_weight` for a regenerated one, else 0).
     fn kernel_move(&mut self) {
+        let wears = self.config.kernel == KernelSchedule::AtResampling;
+        if wears {
+            self.advance_levels(self.steps_since_move % wear_rate::LEVEL_ADVANCE_STEPS);
+        }
         let since_move_s = self.steps_since_move as f64 * self.dt_s;
         self.steps_since_move = 0;
         let regen = self.config.regeneration_fraction;
@@ -1186,6 +1238,10 @@ impl Rbpf {
             .map(|c| c.l())
             .unwrap_or_else(Matrix2::zeros);
         let (a, h) = (self.kernel_a, self.kernel_h);
+        let rate_move = wears.then(|| {
+            let health_ratio = [0, 1].map(|k| (mean[k] - nominal[k]).exp());
+            RateMove::new(&self.wear_rate, &self.log_w, health_ratio, since_move_s, h)
+        });
         let ln_regen_weight = self.config.regeneration_weight.ln();
         // With the mass a parameter the kernel is eq. 24 on (ln C_sy, ln C_say, ln m) with the
         // joint covariance: its Cholesky factor's first two rows are `chol`'s, so the dampers'
@@ -1246,6 +1302,9 @@ impl Rbpf {
                     dst[k] += dif * self.rng.sample::<f64, _>(StandardNormal);
                 }
             }
+            if let Some(rule) = &rate_move {
+                self.wear_rate_next[i] = rule.moved(self.wear_rate[i], a, &mut self.rng);
+            }
             // Regeneration, one coefficient at a time (the other is usually known to a fraction
             // of a percent: redrawing both would almost never land near the truth), uniform
             // in log over the gain grid's range. A newcomer starts with a reduced weight
@@ -1255,6 +1314,8 @@ impl Rbpf {
                 if regen > 0.0 && self.rng.random::<f64>() < regen {
                     dst[k] = nominal[k] + lo + (hi - lo) * self.rng.random::<f64>();
                     *penalty = ln_regen_weight;
+                    // A newcomer holds still until the data give it a rate.
+                    self.wear_rate_next[i][k] = 0.0;
                 }
             }
         }
