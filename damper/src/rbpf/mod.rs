@@ -53,6 +53,7 @@ pub use posterior::{DamperPosterior, RbpfEstimate};
 pub use propagator::{SparsePropagator, BLOCK};
 use resume_init::ResumeInit;
 pub use resume_init::{ResumeInitState, RESUME_INIT_S};
+use wear_rate::RateMove;
 use weights::LinearWeights;
 
 /// The fastest wear the filter follows without lagging (1/s of nominal): a damper losing 80 %
@@ -61,16 +62,6 @@ use weights::LinearWeights;
 /// through a worn seal takes weeks; a loss faster than this is a failure, a step, for the
 /// jump search (`jump`). An input-like bound with that reason, not a per-case knob.
 pub const MAX_WEAR_PER_S: f64 = 0.8 / 60.0;
-
-/// Whether each particle carries its own wear rate (`wear_rate`), in place of the drift read
-/// off the mean (`wear_evolution`). Experiment switch (issue 24 item 3).
-pub const PER_PARTICLE_WEAR: bool = true;
-
-/// TUNING ONLY (removed before commit).
-fn per_particle_wear() -> bool {
-    static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *ON.get_or_init(|| std::env::var_os("RAILMON_RATE_OFF").is_none() && PER_PARTICLE_WEAR)
-}
 
 /// The fewest particles a host that cannot keep up may cut the filter to
 /// ([`Rbpf::set_particles`], the service's degraded compute). Why this floor: cut to 200 from
@@ -168,6 +159,8 @@ pub struct RbpfState {
     steps_since_move: u64,
     /// The posterior mean's drift per damper (`ln C` per s) and the mean at the last move.
     wear: WearDrift,
+    /// Per particle `d ln C / dt` per damper (`wear_rate`).
+    wear_rate: Vec<[f64; 2]>,
     ess: f64,
     log_evidence: f64,
     resamples: u64,
@@ -187,24 +180,6 @@ pub struct RbpfState {
     sentinel_mass_kg: Option<f64>,
     /// The common state being estimated after a pause (`resume_init`), if it is.
     resume_init: Option<ResumeInitState>,
-    /// Per particle `d ln C / dt` per damper ([`PER_PARTICLE_WEAR`]); empty: all 0.
-    #[serde(default)]
-    wear_rate: Vec<[f64; 2]>,
-    /// The data's information about `ln C` per second (`wear_rate::Information`).
-    #[serde(default)]
-    information: wear_rate::Information,
-}
-
-/// Steps between the levels' advances by their rates (experiment: `RAILMON_RATE_BLOCK`, 1 = v12).
-fn rate_block_steps() -> u64 {
-    static B: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
-    *B.get_or_init(|| {
-        std::env::var("RAILMON_RATE_BLOCK")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(1)
-            .max(1)
-    })
 }
 
 /// Whether a particle holds a jump hypothesis not yet published, and of which damper.
@@ -229,12 +204,11 @@ pub struct Rbpf {
     wear: WearDrift,
     ln_theta: Vec<[f64; 2]>,
     ln_theta_next: Vec<[f64; 2]>,
-    /// Per particle `d ln C / dt` per damper (`wear_rate` module; all 0 unless
-    /// [`PER_PARTICLE_WEAR`]).
+    /// Per particle `d ln C / dt` per damper (`wear_rate`): each level moves by its rate
+    /// between kernel moves. All 0 with [`KernelSchedule::EveryStep`] (the paper's static
+    /// parameters).
     wear_rate: Vec<[f64; 2]>,
     wear_rate_next: Vec<[f64; 2]>,
-    /// The data's information about `ln C` per second, which sizes the rates' walk.
-    information: wear_rate::Information,
     /// Per particle `ln (m_bd / design)` while no mass is measured (`unmeasured_mass`; the
     /// bank then runs at the design mass); empty: every particle at the scheduled mass.
     ln_mass: Vec<f64>,
@@ -418,12 +392,11 @@ impl Rbpf {
             kernel_h: h2.sqrt(),
             dt_s: filter_model.dt_s,
             steps_since_move: 0,
-            wear: WearDrift::default(),
             ln_theta_next: ln_theta.clone(),
             ln_theta,
+            wear: WearDrift::default(),
             wear_rate: vec![[0.0; 2]; n],
             wear_rate_next: vec![[0.0; 2]; n],
-            information: wear_rate::Information::default(),
             ln_mass: Vec::new(),
             ln_mass_next: Vec::new(),
             sentinel_mass_kg: None,
@@ -469,6 +442,7 @@ impl Rbpf {
             rng: self.rng.clone(),
             steps_since_move: self.steps_since_move,
             wear: self.wear,
+            wear_rate: self.wear_rate.clone(),
             ess: self.ess,
             log_evidence: self.log_evidence,
             resamples: self.resamples,
@@ -487,8 +461,6 @@ impl Rbpf {
             ln_mass: self.ln_mass.clone(),
             sentinel_mass_kg: self.sentinel_mass_kg,
             resume_init: self.resume_init.as_ref().map(ResumeInit::save),
-            wear_rate: self.wear_rate.clone(),
-            information: self.information,
         }
     }
 
@@ -507,10 +479,11 @@ impl Rbpf {
         // Fewer particles than configured: saved while degraded ([`Rbpf::set_particles`]).
         let configured = f.n_particles();
         let n = state.ln_theta.len();
-        if !(1..=configured).contains(&n) || state.log_w.len() != n {
+        if !(1..=configured).contains(&n) || state.log_w.len() != n || state.wear_rate.len() != n {
             return Err(DamperError::Config(format!(
-                "snapshot of {n} particles ({} weights), 1..={configured} expected",
-                state.log_w.len()
+                "snapshot of {n} particles ({} weights, {} wear rates), 1..={configured} expected",
+                state.log_w.len(),
+                state.wear_rate.len()
             )));
         }
         if n < configured {
@@ -557,7 +530,6 @@ impl Rbpf {
         f.log_w = state.log_w;
         f.rng = state.rng;
         f.steps_since_move = state.steps_since_move;
-        f.wear = state.wear;
         f.ess = state.ess;
         f.log_evidence = state.log_evidence;
         f.resamples = state.resamples;
@@ -579,16 +551,9 @@ impl Rbpf {
             .resume_init
             .map(|r| ResumeInit::restore(filter_model, r))
             .transpose()?;
-        if state.wear_rate.len() == n {
-            f.wear_rate = state.wear_rate;
-        } else if !state.wear_rate.is_empty() {
-            return Err(DamperError::Config(format!(
-                "snapshot: wear_rate of {} entries, 0 or {n} expected",
-                state.wear_rate.len()
-            )));
-        }
-        f.wear_rate_next.clone_from(&f.wear_rate);
-        f.information = state.information;
+        f.wear = state.wear;
+        f.wear_rate_next.clone_from(&state.wear_rate);
+        f.wear_rate = state.wear_rate;
         f.sorted.stale = true;
         Ok(f)
     }
@@ -614,13 +579,14 @@ impl Rbpf {
         if every_step {
             self.kernel_move();
         }
-        if per_particle_wear() && !every_step {
-            // Each particle's level wears at its own rate every step (v12), not in jumps at
-            // the moves.
-            let block = rate_block_steps();
-            if self.steps_since_move % block == 0 {
-                self.advance_levels(block);
-            }
+        // Each particle's level wears at its own rate (`wear_rate`), advanced in blocks; the
+        // rest of a block at the next kernel move.
+        if !every_step
+            && self
+                .steps_since_move
+                .is_multiple_of(wear_rate::LEVEL_ADVANCE_STEPS)
+        {
+            self.advance_levels(wear_rate::LEVEL_ADVANCE_STEPS);
         }
         let whiten = Whitening::new(&self.noise_scale.variance_scale());
         let (ln_theta, ln_mass) = if every_step {
@@ -691,19 +657,6 @@ impl Rbpf {
         self.ess = ess;
         let resample = self.ess < self.config.resample_ess_fraction * n as f64;
         if resample {
-            if per_particle_wear() {
-                // The weights since the last move judged fixed particles: the interval's
-                // information (`wear_rate::Information`), regenerated and jump particles
-                // left out.
-                let since_s = self.steps_since_move as f64 * self.dt_s;
-                let (pen, prob) = (&self.regeneration_penalty, &self.on_probation);
-                self.information.observe(
-                    &self.ln_theta,
-                    &self.log_w,
-                    |i| pen[i] == 0.0 && prob.get(i).is_none_or(|p| *p == Probation::None),
-                    since_s,
-                );
-            }
             systematic_resample(&self.log_w, &mut self.indices, &mut self.rng);
             self.bank.resample(&self.indices);
             if !self.on_probation.is_empty() {
@@ -1159,9 +1112,6 @@ impl Rbpf {
     /// parameter posterior untouched.
     pub fn reset_states(&mut self) {
         self.bank.reset_states();
-        // After a pause the data's information is unknown until they speak again: no rate
-        // walks meanwhile (`wear_rate`).
-        self.information.reset();
         if let Some(s) = &mut self.sentinels {
             s.reset_states();
         }
@@ -1234,15 +1184,9 @@ impl Rbpf {
         self.step_resume_init(y)
     }
 
-    /// Liu-West (eq. 24) on `ln theta`: `m_i = a theta_i + (1 - a) theta_bar`,
-    /// `theta_i' ~ N(m_i, h^2 V)`, with `theta_bar`, `V` the weighted mean and covariance;
-    /// plus the optional random walk over the time since the last move and the optional
-    /// regeneration. Writes `ln_theta_next`, and in `regeneration_penalty` the log-weight
-    /// each particle's weight is to be scaled by (`ln regeneration_weight` for a regenerated
-    /// one, else 0).
-    /// Each particle's level advanced by its rate over `steps` steps.
+    /// Each particle's level advanced by its wear rate over `steps` steps (`wear_rate`).
     fn advance_levels(&mut self, steps: u64) {
-        if steps == 0 || self.wear_rate.is_empty() {
+        if steps == 0 {
             return;
         }
         let dt = self.dt_s * steps as f64;
@@ -1253,9 +1197,16 @@ impl Rbpf {
         self.sorted.stale = true;
     }
 
+    /// Liu-West (eq. 24) on `ln theta`: `m_i = a theta_i + (1 - a) theta_bar`,
+    /// `theta_i' ~ N(m_i, h^2 V)`, with `theta_bar`, `V` the weighted mean and covariance;
+    /// plus the optional random walk over the time since the last move, the wear rates'
+    /// move (`wear_rate`) and the optional regeneration. Writes `ln_theta_next` and
+    /// `wear_rate_next`, and in `regeneration_penalty` the log-weight each particle's weight is
+    /// to be scaled by (`ln regeneration_weight` for a regenerated one, else 0).
     fn kernel_move(&mut self) {
-        if per_particle_wear() && self.config.kernel != KernelSchedule::EveryStep {
-            self.advance_levels(self.steps_since_move % rate_block_steps());
+        let wears = self.config.kernel == KernelSchedule::AtResampling;
+        if wears {
+            self.advance_levels(self.steps_since_move % wear_rate::LEVEL_ADVANCE_STEPS);
         }
         let since_move_s = self.steps_since_move as f64 * self.dt_s;
         self.steps_since_move = 0;
@@ -1267,23 +1218,7 @@ impl Rbpf {
         let nominal = self.nominal.ln();
         let (mean, cov) = self.ln_moments();
         self.wear.observe(mean, since_move_s);
-        let (shift, dif) = if per_particle_wear() {
-            // Each particle's own rate moves it (below); the fixed walk stays.
-            let q0 = self.config.ln_diffusion_per_sqrt_s.powi(2);
-            let evolution = [0, 1].map(|k| {
-                wear_evolution(
-                    self.wear.ln_per_s[k],
-                    cov[(k, k)].max(0.0).sqrt(),
-                    (mean[k] - nominal[k]).exp(),
-                )
-            });
-            let walk = std::env::var_os("RAILMON_PLUS_DRIFT_WALK").is_some();
-            let shift = std::env::var_os("RAILMON_PLUS_DRIFT_SHIFT").is_some();
-            (
-                evolution.map(|(drift, _)| if shift { drift * since_move_s } else { 0.0 }),
-                evolution.map(|(_, var)| ((q0 + if walk { var } else { 0.0 }) * since_move_s).sqrt()),
-            )
-        } else {
+        let (shift, dif) = {
             let evolution = [0, 1].map(|k| {
                 wear_evolution(
                     self.wear.ln_per_s[k],
@@ -1303,36 +1238,9 @@ impl Rbpf {
             .map(|c| c.l())
             .unwrap_or_else(Matrix2::zeros);
         let (a, h) = (self.kernel_a, self.kernel_h);
-        // The rates' Liu-West moments, reversion and information-sized walk (`wear_rate`).
-        let rate = per_particle_wear().then(|| {
-            let (mut m, mut v) = ([0.0; 2], [0.0; 2]);
-            for (r, lw) in self.wear_rate.iter().zip(&self.log_w) {
-                let w = lw.exp();
-                for k in 0..2 {
-                    m[k] += w * r[k];
-                }
-            }
-            for (r, lw) in self.wear_rate.iter().zip(&self.log_w) {
-                let w = lw.exp();
-                for k in 0..2 {
-                    v[k] += w * (r[k] - m[k]).powi(2);
-                }
-            }
-            let info = self.information.per_s();
-            let fastest = [0, 1]
-                .map(|k| MAX_WEAR_PER_S / (mean[k] - nominal[k]).exp().max(f64::MIN_POSITIVE));
-            (
-                m,
-                v.map(|v| h * v.sqrt()),
-                info.map(|i| wear_rate::rate_reversion_informed(i, since_move_s)),
-                info.map(|i| wear_rate::rate_walk_std(i, since_move_s)),
-                fastest,
-            )
-        });
-        let spike: Option<(f64, f64, f64)> = std::env::var("RAILMON_RATE_SPIKE").ok().map(|v| {
-            let p: Vec<f64> = v.split(',').map(|x| x.parse().unwrap()).collect();
-            let q: f64 = std::env::var("RAILMON_RATE_CONST_Q").unwrap().parse().unwrap();
-            (p[0], p[1], (q * wear_rate::RATE_MEMORY_S / 2.0).sqrt())
+        let rate_move = wears.then(|| {
+            let health_ratio = [0, 1].map(|k| (mean[k] - nominal[k]).exp());
+            RateMove::new(&self.wear_rate, &self.log_w, health_ratio, since_move_s, h)
         });
         let ln_regen_weight = self.config.regeneration_weight.ln();
         // With the mass a parameter the kernel is eq. 24 on (ln C_sy, ln C_say, ln m) with the
@@ -1394,39 +1302,8 @@ impl Rbpf {
                     dst[k] += dif * self.rng.sample::<f64, _>(StandardNormal);
                 }
             }
-            if let Some((m, jitter, reversion, walk, fastest)) = rate {
-                let r = self.wear_rate[i];
-                let next = &mut self.wear_rate_next[i];
-                if let Some((t_in, t_out, slab)) = spike {
-                    // EXPERIMENT: a rate is 0 (not wearing) or wearing; in and out at random.
-                    let p_in = -(-since_move_s / t_in).exp_m1();
-                    let p_out = -(-since_move_s / t_out).exp_m1();
-                    for k in 0..2 {
-                        if r[k] == 0.0 {
-                            next[k] = if self.rng.random::<f64>() < p_in {
-                                let z: f64 = self.rng.sample(StandardNormal);
-                                (slab * z).clamp(-fastest[k], fastest[k])
-                            } else {
-                                0.0
-                            };
-                        } else if self.rng.random::<f64>() < p_out {
-                            next[k] = 0.0;
-                        } else {
-                            let z: f64 = self.rng.sample(StandardNormal);
-                            let moved = a * r[k] + (1.0 - a) * m[k] + jitter[k] * z;
-                            let z: f64 = self.rng.sample(StandardNormal);
-                            next[k] = (reversion[k] * moved + walk[k] * z)
-                                .clamp(-fastest[k], fastest[k]);
-                        }
-                    }
-                } else {
-                for k in 0..2 {
-                    let z: f64 = self.rng.sample(StandardNormal);
-                    let moved = a * r[k] + (1.0 - a) * m[k] + jitter[k] * z;
-                    let z: f64 = self.rng.sample(StandardNormal);
-                    next[k] = (reversion[k] * moved + walk[k] * z).clamp(-fastest[k], fastest[k]);
-                }
-                }
+            if let Some(rule) = &rate_move {
+                self.wear_rate_next[i] = rule.moved(self.wear_rate[i], a, &mut self.rng);
             }
             // Regeneration, one coefficient at a time (the other is usually known to a fraction
             // of a percent: redrawing both would almost never land near the truth), uniform
@@ -1437,9 +1314,8 @@ impl Rbpf {
                 if regen > 0.0 && self.rng.random::<f64>() < regen {
                     dst[k] = nominal[k] + lo + (hi - lo) * self.rng.random::<f64>();
                     *penalty = ln_regen_weight;
-                    if per_particle_wear() {
-                        self.wear_rate_next[i][k] = 0.0;
-                    }
+                    // A newcomer holds still until the data give it a rate.
+                    self.wear_rate_next[i][k] = 0.0;
                 }
             }
         }
