@@ -9,8 +9,10 @@
 //! ```text
 //! cargo run --release -p railmon-damper --example dip_trace -- --seed 5010 [--duration-s 120]
 //!     [--particles 500] [--show-below 0.75] [--from S --to S] [--oracle-conicity]
+//!     [--rbpf-seed N]
 //! ```
 //! `--oracle-conicity`: the filter given the plant's conicity (as `condition_matrix`).
+//! `--rbpf-seed`: the filter's own random numbers (`rbpf.seed`, as `condition_matrix`).
 //! `--duration-s` as the `condition_matrix` run the draw came from (a draw depends on it).
 
 use railmon_damper::sampler;
@@ -27,6 +29,7 @@ struct Args {
     show_below: f64,
     window: (f64, f64),
     oracle_conicity: bool,
+    rbpf_seed: u64,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -38,6 +41,7 @@ fn parse_args() -> Result<Args, String> {
         show_below: 0.75,
         window: (f64::INFINITY, f64::NEG_INFINITY),
         oracle_conicity: false,
+        rbpf_seed: 0,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -50,6 +54,7 @@ fn parse_args() -> Result<Args, String> {
             "--from" => a.window.0 = parsed(&flag, &value()?)?,
             "--to" => a.window.1 = parsed(&flag, &value()?)?,
             "--oracle-conicity" => a.oracle_conicity = true,
+            "--rbpf-seed" => a.rbpf_seed = parsed(&flag, &value()?)?,
             other => return Err(format!("unknown flag {other}")),
         }
     }
@@ -62,6 +67,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("seed {}: {}", args.seed, draw.short());
     let mut config = DamperMonitorConfig::default();
     config.rbpf.particles = args.particles;
+    config.rbpf.seed = args.rbpf_seed;
     if args.oracle_conicity {
         config = oracle::with_plant_conicity(&config, &draw);
     }
