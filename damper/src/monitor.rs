@@ -45,8 +45,7 @@ impl DamperMonitorState {
     /// 8: the common state estimated after a pause (`RbpfState`).
     /// 9: the publication held through a burst of innovations (`burst`).
     /// 10: a wear rate per particle in place of the drift read off the mean (`RbpfState`).
-    /// 11: the likelihood tempered after a pause's restart at rest (`RbpfState`).
-    pub const STATE_FORMAT_VERSION: u32 = 11;
+    pub const STATE_FORMAT_VERSION: u32 = 10;
 }
 
 /// Where a monitor is with respect to its valid speed range.

@@ -270,12 +270,6 @@ impl Sentinels {
         )
     }
 
-    /// The step's predictive likelihoods raised to the power `beta`, as the particles' are
-    /// (`Rbpf::likelihood_exponent`), before `commit` weighs them against the mixture.
-    pub(super) fn temper_likelihoods(&mut self, beta: f64) {
-        self.ll.iter_mut().for_each(|l| *l *= beta);
-    }
-
     /// Commits the step and updates the odds against the mixture's predictive log-density
     /// `mixture_ll` of the same step.
     pub(super) fn commit(&mut self, mixture_ll: f64) {

@@ -157,8 +157,6 @@ pub struct RbpfState {
     bank: BankState,
     rng: ChaCha8Rng,
     steps_since_move: u64,
-    /// Learning steps since the states restarted after a pause, while tempered.
-    steps_since_reset: Option<u64>,
     /// The posterior mean's drift per damper (`ln C` per s) and the mean at the last move.
     wear: WearDrift,
     /// Per particle `d ln C / dt` per damper (`wear_rate`).
@@ -202,9 +200,6 @@ pub struct Rbpf {
     kernel_h: f64,
     dt_s: f64,
     steps_since_move: u64,
-    /// Learning steps since the states restarted at rest after a pause (`reset_states`),
-    /// while the likelihood is still tempered (`likelihood_exponent`); `None` after.
-    steps_since_reset: Option<u64>,
     /// The posterior mean's drift that sizes the kernel's drift and random walk (`wear_evolution`).
     wear: WearDrift,
     ln_theta: Vec<[f64; 2]>,
@@ -397,7 +392,6 @@ impl Rbpf {
             kernel_h: h2.sqrt(),
             dt_s: filter_model.dt_s,
             steps_since_move: 0,
-            steps_since_reset: None,
             ln_theta_next: ln_theta.clone(),
             ln_theta,
             wear: WearDrift::default(),
@@ -447,7 +441,6 @@ impl Rbpf {
             bank: self.bank.save(),
             rng: self.rng.clone(),
             steps_since_move: self.steps_since_move,
-            steps_since_reset: self.steps_since_reset,
             wear: self.wear,
             wear_rate: self.wear_rate.clone(),
             ess: self.ess,
@@ -559,7 +552,6 @@ impl Rbpf {
             .map(|r| ResumeInit::restore(filter_model, r))
             .transpose()?;
         f.wear = state.wear;
-        f.steps_since_reset = state.steps_since_reset;
         f.wear_rate_next.clone_from(&state.wear_rate);
         f.wear_rate = state.wear_rate;
         f.sorted.stale = true;
@@ -628,10 +620,6 @@ impl Rbpf {
             }
         }
         self.nis_mean = nis_mean;
-        let beta = self.likelihood_exponent();
-        if beta < 1.0 {
-            self.ll.iter_mut().for_each(|l| *l *= beta);
-        }
         if every_step {
             for (((next, w), l), pen) in self
                 .log_w_next
@@ -651,9 +639,6 @@ impl Rbpf {
         let (log_increment, ess) = self.w.normalise(&mut self.log_w_next)?;
         if let Some(s) = &mut self.sentinels {
             s.step(y, &whiten)?;
-            if beta < 1.0 {
-                s.temper_likelihoods(beta);
-            }
         }
         // Commit.
         self.bank.commit();
@@ -670,7 +655,6 @@ impl Rbpf {
         std::mem::swap(&mut self.log_w, &mut self.log_w_next);
         self.log_evidence += log_increment;
         self.ess = ess;
-        self.steps_since_reset = self.steps_since_reset.map(|k| k + 1).filter(|_| beta < 1.0);
         let resample = self.ess < self.config.resample_ess_fraction * n as f64;
         if resample {
             systematic_resample(&self.log_w, &mut self.indices, &mut self.rng);
@@ -1127,7 +1111,6 @@ impl Rbpf {
     /// Every particle's and sentinel's Kalman state back at rest, as at the start; the
     /// parameter posterior untouched.
     pub fn reset_states(&mut self) {
-        self.steps_since_reset = Some(0);
         self.bank.reset_states();
         if let Some(s) = &mut self.sentinels {
             s.reset_states();
@@ -1136,30 +1119,6 @@ impl Rbpf {
         // On failure (a non-finite covariance) the states stay at rest, as before it.
         self.resume_init =
             ResumeInit::new(&self.filter_model, self.mean(), speed_m_s, mass_kg).ok();
-    }
-
-    /// The exponent `beta` on each step's predictive likelihood, in the weights and the jump
-    /// odds: `t / tau` over the first slowest time constant `tau` of learning after the states
-    /// restarted at rest (`reset_states`), 1 otherwise and without the jump search (which
-    /// computes `tau`). Why: every hypothesis then starts from the one common state of the
-    /// first samples (`resume_init`), whose error each steady-state filter forgets at its own
-    /// closed-loop rate, over about `tau`; until it has, the filters' `S` (the steady state's)
-    /// understates the innovations' spread, and the likelihood ratios between hypotheses
-    /// carry how fast each forgets, not which damper the data show. On condition-sampler
-    /// draw 5150 (`dip_trace --seed 5150 --rbpf-seed 1`: `C_sy` failed at a stop, 5.7 m/s)
-    /// a hypothesis of `C_sy` at 0.2 x gained about 10 nats in 40 ms against the truth's
-    /// 0.57 x, every other particle was resampled away, and in the cascade that followed the
-    /// healthy `C_say` was published at 0.27-0.34 for 8.5 s (a false `damper_degraded`).
-    /// Raising the likelihood to a power below 1 while it is known to be overconfident is
-    /// progressive correction (Oudjane and Musso 2000; the tempered or power likelihood);
-    /// the ramp spends the evidence of the first `tau` at half weight on average, which is
-    /// what a transient decaying as `exp(-t / tau)` leaves unexplained. docs/damper.md,
-    /// "Pause and resume".
-    fn likelihood_exponent(&self) -> f64 {
-        match (self.steps_since_reset, self.slowest_time_constant_s) {
-            (Some(k), Some(tau)) if tau > 0.0 => (k as f64 * self.dt_s / tau).min(1.0),
-            _ => 1.0,
-        }
     }
 
     /// Steps the common filter after a pause and, once it has run its window, gives its state
@@ -1486,22 +1445,16 @@ mod tests {
     use super::*;
     use crate::{BogieSimulator, DamperScenario};
 
-    /// `damper-seed`, `duration_s` long.
-    fn seed_scenario(duration_s: f64) -> DamperScenario {
+    /// N = 64 with the jump search, 0.2 s into `damper-seed`; no hypothesis becomes particles
+    /// by itself (`materialise_odds` out of reach): the tests put them in.
+    fn seed_filter_with_a_silent_search() -> Rbpf {
         let text = std::fs::read_to_string(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/../config/scenarios/damper-seed.toml"
         ))
         .unwrap();
         let mut s = DamperScenario::from_toml_str(&text).unwrap();
-        s.duration_s = duration_s;
-        s
-    }
-
-    /// N = 64 with the jump search, 0.2 s into `damper-seed`; no hypothesis becomes particles
-    /// by itself (`materialise_odds` out of reach): the tests put them in.
-    fn seed_filter_with_a_silent_search() -> Rbpf {
-        let s = seed_scenario(0.2);
+        s.duration_s = 0.2;
         let mut c = s.monitor_config();
         c.rbpf.particles = 64;
         c.rbpf.jump_search.enabled = true;
@@ -1512,53 +1465,6 @@ mod tests {
             f.step(&y.to_vector()).unwrap();
         }
         f
-    }
-
-    /// After the states restart at rest (`reset_states`) a step's likelihood enters the
-    /// weights raised to `t / tau` (`likelihood_exponent`): not at all in the first step,
-    /// half way through the slowest time constant `tau` at half weight, and in full from
-    /// `tau` on, when the ramp ends. Each case steps the same filter on the same sample
-    /// beside an untempered copy and compares the weights' log-ratios between particles.
-    #[test]
-    fn after_a_restart_at_rest_the_likelihood_is_tempered_over_a_slowest_time_constant() {
-        let mut base = seed_filter_with_a_silent_search();
-        base.reset_states();
-        let mut sim = BogieSimulator::new(&seed_scenario(0.21)).unwrap();
-        for _ in 0..205 {
-            sim.step();
-        }
-        let y = sim.step().unwrap().0.to_vector();
-        let tau_steps = (base.slowest_time_constant_s.unwrap() / base.dt_s).round() as u64;
-        let (a, b) = (3, 41);
-        for (k, beta) in [(0, 0.0), (tau_steps / 2, 0.5), (tau_steps, 1.0)] {
-            let mut tempered = base.clone();
-            tempered.steps_since_reset = Some(k);
-            let mut plain = base.clone();
-            plain.steps_since_reset = None;
-            let before = base.log_w[a] - base.log_w[b];
-            tempered.step(&y).unwrap();
-            plain.step(&y).unwrap();
-            assert_eq!(tempered.resample_count(), base.resample_count(), "k {k}");
-            assert_eq!(plain.resample_count(), base.resample_count(), "k {k}");
-            let gain = |f: &Rbpf| f.log_w[a] - f.log_w[b] - before;
-            assert!(gain(&plain).abs() > 1e-3, "the sample tells the two apart");
-            let expected = (k as f64 * base.dt_s / base.slowest_time_constant_s.unwrap()).min(1.0);
-            assert!((expected - beta).abs() < 1e-3, "k {k}: {expected}");
-            assert!(
-                (gain(&tempered) - expected * gain(&plain)).abs() < 1e-9,
-                "k {k}: {} against {} x {}",
-                gain(&tempered),
-                expected,
-                gain(&plain)
-            );
-        }
-        let mut ramp = base.clone();
-        // `tau / dt` steps below 1, rounded up, and the one at 1.
-        for _ in 0..tau_steps + 2 {
-            ramp.step(&y).unwrap();
-        }
-        assert_eq!(ramp.steps_since_reset, None, "the ramp ends");
-        assert_eq!(ramp.likelihood_exponent(), 1.0);
     }
 
     /// A hypothesis becomes as many particles as its share of the posterior,
