@@ -31,8 +31,7 @@
 //! `--first-seed S --draws 1 --split all` with the same `--duration-s` and `--particles`.
 
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Instant;
 
 use railmon_damper::gain_table::GainTable;
@@ -42,8 +41,10 @@ use railmon_damper::{
     Rbpf,
 };
 
+mod draws;
 mod flags;
 mod oracle;
+use draws::Split;
 use flags::{on_off, parsed};
 
 /// Accuracy, coverage and mismatch are counted from here (s), as in `robustness_matrix`.
@@ -55,23 +56,6 @@ const WITHIN: f64 = 0.05;
 const JUMP_MOVE: f64 = 0.05;
 /// How long after a materialisation its effect on the published ratio is looked for (s).
 const JUMP_WINDOW_S: f64 = 2.0;
-
-#[derive(Clone, Copy, PartialEq)]
-enum Split {
-    All,
-    Tune,
-    HeldOut,
-}
-
-impl Split {
-    fn name(self) -> &'static str {
-        match self {
-            Split::All => "all",
-            Split::Tune => "tune",
-            Split::HeldOut => "held-out",
-        }
-    }
-}
 
 struct Args {
     draws: usize,
@@ -153,14 +137,7 @@ fn parse_args() -> Result<Args, String> {
             }
             "--draws" => args.draws = parsed(&flag, &value()?)?,
             "--first-seed" => args.first_seed = parsed(&flag, &value()?)?,
-            "--split" => {
-                args.split = match value()?.as_str() {
-                    "all" => Split::All,
-                    "tune" => Split::Tune,
-                    "held-out" => Split::HeldOut,
-                    other => return Err(format!("--split {other}: all, tune or held-out")),
-                }
-            }
+            "--split" => args.split = value()?.parse()?,
             "--particles" => args.config.rbpf.particles = parsed(&flag, &value()?)?,
             "--duration-s" => args.duration_s = parsed(&flag, &value()?)?,
             "--worst" => args.worst = parsed(&flag, &value()?)?,
@@ -660,49 +637,29 @@ fn main() -> ExitCode {
         args.shape.is_none_or(|s| d.fault_shape == s) && (!args.with_stops || !d.stops.is_empty())
     };
     let seeds: Vec<u64> = (args.first_seed..)
-        .filter(|&s| match args.split {
-            Split::All => true,
-            Split::Tune => !sampler::is_held_out(s),
-            Split::HeldOut => sampler::is_held_out(s),
-        })
+        .filter(|&s| args.split.admits(s))
         .filter(|&s| wanted(&sampler::draw(s, args.duration_s)))
         .take(args.draws)
         .collect();
     let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed)
         .expect("the default filter's gain table");
-    let threads = std::thread::available_parallelism()
-        .map_or(1, |n| n.get())
-        .min(2);
     let started = Instant::now();
-    let next = AtomicUsize::new(0);
-    let outcomes = Mutex::new(Vec::new());
-    std::thread::scope(|scope| {
-        for _ in 0..threads {
-            scope.spawn(|| loop {
-                let i = next.fetch_add(1, Ordering::Relaxed);
-                let Some(&seed) = seeds.get(i) else { break };
-                let draw = sampler::draw(seed, args.duration_s);
-                let o = if args.oracle_conicity {
-                    // The filter's model at the plant's conicity: its own gain grids.
-                    let config = oracle::with_plant_conicity(&config, &draw);
-                    let table =
-                        Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed)
-                            .expect("the oracle filter's gain table");
-                    run(draw, &config, &table, args.verbose, args.withhold_mass)
-                } else {
-                    run(draw, &config, &table, args.verbose, args.withhold_mass)
-                };
-                eprintln!(
-                    "[{:.0} s] seed {seed} done ({:.0} s)",
-                    started.elapsed().as_secs_f64(),
-                    o.seconds
-                );
-                outcomes.lock().unwrap().push(o);
-            });
-        }
-    });
-    let mut outcomes = outcomes.into_inner().unwrap();
-    outcomes.sort_by_key(|o| o.draw.seed);
+    let outcomes = draws::run_each(
+        &seeds,
+        |seed| {
+            let draw = sampler::draw(seed, args.duration_s);
+            if args.oracle_conicity {
+                // The filter's model at the plant's conicity: its own gain grids.
+                let config = oracle::with_plant_conicity(&config, &draw);
+                let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed)
+                    .expect("the oracle filter's gain table");
+                run(draw, &config, &table, args.verbose, args.withhold_mass)
+            } else {
+                run(draw, &config, &table, args.verbose, args.withhold_mass)
+            }
+        },
+        |o| o.seconds,
+    );
     report(&args, &outcomes, threshold, started.elapsed().as_secs_f64());
     ExitCode::SUCCESS
 }

@@ -23,8 +23,7 @@
 //! Even seeds tune, odd seeds are held out.
 
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Instant;
 
 use railmon_damper::gain_table::GainTable;
@@ -33,7 +32,9 @@ use railmon_damper::{
     BogieSimulator, DamperAlarm, DamperEventKind, DamperMonitor, DamperMonitorConfig, Rbpf,
 };
 
+mod draws;
 mod flags;
+use draws::Split;
 use flags::parsed;
 
 /// The healthy damper's interval width is judged from here (s), after convergence.
@@ -51,7 +52,7 @@ struct Args {
     draws: usize,
     first_seed: u64,
     /// Odd seeds (held out), even (tune) or all.
-    split: &'static str,
+    split: Split,
     healthy: bool,
     config: DamperMonitorConfig,
 }
@@ -60,7 +61,7 @@ fn parse_args() -> Result<Args, String> {
     let mut args = Args {
         draws: 12,
         first_seed: 7000,
-        split: "held-out",
+        split: Split::HeldOut,
         healthy: false,
         config: DamperMonitorConfig::default(),
     };
@@ -78,14 +79,7 @@ fn parse_args() -> Result<Args, String> {
             }
             "--draws" => args.draws = parsed(&flag, &value()?)?,
             "--first-seed" => args.first_seed = parsed(&flag, &value()?)?,
-            "--split" => {
-                args.split = match value()?.as_str() {
-                    "all" => "all",
-                    "tune" => "tune",
-                    "held-out" => "held-out",
-                    other => return Err(format!("--split {other}: all, tune or held-out")),
-                }
-            }
+            "--split" => args.split = value()?.parse()?,
             "--particles" => args.config.rbpf.particles = parsed(&flag, &value()?)?,
             "--healthy" => args.healthy = true,
             other => return Err(format!("unknown flag {other}")),
@@ -324,48 +318,29 @@ fn main() -> ExitCode {
     let config = args.config;
     let threshold = config.alarm.degraded_below_ratio;
     let seeds: Vec<u64> = (args.first_seed..)
-        .filter(|&s| match args.split {
-            "tune" => !sampler::is_held_out(s),
-            "held-out" => sampler::is_held_out(s),
-            _ => true,
-        })
+        .filter(|&s| args.split.admits(s))
         .take(args.draws)
         .collect();
     let table = Rbpf::gain_table(&config.filter_model(), &config.rbpf, &config.speed)
         .expect("the default filter's gain table");
-    let threads = std::thread::available_parallelism()
-        .map_or(1, |n| n.get())
-        .min(2);
     let started = Instant::now();
-    let next = AtomicUsize::new(0);
-    let outcomes = Mutex::new(Vec::new());
-    std::thread::scope(|scope| {
-        for _ in 0..threads {
-            scope.spawn(|| loop {
-                let i = next.fetch_add(1, Ordering::Relaxed);
-                let Some(&seed) = seeds.get(i) else { break };
-                let o = run(
-                    sampler::ramp_draw(seed, threshold, args.healthy),
-                    &sampler::ramp_draw(seed, threshold, false),
-                    &config,
-                    &table,
-                );
-                eprintln!(
-                    "[{:.0} s] seed {seed} done ({:.0} s)",
-                    started.elapsed().as_secs_f64(),
-                    o.seconds
-                );
-                outcomes.lock().unwrap().push(o);
-            });
-        }
-    });
-    let mut outcomes = outcomes.into_inner().unwrap();
-    outcomes.sort_by_key(|o| o.draw.seed);
+    let outcomes = draws::run_each(
+        &seeds,
+        |seed| {
+            run(
+                sampler::ramp_draw(seed, threshold, args.healthy),
+                &sampler::ramp_draw(seed, threshold, false),
+                &config,
+                &table,
+            )
+        },
+        |o| o.seconds,
+    );
     println!(
         "ramp matrix: {} draws from seed {} (split {}){}, N = {}, filter defaults, {:.0} s wall",
         outcomes.len(),
         args.first_seed,
-        args.split,
+        args.split.name(),
         if args.healthy {
             ", healthy (the ramp draws' conditions without the ramp)"
         } else {
