@@ -87,23 +87,16 @@ pub struct WearDrift {
     ln_per_s: [f64; 2],
     /// The mean of `ln C` at the last move (`None` before the first).
     last_mean: Option<[f64; 2]>,
-    /// EXPERIMENT: the drift of velocities capped at the fastest wear.
-    #[serde(default)]
-    capped_ln_per_s: [f64; 2],
 }
 
 impl WearDrift {
     /// At a kernel move: the cloud's mean `mean`, `since_s` after the last move.
-    fn observe(&mut self, mean: [f64; 2], since_s: f64, nominal: [f64; 2]) {
+    fn observe(&mut self, mean: [f64; 2], since_s: f64) {
         if let Some(last) = self.last_mean {
             if since_s > 0.0 {
                 let gain = -(-since_s / DRIFT_MEMORY_S).exp_m1();
                 for k in 0..2 {
                     let velocity = (mean[k] - last[k]) / since_s;
-                    let fastest = MAX_WEAR_PER_S / (last[k] - nominal[k]).exp();
-                    let capped = velocity.clamp(-fastest, fastest);
-                    self.capped_ln_per_s[k] += gain * (capped - self.capped_ln_per_s[k]);
-                    let velocity = if drift_cap() == 1 { capped } else { velocity };
                     self.ln_per_s[k] += gain * (velocity - self.ln_per_s[k]);
                 }
             }
@@ -1224,7 +1217,7 @@ impl Rbpf {
         );
         let nominal = self.nominal.ln();
         let (mean, cov) = self.ln_moments();
-        self.wear.observe(mean, since_move_s, nominal);
+        self.wear.observe(mean, since_move_s);
         let (shift, dif) = {
             let evolution = [0, 1].map(|k| {
                 wear_evolution(
@@ -1234,20 +1227,8 @@ impl Rbpf {
                 )
             });
             let q0 = self.config.ln_diffusion_per_sqrt_s.powi(2);
-            let shift_drift = if drift_cap() == 2 {
-                [0, 1].map(|k| {
-                    wear_evolution(
-                        self.wear.capped_ln_per_s[k],
-                        cov[(k, k)].max(0.0).sqrt(),
-                        (mean[k] - nominal[k]).exp(),
-                    )
-                    .0
-                })
-            } else {
-                evolution.map(|(drift, _)| drift)
-            };
             (
-                shift_drift.map(|drift| drift * since_move_s),
+                evolution.map(|(drift, _)| drift * since_move_s),
                 evolution.map(|(_, var)| ((q0 + var) * since_move_s).sqrt()),
             )
         };
@@ -1611,16 +1592,4 @@ mod tests {
         let published = f.estimate().csay.mean_ns_per_m / nominal;
         assert!(published < 0.6, "adopted: {published}");
     }
-}
-
-/// EXPERIMENT (RAILMON_DRIFT_CAP=1: the drift of velocities capped at the fastest wear; 2: the
-/// shift by the capped drift, the widening by the uncapped one).
-fn drift_cap() -> u8 {
-    static ON: std::sync::OnceLock<u8> = std::sync::OnceLock::new();
-    *ON.get_or_init(|| {
-        std::env::var("RAILMON_DRIFT_CAP")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0)
-    })
 }
