@@ -75,7 +75,7 @@ fn a_resumed_monitor_goes_on_exactly_and_inside_the_pre_restart_interval() {
 #[test]
 fn a_monitor_saved_during_a_burst_hold_resumes_it_exactly() {
     let scenario = railmon_damper::sampler::draw(5105, 120.0).scenario;
-    let (config, table, samples) = setup(scenario, 58.0);
+    let (config, table, samples) = setup(scenario, 60.0);
     let mut running = DamperMonitor::for_bogie(&config, 1, Some(table.clone())).unwrap();
     let mut at = None;
     for (k, s) in samples.iter().enumerate() {

@@ -657,29 +657,7 @@ impl Rbpf {
         self.ess = ess;
         let resample = self.ess < self.config.resample_ess_fraction * n as f64;
         if resample {
-            systematic_resample(&self.log_w, &mut self.indices, &mut self.rng);
-            self.bank.resample(&self.indices);
-            if !self.on_probation.is_empty() {
-                let before = self.on_probation.clone();
-                for (dst, &i) in self.on_probation.iter_mut().zip(&self.indices) {
-                    *dst = before[i];
-                }
-            }
-            for (dst, &i) in self.ln_theta_next.iter_mut().zip(&self.indices) {
-                *dst = self.ln_theta[i];
-            }
-            std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
-            for (dst, &i) in self.wear_rate_next.iter_mut().zip(&self.indices) {
-                *dst = self.wear_rate[i];
-            }
-            std::mem::swap(&mut self.wear_rate, &mut self.wear_rate_next);
-            for (dst, &i) in self.ln_mass_next.iter_mut().zip(&self.indices) {
-                *dst = self.ln_mass[i];
-            }
-            std::mem::swap(&mut self.ln_mass, &mut self.ln_mass_next);
-            self.log_w.fill(-(n as f64).ln());
-            self.resamples += 1;
-            self.sorted.stale = true;
+            self.resample();
         }
         if self.config.kernel == KernelSchedule::AtResampling && resample {
             self.move_after_resampling()?;
@@ -697,6 +675,118 @@ impl Rbpf {
         Ok(())
     }
 
+    /// A resampling ([`Rbpf::ancestors`]): the particles, their states, rates and
+    /// probation drawn anew, with the weights it leaves.
+    fn resample(&mut self) {
+        let n = self.n_particles();
+        let mut indices = std::mem::take(&mut self.indices);
+        let log_w_after = self.ancestors(&mut indices);
+        self.indices = indices;
+        self.bank.resample(&self.indices);
+        if !self.on_probation.is_empty() {
+            let before = self.on_probation.clone();
+            for (dst, &i) in self.on_probation.iter_mut().zip(&self.indices) {
+                *dst = before[i];
+            }
+        }
+        for (dst, &i) in self.ln_theta_next.iter_mut().zip(&self.indices) {
+            *dst = self.ln_theta[i];
+        }
+        std::mem::swap(&mut self.ln_theta, &mut self.ln_theta_next);
+        for (dst, &i) in self.wear_rate_next.iter_mut().zip(&self.indices) {
+            *dst = self.wear_rate[i];
+        }
+        std::mem::swap(&mut self.wear_rate, &mut self.wear_rate_next);
+        for (dst, &i) in self.ln_mass_next.iter_mut().zip(&self.indices) {
+            *dst = self.ln_mass[i];
+        }
+        std::mem::swap(&mut self.ln_mass, &mut self.ln_mass_next);
+        match log_w_after {
+            Some(w) => self.log_w = w,
+            None => self.log_w.fill(-(n as f64).ln()),
+        }
+        self.resamples += 1;
+        self.sorted.stale = true;
+    }
+
+    /// The ancestors of a resampling, `indices.len()` of them, and their log-weights after
+    /// it (`None`: all equal). Systematic resampling of the whole cloud, except while the
+    /// published particles (none on probation) hold less than `jump::MIN_PUBLISHED_SHARE`
+    /// of the posterior: then each side is resampled on its own, the published one to that
+    /// share of the particles, each side keeping its posterior mass (stratified: the weights
+    /// stay exact). A resampling that kept only particles on probation published them at
+    /// once (`judge_probation`), evidence for a jump or not.
+    fn ancestors(&mut self, indices: &mut [usize]) -> Option<Vec<f64>> {
+        let (n_in, n) = (self.n_particles(), indices.len());
+        if self.on_probation.is_empty() || n < 2 {
+            systematic_resample(&self.log_w, indices, &mut self.rng);
+            return None;
+        }
+        let published: Vec<usize> = (0..n_in)
+            .filter(|&i| self.on_probation[i] == Probation::None)
+            .collect();
+        let ln_mass_of = |members: &[usize], log_w: &[f64]| {
+            let w: Vec<f64> = members.iter().map(|&i| log_w[i]).collect();
+            railmon_filter::logspace::log_sum_exp(&w)
+        };
+        let ln_published = ln_mass_of(&published, &self.log_w);
+        if !ln_published.is_finite() || ln_published >= jump::MIN_PUBLISHED_SHARE.ln() {
+            systematic_resample(&self.log_w, indices, &mut self.rng);
+            return None;
+        }
+        let n_published = ((jump::MIN_PUBLISHED_SHARE * n as f64).round() as usize).clamp(1, n - 1);
+        let rest: Vec<usize> = (0..n_in)
+            .filter(|&i| self.on_probation[i] != Probation::None)
+            .collect();
+        let ln_rest = ln_mass_of(&rest, &self.log_w);
+        let mut log_w_after = vec![0.0; n];
+        let mut start = 0;
+        for (members, ln_side, count) in [
+            (&published, ln_published, n_published),
+            (&rest, ln_rest, n - n_published),
+        ] {
+            let normalised: Vec<f64> = members.iter().map(|&i| self.log_w[i] - ln_side).collect();
+            let slots = &mut indices[start..start + count];
+            systematic_resample(&normalised, slots, &mut self.rng);
+            for slot in slots.iter_mut() {
+                *slot = members[*slot];
+            }
+            log_w_after[start..start + count].fill(ln_side - (count as f64).ln());
+            start += count;
+        }
+        Some(log_w_after)
+    }
+
+    /// Weighted mean of `ln theta` over the published particles (none on probation), their
+    /// weights renormalised among them (in log space: they may hold e^-800 of the
+    /// posterior); `None` when no particle is on probation, or the published ones weigh
+    /// nothing.
+    fn published_ln_mean(&self) -> Option<[f64; 2]> {
+        if self.on_probation.is_empty() {
+            return None;
+        }
+        let in_group = |i: usize| self.on_probation[i] == Probation::None;
+        let first = (0..self.ln_theta.len()).find(|&i| in_group(i))?;
+        let top = (0..self.log_w.len())
+            .filter(|&i| in_group(i))
+            .map(|i| self.log_w[i])
+            .fold(f64::NEG_INFINITY, f64::max);
+        if top == f64::NEG_INFINITY {
+            return None;
+        }
+        let origin = self.ln_theta[first];
+        let (mut total, mut shift) = (0.0, [0.0; 2]);
+        for (i, (th, lw)) in self.ln_theta.iter().zip(&self.log_w).enumerate() {
+            if in_group(i) {
+                let w = (lw - top).exp();
+                total += w;
+                shift[0] += w * (th[0] - origin[0]);
+                shift[1] += w * (th[1] - origin[1]);
+            }
+        }
+        Some([origin[0] + shift[0] / total, origin[1] + shift[1] / total])
+    }
+
     /// The Liu-West move that follows a resampling with `KernelSchedule::AtResampling`: the
     /// copies of one particle spread again (eq. 24), the regenerated ones weighted down.
     fn move_after_resampling(&mut self) -> Result<(), DamperError> {
@@ -710,7 +800,12 @@ impl Rbpf {
         self.ess = self.w.normalise(&mut self.log_w)?.1;
         self.sorted.stale = true;
         if self.sentinels.is_some() {
-            let (mean, _) = self.ln_moments();
+            // On the published posterior: the hypotheses on probation are the sentinels'
+            // own, and centred on them the search would follow them down a healthy
+            // transient (the cascade after a resume, tuning draw 5078).
+            let mean = self
+                .published_ln_mean()
+                .unwrap_or_else(|| self.ln_moments().0);
             if let Some(s) = &mut self.sentinels {
                 s.recentre(mean);
             }
@@ -742,7 +837,7 @@ impl Rbpf {
             return Ok(());
         }
         let mut indices = vec![0; n];
-        systematic_resample(&self.log_w, &mut indices, &mut self.rng);
+        let log_w_after = self.ancestors(&mut indices);
         self.bank.resize(&indices);
         self.ln_theta = indices.iter().map(|&i| self.ln_theta[i]).collect();
         self.wear_rate = indices.iter().map(|&i| self.wear_rate[i]).collect();
@@ -753,8 +848,16 @@ impl Rbpf {
             self.on_probation = indices.iter().map(|&i| self.on_probation[i]).collect();
         }
         self.resize_buffers();
-        self.log_w.fill(-(n as f64).ln());
-        self.ess = n as f64;
+        self.ess = match log_w_after {
+            Some(w) => {
+                self.log_w = w;
+                self.w.normalise(&mut self.log_w)?.1
+            }
+            None => {
+                self.log_w.fill(-(n as f64).ln());
+                n as f64
+            }
+        };
         self.resamples += 1;
         self.sorted.stale = true;
         if self.config.kernel == KernelSchedule::AtResampling {
@@ -792,8 +895,9 @@ impl Rbpf {
     /// Adopts the jump hypotheses of a damper on probation once they have held a decisive
     /// posterior mass (`jump::ADOPT_POSTERIOR_MASS`) for `jump::ADOPT_TIME_CONSTANTS` time
     /// constants of the model's slowest mode; and when nothing else is left to publish (the
-    /// resampling kept only particles on probation), the damper's whose hypotheses hold the
-    /// most mass, the other's staying on probation. Forgets them once no particle holds them
+    /// published particles weigh nothing, which the stratified resampling of
+    /// [`Rbpf::ancestors`] otherwise prevents), the damper's whose hypotheses hold the most
+    /// mass, the other's staying on probation. Forgets them once no particle holds them
     /// (`jump` module docs, "Publishing a jump").
     fn judge_probation(&mut self) {
         if self.on_probation.is_empty() {
@@ -844,18 +948,32 @@ impl Rbpf {
         if self.on_probation.is_empty() {
             return linear;
         }
-        let mut w = linear.into_owned();
-        for (w, p) in w.iter_mut().zip(&self.on_probation) {
-            if *p != Probation::None {
-                *w = 0.0;
-            }
+        // In log space: the published side may hold e^-800 of the posterior (`ancestors`
+        // keeps it).
+        let top = self
+            .log_w
+            .iter()
+            .zip(&self.on_probation)
+            .filter(|(_, p)| **p == Probation::None)
+            .map(|(w, _)| *w)
+            .fold(f64::NEG_INFINITY, f64::max);
+        if top == f64::NEG_INFINITY {
+            return linear;
         }
+        let mut w: Vec<f64> = self
+            .log_w
+            .iter()
+            .zip(&self.on_probation)
+            .map(|(v, p)| {
+                if *p == Probation::None {
+                    (v - top).exp()
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         let total: f64 = w.iter().sum();
-        if total > 0.0 {
-            w.iter_mut().for_each(|w| *w /= total);
-        } else {
-            w = self.log_w.iter().map(|v| v.exp()).collect();
-        }
+        w.iter_mut().for_each(|w| *w /= total);
         Cow::Owned(w)
     }
 
@@ -1217,7 +1335,18 @@ impl Rbpf {
         );
         let nominal = self.nominal.ln();
         let (mean, cov) = self.ln_moments();
-        self.wear.observe(mean, since_move_s);
+        // While jump hypotheses are on probation, the published particles shrink towards
+        // their own mean (eq. 24's `theta_bar` of the published posterior), and the wear
+        // drift follows it: the pooled mean is pulled by the hypotheses' mass, and
+        // shrinking towards it by `(1 - a)` at every move dragged the published posterior
+        // after them without evidence (v7 in notes/damper-log.md: a false alarm). Their
+        // jitter keeps the pooled covariance `h^2 V`, whose width kept the intervals
+        // honest (v6: with their own, coverage halved on tuning draws). The particles on
+        // probation keep the pooled moments: they fall back towards the published cloud when
+        // their hypothesis loses.
+        let published_mean = self.published_ln_mean();
+        self.wear
+            .observe(published_mean.unwrap_or(mean), since_move_s);
         let (shift, dif) = {
             let evolution = [0, 1].map(|k| {
                 wear_evolution(
@@ -1280,9 +1409,13 @@ impl Rbpf {
             *penalty = 0.0;
             let z0: f64 = self.rng.sample(StandardNormal);
             let z1: f64 = self.rng.sample(StandardNormal);
+            let target = match published_mean {
+                Some(m) if self.on_probation[i] == Probation::None => m,
+                _ => mean,
+            };
             for k in 0..2 {
                 let jitter = h * (chol[(k, 0)] * z0 + chol[(k, 1)] * z1);
-                dst[k] = a * th[k] + (1.0 - a) * mean[k] + jitter + shift[k];
+                dst[k] = a * th[k] + (1.0 - a) * target[k] + jitter + shift[k];
             }
             if let Some((m, row)) = mass {
                 let z2: f64 = self.rng.sample(StandardNormal);
@@ -1591,5 +1724,56 @@ mod tests {
         );
         let published = f.estimate().csay.mean_ns_per_m / nominal;
         assert!(published < 0.6, "adopted: {published}");
+    }
+
+    /// While jump hypotheses hold more than `1 - MIN_PUBLISHED_SHARE` of the posterior, a
+    /// resampling keeps that share of the particles for the published posterior, each side
+    /// keeping its mass: the published estimate stays as it was and nothing is adopted.
+    /// Before, a resampling with the hypotheses holding all but e^-30 of the mass kept only
+    /// them and the next `judge_probation` published them at once (here about 0.45 x
+    /// nominal, below the alarm's 0.7): tuning draw 5150's false `damper_degraded`.
+    #[test]
+    fn a_resampling_keeps_the_published_posterior_while_hypotheses_hold_the_mass() {
+        let mut f = seed_filter_with_a_silent_search();
+        // A C_say hypothesis (sentinel 6, -0.8 in ln C) becomes particles and takes all but
+        // e^-30 of the posterior.
+        let sentinels = f.sentinels.as_mut().unwrap();
+        sentinels.ln_odds_mut().fill(f64::NEG_INFINITY);
+        sentinels.ln_odds_mut()[6] = 0.25f64.ln();
+        f.materialise(0.25).unwrap();
+        for i in 0..64 {
+            if f.on_probation[i] == Probation::None {
+                f.log_w[i] -= 30.0;
+            }
+        }
+        normalize_log_weights(&mut f.log_w).unwrap();
+        f.sorted.stale = true;
+        let ln_published_mass = |f: &Rbpf| {
+            let w: Vec<f64> = (0..64)
+                .filter(|&i| f.on_probation[i] == Probation::None)
+                .map(|i| f.log_w[i])
+                .collect();
+            railmon_filter::logspace::log_sum_exp(&w)
+        };
+        let (before, ln_mass_before) = (f.estimate(), ln_published_mass(&f));
+        assert!(before.csay.health_ratio > 0.9, "{:?}", before.csay);
+        f.resample();
+        let kept = (0..64)
+            .filter(|&i| f.on_probation[i] == Probation::None)
+            .count();
+        assert_eq!(kept, (jump::MIN_PUBLISHED_SHARE * 64.0).round() as usize);
+        assert!((ln_published_mass(&f) - ln_mass_before).abs() < 1e-9);
+        let total: f64 = f.log_w.iter().map(|w| w.exp()).sum();
+        assert!((total - 1.0).abs() < 1e-12);
+        f.judge_probation();
+        assert_eq!(f.jump_adoptions(), 0);
+        let after = f.estimate();
+        // A resampled copy of the same published posterior: 6 of the 58 particles.
+        for (a, b) in [(after.csy, before.csy), (after.csay, before.csay)] {
+            assert!(
+                (a.health_ratio - b.health_ratio).abs() < 0.05,
+                "{a:?} {b:?}"
+            );
+        }
     }
 }
