@@ -56,8 +56,7 @@ pub struct RbpfConfig {
     #[schemars(range(min = 0.0))]
     pub prior_ln_std: f64,
     /// Extra random walk of `ln C` (1/sqrt(s)) added to the Liu-West move, so that the filter
-    /// can follow a damper that fails after the posterior has narrowed; the particles' own
-    /// `ln m` walks as much while they carry the mass (`unmeasured_mass`). `0` is the paper's
+    /// can follow a damper that fails after the posterior has narrowed. `0` is the paper's
     /// static-parameter filter.
     #[schemars(range(min = 0.0))]
     pub ln_diffusion_per_sqrt_s: f64,
