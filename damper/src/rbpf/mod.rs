@@ -1233,14 +1233,7 @@ impl Rbpf {
         if let Some(s) = &mut self.sentinels {
             s.reset_states();
         }
-        // While the particles carry their mass the bank is scheduled at the design mass; the
-        // common filter runs at their mean, as the sentinels do. At the design mass, after
-        // passengers boarded at a stop (13 -> 16.9 t), the handed-over states were the
-        // lighter body's, the first transient favoured heavier particles, the cloud narrowed
-        // on a mass 2-3 % heavy and `C_sy` ended 1-3.7 % stiff (`damper/tests/stop.rs`,
-        // docs/notes/damper-log.md, 30 Nov).
-        let mass_kg = self.resume_init_mass_kg();
-        let (speed_m_s, _) = self.bank.schedule();
+        let (speed_m_s, mass_kg) = self.bank.schedule();
         // On failure (a non-finite covariance) the states stay at rest, as before it.
         self.resume_init =
             ResumeInit::new(&self.filter_model, self.mean(), speed_m_s, mass_kg).ok();
@@ -1249,25 +1242,15 @@ impl Rbpf {
     /// Steps the common filter after a pause and, once it has run its window, gives its state
     /// to every particle and sentinel (`resume_init`).
     fn step_resume_init(&mut self, y: &Vector5) -> Result<(), DamperError> {
-        if self.resume_init.is_none() {
+        let Some(init) = &mut self.resume_init else {
             return Ok(());
-        }
-        let mass_kg = self.resume_init_mass_kg();
-        let (speed_m_s, _) = self.bank.schedule();
-        let init = self.resume_init.as_mut().expect("checked above");
+        };
+        let (speed_m_s, mass_kg) = self.bank.schedule();
         init.step(y, &self.noise_scale.variance_scale(), speed_m_s, mass_kg)?;
         if init.steps() as f64 * self.dt_s >= RESUME_INIT_S - 0.5 * self.dt_s {
             self.hand_over_resume_init();
         }
         Ok(())
-    }
-
-    /// The body mass (kg) the common filter after a pause runs at: the particles' posterior
-    /// mean while they carry their mass (it does not move meanwhile: the states are filtered
-    /// without weighting, `step_states`), else the scheduled one.
-    fn resume_init_mass_kg(&self) -> f64 {
-        self.estimated_half_body_mass_kg()
-            .unwrap_or_else(|| self.bank.schedule().1)
     }
 
     /// Gives the common state after a pause, if one is being estimated, to every particle
