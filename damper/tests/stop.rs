@@ -183,28 +183,31 @@ fn withheld_boarding_fails(bogie: u32) -> Option<Failure> {
 /// drew their mass again after a stop (`Rbpf::forget_unmeasured_mass`, issue 24 item 1):
 /// then `C_sy` -29.2 % with false `C_sy` and `C_say` alarms, the cloud keeping the mass from
 /// before the stop; with it +1.6 %, the mass read 17.25 t of 16.9 t. One seed in CI (most of
-/// this binary's time: the gain-table nodes its particles' masses reach, solved once); all
-/// seven: the ignored test below.
+/// this binary's time: the gain-table nodes its particles' masses reach, solved once); seeds
+/// 1-14: the ignored test below.
 #[test]
 fn a_load_change_at_a_stop_is_found_again_when_withheld() {
     assert_eq!(withheld_boarding_fails(3), None);
 }
 
-/// [`withheld_boarding_fails`] for filter seeds (bogies) 1-7, N = 100: found again after the
+/// [`withheld_boarding_fails`] for filter seeds (bogies) 1-14, N = 100: found again after the
 /// stop because every particle draws its mass again from the prior when the states restart
-/// after a pause below the speed range (`Rbpf::forget_unmeasured_mass`): `C_sy` at the end
-/// +2.0, +1.7, +1.6, +2.1, +1.5, +2.6, +2.7 %, no alarm (the plant's speed held in 0.1 %
-/// steps; +2.5, +1.0, +1.6, +1.3, +1.2, +2.7, +1.6 % before). Before it the cloud kept the mass from before the stop, and the
-/// new one came only through the kernel's regenerated particles (1 % a move, at a tenth of
-/// the weight) while the heavier body's data were explained by a weaker `C_sy` and the jump
-/// hypotheses (at the old mass): +0.4, -9.8 (a false `C_say` alarm), -29.2 (false `C_sy` and
-/// `C_say` alarms), -20.4, +2.7, +0.4, -18.7 % with the states estimated after the stop
-/// (`rbpf/resume_init.rs`), +1.4, -3.5 (a false alarm), -5.2, -17.8, -2.2, +2.3, -0.9 % before
-/// that. Ignored for its time only.
+/// after a pause below the speed range (`Rbpf::forget_unmeasured_mass`). **Fails on main
+/// since 28 Nov's published side kept apart**: `C_sy` at the end (30 Nov) +0.69, **+3.67**,
+/// +0.41, +2.14, +1.05, +1.11, +0.88, **+3.41**, +1.69, -0.03, +1.68, -0.21, +0.87, +0.03 %,
+/// no alarm (before it all 14 within 1.9 %). The cloud reads the body 2.8 % heavy on
+/// average (17.37 t of 16.9 t, its 10-90 % a few tenths of a percent wide) although the
+/// likelihood over the last 9 s favours the truth by 24 nats over +2 %: it narrows on a heavy
+/// mass within 0.2 s of learning again (the log, 30 Nov; `examples/mass_trace.rs`). Before
+/// the redraw the cloud kept the mass from before the stop, and the new one came only
+/// through the kernel's regenerated particles (1 % a move, at a tenth of the weight) while
+/// the heavier body's data were explained by a weaker `C_sy` and the jump hypotheses (at the
+/// old mass): seeds 1-7 +0.4, -9.8 (a false `C_say` alarm), -29.2 (false `C_sy` and `C_say`
+/// alarms), -20.4, +2.7, +0.4, -18.7 % (29 Nov). Ignored for its time only.
 #[test]
-#[ignore = "85 s in release on 29 Nov, the seeds sharing the gain table (seed 3 alone runs in CI): \
+#[ignore = "70-85 s in release on 30 Nov, the seeds sharing the gain table (seed 3 alone runs in CI): \
             `cargo test --release -p railmon-damper --test stop -- --ignored --nocapture`"]
 fn a_load_change_at_a_stop_is_found_again_when_withheld_for_every_seed() {
-    let failed: Vec<_> = (1..=7).filter_map(withheld_boarding_fails).collect();
+    let failed: Vec<_> = (1..=14).filter_map(withheld_boarding_fails).collect();
     assert!(failed.is_empty(), "{failed:?}");
 }
